@@ -156,13 +156,22 @@ mod tests {
         let b = Aabb::new(Vec3::ZERO, Vec3::ONE);
         assert_eq!(b.surface_area(), 6.0);
         assert_eq!(b.half_area(), 3.0);
-        assert_eq!(Aabb::new(Vec3::ZERO, Vec3::new(2.0, 1.0, 0.0)).surface_area(), 4.0);
+        assert_eq!(
+            Aabb::new(Vec3::ZERO, Vec3::new(2.0, 1.0, 0.0)).surface_area(),
+            4.0
+        );
     }
 
     #[test]
     fn largest_axis_picks_longest_edge() {
-        assert_eq!(Aabb::new(Vec3::ZERO, Vec3::new(1.0, 5.0, 2.0)).largest_axis(), 1);
-        assert_eq!(Aabb::new(Vec3::ZERO, Vec3::new(1.0, 1.0, 2.0)).largest_axis(), 2);
+        assert_eq!(
+            Aabb::new(Vec3::ZERO, Vec3::new(1.0, 5.0, 2.0)).largest_axis(),
+            1
+        );
+        assert_eq!(
+            Aabb::new(Vec3::ZERO, Vec3::new(1.0, 1.0, 2.0)).largest_axis(),
+            2
+        );
     }
 
     fn v3() -> impl Strategy<Value = Vec3> {

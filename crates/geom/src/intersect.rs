@@ -1,1 +1,363 @@
-//! placeholder
+//! Ray/box and ray/triangle tests.
+//!
+//! The triangle test is the watertight algorithm of Woop, Benthin and Wald, "Watertight
+//! Ray/Triangle Intersection", JCGT 2(1), 2013: the ray is transformed so that it runs
+//! along +z from the origin, and the three 2D edge functions of the sheared triangle decide
+//! the hit. Edge functions of a shared edge are computed from the same operands in both
+//! triangles, so a ray through an edge or vertex of a closed mesh cannot slip through.
+//! Where an edge function is exactly zero it is recomputed in double precision, as the
+//! paper recommends, so the sign is decided correctly.
+//!
+//! The box test is the slab test. A zero direction component gets the largest finite
+//! reciprocal instead of infinity, so an origin exactly on a slab plane gives `0 * MAX = 0`
+//! (the plane touches the box) rather than `0 * inf = NaN`, and an origin outside the slab
+//! gives a distance beyond any real hit. The far distance is scaled by `1 + 2 gamma(3)` (Ize,
+//! "Robust BVH Ray Traversal", JCGT 2013) so that rounding never culls a box the
+//! triangle test would hit.
+
+use crate::{Aabb, Ray, Triangle};
+use glam::Vec3;
+
+/// Per-ray values shared by every box and triangle test of a traversal.
+#[derive(Clone, Copy, Debug)]
+pub struct RayPrecomp {
+    /// Ray origin.
+    pub origin: Vec3,
+    /// Ray direction.
+    pub dir: Vec3,
+    /// Component-wise reciprocal of the direction (`±f32::MAX` for zero components).
+    pub inv_dir: Vec3,
+    /// Axis of largest |dir| (the ray's "z" after permutation), and the other two.
+    k: [usize; 3],
+    /// Shear constants `Sx, Sy, Sz` of the watertight test.
+    shear: Vec3,
+}
+
+/// A ray/triangle hit: distance and barycentric weights of the three vertices.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct TriangleHit {
+    /// Hit distance along the ray (in units of the ray direction).
+    pub t: f32,
+    /// Barycentric weights of vertices 0, 1, 2 (non-negative, summing to 1).
+    pub bary: [f32; 3],
+}
+
+/// `1 + 2 gamma(3)` with `gamma(n) = n eps / (1 - n eps)`, `eps = 2^-24` (Ize 2013).
+const FAR_SCALE: f32 = 1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
+
+impl RayPrecomp {
+    /// Precomputes the values for `ray`.
+    #[inline]
+    pub fn new(ray: &Ray) -> Self {
+        let d = ray.dir;
+        let a = d.abs();
+        let kz = if a.x >= a.y && a.x >= a.z {
+            0
+        } else if a.y >= a.z {
+            1
+        } else {
+            2
+        };
+        let mut kx = (kz + 1) % 3;
+        let mut ky = (kx + 1) % 3;
+        // Keep the winding of the triangle after the permutation.
+        if d[kz] < 0.0 {
+            std::mem::swap(&mut kx, &mut ky);
+        }
+        let shear = Vec3::new(d[kx] / d[kz], d[ky] / d[kz], 1.0 / d[kz]);
+        RayPrecomp {
+            origin: ray.origin,
+            dir: d,
+            inv_dir: Vec3::new(safe_recip(d.x), safe_recip(d.y), safe_recip(d.z)),
+            k: [kx, ky, kz],
+            shear,
+        }
+    }
+}
+
+/// `1 / x`, or the largest finite value with the sign of `x` where that is infinite (zero
+/// or denormal `x`), so that the slab test never computes `0 * inf`.
+#[inline]
+fn safe_recip(x: f32) -> f32 {
+    let r = 1.0 / x;
+    if r.is_finite() {
+        r
+    } else {
+        f32::MAX.copysign(x)
+    }
+}
+
+/// Slab test: the entry distance of the ray into `b` when the ray overlaps it within
+/// `[t_min, t_max]`, else `None`.
+#[inline]
+pub fn ray_aabb(r: &RayPrecomp, b: &Aabb, t_min: f32, t_max: f32) -> Option<f32> {
+    let t0 = (b.min - r.origin) * r.inv_dir;
+    let t1 = (b.max - r.origin) * r.inv_dir;
+    let near =
+        t0.x.min(t1.x)
+            .max(t0.y.min(t1.y))
+            .max(t0.z.min(t1.z))
+            .max(t_min);
+    let far = t0.x.max(t1.x).min(t0.y.max(t1.y)).min(t0.z.max(t1.z)) * FAR_SCALE;
+    let far = far.min(t_max);
+    (near <= far).then_some(near)
+}
+
+/// Watertight ray/triangle test (Woop, Benthin and Wald 2013), without backface culling.
+/// Returns the hit when its distance lies in `[t_min, t_max]`. Degenerate triangles never
+/// hit.
+#[inline]
+pub fn intersect_triangle_watertight(
+    r: &RayPrecomp,
+    tri: &Triangle,
+    t_min: f32,
+    t_max: f32,
+) -> Option<TriangleHit> {
+    let [kx, ky, kz] = r.k;
+    let a = tri.v[0] - r.origin;
+    let b = tri.v[1] - r.origin;
+    let c = tri.v[2] - r.origin;
+    let s = r.shear;
+    let ax = a[kx] - s.x * a[kz];
+    let ay = a[ky] - s.y * a[kz];
+    let bx = b[kx] - s.x * b[kz];
+    let by = b[ky] - s.y * b[kz];
+    let cx = c[kx] - s.x * c[kz];
+    let cy = c[ky] - s.y * c[kz];
+    let mut u = cx * by - cy * bx;
+    let mut v = ax * cy - ay * cx;
+    let mut w = bx * ay - by * ax;
+    if u == 0.0 || v == 0.0 || w == 0.0 {
+        let (ax, ay, bx, by, cx, cy) = (
+            ax as f64, ay as f64, bx as f64, by as f64, cx as f64, cy as f64,
+        );
+        u = (cx * by - cy * bx) as f32;
+        v = (ax * cy - ay * cx) as f32;
+        w = (bx * ay - by * ax) as f32;
+    }
+    if (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0) {
+        return None;
+    }
+    let det = u + v + w;
+    if det == 0.0 || det.is_nan() {
+        return None;
+    }
+    let az = s.z * a[kz];
+    let bz = s.z * b[kz];
+    let cz = s.z * c[kz];
+    let t_scaled = u * az + v * bz + w * cz;
+    // Compare t = t_scaled / det against the range without dividing: flip signs by det's.
+    let sign = det.to_bits() & 0x8000_0000;
+    let ts = f32::from_bits(t_scaled.to_bits() ^ sign);
+    let det_abs = det.abs();
+    if ts < t_min * det_abs || ts > t_max * det_abs || ts.is_nan() {
+        return None;
+    }
+    let inv = 1.0 / det;
+    Some(TriangleHit {
+        t: t_scaled * inv,
+        bary: [u * inv, v * inv, w * inv],
+    })
+}
+
+impl Triangle {
+    /// Convenience wrapper of [`intersect_triangle_watertight`] for a single ray.
+    pub fn intersect(&self, ray: &Ray) -> Option<TriangleHit> {
+        intersect_triangle_watertight(&RayPrecomp::new(ray), self, ray.t_min, ray.t_max)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    fn v3(r: f32) -> impl Strategy<Value = Vec3> {
+        (-r..r, -r..r, -r..r).prop_map(|(x, y, z)| Vec3::new(x, y, z))
+    }
+
+    #[test]
+    fn hits_the_centre_of_a_triangle() {
+        let t = Triangle::new(Vec3::ZERO, Vec3::X, Vec3::Y);
+        let ray = Ray::new(Vec3::new(0.25, 0.25, 1.0), Vec3::new(0.0, 0.0, -2.0));
+        let h = t.intersect(&ray).unwrap();
+        assert!((h.t - 0.5).abs() < 1e-6);
+        assert!((h.bary[0] - 0.5).abs() < 1e-6 && (h.bary[1] - 0.25).abs() < 1e-6);
+        // Back side hits too (no culling); misses outside; range is respected.
+        let back = Ray::new(Vec3::new(0.25, 0.25, -1.0), Vec3::Z);
+        assert!(t.intersect(&back).is_some());
+        assert!(t
+            .intersect(&Ray::new(Vec3::new(0.8, 0.8, 1.0), -Vec3::Z))
+            .is_none());
+        let short = Ray::with_range(ray.origin, ray.dir, 0.0, 0.49);
+        assert!(t.intersect(&short).is_none());
+        let behind = Ray::new(Vec3::new(0.25, 0.25, 1.0), Vec3::Z);
+        assert!(t.intersect(&behind).is_none());
+    }
+
+    #[test]
+    fn degenerate_triangles_never_hit() {
+        let t = Triangle::new(Vec3::ZERO, Vec3::X, Vec3::X * 2.0);
+        let ray = Ray::new(Vec3::new(0.5, 0.0, 1.0), -Vec3::Z);
+        assert!(t.intersect(&ray).is_none());
+        let p = Triangle::new(Vec3::ONE, Vec3::ONE, Vec3::ONE);
+        assert!(p
+            .intersect(&Ray::new(Vec3::new(1.0, 1.0, 3.0), -Vec3::Z))
+            .is_none());
+    }
+
+    #[test]
+    fn shared_edges_and_vertices_of_a_fan_are_watertight() {
+        // A fan of 8 triangles around the origin, tilted so edges are not axis aligned.
+        let rot = glam::Quat::from_euler(glam::EulerRot::XYZ, 0.3, -0.7, 0.2);
+        let ring: Vec<Vec3> = (0..8)
+            .map(|i| {
+                let a = i as f32 * std::f32::consts::TAU / 8.0;
+                rot * Vec3::new(a.cos() * 1.7, a.sin() * 0.9, 0.1 * i as f32)
+            })
+            .collect();
+        let centre = rot * Vec3::new(0.0, 0.0, 0.35);
+        let tris: Vec<Triangle> = (0..8)
+            .map(|i| Triangle::new(centre, ring[i], ring[(i + 1) % 8]))
+            .collect();
+        let mut misses = 0;
+        let mut rng = 0x1234_5678_u64;
+        let mut next = || {
+            rng ^= rng << 13;
+            rng ^= rng >> 7;
+            rng ^= rng << 17;
+            (rng >> 40) as f32 / (1u64 << 24) as f32
+        };
+        for k in 0..20000 {
+            // Aim at the shared vertex or a point on a shared (interior) edge.
+            let i = k % 8;
+            let target = if k % 3 == 0 {
+                centre
+            } else {
+                centre.lerp(ring[i], next())
+            };
+            let origin = target + Vec3::new(next() - 0.5, next() - 0.5, 2.0 + next()) * 3.0;
+            let r = RayPrecomp::new(&Ray::new(origin, target - origin));
+            if !tris
+                .iter()
+                .any(|t| intersect_triangle_watertight(&r, t, 0.0, f32::INFINITY).is_some())
+            {
+                misses += 1;
+            }
+        }
+        assert_eq!(misses, 0);
+    }
+
+    #[test]
+    fn slab_test_handles_zero_direction_components() {
+        let b = Aabb::new(Vec3::ZERO, Vec3::ONE);
+        let pre = |o: Vec3, d: Vec3| RayPrecomp::new(&Ray::new(o, d));
+        // Axis-aligned ray through the box.
+        assert_eq!(
+            ray_aabb(
+                &pre(Vec3::new(0.5, 0.5, -1.0), Vec3::Z),
+                &b,
+                0.0,
+                f32::INFINITY
+            ),
+            Some(1.0)
+        );
+        // Parallel to x = 0 slab and outside it: miss.
+        assert_eq!(
+            ray_aabb(
+                &pre(Vec3::new(-0.1, 0.5, -1.0), Vec3::Z),
+                &b,
+                0.0,
+                f32::INFINITY
+            ),
+            None
+        );
+        // Origin exactly on the slab plane, zero component (0 * inf = NaN): touches.
+        assert!(ray_aabb(
+            &pre(Vec3::new(0.0, 0.5, -1.0), Vec3::Z),
+            &b,
+            0.0,
+            f32::INFINITY
+        )
+        .is_some());
+        assert!(ray_aabb(
+            &pre(Vec3::new(1.0, 1.0, -1.0), -Vec3::NEG_Z),
+            &b,
+            0.0,
+            f32::INFINITY
+        )
+        .is_some());
+        // Negative zero components behave like positive ones.
+        assert!(ray_aabb(
+            &pre(Vec3::new(0.5, 0.5, 2.0), Vec3::new(-0.0, -0.0, -1.0)),
+            &b,
+            0.0,
+            f32::INFINITY
+        )
+        .is_some());
+        // Range limits: box beyond t_max, box behind the origin.
+        assert_eq!(
+            ray_aabb(&pre(Vec3::new(0.5, 0.5, -5.0), Vec3::Z), &b, 0.0, 4.0),
+            None
+        );
+        assert_eq!(
+            ray_aabb(
+                &pre(Vec3::new(0.5, 0.5, 5.0), Vec3::Z),
+                &b,
+                0.0,
+                f32::INFINITY
+            ),
+            None
+        );
+        // Origin inside: entry distance is t_min.
+        assert_eq!(
+            ray_aabb(&pre(Vec3::splat(0.5), Vec3::X), &b, 0.0, f32::INFINITY),
+            Some(0.0)
+        );
+        // A flat box (zero thickness) is still hit.
+        let flat = Aabb::new(Vec3::ZERO, Vec3::new(1.0, 1.0, 0.0));
+        assert!(ray_aabb(
+            &pre(Vec3::new(0.5, 0.5, 1.0), -Vec3::Z),
+            &flat,
+            0.0,
+            f32::INFINITY
+        )
+        .is_some());
+    }
+
+    proptest! {
+        #[test]
+        fn aimed_rays_hit_at_the_expected_point(
+            a in v3(10.0), b in v3(10.0), c in v3(10.0), o in v3(50.0),
+            u in 0.02f32..0.96, v in 0.02f32..0.96,
+        ) {
+            let tri = Triangle::new(a, b, c);
+            prop_assume!(tri.area() > 1e-2);
+            // Keep the aimed point strictly inside: scale (u, v) so that w = 1 - u - v >= 0.04.
+            let (u, v) = if u + v > 0.96 { (u * 0.96 / (u + v), v * 0.96 / (u + v)) } else { (u, v) };
+            let p = a * (1.0 - u - v) + b * u + c * v;
+            let d = p - o;
+            prop_assume!(d.length() > 1e-2);
+            // Skip grazing rays, where the aimed point is ill-conditioned.
+            prop_assume!(tri.normal().normalize().dot(d.normalize()).abs() > 0.05);
+            let h = tri.intersect(&Ray::new(o, d));
+            prop_assert!(h.is_some());
+            let h = h.unwrap();
+            prop_assert!((h.t - 1.0).abs() < 1e-3, "t = {}", h.t);
+            let q = a * h.bary[0] + b * h.bary[1] + c * h.bary[2];
+            prop_assert!((q - p).length() < 1e-2 * (1.0 + p.length()));
+        }
+
+        #[test]
+        fn hit_implies_box_hit(a in v3(10.0), b in v3(10.0), c in v3(10.0), o in v3(50.0), d in v3(1.0)) {
+            prop_assume!(d.length() > 1e-3);
+            let tri = Triangle::new(a, b, c);
+            let pre = RayPrecomp::new(&Ray::new(o, d));
+            if let Some(h) = intersect_triangle_watertight(&pre, &tri, 0.0, f32::INFINITY) {
+                let e = ray_aabb(&pre, &tri.aabb(), 0.0, f32::INFINITY);
+                prop_assert!(e.is_some());
+                prop_assert!(e.unwrap() <= h.t * FAR_SCALE);
+            }
+        }
+    }
+}
