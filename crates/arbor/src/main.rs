@@ -1,1 +1,58 @@
-fn main() {}
+//! The `arbor` command: scene inspection, and (as the project grows) BVH builds, rendering,
+//! hardware simulation, benchmarks and reports. Every subcommand is a thin layer over the
+//! library crates; `--json` output is the stable interface for scripts (see
+//! `docs/cli-json.md`).
+
+mod cmd;
+mod progress;
+
+use clap::{Parser, Subcommand};
+use std::process::ExitCode;
+
+/// Arbor: BVH construction, compression and traversal for animated ray tracing, and
+/// cycle-level models of the hardware that does it.
+#[derive(Parser)]
+#[command(name = "arbor", version, about, long_about = None)]
+struct Cli {
+    /// Hide progress bars and warnings.
+    #[arg(long, short, global = true)]
+    quiet: bool,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Print a scene's triangle count, bounds, frames and load time.
+    Info(cmd::info::InfoArgs),
+    /// Run the main job on the bundled default scene (or another) and summarize it.
+    Demo(cmd::demo::DemoArgs),
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    let ui = progress::Ui { quiet: cli.quiet };
+    let result = match cli.command {
+        Command::Info(a) => cmd::info::run(&a, &ui),
+        Command::Demo(a) => cmd::demo::run(&a, &ui),
+    };
+    match result {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            // One line: the error and its causes, outermost first, skipping a cause whose
+            // text the line already holds (library errors often include their source).
+            let mut line = String::new();
+            for cause in e.chain().map(|c| c.to_string()) {
+                if line.contains(&cause) {
+                    continue;
+                }
+                if !line.is_empty() {
+                    line.push_str(": ");
+                }
+                line.push_str(&cause);
+            }
+            eprintln!("arbor: error: {}", line.replace('\n', " "));
+            ExitCode::FAILURE
+        }
+    }
+}

@@ -64,7 +64,9 @@ impl Mesh {
             .enumerate()
             .find(|(_, t)| t.iter().any(|&v| v as usize >= n))
         {
-            return Err(format!("triangle {i} has index out of range: {t:?} (vertices: {n})"));
+            return Err(format!(
+                "triangle {i} has index out of range: {t:?} (vertices: {n})"
+            ));
         }
         if self.material_ids.len() != self.triangles.len() {
             return Err(format!(

@@ -11,5 +11,8 @@ pub fn load(path: &Path, opts: &LoadOptions) -> Result<LoadedMesh, SceneError> {
 
 /// Parses obj file contents; `path` only names the file in errors.
 pub fn parse(_bytes: &[u8], path: &Path, _opts: &LoadOptions) -> Result<LoadedMesh, SceneError> {
-    Err(SceneError::unsupported(path, "obj loader not yet implemented"))
+    Err(SceneError::unsupported(
+        path,
+        "obj loader not yet implemented",
+    ))
 }

@@ -1,6 +1,8 @@
 //! The [`Scene`] trait, scene metadata and [`open`], which turns a spec string into a scene.
 
-use crate::{gltf_scene, keyframes, mesh::LoadedMesh, obj, ply, procedural, spec, Camera, Mesh, SceneError};
+use crate::{
+    gltf_scene, keyframes, mesh::LoadedMesh, obj, ply, procedural, spec, Camera, Mesh, SceneError,
+};
 use serde::Serialize;
 use std::path::Path;
 use std::sync::Arc;
@@ -53,7 +55,8 @@ impl Timeline {
 
     /// Number of frames: those at `0, 1/fps, ...` up to and including `duration_s`.
     pub fn frame_count(&self) -> u32 {
-        if !(self.duration_s > 0.0) || !(self.fps > 0.0) {
+        let positive = |x: f32| x > 0.0; // false for NaN too
+        if !positive(self.duration_s) || !positive(self.fps) {
             return 1;
         }
         // The small slack makes a duration of exactly (n-1)/fps give n frames despite rounding.
@@ -250,7 +253,12 @@ mod tests {
         let dir = tempfile::tempdir().unwrap();
         let p = dir.path().join("scene.xyz");
         std::fs::write(&p, b"hello").unwrap();
-        let e = open(p.to_str().unwrap(), &LoadOptions::default()).err().unwrap();
-        assert!(e.to_string().contains("unknown scene file extension"), "{e}");
+        let e = open(p.to_str().unwrap(), &LoadOptions::default())
+            .err()
+            .unwrap();
+        assert!(
+            e.to_string().contains("unknown scene file extension"),
+            "{e}"
+        );
     }
 }

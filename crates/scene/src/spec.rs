@@ -62,8 +62,9 @@ impl ProcSpec {
         hi: T,
     ) -> Result<T, String> {
         let v = self.get(key, default)?;
-        // `!(v >= lo)` also rejects NaN.
-        if !(v >= lo) || !(v <= hi) {
+        // Written so that NaN (incomparable) is rejected too.
+        let inside = v >= lo && v <= hi;
+        if !inside {
             return Err(format!("parameter {key}={v}: must be in [{lo}, {hi}]"));
         }
         Ok(v)
@@ -120,7 +121,10 @@ mod tests {
         assert!(ProcSpec::parse("cloth?n").is_err());
         assert!(ProcSpec::parse("cloth?n=1&n=2").is_err());
         let s = ProcSpec::parse("cloth?n=abc&zzz=1").unwrap();
-        assert!(s.get::<usize>("n", 1).unwrap_err().contains("not a valid integer"));
+        assert!(s
+            .get::<usize>("n", 1)
+            .unwrap_err()
+            .contains("not a valid integer"));
         assert!(s.finish().unwrap_err().contains("zzz"));
         let s = ProcSpec::parse("cloth?n=0").unwrap();
         assert!(s.get_in::<usize>("n", 1, 2, 10).is_err());

@@ -1,0 +1,82 @@
+//! Subcommands, one file each.
+
+pub mod demo;
+pub mod info;
+
+use crate::progress::{Ui, Unit};
+use anyhow::Context;
+use scene::{LoadOptions, Scene};
+use std::time::{Duration, Instant};
+
+/// Options every command that opens a scene takes.
+#[derive(clap::Args, Clone, Debug)]
+pub struct SceneArgs {
+    /// A mesh file (.ply .obj .gltf .glb), a directory or quoted glob of frame meshes, or a
+    /// procedural spec such as 'proc:cloth?n=100000&seed=1'.
+    pub scene: String,
+    /// Frame rate used to number frames of keyframe sequences and animations.
+    #[arg(long, value_name = "FPS")]
+    pub fps: Option<f32>,
+    /// glTF: the animation to play, by index or name (default: the first).
+    #[arg(long, value_name = "NAME|INDEX")]
+    pub animation: Option<String>,
+}
+
+/// Opens the scene named by `args`, with a progress bar when it takes a while, and
+/// returns it with the time the open took.
+pub fn open_scene(args: &SceneArgs, ui: &Ui) -> anyhow::Result<(Box<dyn Scene>, Duration)> {
+    if let Some(fps) = args.fps {
+        anyhow::ensure!(
+            fps.is_finite() && fps > 0.0,
+            "--fps must be a positive number, got {fps}"
+        );
+    }
+    let bar = ui.progress(&format!("loading {}", args.scene), Unit::Bytes);
+    let opts = LoadOptions {
+        progress: Some(bar.callback()),
+        fps: args.fps,
+        animation: args.animation.clone(),
+    };
+    let start = Instant::now();
+    let scene = scene::open(&args.scene, &opts);
+    bar.finish();
+    let scene = scene.with_context(|| "cannot open scene".to_string())?;
+    let elapsed = start.elapsed();
+    let dropped = scene.info().dropped_triangles;
+    if dropped > 0 {
+        ui.warn(&format!(
+            "{}: dropped {dropped} triangle(s) with NaN or infinite coordinates",
+            args.scene
+        ));
+    }
+    Ok((scene, elapsed))
+}
+
+/// Milliseconds of a duration, as a float.
+pub fn ms(d: Duration) -> f64 {
+    d.as_secs_f64() * 1e3
+}
+
+/// `1234567` as `1,234,567`.
+pub fn thousands(n: u64) -> String {
+    let s = n.to_string();
+    let mut out = String::with_capacity(s.len() + s.len() / 3);
+    for (i, c) in s.chars().enumerate() {
+        if i > 0 && (s.len() - i).is_multiple_of(3) {
+            out.push(',');
+        }
+        out.push(c);
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn thousands_groups_digits() {
+        assert_eq!(super::thousands(0), "0");
+        assert_eq!(super::thousands(999), "999");
+        assert_eq!(super::thousands(1000), "1,000");
+        assert_eq!(super::thousands(1234567), "1,234,567");
+    }
+}

@@ -1,0 +1,96 @@
+//! Progress bars that appear only when work takes more than a second, and only on a
+//! terminal (indicatif draws nothing when stderr is not a TTY).
+
+use indicatif::{ProgressBar, ProgressStyle};
+use std::sync::{Arc, Mutex};
+use std::time::{Duration, Instant};
+
+/// How long work may run before a progress bar appears.
+const SHOW_AFTER: Duration = Duration::from_secs(1);
+
+/// User-interface settings shared by all subcommands.
+pub struct Ui {
+    /// No progress bars and no warnings.
+    pub quiet: bool,
+}
+
+impl Ui {
+    /// Prints a warning to stderr unless quiet.
+    pub fn warn(&self, msg: &str) {
+        if !self.quiet {
+            eprintln!("arbor: warning: {msg}");
+        }
+    }
+
+    /// A progress reporter labelled `what`, counting in `unit` (`bytes` or a plain count).
+    pub fn progress(&self, what: &str, unit: Unit) -> LazyBar {
+        LazyBar(Arc::new(Inner {
+            start: Instant::now(),
+            bar: Mutex::new(None),
+            what: what.to_string(),
+            unit,
+            hidden: self.quiet,
+        }))
+    }
+}
+
+/// What a progress bar counts.
+#[derive(Clone, Copy)]
+pub enum Unit {
+    /// Bytes of input.
+    Bytes,
+    /// Items (frames, rays, ...).
+    Items,
+}
+
+struct Inner {
+    start: Instant,
+    bar: Mutex<Option<ProgressBar>>,
+    what: String,
+    unit: Unit,
+    hidden: bool,
+}
+
+/// A progress bar that is created on the first update after [`SHOW_AFTER`].
+#[derive(Clone)]
+pub struct LazyBar(Arc<Inner>);
+
+impl LazyBar {
+    /// Records that `done` of `total` are finished.
+    pub fn update(&self, done: u64, total: u64) {
+        let inner = &self.0;
+        if inner.hidden || inner.start.elapsed() < SHOW_AFTER {
+            return;
+        }
+        let mut slot = inner.bar.lock().unwrap_or_else(|p| p.into_inner());
+        let bar = slot.get_or_insert_with(|| {
+            let template = match inner.unit {
+                Unit::Bytes => {
+                    "{msg} [{bar:40}] {bytes}/{total_bytes} ({bytes_per_sec}, eta {eta})"
+                }
+                Unit::Items => "{msg} [{bar:40}] {pos}/{len} (eta {eta})",
+            };
+            let pb = ProgressBar::new(total);
+            if let Ok(style) = ProgressStyle::with_template(template) {
+                pb.set_style(style.progress_chars("=> "));
+            }
+            pb.set_message(inner.what.clone());
+            pb
+        });
+        bar.set_length(total);
+        bar.set_position(done);
+    }
+
+    /// A callback for the scene loaders.
+    pub fn callback(&self) -> scene::ProgressFn {
+        let me = self.clone();
+        Arc::new(move |done, total| me.update(done, total))
+    }
+
+    /// Removes the bar, if one was shown.
+    pub fn finish(&self) {
+        if let Some(b) = self.0.bar.lock().unwrap_or_else(|p| p.into_inner()).take() {
+            b.finish_and_clear();
+        }
+    }
+}
