@@ -376,6 +376,46 @@ pub(crate) mod tests {
     }
 
     #[test]
+    fn independent_of_thread_count() {
+        let run = |threads: usize, s: &str| {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            pool.install(|| open_proc(s).mesh_at(0.77).unwrap())
+        };
+        for s in [
+            "cloth?n=3000",
+            "skinned?n=3000",
+            "explode?n=3000",
+            "fluid?n=3000",
+            "forest?n=3000",
+            "soup?n=100000",
+        ] {
+            assert_eq!(run(1, s), run(3, s), "{s}");
+        }
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(24))]
+        /// Any scene, size, seed and time gives a valid, finite, non-empty mesh.
+        #[test]
+        fn any_seed_and_time_is_valid(
+            which in 0usize..6,
+            n in 100usize..3000,
+            seed in proptest::prelude::any::<u64>(),
+            t in -1.0f32..4.0,
+        ) {
+            let s = open_proc(&format!("{}?n={n}&seed={seed}", NAMES[which]));
+            let m = s.mesh_at(t).unwrap();
+            proptest::prop_assert!(m.check().is_ok());
+            proptest::prop_assert!(m.triangle_count() > 0);
+            proptest::prop_assert!(m.positions.iter().all(|p| p.is_finite()));
+            proptest::prop_assert!(s.info().camera.eye.is_finite());
+        }
+    }
+
+    #[test]
     fn unknown_scene_lists_names() {
         let e = open_err("teapot?n=5");
         assert!(

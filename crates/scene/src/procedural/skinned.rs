@@ -169,7 +169,7 @@ impl Skinned {
                 } else {
                     Vec3::new(0.0, seg, 0.0)
                 };
-                posed = posed * Affine3A::from_rotation_translation(rot, step);
+                posed *= Affine3A::from_rotation_translation(rot, step);
                 let bind_inv = Affine3A::from_translation(Vec3::new(0.0, -seg * j as f32, 0.0));
                 out.push(tc.placement * posed * bind_inv);
             }
