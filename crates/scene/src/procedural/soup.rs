@@ -130,6 +130,17 @@ mod tests {
         assert!((pos_x as f64 / 2e6 - 0.5).abs() < 0.01, "{pos_x}");
     }
 
+    /// The scale target: too slow for the suite, run by hand with
+    /// `/usr/bin/time -v <test binary> --ignored --exact procedural::soup::tests::twenty_million`.
+    #[test]
+    #[ignore]
+    fn twenty_million() {
+        let t0 = std::time::Instant::now();
+        let m = open_proc("soup?n=20000000").mesh_at(1.0).unwrap();
+        assert_eq!(m.triangle_count(), 20_000_000);
+        println!("soup n=20M: {:?}", t0.elapsed());
+    }
+
     #[test]
     fn chunks_are_independent_streams() {
         // The first triangles of a larger soup are those of a smaller one (same seed and
