@@ -1,7 +1,7 @@
 //! `cloth`: a finely tessellated flag that starts exactly flat and waves.
 //!
 //! At t = 0 the sheet lies in the plane z = 0 (every z is exactly 0.0), the degenerate
-//! axis that quantized BVH encoders must handle ([P3] §4.4: a node whose box has zero
+//! axis that quantized BVH encoders must handle (\[P3\] §4.4: a node whose box has zero
 //! extent on one axis). Over time travelling waves whose amplitude ramps up from 0 move it
 //! along z, growing from the pole edge (x = 0, held still) to the free edge, like a flag.
 //!

@@ -252,12 +252,22 @@ fn orientation(a: u8, b: u8, c: u8, d: u8) -> i32 {
 /// `(ab, ac, ad)` faces away from `a`, and the quad `(ac, ad, bd, bc)` faces away from
 /// `a` and `b`; a negative orientation flips both.
 fn march_tet(tet: &[u8; 4], inside: u8, edge: &impl Fn(u8, u8) -> u64, out: &mut Vec<[u64; 3]>) {
-    let is_in = |c: u8| inside >> c & 1 == 1;
-    let ins: Vec<u8> = tet.iter().copied().filter(|&c| is_in(c)).collect();
-    let outs: Vec<u8> = tet.iter().copied().filter(|&c| !is_in(c)).collect();
-    match ins.len() {
+    // Split the corners (in tetrahedron order) into inside and outside, without allocating:
+    // this runs for every tetrahedron the surface crosses.
+    let (mut ins, mut outs) = ([0u8; 4], [0u8; 4]);
+    let (mut ni, mut no) = (0, 0);
+    for &c in tet {
+        if inside >> c & 1 == 1 {
+            ins[ni] = c;
+            ni += 1;
+        } else {
+            outs[no] = c;
+            no += 1;
+        }
+    }
+    match ni {
         1 | 3 => {
-            let (a, rest) = if ins.len() == 1 {
+            let (a, rest) = if ni == 1 {
                 (ins[0], &outs)
             } else {
                 (outs[0], &ins)
@@ -265,7 +275,7 @@ fn march_tet(tet: &[u8; 4], inside: u8, edge: &impl Fn(u8, u8) -> u64, out: &mut
             let (b, c, d) = (rest[0], rest[1], rest[2]);
             let mut tri = [edge(a, b), edge(a, c), edge(a, d)];
             // Faces away from `a`: outward when `a` is the one inside.
-            if (orientation(a, b, c, d) > 0) != (ins.len() == 1) {
+            if (orientation(a, b, c, d) > 0) != (ni == 1) {
                 tri.swap(1, 2);
             }
             out.push(tri);

@@ -6,7 +6,7 @@
 //! Trees are scattered uniformly at random; each sways with its own phase, displacement
 //! growing with the square of height so trunks stay rooted.
 //!
-//! Parameters: `n` (default 200 000, 1 000..=10 M) is rounded to whole trees of
+//! Parameters: `n` (default 200 000, 100..=10 M) is rounded to whole trees of
 //! `192 + leaves` triangles (48 trunk, 3 canopy blobs of 48, the leaves) plus the 8 ground
 //! triangles; `leaves` per tree (default 150, 0..=10 000); `wind` (default 0.15, 0..=10) is
 //! the sway amplitude at height 4.
@@ -77,7 +77,7 @@ const LEAF: u32 = 3;
 impl Forest {
     /// Reads the parameters and places the trees.
     pub(crate) fn new(p: &Params) -> Result<Self, SceneError> {
-        let c = p.common(200_000, 1_000, 10_000_000)?;
+        let c = p.common(200_000, 100, 10_000_000)?;
         let leaves = p.get_in("leaves", 150u32, 0, 10_000)?;
         let wind = p.get_in("wind", 0.15f32, 0.0, 10.0)?;
         p.finish()?;
@@ -268,7 +268,7 @@ mod tests {
             assert!((c as f64 / n as f64 - 1.0).abs() < 0.05, "n={n}: {c}");
         }
         // One tree at least.
-        let c = open_proc("forest?n=1000&leaves=10000")
+        let c = open_proc("forest?n=100&leaves=10000")
             .mesh_at(0.0)
             .unwrap()
             .triangle_count();

@@ -17,7 +17,7 @@
 //! (grid cells, rings, trees, ...), as its module documents. Unknown parameters are errors.
 //!
 //! Everything is a pure function of (seed, parameters, t): random numbers come from
-//! [`Rng`] streams keyed by element index, never from shared state, and parallel work
+//! `Rng` streams keyed by element index, never from shared state, and parallel work
 //! writes each element independently, so the meshes are bit-identical on any thread count.
 
 mod cloth;

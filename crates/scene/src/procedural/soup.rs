@@ -38,8 +38,8 @@ impl Soup {
         let size = p.get_in("size", auto, 1e-6, 2.0)?;
         let jitter = p.get_in("jitter", 0.25f32, 0.0, 100.0)?;
         p.finish()?;
-        // Centroids in [-1, 1]^3, vertices within size/2 of them, orbits of radius up to
-        // sqrt(2) * jitter * size per axis (|a sin + b (cos - 1)| <= 1 + 2).
+        // Centroids in [-1, 1]^3, vertices within size/2 of them, orbits within
+        // 3 * jitter * size per axis (|a sin + b (cos - 1)| <= 1 + 2).
         let r = 0.5 * size + 3.0 * jitter * size;
         let bounds = Aabb::new(Vec3::splat(-1.0 - r), Vec3::splat(1.0 + r));
         Ok(Soup {
