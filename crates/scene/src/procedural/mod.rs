@@ -345,6 +345,17 @@ pub(crate) mod tests {
             "{s}: no motion"
         );
         assert_eq!(a.mesh_at(d).unwrap(), a.mesh_at_frame(u32::MAX).unwrap());
+        // The default camera sees every vertex of the first, middle and last frames.
+        let cam = info.camera;
+        let fwd = (cam.target - cam.eye).normalize();
+        let cos_half = (0.5 * cam.vfov_deg.to_radians()).cos();
+        for t in [0.0, 0.5 * d, d] {
+            let m = a.mesh_at(t).unwrap();
+            for p in &m.positions {
+                let c = (*p - cam.eye).normalize().dot(fwd);
+                assert!(c >= cos_half - 1e-4, "{s}: {p} outside the camera at t={t}");
+            }
+        }
     }
 
     #[test]
