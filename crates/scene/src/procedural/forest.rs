@@ -2,7 +2,8 @@
 //!
 //! The point is very uneven triangle sizes, which stresses spatial splits and SAH
 //! builders: the ground is 8 huge triangles, trunks are medium, canopies are blobs of small
-//! triangles and leaves are many tiny free triangles (ground/leaf area ratio above 1e4, typically 1e5).
+//! triangles and leaves are many tiny free triangles (ground/leaf area ratio above 1e4,
+//! typically 1e5).
 //! Trees are scattered uniformly at random; each sways with its own phase, displacement
 //! growing with the square of height so trunks stay rooted.
 //!
