@@ -94,3 +94,53 @@ impl LazyBar {
         }
     }
 }
+
+/// A spinner for work that reports no progress of its own (sampling a frame, a build): it
+/// appears if the work is still running after [`SHOW_AFTER`] and vanishes when dropped.
+pub struct Spinner {
+    done: Option<std::sync::mpsc::Sender<()>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+}
+
+impl Ui {
+    /// Starts a delayed spinner labelled `what`.
+    pub fn spinner(&self, what: &str) -> Spinner {
+        if self.quiet {
+            return Spinner {
+                done: None,
+                thread: None,
+            };
+        }
+        let (tx, rx) = std::sync::mpsc::channel::<()>();
+        let what = what.to_string();
+        let thread = std::thread::spawn(move || {
+            if rx.recv_timeout(SHOW_AFTER).is_ok() {
+                return;
+            }
+            let pb = ProgressBar::new_spinner();
+            if let Ok(style) = ProgressStyle::with_template("{spinner} {msg} ({elapsed})") {
+                pb.set_style(style);
+            }
+            pb.set_message(what);
+            pb.enable_steady_tick(Duration::from_millis(120));
+            // Returns on the message or when the sender is dropped.
+            let _ = rx.recv();
+            pb.finish_and_clear();
+        });
+        Spinner {
+            done: Some(tx),
+            thread: Some(thread),
+        }
+    }
+}
+
+impl Drop for Spinner {
+    fn drop(&mut self) {
+        if let Some(tx) = self.done.take() {
+            let _ = tx.send(());
+        }
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
+}

@@ -36,4 +36,6 @@ pub mod spec;
 pub use camera::Camera;
 pub use error::SceneError;
 pub use mesh::{LoadedMesh, Mesh};
-pub use source::{open, LoadOptions, ProgressFn, Scene, SceneInfo, StaticScene, Timeline};
+pub use source::{
+    open, LoadOptions, ProgressFn, Scene, SceneInfo, StaticScene, Timeline, DEFAULT_FPS,
+};

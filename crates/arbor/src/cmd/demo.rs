@@ -64,7 +64,7 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
     };
     println!("Arbor demo");
     let (scene, open) = open_scene(&sargs, ui)?;
-    let info = gather(&spec, scene.as_ref(), open, None, Some(0))?;
+    let info = gather(ui, &spec, scene.as_ref(), open, None, Some(0))?;
     println!(
         "  scene      {} ({}): {} triangles, {} frames over {:.2} s, topology {}",
         info.name,

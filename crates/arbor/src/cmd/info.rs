@@ -66,6 +66,7 @@ pub fn bounds_json(mesh: &Mesh) -> Option<BoundsJson> {
 
 /// Samples `scene` and gathers what `info` reports.
 pub fn gather(
+    ui: &Ui,
     spec: &str,
     scene: &dyn Scene,
     open: Duration,
@@ -92,10 +93,12 @@ pub fn gather(
         (None, None) => 0.0,
     };
     let start = Instant::now();
+    let spinner = ui.spinner(&format!("sampling {spec} at t = {t} s"));
     let mesh = scene
         .mesh_at(t)
         .with_context(|| format!("cannot sample the scene at t = {t} s"))?;
     let sample = start.elapsed();
+    drop(spinner);
     Ok(InfoJson {
         schema: "arbor.info.v1",
         scene: spec.to_string(),
@@ -123,6 +126,7 @@ pub fn gather(
 pub fn run(args: &InfoArgs, ui: &Ui) -> anyhow::Result<()> {
     let (scene, open) = open_scene(&args.scene, ui)?;
     let j = gather(
+        ui,
         &args.scene.scene,
         scene.as_ref(),
         open,
