@@ -166,7 +166,8 @@ pub fn parse(
     {
         return Err(SceneError::unsupported(path, format!("required extension {x}")));
     }
-    let doc = gltf::Document::from_json(root).map_err(|e| bad(format!("invalid glTF: {e}")))?;
+    validate(&root).map_err(|m| bad(format!("invalid glTF: {m}")))?;
+    let doc = gltf::Document::from_json_without_validation(root);
     let buffers = data::resolve_buffers(&doc, bin, base_dir, path)?;
     let reader = data::Reader {
         path,
@@ -178,6 +179,27 @@ pub fn parse(
         rd: reader,
     }
     .load(opts)
+}
+
+/// The `gltf` crate's validation (every index in range, every enum known), which the
+/// crate's accessors rely on to not panic, except that missing POSITION `min`/`max` bounds
+/// are tolerated: many exporters omit them and they are not needed here.
+fn validate(root: &gltf::json::Root) -> Result<(), String> {
+    use gltf::json::validation::{Error, Validate};
+    let mut errors = Vec::new();
+    root.validate(root, gltf::json::Path::new, &mut |path, e| {
+        let path = path();
+        let p = path.as_str();
+        let bounds = matches!(e, Error::Missing) && (p.ends_with(".min") || p.ends_with(".max"));
+        if !bounds && errors.len() < 4 {
+            errors.push(format!("{p}: {e}"));
+        }
+    });
+    if errors.is_empty() {
+        Ok(())
+    } else {
+        Err(errors.join("; "))
+    }
 }
 
 struct Loader<'a> {
@@ -478,6 +500,7 @@ impl Loader<'_> {
             .doc
             .meshes()
             .flat_map(|m| m.primitives())
+            .filter(|p| matches!(p.mode(), Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan))
             .any(|p| p.material().index().is_none());
         if needs_default {
             names.push("default".into());
