@@ -50,7 +50,11 @@ impl Channel {
     /// Value `k` (the middle group for cubic splines).
     fn value(&self, k: usize) -> &[f32] {
         let w = self.width;
-        let g = if self.interp == Interp::Cubic { 3 * k + 1 } else { k };
+        let g = if self.interp == Interp::Cubic {
+            3 * k + 1
+        } else {
+            k
+        };
         &self.values[g * w..(g + 1) * w]
     }
 
@@ -59,7 +63,7 @@ impl Channel {
         let n = self.times.len();
         let w = self.width;
         // Keys are validated non-empty at load.
-        if n == 1 || !(t > self.times[0]) {
+        if n == 1 || t.partial_cmp(&self.times[0]) != Some(std::cmp::Ordering::Greater) {
             out.copy_from_slice(self.value(0));
             return self.fix_rotation(out);
         }
@@ -71,7 +75,11 @@ impl Channel {
         let k = self.times.partition_point(|&x| x <= t) - 1;
         let (t0, t1) = (self.times[k], self.times[k + 1]);
         let dt = t1 - t0;
-        let s = if dt > 0.0 { ((t - t0) / dt).clamp(0.0, 1.0) } else { 0.0 };
+        let s = if dt > 0.0 {
+            ((t - t0) / dt).clamp(0.0, 1.0)
+        } else {
+            0.0
+        };
         match self.interp {
             Interp::Step => out.copy_from_slice(self.value(k)),
             Interp::Linear if self.target == Target::Rotation => {
@@ -157,12 +165,21 @@ mod tests {
 
     #[test]
     fn linear_step_and_holds() {
-        let c = ch(Target::Translation, Interp::Linear, &[1.0, 3.0], &[0., 0., 0., 4., -2., 8.], 3);
+        let c = ch(
+            Target::Translation,
+            Interp::Linear,
+            &[1.0, 3.0],
+            &[0., 0., 0., 4., -2., 8.],
+            3,
+        );
         assert_eq!(sample(&c, 0.0), vec![0., 0., 0.]); // before first key: first value
         assert_eq!(sample(&c, 2.0), vec![2., -1., 4.]);
         assert_eq!(sample(&c, 2.5), vec![3., -1.5, 6.]);
         assert_eq!(sample(&c, 9.0), vec![4., -2., 8.]); // after last key: last value
-        let s = Channel { interp: Interp::Step, ..c };
+        let s = Channel {
+            interp: Interp::Step,
+            ..c
+        };
         assert_eq!(sample(&s, 2.9), vec![0., 0., 0.]);
         assert_eq!(sample(&s, 3.0), vec![4., -2., 8.]);
     }
@@ -193,7 +210,13 @@ mod tests {
         // Scalar-like weights channel: keys at 0 and 2, values 0 and 1, out-tangent of key 0
         // = 1, in-tangent of key 1 = 0. At s = 0.5: h00=0.5, h10=0.125, h01=0.5, h11=-0.125,
         // so p = 0.5*0 + 0.125*2*1 + 0.5*1 + (-0.125)*2*0 = 0.75.
-        let c = ch(Target::Weights, Interp::Cubic, &[0.0, 2.0], &[9., 0., 1., 0., 1., 9.], 1);
+        let c = ch(
+            Target::Weights,
+            Interp::Cubic,
+            &[0.0, 2.0],
+            &[9., 0., 1., 0., 1., 9.],
+            1,
+        );
         assert!((sample(&c, 1.0)[0] - 0.75).abs() < 1e-6);
         assert_eq!(sample(&c, -1.0), vec![0.0]);
         assert_eq!(sample(&c, 5.0), vec![1.0]);

@@ -125,11 +125,16 @@ pub(super) fn resolve_buffers(
                 if i != 0 {
                     return Err(SceneError::malformed(
                         path,
-                        format!("buffer {i} has no uri (only buffer 0 may use the GLB binary chunk)"),
+                        format!(
+                            "buffer {i} has no uri (only buffer 0 may use the GLB binary chunk)"
+                        ),
                     ));
                 }
                 bin.ok_or_else(|| {
-                    SceneError::malformed(path, "buffer 0 has no uri and there is no GLB binary chunk")
+                    SceneError::malformed(
+                        path,
+                        "buffer 0 has no uri and there is no GLB binary chunk",
+                    )
                 })?
                 .to_vec()
             }
@@ -170,7 +175,8 @@ fn load_uri(
             SceneError::malformed(path, format!("buffer {i}: bad base64 data uri: {e}"))
         });
     }
-    let rel = percent_decode(uri).map_err(|m| SceneError::malformed(path, format!("buffer {i}: {m}")))?;
+    let rel =
+        percent_decode(uri).map_err(|m| SceneError::malformed(path, format!("buffer {i}: {m}")))?;
     let rel_path = PathBuf::from(&rel);
     let escapes = rel.contains("://")
         || rel.contains(':')
@@ -192,12 +198,18 @@ fn load_uri(
     })?;
     let file = dir.join(&rel_path);
     let f = std::fs::File::open(&file).map_err(|e| {
-        SceneError::malformed(path, format!("buffer {i}: cannot open '{}': {e}", file.display()))
+        SceneError::malformed(
+            path,
+            format!("buffer {i}: cannot open '{}': {e}", file.display()),
+        )
     })?;
     // Read no more than declared: a huge unrelated file costs nothing.
     let mut data = Vec::new();
     f.take(want as u64).read_to_end(&mut data).map_err(|e| {
-        SceneError::malformed(path, format!("buffer {i}: cannot read '{}': {e}", file.display()))
+        SceneError::malformed(
+            path,
+            format!("buffer {i}: cannot read '{}': {e}", file.display()),
+        )
     })?;
     Ok(data)
 }
@@ -220,7 +232,9 @@ fn to_f32(b: &[u8], dt: DataType, normalized: bool) -> f32 {
         DataType::I8 => b[0] as i8 as f32,
         DataType::U16 if normalized => u16::from_le_bytes([b[0], b[1]]) as f32 / 65535.0,
         DataType::U16 => u16::from_le_bytes([b[0], b[1]]) as f32,
-        DataType::I16 if normalized => (i16::from_le_bytes([b[0], b[1]]) as f32 / 32767.0).max(-1.0),
+        DataType::I16 if normalized => {
+            (i16::from_le_bytes([b[0], b[1]]) as f32 / 32767.0).max(-1.0)
+        }
         DataType::I16 => i16::from_le_bytes([b[0], b[1]]) as f32,
         DataType::U32 => u32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f32,
     }
@@ -262,7 +276,10 @@ impl Reader<'_> {
         elem: usize,
     ) -> Result<(&[u8], usize), SceneError> {
         let buf = self.buffers.get(view.buffer().index()).ok_or_else(|| {
-            self.err(format!("{what}: buffer view {} has no buffer", view.index()))
+            self.err(format!(
+                "{what}: buffer view {} has no buffer",
+                view.index()
+            ))
         })?;
         let stride = view.stride().unwrap_or(elem);
         if stride < elem {
@@ -355,16 +372,28 @@ impl Reader<'_> {
                 gltf::accessor::sparse::IndexType::U16 => DataType::U16,
                 gltf::accessor::sparse::IndexType::U32 => DataType::U32,
             };
-            let (ib, istride) =
-                self.view_range(&format!("{what} sparse indices"), &ind.view(), ind.offset(), n, it.size())?;
+            let (ib, istride) = self.view_range(
+                &format!("{what} sparse indices"),
+                &ind.view(),
+                ind.offset(),
+                n,
+                it.size(),
+            )?;
             let vals = sparse.values();
-            let (vb, vstride) =
-                self.view_range(&format!("{what} sparse values"), &vals.view(), vals.offset(), n, elem)?;
+            let (vb, vstride) = self.view_range(
+                &format!("{what} sparse values"),
+                &vals.view(),
+                vals.offset(),
+                n,
+                elem,
+            )?;
             for k in 0..n {
                 let at = k * istride;
                 let idx = to_u32(&ib[at..at + it.size()], it) as usize;
                 if idx >= count {
-                    return Err(self.err(format!("{what}: sparse index {idx} out of range ({count})")));
+                    return Err(
+                        self.err(format!("{what}: sparse index {idx} out of range ({count})"))
+                    );
                 }
                 for c in 0..comps {
                     let at = k * vstride + c * csize;

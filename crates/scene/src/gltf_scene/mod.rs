@@ -164,7 +164,10 @@ pub fn parse(
         .iter()
         .find(|x| UNSUPPORTED_REQUIRED.contains(&x.as_str()))
     {
-        return Err(SceneError::unsupported(path, format!("required extension {x}")));
+        return Err(SceneError::unsupported(
+            path,
+            format!("required extension {x}"),
+        ));
     }
     validate(&root).map_err(|m| bad(format!("invalid glTF: {m}")))?;
     let doc = gltf::Document::from_json_without_validation(root);
@@ -227,8 +230,11 @@ impl Loader<'_> {
 
         // Instances: every primitive of every mesh node reachable from the roots, in
         // depth-first order (children in their listed order) so triangle order is fixed.
-        let mut prim_cache: Vec<Vec<Option<Arc<Prim>>>> =
-            self.doc.meshes().map(|m| vec![None; m.primitives().len()]).collect();
+        let mut prim_cache: Vec<Vec<Option<Arc<Prim>>>> = self
+            .doc
+            .meshes()
+            .map(|m| vec![None; m.primitives().len()])
+            .collect();
         let mut instances = Vec::new();
         let mut triangles = Vec::new();
         let mut material_ids = Vec::new();
@@ -238,7 +244,13 @@ impl Loader<'_> {
         let mut stack: Vec<usize> = roots.iter().rev().copied().collect();
         while let Some(ni) = stack.pop() {
             let node = &nodes[ni];
-            stack.extend(node.children().map(|c| c.index()).collect::<Vec<_>>().into_iter().rev());
+            stack.extend(
+                node.children()
+                    .map(|c| c.index())
+                    .collect::<Vec<_>>()
+                    .into_iter()
+                    .rev(),
+            );
             let Some(mesh) = node.mesh() else { continue };
             for p in mesh.primitives() {
                 let prim = match &prim_cache[mesh.index()][p.index()] {
@@ -304,7 +316,11 @@ impl Loader<'_> {
         let animation_names: Vec<String> = self
             .doc
             .animations()
-            .map(|a| a.name().map(str::to_string).unwrap_or_else(|| format!("animation {}", a.index())))
+            .map(|a| {
+                a.name()
+                    .map(str::to_string)
+                    .unwrap_or_else(|| format!("animation {}", a.index()))
+            })
             .collect();
         let channels = match self.select_animation(opts, &animation_names)? {
             Some(a) => self.channels(a, &instances)?,
@@ -320,7 +336,10 @@ impl Loader<'_> {
             .iter()
             .filter_map(|c| c.times.last().copied())
             .fold(0.0f32, f32::max);
-        let fps = opts.fps.filter(|f| f.is_finite() && *f > 0.0).unwrap_or(DEFAULT_FPS);
+        let fps = opts
+            .fps
+            .filter(|f| f.is_finite() && *f > 0.0)
+            .unwrap_or(DEFAULT_FPS);
         let name = self
             .path
             .file_stem()
@@ -406,10 +425,17 @@ impl Loader<'_> {
                     gltf::scene::Transform::Matrix { matrix } => {
                         let m = Mat4::from_cols_array_2d(&matrix);
                         if !finite_mat(&m) {
-                            return Err(self.err(format!("node {}: non-finite matrix", node.index())));
+                            return Err(
+                                self.err(format!("node {}: non-finite matrix", node.index()))
+                            );
                         }
                         let (s, r, t) = m.to_scale_rotation_translation();
-                        Rest { t, r, s, matrix: Some(m) }
+                        Rest {
+                            t,
+                            r,
+                            s,
+                            matrix: Some(m),
+                        }
                     }
                     gltf::scene::Transform::Decomposed {
                         translation,
@@ -427,7 +453,12 @@ impl Loader<'_> {
                                 node.index()
                             )));
                         }
-                        Rest { t, r: r.normalize(), s, matrix: None }
+                        Rest {
+                            t,
+                            r: r.normalize(),
+                            s,
+                            matrix: None,
+                        }
                     }
                 };
                 Ok(r)
@@ -459,28 +490,40 @@ impl Loader<'_> {
                         m
                     }
                 };
-                Ok(Skin { joints, inverse_bind })
+                Ok(Skin {
+                    joints,
+                    inverse_bind,
+                })
             })
             .collect()
     }
 
     fn scene_roots(&self, parents: &[Option<usize>]) -> Result<Vec<usize>, SceneError> {
-        let scene = self.doc.default_scene().or_else(|| self.doc.scenes().next());
+        let scene = self
+            .doc
+            .default_scene()
+            .or_else(|| self.doc.scenes().next());
         match scene {
             Some(s) => {
                 let roots: Vec<usize> = s.nodes().map(|n| n.index()).collect();
                 if let Some(&r) = roots.iter().find(|&&r| parents[r].is_some()) {
-                    return Err(self.err(format!("scene {}: root node {r} has a parent", s.index())));
+                    return Err(
+                        self.err(format!("scene {}: root node {r} has a parent", s.index()))
+                    );
                 }
                 let mut seen = vec![false; parents.len()];
                 for &r in &roots {
                     if std::mem::replace(&mut seen[r], true) {
-                        return Err(self.err(format!("scene {}: root node {r} listed twice", s.index())));
+                        return Err(
+                            self.err(format!("scene {}: root node {r} listed twice", s.index()))
+                        );
                     }
                 }
                 Ok(roots)
             }
-            None => Ok((0..parents.len()).filter(|&i| parents[i].is_none()).collect()),
+            None => Ok((0..parents.len())
+                .filter(|&i| parents[i].is_none())
+                .collect()),
         }
     }
 
@@ -500,7 +543,12 @@ impl Loader<'_> {
             .doc
             .meshes()
             .flat_map(|m| m.primitives())
-            .filter(|p| matches!(p.mode(), Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan))
+            .filter(|p| {
+                matches!(
+                    p.mode(),
+                    Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan
+                )
+            })
             .any(|p| p.material().index().is_none());
         if needs_default {
             names.push("default".into());
@@ -517,7 +565,10 @@ impl Loader<'_> {
     ) -> Result<Option<Prim>, SceneError> {
         let what = format!("mesh {} primitive {}", mesh.index(), p.index());
         let mode = p.mode();
-        if !matches!(mode, Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan) {
+        if !matches!(
+            mode,
+            Mode::Triangles | Mode::TriangleStrip | Mode::TriangleFan
+        ) {
             return Ok(None);
         }
         let pos_acc = p
@@ -526,14 +577,24 @@ impl Loader<'_> {
         let positions = self.vec3s(&format!("{what} POSITION"), &pos_acc)?;
         let nv = positions.len();
         let idx: Vec<u32> = match p.indices() {
-            Some(acc) => self.rd.uints(&format!("{what} indices"), &acc, &[Dimensions::Scalar])?.0,
+            Some(acc) => {
+                self.rd
+                    .uints(&format!("{what} indices"), &acc, &[Dimensions::Scalar])?
+                    .0
+            }
             None => (0..nv as u32).collect(),
         };
         if let Some((k, &i)) = idx.iter().enumerate().find(|(_, &i)| i as usize >= nv) {
-            return Err(self.err(format!("{what}: index {k} is {i}, out of range ({nv} vertices)")));
+            return Err(self.err(format!(
+                "{what}: index {k} is {i}, out of range ({nv} vertices)"
+            )));
         }
         let triangles = to_triangles(mode, &idx);
-        let material = p.material().index().map(|m| m as u32).unwrap_or(default_material);
+        let material = p
+            .material()
+            .index()
+            .map(|m| m as u32)
+            .unwrap_or(default_material);
 
         let mut targets = Vec::new();
         for (ti, t) in p.morph_targets().enumerate() {
@@ -580,11 +641,18 @@ impl Loader<'_> {
     ) -> Result<Option<Influences>, SceneError> {
         let mut sets = Vec::new();
         for set in 0..2u32 {
-            let (Some(j), Some(w)) = (p.get(&Semantic::Joints(set)), p.get(&Semantic::Weights(set))) else {
+            let (Some(j), Some(w)) = (
+                p.get(&Semantic::Joints(set)),
+                p.get(&Semantic::Weights(set)),
+            ) else {
                 continue;
             };
-            let (jv, _) = self.rd.uints(&format!("{what} JOINTS_{set}"), &j, &[Dimensions::Vec4])?;
-            let (wv, _) = self.rd.floats(&format!("{what} WEIGHTS_{set}"), &w, &[Dimensions::Vec4])?;
+            let (jv, _) =
+                self.rd
+                    .uints(&format!("{what} JOINTS_{set}"), &j, &[Dimensions::Vec4])?;
+            let (wv, _) =
+                self.rd
+                    .floats(&format!("{what} WEIGHTS_{set}"), &w, &[Dimensions::Vec4])?;
             if jv.len() != nv * 4 || wv.len() != nv * 4 {
                 return Err(self.err(format!(
                     "{what}: JOINTS_{set}/WEIGHTS_{set} counts ({}, {}) differ from POSITION ({nv})",
@@ -593,7 +661,9 @@ impl Loader<'_> {
                 )));
             }
             if let Some(x) = wv.iter().find(|x| !x.is_finite() || **x < 0.0) {
-                return Err(self.err(format!("{what}: WEIGHTS_{set} holds {x} (must be finite, >= 0)")));
+                return Err(self.err(format!(
+                    "{what}: WEIGHTS_{set} holds {x} (must be finite, >= 0)"
+                )));
             }
             sets.push((jv, wv));
         }
@@ -644,12 +714,20 @@ impl Loader<'_> {
             .doc
             .animations()
             .find(|a| a.name() == Some(want))
-            .or_else(|| want.parse::<usize>().ok().and_then(|i| self.doc.animations().nth(i)));
+            .or_else(|| {
+                want.parse::<usize>()
+                    .ok()
+                    .and_then(|i| self.doc.animations().nth(i))
+            });
         found.map(Some).ok_or_else(|| {
             let list = if names.is_empty() {
                 "the file has no animations".to_string()
             } else {
-                let l: Vec<String> = names.iter().enumerate().map(|(i, n)| format!("{i}: '{n}'")).collect();
+                let l: Vec<String> = names
+                    .iter()
+                    .enumerate()
+                    .map(|(i, n)| format!("{i}: '{n}'"))
+                    .collect();
                 format!("available: {}", l.join(", "))
             };
             SceneError::unsupported(self.path, format!("no animation '{want}' ({list})"))
@@ -682,15 +760,22 @@ impl Loader<'_> {
                 Checked::Valid(P::MorphTargetWeights) => Target::Weights,
                 Checked::Invalid => return Err(self.err(format!("{what}: unknown target path"))),
             };
-            let sampler = samplers
-                .get(ch.sampler.value())
-                .ok_or_else(|| self.err(format!("{what}: sampler {} does not exist", ch.sampler.value())))?;
+            let sampler = samplers.get(ch.sampler.value()).ok_or_else(|| {
+                self.err(format!(
+                    "{what}: sampler {} does not exist",
+                    ch.sampler.value()
+                ))
+            })?;
             let interp = match sampler.interpolation() {
                 gltf::animation::Interpolation::Step => Interp::Step,
                 gltf::animation::Interpolation::Linear => Interp::Linear,
                 gltf::animation::Interpolation::CubicSpline => Interp::Cubic,
             };
-            let (times, _) = self.rd.f32s(&format!("{what} input"), &sampler.input(), &[Dimensions::Scalar])?;
+            let (times, _) = self.rd.f32s(
+                &format!("{what} input"),
+                &sampler.input(),
+                &[Dimensions::Scalar],
+            )?;
             if times.is_empty() {
                 return Err(self.err(format!("{what}: no keyframes")));
             }
@@ -705,7 +790,9 @@ impl Loader<'_> {
                 Target::Rotation => &[Dimensions::Vec4],
                 Target::Weights => &[Dimensions::Scalar],
             };
-            let (values, comps) = self.rd.floats(&format!("{what} output"), &sampler.output(), dims)?;
+            let (values, comps) =
+                self.rd
+                    .floats(&format!("{what} output"), &sampler.output(), dims)?;
             let groups = times.len() * if interp == Interp::Cubic { 3 } else { 1 };
             let width = if target == Target::Weights {
                 let nt = instances
@@ -723,7 +810,11 @@ impl Loader<'_> {
                     "{what}: {} output values for {} keys of {width} floats{}",
                     values.len(),
                     times.len(),
-                    if interp == Interp::Cubic { " (x3 for CUBICSPLINE)" } else { "" }
+                    if interp == Interp::Cubic {
+                        " (x3 for CUBICSPLINE)"
+                    } else {
+                        ""
+                    }
                 )));
             }
             if let Some(v) = values.iter().find(|v| !v.is_finite()) {
@@ -818,7 +909,13 @@ impl GltfScene {
 }
 
 /// Positions of one instance: morphed, then skinned or placed by the node.
-fn place(inst: &Instance, global: &[Mat4], joints: Option<&[Mat4]>, weights: &[f32], out: &mut [Vec3]) {
+fn place(
+    inst: &Instance,
+    global: &[Mat4],
+    joints: Option<&[Mat4]>,
+    weights: &[f32],
+    out: &mut [Vec3],
+) {
     let prim = &*inst.prim;
     let node_m = global[inst.node];
     let active: Vec<(usize, f32)> = weights

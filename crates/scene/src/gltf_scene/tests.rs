@@ -17,7 +17,7 @@ struct Builder {
 
 impl Builder {
     fn push(&mut self, bytes: &[u8], count: usize, ctype: u32, ty: &str, extra: &str) -> usize {
-        while self.bin.len() % 4 != 0 {
+        while self.bin.len() & 3 != 0 {
             self.bin.push(0);
         }
         let off = self.bin.len();
@@ -70,11 +70,11 @@ impl Builder {
         let mut json = self
             .body(rest, &format!(r#"{{"byteLength":{}}}"#, self.bin.len()))
             .into_bytes();
-        while json.len() % 4 != 0 {
+        while json.len() & 3 != 0 {
             json.push(b' ');
         }
         let mut bin = self.bin.clone();
-        while bin.len() % 4 != 0 {
+        while bin.len() & 3 != 0 {
             bin.push(0);
         }
         let total = 12 + 8 + json.len() + 8 + bin.len();
@@ -198,11 +198,18 @@ fn linear_step_and_slerp_sampling() {
     let m = s.mesh_at(0.5).unwrap();
     let a = PI / 8.0;
     assert!(close(m.positions[0], Vec3::new(1., 0., 0.)));
-    assert!(close(m.positions[1], Vec3::new(1. + a.cos(), a.sin(), 0.)), "{}", m.positions[1]);
+    assert!(
+        close(m.positions[1], Vec3::new(1. + a.cos(), a.sin(), 0.)),
+        "{}",
+        m.positions[1]
+    );
     // t = 1.5: translation 3, scale 3, rotation 67.5 degrees.
     let m = s.mesh_at(1.5).unwrap();
     let a = 3.0 * PI / 8.0;
-    assert!(close(m.positions[1], Vec3::new(3. + 3. * a.cos(), 3. * a.sin(), 0.)));
+    assert!(close(
+        m.positions[1],
+        Vec3::new(3. + 3. * a.cos(), 3. * a.sin(), 0.)
+    ));
     // Past the end holds the last pose: (4,0,0) + 3 * (0,1,0) for vertex 1.
     let m = s.mesh_at(100.0).unwrap();
     assert!(close(m.positions[1], Vec3::new(4., 3., 0.)));
@@ -215,7 +222,12 @@ fn cubic_spline_translation() {
     let doc = animated_doc(|b| {
         let t = b.f32s(&[0.0, 2.0], "SCALAR");
         // (in, value, out) per key: key 0 value 0 out-tangent (1,0,0); key 1 value (1,0,0).
-        let v = b.f32s(&[9., 9., 9., 0., 0., 0., 1., 0., 0., 0., 0., 0., 1., 0., 0., 9., 9., 9.], "VEC3");
+        let v = b.f32s(
+            &[
+                9., 9., 9., 0., 0., 0., 1., 0., 0., 0., 0., 0., 1., 0., 0., 9., 9., 9.,
+            ],
+            "VEC3",
+        );
         (
             format!(r#"{{"input":{t},"output":{v},"interpolation":"CUBICSPLINE"}}"#),
             r#"{"sampler":0,"target":{"node":0,"path":"translation"}}"#.into(),
@@ -223,7 +235,11 @@ fn cubic_spline_translation() {
     });
     let m = load(&doc).unwrap().mesh_at(1.0).unwrap();
     // See anim::tests: p(0.5) = 0.125 * 2 * 1 + 0.5 * 1 = 0.75.
-    assert!(close(m.positions[0], Vec3::new(0.75, 0., 0.)), "{}", m.positions[0]);
+    assert!(
+        close(m.positions[0], Vec3::new(0.75, 0., 0.)),
+        "{}",
+        m.positions[0]
+    );
 }
 
 #[test]
@@ -239,8 +255,14 @@ fn morph_target_weights_animate() {
         "animations":[{{"samplers":[{{"input":{t},"output":{w}}}],"channels":[{{"sampler":0,"target":{{"node":0,"path":"weights"}}}}]}}]"#
     ));
     let s = load(&doc).unwrap();
-    assert!(close(s.mesh_at(0.25).unwrap().positions[1], Vec3::new(1., 0., 0.5)));
-    assert!(close(s.mesh_at(1.0).unwrap().positions[1], Vec3::new(1., 0., 2.0)));
+    assert!(close(
+        s.mesh_at(0.25).unwrap().positions[1],
+        Vec3::new(1., 0., 0.5)
+    ));
+    assert!(close(
+        s.mesh_at(1.0).unwrap().positions[1],
+        Vec3::new(1., 0., 2.0)
+    ));
     // Without the animation, the mesh's default weight 0.5 applies.
     let mut b = Builder::default();
     let pos = b.f32s(&TRI, "VEC3");
@@ -248,7 +270,10 @@ fn morph_target_weights_animate() {
     let doc = b.gltf(&format!(
         r#""meshes":[{{"primitives":[{{"attributes":{{"POSITION":{pos}}},"targets":[{{"POSITION":{delta}}}]}}],"weights":[0.5]}}],"nodes":[{{"mesh":0}}]"#
     ));
-    assert!(close(load(&doc).unwrap().mesh_at(0.0).unwrap().positions[0], Vec3::new(0., 0., 0.5)));
+    assert!(close(
+        load(&doc).unwrap().mesh_at(0.0).unwrap().positions[0],
+        Vec3::new(0., 0., 0.5)
+    ));
 }
 
 /// A two-joint skin: joint 0 at the origin, joint 1 its child at (0,1,0) rotated 90
@@ -282,11 +307,23 @@ fn two_joint_skin_bends_vertices() {
     for bytes in [b.gltf(&rest), b.glb(&rest)] {
         let m = load(&bytes).unwrap().mesh_at(0.0).unwrap();
         // Joint 1: T(0,1,0) R(90z) T(0,-1,0) takes (0,2,0) to (-1,1,0).
-        assert!(close(m.positions[0], Vec3::new(-1., 1., 0.)), "{}", m.positions[0]);
+        assert!(
+            close(m.positions[0], Vec3::new(-1., 1., 0.)),
+            "{}",
+            m.positions[0]
+        );
         // Half joint 0 (identity), half joint 1: (0,2,0) and (-1,1,0) averaged.
-        assert!(close(m.positions[1], Vec3::new(-0.5, 1.5, 0.)), "{}", m.positions[1]);
+        assert!(
+            close(m.positions[1], Vec3::new(-0.5, 1.5, 0.)),
+            "{}",
+            m.positions[1]
+        );
         // All-zero weights: the node's rigid transform.
-        assert!(close(m.positions[2], Vec3::new(101., 0., 0.)), "{}", m.positions[2]);
+        assert!(
+            close(m.positions[2], Vec3::new(101., 0., 0.)),
+            "{}",
+            m.positions[2]
+        );
     }
     // Weights summing to 2 are normalized: same as (1, 0) and (0.5, 0.5).
     let (b, rest) = skin_doc(
@@ -313,7 +350,10 @@ fn strip_and_fan_conversion() {
         to_triangles(Mode::TriangleStrip, &[0, 1, 2, 3, 4]),
         vec![[0, 1, 2], [1, 3, 2], [2, 3, 4]]
     );
-    assert_eq!(to_triangles(Mode::TriangleFan, &[0, 1, 2, 3]), vec![[1, 2, 0], [2, 3, 0]]);
+    assert_eq!(
+        to_triangles(Mode::TriangleFan, &[0, 1, 2, 3]),
+        vec![[1, 2, 0], [2, 3, 0]]
+    );
     assert!(to_triangles(Mode::TriangleStrip, &[0, 1]).is_empty());
     // Points and lines are skipped and counted; materials get names.
     let mut b = Builder::default();
@@ -332,7 +372,10 @@ fn strip_and_fan_conversion() {
     m.check().unwrap();
     assert_eq!(m.triangle_count(), 4);
     assert_eq!(m.material_ids, vec![1, 1, 0, 0]);
-    assert_eq!(m.material_names, vec!["red".to_string(), "material 1".into()]);
+    assert_eq!(
+        m.material_names,
+        vec!["red".to_string(), "material 1".into()]
+    );
     // The fan instance's vertices come after the strip's four.
     assert_eq!(m.triangles[2], [5, 6, 4]);
 }
@@ -347,10 +390,19 @@ fn animation_selection_and_missing_animation() {
             r#"{"sampler":0,"target":{"node":0,"path":"translation"}}"#.into(),
         )
     });
-    assert_eq!(load_anim(&doc, "move").unwrap().info().timeline.duration_s, 2.0);
-    assert_eq!(load_anim(&doc, "0").unwrap().animation_names(), &["move".to_string()]);
+    assert_eq!(
+        load_anim(&doc, "move").unwrap().info().timeline.duration_s,
+        2.0
+    );
+    assert_eq!(
+        load_anim(&doc, "0").unwrap().animation_names(),
+        &["move".to_string()]
+    );
     let e = err_of(load_anim(&doc, "dance"));
-    assert!(e.contains("no animation 'dance'") && e.contains("0: 'move'"), "{e}");
+    assert!(
+        e.contains("no animation 'dance'") && e.contains("0: 'move'"),
+        "{e}"
+    );
     let e = err_of(load_anim(&hierarchy_doc(r#""scale":[1,1,1]"#), "1"));
     assert!(e.contains("no animations"), "{e}");
 }
@@ -359,7 +411,10 @@ fn animation_selection_and_missing_animation() {
 
 #[test]
 fn truncated_glb_every_prefix() {
-    let (b, rest) = skin_doc(&[1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0], &[1., 0., 0., 0., 0.5, 0.5, 0., 0., 0., 0., 0., 0.]);
+    let (b, rest) = skin_doc(
+        &[1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0],
+        &[1., 0., 0., 0., 0.5, 0.5, 0., 0., 0., 0., 0., 0.],
+    );
     let glb = b.glb(&rest);
     assert!(load(&glb).is_ok());
     for n in 0..glb.len() {
@@ -377,8 +432,11 @@ fn short_buffer_is_an_error() {
     // GLB whose binary chunk is shorter than buffer 0.
     let mut b = Builder::default();
     let pos = b.f32s(&TRI, "VEC3");
-    let rest = format!(r#""meshes":[{{"primitives":[{{"attributes":{{"POSITION":{pos}}}}}]}}],"nodes":[{{"mesh":0}}]"#);
-    let glb = String::from_utf8_lossy(&b.glb(&rest)).replace(r#"{"byteLength":36}"#, r#"{"byteLength":99}"#);
+    let rest = format!(
+        r#""meshes":[{{"primitives":[{{"attributes":{{"POSITION":{pos}}}}}]}}],"nodes":[{{"mesh":0}}]"#
+    );
+    let glb = String::from_utf8_lossy(&b.glb(&rest))
+        .replace(r#"{"byteLength":36}"#, r#"{"byteLength":99}"#);
     err_of(load(glb.as_bytes()));
 }
 
@@ -411,13 +469,19 @@ fn nan_position_and_nan_key_are_errors() {
     let doc = animated_doc(|b| {
         let t = b.f32s(&[0.0, f32::NAN], "SCALAR");
         let tr = b.f32s(&[0., 0., 0., 4., 0., 0.], "VEC3");
-        (format!(r#"{{"input":{t},"output":{tr}}}"#), r#"{"sampler":0,"target":{"node":0,"path":"translation"}}"#.into())
+        (
+            format!(r#"{{"input":{t},"output":{tr}}}"#),
+            r#"{"sampler":0,"target":{"node":0,"path":"translation"}}"#.into(),
+        )
     });
     assert!(err_of(load(&doc)).contains("key time 1 is not finite"));
     let doc = animated_doc(|b| {
         let t = b.f32s(&[0.0, 1.0], "SCALAR");
         let tr = b.f32s(&[0., 0., 0., f32::INFINITY, 0., 0.], "VEC3");
-        (format!(r#"{{"input":{t},"output":{tr}}}"#), r#"{"sampler":0,"target":{"node":0,"path":"translation"}}"#.into())
+        (
+            format!(r#"{{"input":{t},"output":{tr}}}"#),
+            r#"{"sampler":0,"target":{"node":0,"path":"translation"}}"#.into(),
+        )
     });
     assert!(err_of(load(&doc)).contains("non-finite output"));
     // Finite inputs whose product overflows: caught when sampled.
@@ -436,7 +500,10 @@ fn bad_channels_are_errors() {
         animated_doc(move |b| {
             let t = b.f32s(&[0.0, 1.0], "SCALAR");
             let tr = b.f32s(&[0., 0., 0., 4., 0., 0.], "VEC3");
-            (format!(r#"{{"input":{t},"output":{tr}}}"#), format!(r#"{{"sampler":0,"target":{{"node":{node},"path":"{path}"}}}}"#))
+            (
+                format!(r#"{{"input":{t},"output":{tr}}}"#),
+                format!(r#"{{"sampler":0,"target":{{"node":{node},"path":"{path}"}}}}"#),
+            )
         })
     };
     assert!(err_of(load(&chan("translation", 9))).contains("target node 9"));
@@ -445,7 +512,10 @@ fn bad_channels_are_errors() {
     let doc = animated_doc(|b| {
         let t = b.f32s(&[1.0, 0.0], "SCALAR");
         let tr = b.f32s(&[0., 0., 0., 4., 0., 0.], "VEC3");
-        (format!(r#"{{"input":{t},"output":{tr}}}"#), r#"{"sampler":0,"target":{"node":0,"path":"translation"}}"#.into())
+        (
+            format!(r#"{{"input":{t},"output":{tr}}}"#),
+            r#"{"sampler":0,"target":{"node":0,"path":"translation"}}"#.into(),
+        )
     });
     assert!(err_of(load(&doc)).contains("decrease"));
 }
@@ -455,7 +525,9 @@ fn cyclic_and_shared_nodes_are_errors() {
     let mut b = Builder::default();
     let pos = b.f32s(&TRI, "VEC3");
     let mesh = format!(r#""meshes":[{{"primitives":[{{"attributes":{{"POSITION":{pos}}}}}]}}]"#);
-    let cyc = b.gltf(&format!(r#"{mesh},"nodes":[{{"mesh":0,"children":[1]}},{{"children":[0]}}]"#));
+    let cyc = b.gltf(&format!(
+        r#"{mesh},"nodes":[{{"mesh":0,"children":[1]}},{{"children":[0]}}]"#
+    ));
     err_of(load(&cyc));
     let own = b.gltf(&format!(r#"{mesh},"nodes":[{{"mesh":0,"children":[0]}}]"#));
     err_of(load(&own));
@@ -471,7 +543,15 @@ fn cyclic_and_shared_nodes_are_errors() {
 
 #[test]
 fn garbage_and_empty_inputs_are_errors() {
-    for bytes in [&b""[..], b"{", b"glTF", b"\xff\xfe\x00", b"{}", b"null", b"glTF\x02\0\0\0\x05\0\0\0"] {
+    for bytes in [
+        &b""[..],
+        b"{",
+        b"glTF",
+        b"\xff\xfe\x00",
+        b"{}",
+        b"null",
+        b"glTF\x02\0\0\0\x05\0\0\0",
+    ] {
         err_of(load(bytes));
     }
 }
@@ -481,7 +561,9 @@ fn external_bin_files() {
     let dir = tempfile::tempdir().unwrap();
     let mut b = Builder::default();
     let pos = b.f32s(&TRI, "VEC3");
-    let rest = format!(r#""meshes":[{{"primitives":[{{"attributes":{{"POSITION":{pos}}}}}]}}],"nodes":[{{"mesh":0}}]"#);
+    let rest = format!(
+        r#""meshes":[{{"primitives":[{{"attributes":{{"POSITION":{pos}}}}}]}}],"nodes":[{{"mesh":0}}]"#
+    );
     let with_uri = |uri: &str| b.body(&rest, &format!(r#"{{"byteLength":36,"uri":"{uri}"}}"#));
     let gl = dir.path().join("scene.gltf");
     std::fs::write(&gl, with_uri("scene%20data.bin")).unwrap();
@@ -496,7 +578,10 @@ fn external_bin_files() {
         ("http://example.com/a.bin", "not a relative path"),
     ] {
         std::fs::write(&gl, with_uri(uri)).unwrap();
-        let e = crate::open(gl.to_str().unwrap(), &LoadOptions::default()).err().unwrap().to_string();
+        let e = crate::open(gl.to_str().unwrap(), &LoadOptions::default())
+            .err()
+            .unwrap()
+            .to_string();
         assert!(e.contains("scene.gltf") && e.contains(want), "{uri}: {e}");
     }
     // Parsed from memory without a base directory, an external buffer cannot be resolved.
@@ -504,7 +589,10 @@ fn external_bin_files() {
 }
 
 fn small_glb() -> Vec<u8> {
-    let (b, rest) = skin_doc(&[1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0], &[1., 0., 0., 0., 0.5, 0.5, 0., 0., 0., 0., 0., 0.]);
+    let (b, rest) = skin_doc(
+        &[1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0],
+        &[1., 0., 0., 0., 0.5, 0.5, 0., 0., 0., 0., 0., 0.],
+    );
     b.glb(&rest)
 }
 
@@ -541,7 +629,9 @@ proptest! {
 // ---- real sample models -------------------------------------------------------------------
 
 fn sample(name: &str) -> Option<PathBuf> {
-    let p = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/scenes/gltf").join(name);
+    let p = Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../../shared/scenes/gltf")
+        .join(name);
     if p.exists() {
         Some(p)
     } else {
@@ -568,23 +658,38 @@ fn sample_models_load_and_animate() {
         ("RiggedFigure.glb", 256),
         ("RiggedSimple.glb", 188),
     ] {
-        let Some(s) = open_sample(name, None) else { continue };
+        let Some(s) = open_sample(name, None) else {
+            continue;
+        };
         let info = s.info();
-        assert!(info.stable_topology && info.timeline.duration_s > 0.0, "{name}");
+        assert!(
+            info.stable_topology && info.timeline.duration_s > 0.0,
+            "{name}"
+        );
         let a = s.mesh_at(0.0).unwrap();
         a.check().unwrap();
         assert_eq!(a.triangle_count(), tris, "{name}");
         let mid = info.timeline.duration_s * 0.5;
         let b = s.mesh_at(mid).unwrap();
         assert_eq!(a.triangles, b.triangles, "{name}: topology must be stable");
-        assert_ne!(a.bounds(), b.bounds(), "{name}: a skinned character must move");
-        assert_eq!(b, s.mesh_at(mid).unwrap(), "{name}: sampling must be deterministic");
+        assert_ne!(
+            a.bounds(),
+            b.bounds(),
+            "{name}: a skinned character must move"
+        );
+        assert_eq!(
+            b,
+            s.mesh_at(mid).unwrap(),
+            "{name}: sampling must be deterministic"
+        );
     }
 }
 
 #[test]
 fn fox_animation_selection() {
-    let Some(first) = open_sample("Fox.glb", None) else { return };
+    let Some(first) = open_sample("Fox.glb", None) else {
+        return;
+    };
     let by_index = open_sample("Fox.glb", Some("2")).unwrap();
     let Some(p) = sample("Fox.glb") else { return };
     let bytes = std::fs::read(&p).unwrap();
@@ -593,12 +698,24 @@ fn fox_animation_selection() {
     assert_eq!(names.len(), 3);
     let by_name = open_sample("Fox.glb", Some(&names[2])).unwrap();
     assert_eq!(by_index.info().timeline, by_name.info().timeline);
-    assert_eq!(by_index.mesh_at(0.3).unwrap(), by_name.mesh_at(0.3).unwrap());
-    assert_ne!(first.info().timeline.duration_s, by_index.info().timeline.duration_s);
+    assert_eq!(
+        by_index.mesh_at(0.3).unwrap(),
+        by_name.mesh_at(0.3).unwrap()
+    );
+    assert_ne!(
+        first.info().timeline.duration_s,
+        by_index.info().timeline.duration_s
+    );
     let opts = LoadOptions {
         animation: Some("Moonwalk".into()),
         ..Default::default()
     };
-    let e = crate::open(p.to_str().unwrap(), &opts).err().unwrap().to_string();
-    assert!(e.contains("Fox.glb") && e.contains("Moonwalk") && e.contains(&names[0]), "{e}");
+    let e = crate::open(p.to_str().unwrap(), &opts)
+        .err()
+        .unwrap()
+        .to_string();
+    assert!(
+        e.contains("Fox.glb") && e.contains("Moonwalk") && e.contains(&names[0]),
+        "{e}"
+    );
 }
