@@ -42,20 +42,29 @@ use rayon::prelude::*;
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
-/// Most vertices or triangles a scene may have after instancing; a small file can
-/// reference one large mesh from many nodes, so this bounds memory.
-const MAX_ELEMENTS: usize = 1 << 27;
+/// Most vertices or triangles a scene may have after instancing (about 33 million): a
+/// small file can reference one large mesh from many nodes, so this bounds memory
+/// (about 0.4 GB of positions and as much of triangles).
+const MAX_ELEMENTS: usize = 1 << 25;
 
 /// Vertex count from which a primitive is skinned in parallel.
 const PARALLEL_VERTICES: usize = 16 * 1024;
 
-/// Geometry extensions that change how positions are stored; files requiring them are
-/// refused rather than read wrongly.
-const UNSUPPORTED_REQUIRED: &[&str] = &[
-    "KHR_draco_mesh_compression",
-    "EXT_meshopt_compression",
-    "EXT_mesh_gpu_instancing",
-];
+/// Required extensions that cannot change positions or topology (appearance only), or
+/// that the accessor reader handles (`KHR_mesh_quantization`: integer positions). Any
+/// other required extension (Draco, meshopt, GPU instancing, unknown ones) is refused
+/// rather than read wrongly.
+fn harmless_extension(name: &str) -> bool {
+    name == "KHR_mesh_quantization"
+        || [
+            "KHR_materials_",
+            "KHR_texture_",
+            "KHR_lights_",
+            "EXT_texture_",
+        ]
+        .iter()
+        .any(|p| name.starts_with(p))
+}
 
 /// A node's rest (non-animated) local transform.
 #[derive(Clone, Copy, Debug)]
@@ -162,7 +171,7 @@ pub fn parse(
     if let Some(x) = root
         .extensions_required
         .iter()
-        .find(|x| UNSUPPORTED_REQUIRED.contains(&x.as_str()))
+        .find(|x| !harmless_extension(x))
     {
         return Err(SceneError::unsupported(
             path,
@@ -186,15 +195,33 @@ pub fn parse(
 
 /// The `gltf` crate's validation (every index in range, every enum known), which the
 /// crate's accessors rely on to not panic, except that missing POSITION `min`/`max` bounds
-/// are tolerated: many exporters omit them and they are not needed here.
+/// are tolerated (many exporters omit them and they are not needed here), and required
+/// extensions are judged by [`harmless_extension`] instead.
 fn validate(root: &gltf::json::Root) -> Result<(), String> {
-    use gltf::json::validation::{Error, Validate};
+    use gltf::json::validation::{Checked, Error, Validate};
+    // gltf-json 1.4's primitive hook indexes `accessors` with the POSITION index before
+    // that index is checked, and panics on a bad one: check it first.
+    for (mi, m) in root.meshes.iter().enumerate() {
+        for (pi, p) in m.primitives.iter().enumerate() {
+            let pos = p
+                .attributes
+                .get(&Checked::Valid(gltf::json::mesh::Semantic::Positions));
+            if let Some(i) = pos.filter(|i| i.value() >= root.accessors.len()) {
+                return Err(format!(
+                    "meshes[{mi}].primitives[{pi}]: POSITION accessor {} does not exist",
+                    i.value()
+                ));
+            }
+        }
+    }
     let mut errors = Vec::new();
     root.validate(root, gltf::json::Path::new, &mut |path, e| {
         let path = path();
         let p = path.as_str();
         let bounds = matches!(e, Error::Missing) && (p.ends_with(".min") || p.ends_with(".max"));
-        if !bounds && errors.len() < 4 {
+        // Required extensions were checked by `harmless_extension` already.
+        let ext = p.starts_with("extensionsRequired");
+        if !bounds && !ext && errors.len() < 4 {
             errors.push(format!("{p}: {e}"));
         }
     });
@@ -744,6 +771,12 @@ impl Loader<'_> {
         let json = &self.doc.as_json().animations[ai];
         let samplers: Vec<gltf::animation::Sampler> = anim.samplers().collect();
         let n_nodes = self.doc.nodes().len();
+        // Morph target count of each node's mesh (linear in instances, not per channel).
+        let mut targets_of_node: Vec<Option<usize>> = vec![None; n_nodes];
+        for i in instances {
+            let t = &mut targets_of_node[i.node];
+            *t = Some(t.unwrap_or(0).max(i.prim.targets.len()));
+        }
         let mut out = Vec::new();
         for (ci, ch) in json.channels.iter().enumerate() {
             let what = format!("animation {ai} channel {ci}");
@@ -795,13 +828,7 @@ impl Loader<'_> {
                     .floats(&format!("{what} output"), &sampler.output(), dims)?;
             let groups = times.len() * if interp == Interp::Cubic { 3 } else { 1 };
             let width = if target == Target::Weights {
-                let nt = instances
-                    .iter()
-                    .filter(|i| i.node == node)
-                    .map(|i| i.prim.targets.len())
-                    .max()
-                    .unwrap_or(values.len() / groups);
-                nt
+                targets_of_node[node].unwrap_or(values.len() / groups)
             } else {
                 comps
             };

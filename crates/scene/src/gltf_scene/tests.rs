@@ -16,21 +16,29 @@ struct Builder {
 }
 
 impl Builder {
-    fn push(&mut self, bytes: &[u8], count: usize, ctype: u32, ty: &str, extra: &str) -> usize {
+    /// Appends a buffer view (with `extra` JSON fields such as a stride); returns its index.
+    fn view(&mut self, bytes: &[u8], extra: &str) -> usize {
         while self.bin.len() & 3 != 0 {
             self.bin.push(0);
         }
         let off = self.bin.len();
         self.bin.extend_from_slice(bytes);
         self.views.push(format!(
-            r#"{{"buffer":0,"byteOffset":{off},"byteLength":{}}}"#,
+            r#"{{"buffer":0,"byteOffset":{off},"byteLength":{}{extra}}}"#,
             bytes.len()
         ));
-        self.accessors.push(format!(
-            r#"{{"bufferView":{},"componentType":{ctype},"count":{count},"type":"{ty}"{extra}}}"#,
-            self.views.len() - 1
-        ));
+        self.views.len() - 1
+    }
+    /// Appends an accessor given as JSON; returns its index.
+    fn accessor(&mut self, json: String) -> usize {
+        self.accessors.push(json);
         self.accessors.len() - 1
+    }
+    fn push(&mut self, bytes: &[u8], count: usize, ctype: u32, ty: &str, extra: &str) -> usize {
+        let v = self.view(bytes, "");
+        self.accessor(format!(
+            r#"{{"bufferView":{v},"componentType":{ctype},"count":{count},"type":"{ty}"{extra}}}"#
+        ))
     }
     fn f32s(&mut self, v: &[f32], ty: &str) -> usize {
         let n = match ty {
@@ -718,4 +726,167 @@ fn fox_animation_selection() {
         e.contains("Fox.glb") && e.contains("Moonwalk") && e.contains(&names[0]),
         "{e}"
     );
+}
+
+fn le<T: Copy, const N: usize>(v: &[T], f: impl Fn(T) -> [u8; N]) -> Vec<u8> {
+    v.iter().flat_map(|&x| f(x)).collect()
+}
+
+#[test]
+fn sparse_interleaved_and_quantized_accessors() {
+    // Interleaved: position then a 3-float colour, stride 24.
+    let mut b = Builder::default();
+    let mut inter = Vec::new();
+    for k in 0..3 {
+        inter.extend_from_slice(&TRI[3 * k..3 * k + 3]);
+        inter.extend_from_slice(&[7.0, 7.0, 7.0]);
+    }
+    let v = b.view(&le(&inter, f32::to_le_bytes), r#","byteStride":24"#);
+    let pos = b.accessor(format!(
+        r#"{{"bufferView":{v},"componentType":5126,"count":3,"type":"VEC3"}}"#
+    ));
+    // Sparse: the same triangle with vertex 1 replaced by (5,5,5), no base view.
+    let iv = b.view(&le(&[1u16], u16::to_le_bytes), "");
+    let vv = b.view(&le(&[5.0f32, 5.0, 5.0], f32::to_le_bytes), "");
+    let sparse = b.accessor(format!(
+        r#"{{"componentType":5126,"count":3,"type":"VEC3","sparse":{{"count":1,
+            "indices":{{"bufferView":{iv},"componentType":5123}},"values":{{"bufferView":{vv}}}}}}}"#
+    ));
+    // Quantized: i16 positions, not normalized (KHR_mesh_quantization).
+    let q = b.push(
+        &le(&[0i16, 0, 0, 300, 0, 0, 0, -2, 0], i16::to_le_bytes),
+        3,
+        5122,
+        "VEC3",
+        "",
+    );
+    let doc = b.gltf(&format!(
+        r#""extensionsUsed":["KHR_mesh_quantization"],"extensionsRequired":["KHR_mesh_quantization"],
+        "meshes":[{{"primitives":[{{"attributes":{{"POSITION":{pos}}}}},{{"attributes":{{"POSITION":{sparse}}}}},
+                                  {{"attributes":{{"POSITION":{q}}}}}]}}],"nodes":[{{"mesh":0}}]"#
+    ));
+    let m = load(&doc).unwrap().mesh_at(0.0).unwrap();
+    assert_eq!(&m.positions[..3], &[Vec3::ZERO, Vec3::X, Vec3::Y]);
+    assert_eq!(
+        &m.positions[3..6],
+        &[Vec3::ZERO, Vec3::splat(5.0), Vec3::ZERO]
+    );
+    assert_eq!(m.positions[7], Vec3::new(300., 0., 0.));
+    assert_eq!(m.positions[8], Vec3::new(0., -2., 0.));
+    // A sparse index past the count is an error.
+    let bad = String::from_utf8(doc)
+        .unwrap()
+        .replace(r#""count":1,"#, r#""count":4,"#);
+    err_of(load(bad.as_bytes()));
+}
+
+#[test]
+fn stride_smaller_than_element_is_an_error() {
+    let mut b = Builder::default();
+    let v = b.view(&le(&TRI, f32::to_le_bytes), r#","byteStride":4"#);
+    let pos = b.accessor(format!(
+        r#"{{"bufferView":{v},"componentType":5126,"count":3,"type":"VEC3"}}"#
+    ));
+    let doc = b.gltf(&format!(r#""meshes":[{{"primitives":[{{"attributes":{{"POSITION":{pos}}}}}]}}],"nodes":[{{"mesh":0}}]"#));
+    assert!(err_of(load(&doc)).contains("stride"));
+}
+
+#[test]
+fn geometry_extensions_are_refused() {
+    let doc = String::from_utf8(hierarchy_doc(r#""scale":[1,1,1]"#)).unwrap();
+    for ext in [
+        "KHR_draco_mesh_compression",
+        "EXT_meshopt_compression",
+        "VENDOR_unknown",
+    ] {
+        let d = doc.replacen('{', &format!(r#"{{"extensionsRequired":["{ext}"],"#), 1);
+        let e = err_of(load(d.as_bytes()));
+        assert!(e.contains("unsupported") && e.contains(ext), "{e}");
+    }
+    let d = doc.replacen('{', r#"{"extensionsRequired":["KHR_materials_unlit"],"#, 1);
+    assert!(load(d.as_bytes()).is_ok());
+}
+
+/// Byte spans of the JSON numbers outside strings.
+fn number_spans(json: &str) -> Vec<(usize, usize)> {
+    let b = json.as_bytes();
+    let (mut out, mut i, mut in_str) = (Vec::new(), 0, false);
+    while i < b.len() {
+        let c = b[i];
+        if in_str {
+            in_str = c != b'"' || b[i - 1] == b'\\';
+            i += 1;
+        } else if c == b'"' {
+            in_str = true;
+            i += 1;
+        } else if c == b'-' || c.is_ascii_digit() {
+            let s = i;
+            while i < b.len() && (b[i].is_ascii_digit() || b"-+.eE".contains(&b[i])) {
+                i += 1;
+            }
+            out.push((s, i));
+        } else {
+            i += 1;
+        }
+    }
+    out
+}
+
+fn skin_anim_json() -> String {
+    let (mut b, rest) = skin_doc(
+        &[1, 0, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0],
+        &[1., 0., 0., 0., 0.5, 0.5, 0., 0., 0., 0., 0., 0.],
+    );
+    let t = b.f32s(&[0.0, 1.0], "SCALAR");
+    let r = b.f32s(&[0., 0., 0., 1., 0., 0., 1., 0.], "VEC4");
+    let idx = b.u16s(&[0, 1, 2, 2, 1, 0]);
+    let rest = rest.replace(
+        r#""WEIGHTS_0":"#,
+        &format!(r#""TEXCOORD_0":{t},"WEIGHTS_0":"#),
+    );
+    let rest = rest.replace(r#"}}]}],"#, &format!(r#"}},"indices":{idx}}}]}}],"#));
+    String::from_utf8(b.gltf(&format!(
+        r#"{rest},"animations":[{{"samplers":[{{"input":{t},"output":{r},"interpolation":"CUBICSPLINE"}},{{"input":{t},"output":{r}}}],
+        "channels":[{{"sampler":1,"target":{{"node":2,"path":"rotation"}}}}]}}]"#
+    )))
+    .unwrap()
+}
+
+#[test]
+fn structured_fuzz_seed_is_valid() {
+    let s = load(skin_anim_json().as_bytes()).unwrap();
+    assert_eq!(s.mesh_at(0.0).unwrap().triangle_count(), 2);
+    assert!(number_spans(&skin_anim_json()).len() > 50);
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(1024))]
+
+    /// Replacing numbers of a valid document (indices, counts, offsets, strides, component
+    /// types, modes) with hostile values never panics, hangs or allocates wildly.
+    #[test]
+    fn hostile_numbers_never_panic(edits in prop::collection::vec((any::<prop::sample::Index>(), 0usize..14), 1..5)) {
+        const VALUES: [&str; 14] = ["0", "1", "2", "3", "4", "5", "7", "-1", "255", "5121", "5125",
+                                    "65535", "4294967295", "1e30"];
+        let json = skin_anim_json();
+        let spans = number_spans(&json);
+        let mut chosen: Vec<(usize, usize)> =
+            edits.iter().map(|(i, v)| (i.index(spans.len()), *v)).collect();
+        chosen.sort();
+        chosen.dedup_by_key(|c| c.0);
+        let mut out = json.clone();
+        for &(k, v) in chosen.iter().rev() {
+            let (s, e) = spans[k];
+            out.replace_range(s..e, VALUES[v]);
+        }
+        match load(out.as_bytes()) {
+            Ok(s) => {
+                let m = s.mesh_at(0.5);
+                if let Ok(m) = m {
+                    prop_assert!(m.check().is_ok());
+                }
+            }
+            Err(e) => prop_assert!(e.to_string().contains("test.gltf")),
+        }
+    }
 }
