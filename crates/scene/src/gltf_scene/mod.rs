@@ -24,7 +24,15 @@
 //!   `weights` channels. Other target attributes are ignored (only positions matter here).
 //! - Non-finite data (positions, keys, transforms) is an error, at load or at the sampled
 //!   time (the crate's NaN policy for animated sources).
+//! - Animation: [`LoadOptions::animation`] is matched against animation names first, then
+//!   read as an index; default the first animation. Duration = the largest key time of
+//!   its channels. Nodes given as a matrix and animated are decomposed into TRS.
 //! - Camera: [`Camera::framing`] of the bounds at time 0 (glTF cameras are ignored).
+//! - Leniency: POSITION accessors without `min`/`max` are accepted; required extensions
+//!   that only affect appearance (and `KHR_mesh_quantization`) are accepted, any other
+//!   is refused as unsupported.
+//! - External buffers: only relative paths inside the file's directory (no `..`, no
+//!   absolute paths or URL schemes); `data:` URIs must be base64.
 
 mod anim;
 mod data;

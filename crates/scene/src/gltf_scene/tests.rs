@@ -617,10 +617,13 @@ proptest! {
             g[k] = v;
         }
         let n = cut.index(g.len() + 1);
-        if let Ok(s) = load(&g[..n]) {
-            let _ = s.mesh_at(0.5);
-        } else if let Err(e) = load(&g[..n]) {
-            prop_assert!(e.to_string().contains("test.gltf"));
+        match load(&g[..n]) {
+            Ok(s) => {
+                if let Ok(m) = s.mesh_at(0.5) {
+                    prop_assert!(m.check().is_ok());
+                }
+            }
+            Err(e) => prop_assert!(e.to_string().contains("test.gltf")),
         }
     }
 
