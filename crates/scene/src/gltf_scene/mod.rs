@@ -5,7 +5,7 @@
 //! morph deltas, the node order) is decoded and checked at load, so [`Scene::mesh_at`] only
 //! samples the animation, composes transforms and skins. The `gltf` crate parses and
 //! validates the JSON; buffers and accessors are resolved and bounds-checked here
-//! ([`data`]) because the crate's readers trust declared lengths.
+//! (module `data`) because the crate's readers trust declared lengths.
 //!
 //! Conventions of this loader:
 //! - Scene: the default scene, else scene 0, else every parentless node.

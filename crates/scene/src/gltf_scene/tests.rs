@@ -893,3 +893,83 @@ proptest! {
         }
     }
 }
+
+#[test]
+fn second_joint_set_u16_joints_and_normalized_u8_weights() {
+    let mut b = Builder::default();
+    let pos = b.f32s(&[0., 2., 0., 0., 2., 0., 1., 0., 0.], "VEC3");
+    let j0 = b.push(&le(&[0u16; 12], u16::to_le_bytes), 3, 5123, "VEC4", "");
+    let w0 = b.push(
+        &[0, 0, 0, 0, 128, 0, 0, 0, 0, 0, 0, 0],
+        3,
+        5121,
+        "VEC4",
+        r#","normalized":true"#,
+    );
+    let j1 = b.push(
+        &le(&[1u16, 0, 0, 0, 1, 0, 0, 0, 0, 0, 0, 0], u16::to_le_bytes),
+        3,
+        5123,
+        "VEC4",
+        "",
+    );
+    let w1 = b.push(
+        &[255, 0, 0, 0, 128, 0, 0, 0, 0, 0, 0, 0],
+        3,
+        5121,
+        "VEC4",
+        r#","normalized":true"#,
+    );
+    let mut ibm = Vec::new();
+    ibm.extend(Mat4::IDENTITY.to_cols_array());
+    ibm.extend(Mat4::from_translation(Vec3::new(0., -1., 0.)).to_cols_array());
+    let ibm = b.f32s(&ibm, "MAT4");
+    let h = (PI / 4.0).sin();
+    let doc = b.gltf(&format!(
+        r#""meshes":[{{"primitives":[{{"attributes":{{"POSITION":{pos},"JOINTS_0":{j0},"WEIGHTS_0":{w0},"JOINTS_1":{j1},"WEIGHTS_1":{w1}}}}}]}}],
+        "skins":[{{"joints":[1,2],"inverseBindMatrices":{ibm}}}],
+        "nodes":[{{"mesh":0,"skin":0,"translation":[100,0,0]}},{{"children":[2]}},
+                 {{"translation":[0,1,0],"rotation":[0,0,{h},{h}]}}]"#
+    ));
+    let m = load(&doc).unwrap().mesh_at(0.0).unwrap();
+    // Same expectations as `two_joint_skin_bends_vertices`, with influences split over
+    // two sets: all on joint 1; half and half; none (rigid).
+    assert!(
+        close(m.positions[0], Vec3::new(-1., 1., 0.)),
+        "{}",
+        m.positions[0]
+    );
+    assert!(
+        close(m.positions[1], Vec3::new(-0.5, 1.5, 0.)),
+        "{}",
+        m.positions[1]
+    );
+    assert!(
+        close(m.positions[2], Vec3::new(101., 0., 0.)),
+        "{}",
+        m.positions[2]
+    );
+}
+
+#[test]
+fn animated_matrix_node_is_decomposed() {
+    let mut b = Builder::default();
+    let pos = b.f32s(&TRI, "VEC3");
+    let t = b.f32s(&[0.0], "SCALAR");
+    let v = b.f32s(&[0., 5., 0.], "VEC3");
+    let doc = b.gltf(&format!(
+        r#""meshes":[{{"primitives":[{{"attributes":{{"POSITION":{pos}}}}}]}}],
+        "nodes":[{{"translation":[10,0,0],"children":[1]}},
+                 {{"mesh":0,"matrix":[2,0,0,0, 0,2,0,0, 0,0,2,0, 1,0,0,1]}}],
+        "animations":[{{"samplers":[{{"input":{t},"output":{v}}}],
+                        "channels":[{{"sampler":0,"target":{{"node":1,"path":"translation"}}}}]}}]"#
+    ));
+    let m = load(&doc).unwrap().mesh_at(0.0).unwrap();
+    // Scale 2 kept from the matrix, its translation (1,0,0) replaced by the animated
+    // (0,5,0); the parent adds (10,0,0).
+    assert!(
+        close(m.positions[1], Vec3::new(12., 5., 0.)),
+        "{}",
+        m.positions[1]
+    );
+}
