@@ -10,6 +10,7 @@ use crate::SceneError;
 use base64::Engine as _;
 use gltf::accessor::{DataType, Dimensions};
 use gltf::Accessor;
+use std::cell::Cell;
 use std::io::Read as _;
 use std::path::{Component, Path, PathBuf};
 
@@ -17,11 +18,17 @@ use std::path::{Component, Path, PathBuf};
 /// base of a sparse accessor) may have: such a count is backed by no data, so it is capped.
 const MAX_ZERO_ACCESSOR_ELEMENTS: usize = 1 << 24;
 
+/// How many times over the buffers' bytes may be decoded in total (see [`Reader::new`]).
+const DECODE_BUDGET_FACTOR: u64 = 64;
+/// Decode allowance independent of the buffer size (covers accessors without views).
+const DECODE_BUDGET_SLACK: u64 = 1 << 28;
+
 const GLB_MAGIC: &[u8; 4] = b"glTF";
 const CHUNK_JSON: u32 = 0x4E4F_534A;
 const CHUNK_BIN: u32 = 0x004E_4942;
 
 /// The two parts of a GLB file.
+#[derive(Debug)]
 pub(super) struct Glb<'a> {
     /// The JSON chunk.
     pub json: &'a [u8],
@@ -217,9 +224,11 @@ fn load_uri(
 /// Decodes accessors from resolved buffers, naming the file in every error.
 pub(super) struct Reader<'a> {
     /// The file, for error messages.
-    pub path: &'a Path,
+    path: &'a Path,
     /// Resolved buffers.
-    pub buffers: &'a [Vec<u8>],
+    buffers: &'a [Vec<u8>],
+    /// Bytes of element data still allowed to be decoded (see [`Reader::new`]).
+    budget: Cell<u64>,
 }
 
 /// How a component of an accessor becomes a float.
@@ -260,7 +269,31 @@ fn dims_name(d: Dimensions) -> &'static str {
     }
 }
 
-impl Reader<'_> {
+impl<'a> Reader<'a> {
+    /// A reader over `buffers`. Many accessors may reference the same bytes, so a small
+    /// JSON could make the loader decode one large buffer millions of times; the total
+    /// decoded is capped at [`DECODE_BUDGET_FACTOR`] times the buffer bytes (plus
+    /// [`DECODE_BUDGET_SLACK`]), far above what any real file needs.
+    pub fn new(path: &'a Path, buffers: &'a [Vec<u8>]) -> Self {
+        let total: u64 = buffers.iter().map(|b| b.len() as u64).sum();
+        Reader {
+            path,
+            buffers,
+            budget: Cell::new(total.saturating_mul(DECODE_BUDGET_FACTOR) + DECODE_BUDGET_SLACK),
+        }
+    }
+
+    fn charge(&self, what: &str, bytes: u64) -> Result<(), SceneError> {
+        let left = self.budget.get();
+        if bytes > left {
+            return Err(self.err(format!(
+                "{what}: accessors reference the buffers more than {DECODE_BUDGET_FACTOR} times over"
+            )));
+        }
+        self.budget.set(left - bytes);
+        Ok(())
+    }
+
     fn err(&self, msg: String) -> SceneError {
         SceneError::malformed(self.path, msg)
     }
@@ -339,9 +372,11 @@ impl Reader<'_> {
         let elem = comps * csize;
         let count = acc.count();
         let normalized = acc.normalized();
+        let charge = (count as u64).saturating_mul(elem as u64);
         let mut out: Vec<T> = match acc.view() {
             Some(view) => {
                 let (bytes, stride) = self.view_range(&what, &view, acc.offset(), count, elem)?;
+                self.charge(&what, charge)?;
                 let mut v = Vec::with_capacity(count * comps);
                 for e in 0..count {
                     let base = e * stride;
@@ -358,6 +393,7 @@ impl Reader<'_> {
                         "{what}: {count} elements without a buffer view (limit {MAX_ZERO_ACCESSOR_ELEMENTS})"
                     )));
                 }
+                self.charge(&what, charge)?;
                 vec![T::default(); count * comps]
             }
         };
@@ -435,5 +471,64 @@ impl Reader<'_> {
         dims: &[Dimensions],
     ) -> Result<(Vec<f32>, usize), SceneError> {
         self.decode(what, acc, dims, &[DataType::F32], to_f32)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn decode_budget_is_bounded_by_buffer_size() {
+        let bufs = vec![vec![0u8; 1000]];
+        let r = Reader::new(Path::new("x.glb"), &bufs);
+        let total = 1000 * DECODE_BUDGET_FACTOR + DECODE_BUDGET_SLACK;
+        assert!(r.charge("a", total - 10).is_ok());
+        assert!(r.charge("a", 10).is_ok());
+        let e = r.charge("accessor 3", 1).unwrap_err().to_string();
+        assert!(e.contains("x.glb") && e.contains("accessor 3"), "{e}");
+    }
+
+    #[test]
+    fn glb_chunks() {
+        let mut g = b"glTF\x02\0\0\0\0\0\0\0".to_vec();
+        g.extend_from_slice(&2u32.to_le_bytes());
+        g.extend_from_slice(&CHUNK_JSON.to_le_bytes());
+        g.extend_from_slice(b"{}");
+        // An unknown chunk type is skipped (after 4-byte alignment), then the BIN chunk.
+        g.extend_from_slice(&[0, 0]);
+        g.extend_from_slice(&1u32.to_le_bytes());
+        g.extend_from_slice(b"XTRA");
+        g.extend_from_slice(&[9, 0, 0, 0]);
+        g.extend_from_slice(&3u32.to_le_bytes());
+        g.extend_from_slice(&CHUNK_BIN.to_le_bytes());
+        g.extend_from_slice(&[1, 2, 3]);
+        let n = g.len() as u32;
+        g[8..12].copy_from_slice(&n.to_le_bytes());
+        let glb = parse_glb(&g).unwrap();
+        assert_eq!(glb.json, b"{}");
+        assert_eq!(glb.bin, Some(&[1u8, 2, 3][..]));
+        // Declared length larger than the data, smaller than the header, bad version.
+        let mut long = g.clone();
+        long[8..12].copy_from_slice(&(n + 1).to_le_bytes());
+        assert!(parse_glb(&long).unwrap_err().contains("declares"));
+        let mut short = g.clone();
+        short[8..12].copy_from_slice(&4u32.to_le_bytes());
+        assert!(parse_glb(&short).is_err());
+        let mut v1 = g.clone();
+        v1[4] = 1;
+        assert!(parse_glb(&v1).unwrap_err().contains("version"));
+        // First chunk not JSON.
+        let mut bin_first = g.clone();
+        bin_first[16..20].copy_from_slice(&CHUNK_BIN.to_le_bytes());
+        assert!(parse_glb(&bin_first).is_err());
+    }
+
+    #[test]
+    fn percent_decoding() {
+        assert_eq!(percent_decode("a%20b.bin").unwrap(), "a b.bin");
+        assert!(percent_decode("a%2").is_err());
+        assert!(percent_decode("a%zz").is_err());
+        assert!(percent_decode("%ff").is_err());
     }
 }

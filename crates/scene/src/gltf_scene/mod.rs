@@ -189,10 +189,7 @@ pub fn parse(
     validate(&root).map_err(|m| bad(format!("invalid glTF: {m}")))?;
     let doc = gltf::Document::from_json_without_validation(root);
     let buffers = data::resolve_buffers(&doc, bin, base_dir, path)?;
-    let reader = data::Reader {
-        path,
-        buffers: &buffers,
-    };
+    let reader = data::Reader::new(path, &buffers);
     Loader {
         path,
         doc: &doc,
