@@ -172,7 +172,8 @@ pub fn parse(
         let glb = data::parse_glb(bytes).map_err(bad)?;
         (glb.json, glb.bin)
     } else {
-        (bytes, None)
+        // A UTF-8 byte order mark is not JSON; the spec lets readers ignore it.
+        (bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes), None)
     };
     let root: gltf::json::Root = gltf::json::deserialize::from_slice(json)
         .map_err(|e| bad(format!("invalid glTF JSON: {e}")))?;

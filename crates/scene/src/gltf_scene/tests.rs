@@ -550,6 +550,16 @@ fn cyclic_and_shared_nodes_are_errors() {
 }
 
 #[test]
+fn utf8_bom_is_ignored() {
+    let mut doc = b"\xEF\xBB\xBF".to_vec();
+    doc.extend(hierarchy_doc(r#""scale":[1,1,1]"#));
+    assert_eq!(
+        load(&doc).unwrap().mesh_at(0.0).unwrap().triangle_count(),
+        1
+    );
+}
+
+#[test]
 fn garbage_and_empty_inputs_are_errors() {
     for bytes in [
         &b""[..],
