@@ -47,16 +47,23 @@ fn bench_load(c: &mut Criterion) {
     let mesh = sphere(500, 1000); // 1,000,000 triangles
     let tris = mesh.triangle_count();
     let dir = tempfile::tempdir().expect("tempdir");
-    let write = |name: &str, f: &dyn Fn(&mut std::io::BufWriter<std::fs::File>) -> std::io::Result<()>| {
-        let p = dir.path().join(name);
-        let mut w = std::io::BufWriter::new(std::fs::File::create(&p).expect("create"));
-        f(&mut w).expect("write");
-        drop(w);
-        p
-    };
+    let write =
+        |name: &str, f: &dyn Fn(&mut std::io::BufWriter<std::fs::File>) -> std::io::Result<()>| {
+            let p = dir.path().join(name);
+            let mut w = std::io::BufWriter::new(std::fs::File::create(&p).expect("create"));
+            f(&mut w).expect("write");
+            drop(w);
+            p
+        };
     let files = [
-        ("ply_binary", write("m.ply", &|w| scene::ply::write_binary_le(&mesh, w))),
-        ("ply_ascii", write("m_ascii.ply", &|w| scene::ply::write_ascii(&mesh, w))),
+        (
+            "ply_binary",
+            write("m.ply", &|w| scene::ply::write_binary_le(&mesh, w)),
+        ),
+        (
+            "ply_ascii",
+            write("m_ascii.ply", &|w| scene::ply::write_ascii(&mesh, w)),
+        ),
         ("obj", write("m.obj", &|w| scene::obj::write(&mesh, w))),
     ];
     let opts = LoadOptions::default();

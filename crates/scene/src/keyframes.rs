@@ -33,7 +33,10 @@ pub fn open_dir(spec: &str, dir: &Path, opts: &LoadOptions) -> Result<Box<dyn Sc
         }
     }
     if files.is_empty() {
-        return Err(SceneError::spec(spec, "directory has no .obj or .ply files"));
+        return Err(SceneError::spec(
+            spec,
+            "directory has no .obj or .ply files",
+        ));
     }
     files.sort();
     let name = dir
@@ -45,7 +48,8 @@ pub fn open_dir(spec: &str, dir: &Path, opts: &LoadOptions) -> Result<Box<dyn Sc
 
 /// Opens the files matching a glob pattern, in name order, as a keyframe sequence.
 pub fn open_glob(spec: &str, opts: &LoadOptions) -> Result<Box<dyn Scene>, SceneError> {
-    let paths = glob::glob(spec).map_err(|e| SceneError::spec(spec, format!("bad glob pattern: {e}")))?;
+    let paths =
+        glob::glob(spec).map_err(|e| SceneError::spec(spec, format!("bad glob pattern: {e}")))?;
     let mut files = Vec::new();
     for p in paths {
         let p = p.map_err(|e| SceneError::spec(spec, e.to_string()))?;
@@ -78,10 +82,18 @@ pub struct KeyframeScene {
 
 impl KeyframeScene {
     /// Opens a sequence of frame files (already in frame order); reads only frame 0.
-    pub fn open(spec: &str, name: &str, files: Vec<PathBuf>, opts: &LoadOptions) -> Result<Self, SceneError> {
+    pub fn open(
+        spec: &str,
+        name: &str,
+        files: Vec<PathBuf>,
+        opts: &LoadOptions,
+    ) -> Result<Self, SceneError> {
         let fps = opts.fps.unwrap_or(DEFAULT_FPS);
         if !(fps.is_finite() && fps > 0.0) {
-            return Err(SceneError::spec(spec, format!("frame rate must be positive, got {fps}")));
+            return Err(SceneError::spec(
+                spec,
+                format!("frame rate must be positive, got {fps}"),
+            ));
         }
         if files.is_empty() {
             return Err(SceneError::spec(spec, "no frames"));
@@ -190,7 +202,10 @@ impl Scene for KeyframeScene {
             a.as_ref().clone()
         } else {
             let b = self.positions(i1)?;
-            a.iter().zip(b.iter()).map(|(&p, &q)| p.lerp(q, w)).collect()
+            a.iter()
+                .zip(b.iter())
+                .map(|(&p, &q)| p.lerp(q, w))
+                .collect()
         };
         Ok(Mesh {
             positions,
@@ -241,9 +256,21 @@ mod tests {
         assert_eq!(s.info().timeline.duration_s, 2.0);
         assert_eq!(s.info().timeline.frame_count(), 5);
         assert_eq!(s.info().format, "keyframes");
-        for (t, x) in [(0.0, 0.0), (0.25, 0.5), (1.0, 2.0), (1.75, 3.5), (2.0, 4.0), (9.0, 4.0), (-1.0, 0.0)] {
+        for (t, x) in [
+            (0.0, 0.0),
+            (0.25, 0.5),
+            (1.0, 2.0),
+            (1.75, 3.5),
+            (2.0, 4.0),
+            (9.0, 4.0),
+            (-1.0, 0.0),
+        ] {
             let m = s.mesh_at(t).unwrap();
-            assert!((m.positions[0].x - x).abs() < 1e-6, "t={t}: {}", m.positions[0].x);
+            assert!(
+                (m.positions[0].x - x).abs() < 1e-6,
+                "t={t}: {}",
+                m.positions[0].x
+            );
             assert_eq!(m.positions[1], Vec3::X);
             assert_eq!(m.triangles, frame(0.0).triangles);
         }
@@ -258,11 +285,18 @@ mod tests {
         let s = open_glob(&pat, &LoadOptions::default()).unwrap();
         assert_eq!(s.info().timeline.duration_s, 1.0 / DEFAULT_FPS);
         assert_eq!(s.mesh_at(1.0).unwrap().positions[0].x, 2.0);
-        let e = open_glob(&format!("{}/*.nothing", d.path().display()), &LoadOptions::default()).err().unwrap();
+        let e = open_glob(
+            &format!("{}/*.nothing", d.path().display()),
+            &LoadOptions::default(),
+        )
+        .err()
+        .unwrap();
         assert!(e.to_string().contains("no files match"), "{e}");
         assert!(open_glob("[", &LoadOptions::default()).is_err());
         let empty = tempfile::tempdir().unwrap();
-        let e = open_dir("empty", empty.path(), &LoadOptions::default()).err().unwrap();
+        let e = open_dir("empty", empty.path(), &LoadOptions::default())
+            .err()
+            .unwrap();
         assert!(e.to_string().contains("no .obj or .ply"), "{e}");
         assert!(open_dir("seq", d.path(), &opts(0.0)).is_err());
         assert!(open_dir("seq", d.path(), &opts(f32::NAN)).is_err());

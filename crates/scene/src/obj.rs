@@ -138,7 +138,7 @@ pub fn parse(bytes: &[u8], path: &Path, opts: &LoadOptions) -> Result<LoadedMesh
 
     while let Some((no, line)) = lines.next() {
         count += 1;
-        if count % 4096 == 0 {
+        if count & 4095 == 0 {
             progress.at(lines.pos);
         }
         let line: &[u8] = &line;
@@ -153,8 +153,11 @@ pub fn parse(bytes: &[u8], path: &Path, opts: &LoadOptions) -> Result<LoadedMesh
             b"v" => {
                 let mut xyz = [0f32; 3];
                 for c in &mut xyz {
-                    let t = w.next().ok_or_else(|| err("'v' needs three coordinates".into()))?;
-                    *c = parse_f32(t).ok_or_else(|| err(format!("bad coordinate '{}'", show(t))))?;
+                    let t = w
+                        .next()
+                        .ok_or_else(|| err("'v' needs three coordinates".into()))?;
+                    *c =
+                        parse_f32(t).ok_or_else(|| err(format!("bad coordinate '{}'", show(t))))?;
                 }
                 if positions.len() >= u32::MAX as usize {
                     return Err(err("more than 2^32-1 vertices".into()));
@@ -177,7 +180,10 @@ pub fn parse(bytes: &[u8], path: &Path, opts: &LoadOptions) -> Result<LoadedMesh
                     poly.push(idx as u32);
                 }
                 if poly.len() < 3 {
-                    return Err(err(format!("face has {} vertices (need at least 3)", poly.len())));
+                    return Err(err(format!(
+                        "face has {} vertices (need at least 3)",
+                        poly.len()
+                    )));
                 }
                 if poly.len() > 3 {
                     polygons += 1;
@@ -197,7 +203,10 @@ pub fn parse(bytes: &[u8], path: &Path, opts: &LoadOptions) -> Result<LoadedMesh
             }
             b"usemtl" => {
                 // The name is the rest of the line, spaces included.
-                let rest = line.trim_ascii_start().strip_prefix(b"usemtl").unwrap_or(b"");
+                let rest = line
+                    .trim_ascii_start()
+                    .strip_prefix(b"usemtl")
+                    .unwrap_or(b"");
                 let name = String::from_utf8_lossy(rest.trim_ascii()).into_owned();
                 if name.is_empty() {
                     return Err(err("'usemtl' without a material name".into()));
@@ -213,7 +222,13 @@ pub fn parse(bytes: &[u8], path: &Path, opts: &LoadOptions) -> Result<LoadedMesh
         names.clear();
     }
     progress.done();
-    Ok(finish_mesh(positions, triangles, material_ids, names, polygons))
+    Ok(finish_mesh(
+        positions,
+        triangles,
+        material_ids,
+        names,
+        polygons,
+    ))
 }
 
 fn intern(names: &mut Vec<String>, by_name: &mut HashMap<String, u32>, name: &str) -> u32 {
@@ -256,7 +271,13 @@ mod tests {
 
     #[test]
     fn face_forms_and_relative_indices() {
-        for f in ["f 1 2 3", "f 1/1 2/2 3/3", "f 1//4 2//4 3//4", "f 1/2/3 2/2/3 3/1/1", "f -4 -3 -2"] {
+        for f in [
+            "f 1 2 3",
+            "f 1/1 2/2 3/3",
+            "f 1//4 2//4 3//4",
+            "f 1/2/3 2/2/3 3/1/1",
+            "f -4 -3 -2",
+        ] {
             let m = parse_ok(format!("{SQUARE}{f}\n").as_bytes());
             assert_eq!(m.mesh.triangles, vec![[0, 1, 2]], "{f}");
             assert!(m.mesh.material_names.is_empty());
@@ -280,7 +301,10 @@ mod tests {
             "{SQUARE}f 1 2 3\nusemtl stone\nf 1 2 3\nusemtl wood floor\nf 1 3 4\nusemtl stone\nf 2 3 4\n"
         );
         let m = parse_ok(src.as_bytes());
-        assert_eq!(m.mesh.material_names, vec!["default", "stone", "wood floor"]);
+        assert_eq!(
+            m.mesh.material_names,
+            vec!["default", "stone", "wood floor"]
+        );
         assert_eq!(m.mesh.material_ids, vec![0, 1, 2, 1]);
         // No face before the first usemtl: no "default".
         let m = parse_ok(format!("{SQUARE}usemtl a\nf 1 2 3 4\n").as_bytes());
@@ -296,7 +320,10 @@ mod tests {
         assert!(parse_err(format!("{SQUARE}f -5 1 2\n").as_bytes()).contains("index -5"));
         assert!(parse_err(format!("{SQUARE}f 1 2\n").as_bytes()).contains("2 vertices"));
         assert!(parse_err(format!("{SQUARE}f 1 2 x\n").as_bytes()).contains("bad face vertex 'x'"));
-        assert!(parse_err(format!("{SQUARE}f 1 2 99999999999999999999\n").as_bytes()).contains("bad face"));
+        assert!(
+            parse_err(format!("{SQUARE}f 1 2 99999999999999999999\n").as_bytes())
+                .contains("bad face")
+        );
         assert!(parse_err(b"v 1 2\n").contains("three coordinates"));
         assert!(parse_err(b"v 1 2 \xff\n").contains("line 1: bad coordinate"));
         assert!(parse_err(b"f 1 2 3\nv 0 0 0\n").contains("out of range"));
@@ -325,7 +352,8 @@ mod tests {
 
     #[test]
     fn horse_frame() {
-        let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/scenes/horse-gallop/0001.obj");
+        let path = Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../../shared/scenes/horse-gallop/0001.obj");
         if !path.exists() {
             eprintln!("skipping: {} not found", path.display());
             return;

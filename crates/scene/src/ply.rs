@@ -283,6 +283,9 @@ fn parse_header(bytes: &[u8]) -> Result<Header, String> {
     let mut line_no = 0;
     let mut format = None;
     let mut elements: Vec<Element> = Vec::new();
+    // Duplicate checks by set: a hostile header may declare many thousands of names.
+    let mut element_names = std::collections::HashSet::new();
+    let mut prop_names = std::collections::HashSet::new();
     loop {
         if pos >= MAX_HEADER_BYTES.min(bytes.len()) {
             return Err(if bytes.is_empty() {
@@ -308,7 +311,9 @@ fn parse_header(bytes: &[u8]) -> Result<Header, String> {
             continue;
         }
         let mut words = line.split_ascii_whitespace();
-        let Some(keyword) = words.next() else { continue };
+        let Some(keyword) = words.next() else {
+            continue;
+        };
         let err = |m: &str| format!("header line {line_no}: {m}: '{line}'");
         match keyword {
             "comment" | "obj_info" => {}
@@ -333,9 +338,10 @@ fn parse_header(bytes: &[u8]) -> Result<Header, String> {
                     return Err(err("expected 'element NAME COUNT'"));
                 };
                 let count: u64 = count.parse().map_err(|_| err("bad element count"))?;
-                if elements.iter().any(|e| e.name == name) {
+                if !element_names.insert(name.to_string()) {
                     return Err(err("element declared twice"));
                 }
+                prop_names.clear();
                 elements.push(Element {
                     name: name.to_string(),
                     count,
@@ -349,7 +355,8 @@ fn parse_header(bytes: &[u8]) -> Result<Header, String> {
                 let words: Vec<&str> = words.collect();
                 let (kind, name) = match words.as_slice() {
                     ["list", c, i, name] => {
-                        let count = Scalar::parse(c).ok_or_else(|| err("unknown list count type"))?;
+                        let count =
+                            Scalar::parse(c).ok_or_else(|| err("unknown list count type"))?;
                         let item = Scalar::parse(i).ok_or_else(|| err("unknown list item type"))?;
                         if !count.is_int() {
                             return Err(err("list count type must be an integer type"));
@@ -360,9 +367,13 @@ fn parse_header(bytes: &[u8]) -> Result<Header, String> {
                         let s = Scalar::parse(t).ok_or_else(|| err("unknown property type"))?;
                         (Kind::Scalar(s), *name)
                     }
-                    _ => return Err(err("expected 'property TYPE NAME' or 'property list COUNT ITEM NAME'")),
+                    _ => {
+                        return Err(err(
+                            "expected 'property TYPE NAME' or 'property list COUNT ITEM NAME'",
+                        ))
+                    }
                 };
-                if el.props.iter().any(|p| p.name == name) {
+                if !prop_names.insert(name.to_string()) {
                     return Err(err("property declared twice"));
                 }
                 el.props.push(Property {
@@ -421,7 +432,9 @@ fn layout(h: &Header) -> Result<Layout, String> {
                 .ok_or("element 'face' has no 'vertex_indices' list")?;
             match f.props[pi].kind {
                 Kind::List { item, .. } if item.is_int() => {}
-                Kind::List { .. } => return Err("face vertex_indices must have an integer item type".into()),
+                Kind::List { .. } => {
+                    return Err("face vertex_indices must have an integer item type".into())
+                }
                 Kind::Scalar(_) => return Err("face vertex_indices is not a list".into()),
             }
             Some((fi, pi))
@@ -447,7 +460,10 @@ impl Raw {
     #[inline]
     fn push_face(&mut self, poly: &[u32], face: u64) -> Result<(), String> {
         if poly.len() < 3 {
-            return Err(format!("face {face} has {} vertices (need at least 3)", poly.len()));
+            return Err(format!(
+                "face {face} has {} vertices (need at least 3)",
+                poly.len()
+            ));
         }
         if poly.len() > 3 {
             self.polygons += 1;
@@ -462,7 +478,9 @@ impl Raw {
 #[inline]
 fn check_index(v: i64, nv: u32, face: u64) -> Result<u32, String> {
     if v < 0 || v >= nv as i64 {
-        Err(format!("face {face}: vertex index {v} out of range ({nv} vertices)"))
+        Err(format!(
+            "face {face}: vertex index {v} out of range ({nv} vertices)"
+        ))
     } else {
         Ok(v as u32)
     }
@@ -552,7 +570,10 @@ fn rd_int<const BE: bool>(t: Scalar, b: &[u8]) -> i64 {
 }
 
 fn truncated(el: &Element, i: u64) -> String {
-    format!("truncated data in element '{}' at record {i} of {}", el.name, el.count)
+    format!(
+        "truncated data in element '{}' at record {i} of {}",
+        el.name, el.count
+    )
 }
 
 fn read_body_binary<const BE: bool>(
@@ -574,7 +595,11 @@ fn read_body_binary<const BE: bool>(
             // No properties: the records take no bytes, whatever the count.
             continue;
         }
-        if el.count.checked_mul(min as u64).is_none_or(|n| n > remaining as u64) {
+        if el
+            .count
+            .checked_mul(min as u64)
+            .is_none_or(|n| n > remaining as u64)
+        {
             return Err(format!(
                 "element '{}' declares {} records of at least {min} bytes but only {remaining} bytes remain",
                 el.name, el.count
@@ -639,7 +664,11 @@ fn read_vertices_binary<const BE: bool>(
         for (ci, chunk) in body.chunks(CHUNK * size).enumerate() {
             if types == [Scalar::F32; 3] {
                 out.extend(chunk.chunks_exact(size).map(|r| {
-                    Vec3::new(rd_f32::<BE>(r, ox), rd_f32::<BE>(r, oy), rd_f32::<BE>(r, oz))
+                    Vec3::new(
+                        rd_f32::<BE>(r, ox),
+                        rd_f32::<BE>(r, oy),
+                        rd_f32::<BE>(r, oz),
+                    )
                 }));
             } else {
                 out.extend(chunk.chunks_exact(size).map(|r| {
@@ -660,7 +689,9 @@ fn read_vertices_binary<const BE: bool>(
         for (pi, p) in el.props.iter().enumerate() {
             match p.kind {
                 Kind::Scalar(s) => {
-                    let b = data.get(pos..pos + s.size()).ok_or_else(|| truncated(el, i))?;
+                    let b = data
+                        .get(pos..pos + s.size())
+                        .ok_or_else(|| truncated(el, i))?;
                     if let Some(k) = xyz.iter().position(|&x| x == pi) {
                         v[k] = rd_f64::<BE>(s, b) as f32;
                     }
@@ -672,12 +703,13 @@ fn read_vertices_binary<const BE: bool>(
                         count: 1,
                         props: vec![p.clone()],
                     };
-                    pos = skip_record_binary::<BE>(data, pos, &one).ok_or_else(|| truncated(el, i))?;
+                    pos = skip_record_binary::<BE>(data, pos, &one)
+                        .ok_or_else(|| truncated(el, i))?;
                 }
             }
         }
         out.push(Vec3::from(v));
-        if i % 4096 == 0 {
+        if i & 4095 == 0 {
             progress.at(pos);
         }
     }
@@ -718,10 +750,14 @@ fn read_faces_binary<const BE: bool>(
             // Indices are compared as u32: a negative `int` becomes >= 2^31 and fails the
             // range check like any other out-of-range value.
             if k == 3 {
-                let t = [rd_u32::<BE>(rec, 0), rd_u32::<BE>(rec, 4), rd_u32::<BE>(rec, 8)];
+                let t = [
+                    rd_u32::<BE>(rec, 0),
+                    rd_u32::<BE>(rec, 4),
+                    rd_u32::<BE>(rec, 8),
+                ];
                 if t.iter().all(|&v| v < nv) {
                     raw.triangles.push(t);
-                    if i % 8192 == 0 {
+                    if i & 8191 == 0 {
                         progress.at(pos);
                     }
                     continue;
@@ -730,7 +766,11 @@ fn read_faces_binary<const BE: bool>(
             poly.clear();
             for j in 0..k {
                 let v = rd_u32::<BE>(rec, 4 * j);
-                let v = if item == Scalar::I32 { v as i32 as i64 } else { v as i64 };
+                let v = if item == Scalar::I32 {
+                    v as i32 as i64
+                } else {
+                    v as i64
+                };
                 poly.push(check_index(v, nv, i)?);
             }
             raw.push_face(&poly, i)?;
@@ -744,11 +784,16 @@ fn read_faces_binary<const BE: bool>(
             match p.kind {
                 Kind::Scalar(s) => pos += s.size(),
                 Kind::List { count, item } => {
-                    let b = data.get(pos..pos + count.size()).ok_or_else(|| truncated(el, i))?;
+                    let b = data
+                        .get(pos..pos + count.size())
+                        .ok_or_else(|| truncated(el, i))?;
                     let n = rd_int::<BE>(count, b);
                     pos += count.size();
                     if n < 0 {
-                        return Err(format!("element '{}' record {i}: negative list length {n}", el.name));
+                        return Err(format!(
+                            "element '{}' record {i}: negative list length {n}",
+                            el.name
+                        ));
                     }
                     let n = n as usize;
                     let bytes = data
@@ -767,7 +812,7 @@ fn read_faces_binary<const BE: bool>(
             }
         }
         raw.push_face(&poly, i)?;
-        if i % 4096 == 0 {
+        if i & 4095 == 0 {
             progress.at(pos);
         }
     }
@@ -800,7 +845,10 @@ impl<'a> Tokens<'a> {
 
     /// 1-based line of the current position, for error messages.
     fn line(&self) -> usize {
-        1 + self.data[..self.pos].iter().filter(|&&b| b == b'\n').count()
+        1 + self.data[..self.pos]
+            .iter()
+            .filter(|&&b| b == b'\n')
+            .count()
     }
 }
 
@@ -860,7 +908,11 @@ fn read_body_ascii(data: &[u8], h: &Header, progress: &mut Progress) -> Result<R
         let remaining = data.len() - tk.pos;
         // Every value is at least one character plus a separator (the last may lack one).
         let min = 2 * nvals;
-        if el.count.checked_mul(min as u64).is_none_or(|n| n > remaining as u64 + 1) {
+        if el
+            .count
+            .checked_mul(min as u64)
+            .is_none_or(|n| n > remaining as u64 + 1)
+        {
             return Err(format!(
                 "element '{}' declares {} records of {nvals} values but only {remaining} bytes remain",
                 el.name, el.count
@@ -897,9 +949,9 @@ fn read_body_ascii(data: &[u8], h: &Header, progress: &mut Progress) -> Result<R
                         }
                     }
                     Kind::List { .. } => {
-                        let n = parse_int(tok)
-                            .filter(|&n| n >= 0)
-                            .ok_or_else(|| err(&tk, i, format!("bad list length '{}'", show(tok))))?;
+                        let n = parse_int(tok).filter(|&n| n >= 0).ok_or_else(|| {
+                            err(&tk, i, format!("bad list length '{}'", show(tok)))
+                        })?;
                         for _ in 0..n {
                             let t = tk.next().ok_or_else(|| truncated(el, i))?;
                             if face_list == Some(pi) {
@@ -917,7 +969,7 @@ fn read_body_ascii(data: &[u8], h: &Header, progress: &mut Progress) -> Result<R
             } else if face_list.is_some() {
                 raw.push_face(&poly, i)?;
             }
-            if i % 1024 == 0 {
+            if i & 1023 == 0 {
                 progress.at(tk.pos);
             }
         }
@@ -1005,7 +1057,11 @@ mod tests {
     fn binary_extra(be: bool) -> Vec<u8> {
         let hdr = ASCII_EXTRA.split("end_header\r\n").next().unwrap().replace(
             "format ascii 1.0",
-            if be { "format binary_big_endian 1.0" } else { "format binary_little_endian 1.0" },
+            if be {
+                "format binary_big_endian 1.0"
+            } else {
+                "format binary_little_endian 1.0"
+            },
         );
         let mut b = format!("{hdr}end_header\n").into_bytes();
         macro_rules! put {
@@ -1017,7 +1073,12 @@ mod tests {
                 }
             };
         }
-        let verts = [(0.0f64, 0i16, 0.0f32), (1.0, 0, 0.0), (1.0, 1, 0.0), (0.0, 1, 0.0)];
+        let verts = [
+            (0.0f64, 0i16, 0.0f32),
+            (1.0, 0, 0.0),
+            (1.0, 1, 0.0),
+            (0.0, 1, 0.0),
+        ];
         for (k, (x, y, z)) in verts.into_iter().enumerate() {
             b.push(k as u8);
             put!(x);
@@ -1060,7 +1121,10 @@ mod tests {
         assert!(e.contains("'face'"), "{e}");
         let be = binary_extra(true);
         for cut in 1..be.len() {
-            assert!(parse(&be[..cut], p(), &LoadOptions::default()).is_err(), "cut {cut}");
+            assert!(
+                parse(&be[..cut], p(), &LoadOptions::default()).is_err(),
+                "cut {cut}"
+            );
         }
     }
 
@@ -1096,18 +1160,61 @@ mod tests {
         assert!(parse_err(b"ply\nformat ascii 2.0\nend_header\n").contains("version"));
         assert!(parse_err(b"ply\nformat utf8 1.0\nend_header\n").contains("unknown format"));
         assert!(parse_err(b"ply\nend_header\n").contains("format"));
-        assert!(parse_err(b"ply\nformat ascii 1.0\nproperty float x\nend_header\n").contains("before any element"));
-        assert!(parse_err(b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float128 x\nend_header\n").contains("unknown property type"));
-        assert!(parse_err(b"ply\nformat ascii 1.0\nelement vertex -1\nend_header\n").contains("count"));
-        assert!(parse_err(b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n1\n").contains("'y'"));
-        assert!(parse_err(b"ply\nformat ascii 1.0\nfoo\nend_header\n").contains("unknown header keyword"));
-        assert!(parse_err(b"ply\nformat ascii 1.0\n\xff\xfe\nend_header\n").contains("not valid text"));
+        assert!(
+            parse_err(b"ply\nformat ascii 1.0\nproperty float x\nend_header\n")
+                .contains("before any element")
+        );
+        assert!(parse_err(
+            b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float128 x\nend_header\n"
+        )
+        .contains("unknown property type"));
+        assert!(
+            parse_err(b"ply\nformat ascii 1.0\nelement vertex -1\nend_header\n").contains("count")
+        );
+        assert!(parse_err(
+            b"ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nend_header\n1\n"
+        )
+        .contains("'y'"));
+        assert!(parse_err(b"ply\nformat ascii 1.0\nfoo\nend_header\n")
+            .contains("unknown header keyword"));
+        assert!(
+            parse_err(b"ply\nformat ascii 1.0\nelement a 0\nelement a 0\nend_header\n")
+                .contains("element declared twice")
+        );
+        assert!(parse_err(
+            b"ply\nformat ascii 1.0\nelement a 0\nproperty int b\nproperty float b\nend_header\n"
+        )
+        .contains("property declared twice"));
+        // Many elements: the header check stays linear.
+        let mut big = String::from("ply\nformat ascii 1.0\n");
+        for i in 0..20_000 {
+            big += &format!("element e{i} 0\nproperty int p\n");
+        }
+        big += "end_header\n";
+        assert!(parse_err(big.as_bytes()).contains("no 'vertex'"));
+        assert!(
+            parse_err(b"ply\nformat ascii 1.0\n\xff\xfe\nend_header\n").contains("not valid text")
+        );
         assert!(parse_err(b"ply\nformat ascii 1.0\nelement face 0\nproperty list uchar int vertex_indices\nend_header\n").contains("no 'vertex'"));
         let hdr = "ply\nformat ascii 1.0\nelement vertex 0\nproperty float x\nproperty float y\nproperty float z\n";
-        assert!(parse_err(format!("{hdr}element face 0\nproperty list float float vertex_indices\nend_header\n").as_bytes()).contains("integer"));
-        assert!(parse_err(format!("{hdr}element face 0\nproperty list uchar float vertex_indices\nend_header\n").as_bytes()).contains("integer"));
-        assert!(parse_err(format!("{hdr}element face 0\nproperty int vertex_indices\nend_header\n").as_bytes()).contains("not a list"));
-        assert!(parse_err(format!("{hdr}element face 0\nproperty int flags\nend_header\n").as_bytes()).contains("vertex_indices"));
+        assert!(parse_err(
+            format!("{hdr}element face 0\nproperty list float float vertex_indices\nend_header\n")
+                .as_bytes()
+        )
+        .contains("integer"));
+        assert!(parse_err(
+            format!("{hdr}element face 0\nproperty list uchar float vertex_indices\nend_header\n")
+                .as_bytes()
+        )
+        .contains("integer"));
+        assert!(parse_err(
+            format!("{hdr}element face 0\nproperty int vertex_indices\nend_header\n").as_bytes()
+        )
+        .contains("not a list"));
+        assert!(parse_err(
+            format!("{hdr}element face 0\nproperty int flags\nend_header\n").as_bytes()
+        )
+        .contains("vertex_indices"));
     }
 
     const HDR3: &str = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\nproperty float z\nelement face 1\nproperty list uchar int vertex_indices\nend_header\n0 0 0\n1 0 0\n0 1 0\n";
@@ -1121,7 +1228,10 @@ mod tests {
         assert!(parse_err(format!("{HDR3}-3 0 1 2\n").as_bytes()).contains("list length"));
         let bad_num = HDR3.replace("1 0 0\n", "1 zz 0\n");
         let e = parse_err(format!("{bad_num}3 0 1 2\n").as_bytes());
-        assert!(e.contains("bad number 'zz'") && e.contains("line 11"), "{e}");
+        assert!(
+            e.contains("bad number 'zz'") && e.contains("line 11"),
+            "{e}"
+        );
         // Binary: negative int index and degenerate face.
         let m = quad_mesh();
         let mut b = Vec::new();
@@ -1143,7 +1253,11 @@ mod tests {
         let l = parse_ok(&b);
         assert_eq!(l.dropped_triangles, 1);
         assert_eq!(l.mesh.triangles, vec![[0, 1, 2]]);
-        let l = parse_ok(format!("{HDR3}3 0 1 2\n").replace("1 0 0\n", "inf 0 0\n").as_bytes());
+        let l = parse_ok(
+            format!("{HDR3}3 0 1 2\n")
+                .replace("1 0 0\n", "inf 0 0\n")
+                .as_bytes(),
+        );
         assert_eq!((l.dropped_triangles, l.mesh.triangle_count()), (1, 0));
     }
 
@@ -1168,11 +1282,21 @@ mod tests {
 
     #[test]
     fn real_scenes() {
-        for (name, tris) in [("bunny.ply", 69_451), ("sibenik.ply", 75_284), ("dragon-res2.ply", 202_520)] {
-            let Some(path) = scene_path(name) else { continue };
+        for (name, tris) in [
+            ("bunny.ply", 69_451),
+            ("sibenik.ply", 75_284),
+            ("dragon-res2.ply", 202_520),
+        ] {
+            let Some(path) = scene_path(name) else {
+                continue;
+            };
             let l = load(&path, &LoadOptions::default()).unwrap();
             l.mesh.check().unwrap();
-            assert_eq!(l.mesh.triangle_count() + l.dropped_triangles, tris, "{name}");
+            assert_eq!(
+                l.mesh.triangle_count() + l.dropped_triangles,
+                tris,
+                "{name}"
+            );
             assert_eq!(l.dropped_triangles, 0, "{name}");
             assert!(l.mesh.bounds().is_finite(), "{name}");
         }
