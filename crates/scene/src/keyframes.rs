@@ -6,7 +6,8 @@
 //! Sequences can be long, so only frame 0 is read at open time (for the topology and the
 //! camera); other frames are read when first sampled and kept in a small LRU cache.
 //! A non-finite coordinate in any frame is an error (the crate's NaN policy for animated
-//! sources), as is a frame whose triangles differ from frame 0's.
+//! sources), as is a frame whose triangles differ from frame 0's; both are detected when a
+//! frame is first read, since frames are not read at open time.
 
 use crate::source::{load_mesh_file, DEFAULT_FPS};
 use crate::{Camera, LoadOptions, Mesh, Scene, SceneError, SceneInfo, Timeline};
@@ -75,6 +76,8 @@ pub struct KeyframeScene {
     files: Vec<PathBuf>,
     /// Frame 0's mesh: the topology and materials of every frame.
     first: Mesh,
+    /// Frame 0's positions, shared so sampling frame 0 copies them only once.
+    first_positions: Arc<Vec<Vec3>>,
     /// Recently used frames' positions, most recent last.
     cache: Mutex<Vec<(usize, Arc<Vec<Vec3>>)>>,
     opts: LoadOptions,
@@ -120,6 +123,7 @@ impl KeyframeScene {
         Ok(KeyframeScene {
             info,
             files,
+            first_positions: Arc::new(first.positions.clone()),
             first,
             cache: Mutex::new(Vec::new()),
             opts: frame_opts,
@@ -134,7 +138,7 @@ impl KeyframeScene {
     /// Positions of frame `i`, from the cache or read and checked against frame 0.
     fn positions(&self, i: usize) -> Result<Arc<Vec<Vec3>>, SceneError> {
         if i == 0 {
-            return Ok(Arc::new(self.first.positions.clone()));
+            return Ok(self.first_positions.clone());
         }
         {
             let mut c = self.cache.lock().unwrap_or_else(|e| e.into_inner());

@@ -1,9 +1,10 @@
 //! Wavefront OBJ loader and writer (geometry and material assignment only).
 //!
-//! A small dedicated parser over byte slices rather than `tobj`: we need only positions,
-//! faces and `usemtl` names (even when the `.mtl` file is missing), errors with line
-//! numbers for every bad index, no panics or unbounded allocation on hostile input, and a
-//! single pass without building normal/texcoord arrays we would discard.
+//! A small dedicated parser over byte slices rather than `tobj` (from its documentation:
+//! it splits the file into per-object/per-material models that we would have to re-merge,
+//! takes material ids from the `.mtl` file rather than `usemtl` names, and reports errors
+//! as context-free enum variants); we need one merged mesh, ids by `usemtl` name even when
+//! the `.mtl` is missing, line numbers in every error, and a single pass over the bytes.
 //!
 //! Supported: `v x y z [w]` (w and any vertex colours ignored), `f` with `v`, `v/vt`, `v//vn`
 //! and `v/vt/vn` corners, negative (relative) indices, polygons (fan-triangulated), `usemtl`,
