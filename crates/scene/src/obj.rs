@@ -365,6 +365,20 @@ mod tests {
         assert_eq!(m.dropped_triangles, 0);
     }
 
+    #[test]
+    fn fuzz_seeds_parse() {
+        // The fuzzers' seed files are valid and must stay so.
+        let dir = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../fuzz/seeds/obj");
+        let mut n = 0;
+        for e in std::fs::read_dir(&dir).unwrap() {
+            let path = e.unwrap().path();
+            let l = parse_ok(&std::fs::read(&path).unwrap());
+            assert!(l.mesh.triangle_count() > 0, "{}", path.display());
+            n += 1;
+        }
+        assert!(n >= 2);
+    }
+
     proptest! {
         #[test]
         fn prop_roundtrip(
