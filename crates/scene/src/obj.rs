@@ -8,13 +8,15 @@
 //!
 //! Supported: `v x y z [w]` (w and any vertex colours ignored), `f` with `v`, `v/vt`, `v//vn`
 //! and `v/vt/vn` corners, negative (relative) indices, polygons (fan-triangulated), `usemtl`,
-//! `#` comments (to the end of the line), blank lines, `\` line continuations and CRLF.
-//! Every other statement (`vt`, `vn`, `s`, `mtllib`, `l`, `p`, `g`, `o`, ...) is skipped.
+//! `g` and `o`, `#` comments (to the end of the line), blank lines, `\` line continuations
+//! and CRLF. Every other statement (`vt`, `vn`, `s`, `mtllib`, `l`, `p`, ...) is skipped.
 //!
-//! Materials: ids follow `usemtl` names in order of first use; `g` / `o` groups do not
-//! change the material. Faces before the first `usemtl` get a material named `default`,
-//! which is created only when such faces exist and the file also uses `usemtl`; a file
-//! without any `usemtl` has no material names and every id is 0.
+//! Materials: ids follow `usemtl` names in order of first use. Faces before the first
+//! `usemtl` get a material named `default`, which is created only when such faces exist and
+//! the file also uses `usemtl`. A file without any `usemtl` but with `g` / `o` statements
+//! keeps its groups instead: the group names (first name of a `g` line, or the `o` name)
+//! become the material names and ids, in order of first use, with `default` for faces
+//! before the first group. A file with neither has no material names and every id is 0.
 //!
 //! Lines are bytes, not text: non-UTF-8 bytes are fine in comments, skipped statements and
 //! material names (converted lossily); in a number they are an error with the line number.
@@ -133,6 +135,12 @@ pub fn parse(bytes: &[u8], path: &Path, opts: &LoadOptions) -> Result<LoadedMesh
     let mut by_name: HashMap<String, u32> = HashMap::new();
     let mut current: Option<u32> = None;
     let mut any_usemtl = false;
+    // Groups (`g` / `o`), kept as materials when the file has no `usemtl`.
+    let mut group_ids: Vec<u32> = Vec::new();
+    let mut group_names: Vec<String> = Vec::new();
+    let mut group_by_name: HashMap<String, u32> = HashMap::new();
+    let mut current_group: Option<u32> = None;
+    let mut any_group = false;
     let mut polygons = 0usize;
     let mut poly: Vec<u32> = Vec::with_capacity(16);
     let mut count = 0usize;
@@ -197,9 +205,18 @@ pub fn parse(bytes: &[u8], path: &Path, opts: &LoadOptions) -> Result<LoadedMesh
                         m
                     }
                 };
+                let g = match current_group {
+                    Some(g) => g,
+                    None => {
+                        let g = intern(&mut group_names, &mut group_by_name, "default");
+                        current_group = Some(g);
+                        g
+                    }
+                };
                 for i in 1..poly.len() - 1 {
                     triangles.push([poly[0], poly[i], poly[i + 1]]);
                     material_ids.push(m);
+                    group_ids.push(g);
                 }
             }
             b"usemtl" => {
@@ -215,12 +232,27 @@ pub fn parse(bytes: &[u8], path: &Path, opts: &LoadOptions) -> Result<LoadedMesh
                 any_usemtl = true;
                 current = Some(intern(&mut names, &mut by_name, &name));
             }
+            b"g" | b"o" => {
+                // `g a b` puts faces in several groups; the first name identifies it. A
+                // bare `g` returns to the default group.
+                let name = w
+                    .next()
+                    .map(|n| String::from_utf8_lossy(n).into_owned())
+                    .unwrap_or_else(|| "default".to_string());
+                any_group = true;
+                current_group = Some(intern(&mut group_names, &mut group_by_name, &name));
+            }
             _ => {}
         }
     }
     if !any_usemtl {
-        // Only the implicit "default" material: report no materials at all.
-        names.clear();
+        if any_group {
+            material_ids = group_ids;
+            names = group_names;
+        } else {
+            // Only the implicit "default" material: report no materials at all.
+            names.clear();
+        }
     }
     progress.done();
     Ok(finish_mesh(
@@ -294,6 +326,20 @@ mod tests {
         assert_eq!(m.mesh.triangles, vec![[0, 1, 2], [0, 2, 3]]);
         assert_eq!(m.polygons_triangulated, 1);
         assert_eq!(m.mesh.positions[2], Vec3::new(1.0, 1.0, 0.0));
+    }
+
+    #[test]
+    fn groups_become_materials_without_usemtl() {
+        let m = parse_ok(
+            format!("{SQUARE}f 1 2 3\ng wall brick\nf 1 2 3\no lamp\nf 1 3 4\ng wall\nf 2 3 4\n")
+                .as_bytes(),
+        );
+        assert_eq!(m.mesh.material_names, ["default", "wall", "lamp"]);
+        assert_eq!(m.mesh.material_ids, [0, 1, 2, 1]);
+        // With usemtl present, materials win and groups are not used.
+        let m = parse_ok(format!("{SQUARE}g a\nusemtl x\nf 1 2 3\ng b\nf 1 3 4\n").as_bytes());
+        assert_eq!(m.mesh.material_names, ["x"]);
+        assert_eq!(m.mesh.material_ids, [0, 0]);
     }
 
     #[test]
