@@ -34,13 +34,7 @@ fn sphere(rings: u32, segments: u32) -> Mesh {
             triangles.push([b, c, d]);
         }
     }
-    let n = triangles.len();
-    Mesh {
-        positions,
-        triangles,
-        material_ids: vec![0; n],
-        material_names: vec![],
-    }
+    Mesh::new(positions, triangles)
 }
 
 fn bench_load(c: &mut Criterion) {

@@ -19,6 +19,17 @@ pub struct Mesh {
 }
 
 impl Mesh {
+    /// A mesh without materials (every triangle has material id 0).
+    pub fn new(positions: Vec<Vec3>, triangles: Vec<[u32; 3]>) -> Self {
+        let material_ids = vec![0; triangles.len()];
+        Mesh {
+            positions,
+            triangles,
+            material_ids,
+            material_names: Vec::new(),
+        }
+    }
+
     /// Number of triangles.
     #[inline]
     pub fn triangle_count(&self) -> usize {

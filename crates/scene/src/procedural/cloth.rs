@@ -109,12 +109,7 @@ impl Scene for Cloth {
                 Vec3::new(x, y, z)
             })
             .collect();
-        Ok(Mesh {
-            positions,
-            triangles: self.triangles.clone(),
-            material_ids: vec![0; self.triangles.len()],
-            material_names: vec![],
-        })
+        Ok(Mesh::new(positions, self.triangles.clone()))
     }
 }
 

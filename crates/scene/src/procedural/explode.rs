@@ -114,12 +114,7 @@ impl Scene for Explode {
                     *o = c + q * off;
                 }
             });
-        Ok(Mesh {
-            positions,
-            triangles: self.triangles.clone(),
-            material_ids: vec![0; self.triangles.len()],
-            material_names: vec![],
-        })
+        Ok(Mesh::new(positions, self.triangles.clone()))
     }
 }
 

@@ -224,12 +224,7 @@ impl Fluid {
             .par_iter()
             .map(|t| t.map(|e| keys.binary_search(&e).unwrap_or_else(|i| i) as u32))
             .collect();
-        Mesh {
-            positions,
-            material_ids: vec![0; triangles.len()],
-            triangles,
-            material_names: vec![],
-        }
+        Mesh::new(positions, triangles)
     }
 }
 

@@ -196,12 +196,7 @@ impl Scene for Skinned {
                 (1.0 - v.w) * m[0].transform_point3(v.rest) + v.w * m[1].transform_point3(v.rest)
             })
             .collect();
-        Ok(Mesh {
-            positions,
-            triangles: self.triangles.clone(),
-            material_ids: vec![0; self.triangles.len()],
-            material_names: vec![],
-        })
+        Ok(Mesh::new(positions, self.triangles.clone()))
     }
 }
 

@@ -82,12 +82,7 @@ impl Scene for Soup {
             .into_par_iter()
             .map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
             .collect();
-        Ok(Mesh {
-            positions,
-            triangles,
-            material_ids: vec![0; self.n],
-            material_names: vec![],
-        })
+        Ok(Mesh::new(positions, triangles))
     }
 }
 
