@@ -11,6 +11,24 @@
 //! [`open`] takes a spec string (a file, a directory of frames, a glob, or
 //! `proc:NAME?key=value&...`) and returns the matching [`Scene`].
 //!
+//! # Example
+//!
+//! ```
+//! use scene::{LoadOptions, Scene};
+//!
+//! // Any spec works here: "bunny.ply", "horse-gallop/", "CesiumMan.glb", "proc:...".
+//! let scene = scene::open("proc:cloth?n=2000&seed=7", &LoadOptions::default())?;
+//! let timeline = scene.info().timeline;
+//! for frame in 0..timeline.frame_count() {
+//!     let mesh = scene.mesh_at_frame(frame)?;
+//!     // With stable topology, triangle i is the same primitive in every frame.
+//!     assert!(scene.info().stable_topology);
+//!     let area: f32 = mesh.triangles_iter().map(|t| t.area()).sum();
+//!     assert!(area > 0.0);
+//! }
+//! # Ok::<(), scene::SceneError>(())
+//! ```
+//!
 //! # Non-finite coordinates (the NaN policy)
 //!
 //! A *static* file (OBJ, PLY) may contain vertices with NaN or infinite coordinates. Vertices
