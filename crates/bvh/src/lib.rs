@@ -1,0 +1,109 @@
+//! Arbor's BVH core: the binary tree format of [P2] §4.1, its validator and SAH cost, and
+//! the builders that the thesis compares (full sweep SAH, binned SAH, LBVH).
+//!
+//! Every builder is a small config struct with one `build(&[Aabb]) -> Result<Bvh2, _>`
+//! entry point. Builders take primitive AABBs, so any primitive type works ([P2] §4.1);
+//! [`triangle_aabbs`] and [`indexed_triangle_aabbs`] make them from triangles. All builders
+//! are deterministic: the same input gives the same tree for any thread count.
+
+//mod binned_sah;
+mod bvh2;
+mod error;
+mod frag;
+//mod lbvh;
+mod node;
+mod sah;
+mod sweep_sah;
+#[cfg(test)]
+mod testutil;
+mod validate;
+
+//pub use binned_sah::BinnedSahBuilder;
+pub use bvh2::{Bvh2, TreeStats};
+pub use error::{BuildError, MAX_PRIMITIVES};
+//pub use lbvh::{LbvhBuilder, MortonBits};
+pub use node::{ChildRef, Node, EMPTY_INDEX};
+pub use sah::{sah_cost, sah_cost_with, sah_ratio, SahParams};
+pub use sweep_sah::SweepSahBuilder;
+pub use validate::{validate, ValidationError};
+
+use geom::{Aabb, Triangle, Vec3};
+
+/// Subtrees with fewer primitives than this are built on the current thread: below it the
+/// cost of a `rayon::join` and of a separate fragment outweighs the parallelism.
+pub(crate) const PARALLEL_MIN_PRIMS: usize = 4096;
+
+/// Recursion depth after which the SAH builders stop using the SAH and split at the object
+/// median, which halves the primitive count per level. SAH splits can peel one primitive
+/// off per level on adversarial inputs (exponentially spaced, or coincident primitives),
+/// which would make the depth, and the build's recursion, linear in the input size.
+pub(crate) const MAX_SAH_DEPTH: u32 = 96;
+
+/// The bounding box of every triangle.
+pub fn triangle_aabbs(triangles: &[Triangle]) -> Vec<Aabb> {
+    triangles.iter().map(Triangle::aabb).collect()
+}
+
+/// The bounding box of every indexed triangle (e.g. `scene::Mesh::{positions, triangles}`).
+pub fn indexed_triangle_aabbs(
+    positions: &[Vec3],
+    triangles: &[[u32; 3]],
+) -> Result<Vec<Aabb>, BuildError> {
+    triangles
+        .iter()
+        .enumerate()
+        .map(|(t, idx)| {
+            let mut b = Aabb::EMPTY;
+            for &v in idx {
+                let p = positions
+                    .get(v as usize)
+                    .ok_or(BuildError::VertexOutOfRange {
+                        triangle: t,
+                        vertex: v,
+                        vertices: positions.len(),
+                    })?;
+                b = b.grow(*p);
+            }
+            Ok(b)
+        })
+        .collect()
+}
+
+/// Centroid of a box, computed without overflowing for huge finite coordinates.
+#[inline]
+pub(crate) fn centroid(b: &Aabb) -> Vec3 {
+    b.min * 0.5 + b.max * 0.5
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn triangle_helpers_agree() {
+        let pos = vec![Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::Z];
+        let idx = vec![[0, 1, 2], [1, 2, 3]];
+        let tris: Vec<Triangle> = idx
+            .iter()
+            .map(|t| Triangle::new(pos[t[0] as usize], pos[t[1] as usize], pos[t[2] as usize]))
+            .collect();
+        assert_eq!(
+            indexed_triangle_aabbs(&pos, &idx).unwrap(),
+            triangle_aabbs(&tris)
+        );
+        assert_eq!(
+            indexed_triangle_aabbs(&pos, &[[0, 1, 9]]),
+            Err(BuildError::VertexOutOfRange {
+                triangle: 0,
+                vertex: 9,
+                vertices: 4
+            })
+        );
+    }
+
+    #[test]
+    fn centroid_of_huge_boxes_is_finite() {
+        let b = Aabb::new(Vec3::splat(f32::MAX), Vec3::splat(f32::MAX));
+        assert!(centroid(&b).is_finite());
+    }
+}
