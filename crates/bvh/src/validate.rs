@@ -277,3 +277,215 @@ pub fn validate(bvh: &Bvh2, prims: &[Aabb], max_leaf_size: u32) -> Result<(), Va
     }
     Ok(())
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::node::{ChildRef, Node};
+    use crate::testutil::soup;
+    use crate::SweepSahBuilder;
+    use geom::Vec3;
+
+    fn tree() -> (Bvh2, Vec<Aabb>) {
+        let prims = soup(300, 3.0, 5);
+        let t = SweepSahBuilder {
+            max_leaf_size: 4,
+            ..Default::default()
+        }
+        .build(&prims)
+        .unwrap();
+        validate(&t, &prims, 4).unwrap();
+        assert!(t.nodes.len() > 10);
+        (t, prims)
+    }
+
+    /// The last (node, slot) holding a child that satisfies `f` (never the root, whose
+    /// boxes are also checked against the scene bounds).
+    fn find(t: &Bvh2, f: impl Fn(&ChildRef) -> bool) -> (usize, usize) {
+        for (i, n) in t.nodes.iter().enumerate().skip(1).rev() {
+            for s in 0..2 {
+                if f(&n.children[s]) {
+                    return (i, s);
+                }
+            }
+        }
+        panic!("no such child");
+    }
+
+    /// Applies `corrupt` to a valid tree and returns the validator's verdict.
+    fn check(corrupt: impl FnOnce(&mut Bvh2, &mut Vec<Aabb>)) -> ValidationError {
+        let (mut t, mut prims) = tree();
+        corrupt(&mut t, &mut prims);
+        validate(&t, &prims, 4).expect_err("corruption not detected")
+    }
+
+    #[test]
+    fn catches_missing_root_and_table_length() {
+        assert_eq!(check(|t, _| t.nodes.clear()), ValidationError::NoRoot);
+        assert!(matches!(
+            check(|t, _| {
+                t.prim_indices.pop();
+            }),
+            ValidationError::LeafTableLength { .. }
+        ));
+    }
+
+    #[test]
+    fn catches_bad_primitive_references() {
+        // A duplicate inside one leaf (so it is inside the leaf box).
+        let e = check(|t, _| {
+            let (i, s) = find(t, |c| c.count >= 2);
+            let first = t.nodes[i].children[s].index as usize;
+            t.prim_indices[first + 1] = t.prim_indices[first];
+        });
+        assert!(
+            matches!(e, ValidationError::PrimReferencedTwice { .. }),
+            "{e}"
+        );
+        let e = check(|t, _| t.prim_indices[3] = 300);
+        assert!(
+            matches!(e, ValidationError::PrimOutOfRange { prim: 300, .. }),
+            "{e}"
+        );
+        // A leaf shrunk by one entry leaves that primitive unreferenced.
+        let e = check(|t, _| {
+            let (i, s) = find(t, |c| c.count >= 2);
+            t.nodes[i].children[s].count -= 1;
+        });
+        assert!(matches!(e, ValidationError::PrimMissing { .. }), "{e}");
+        let e = check(|t, prims| {
+            // A primitive moved far away is outside its leaf box.
+            let p = t.prim_indices[0] as usize;
+            prims[p] = Aabb::from_point(Vec3::splat(-50.0));
+        });
+        assert!(matches!(e, ValidationError::PrimOutsideLeaf { .. }), "{e}");
+    }
+
+    #[test]
+    fn catches_box_violations() {
+        let e = check(|t, _| {
+            let (i, s) = find(t, ChildRef::is_inner);
+            let mut b = t.nodes[i].child_aabb(s);
+            b.min.x -= 1000.0;
+            t.nodes[i].set_child_aabb(s, &b);
+        });
+        assert!(
+            matches!(e, ValidationError::ChildOutsideParent { .. }),
+            "{e}"
+        );
+        let e = check(|t, _| {
+            let (i, s) = find(t, ChildRef::is_leaf);
+            let mut b = t.nodes[i].child_aabb(s);
+            b.max = b.min;
+            t.nodes[i].set_child_aabb(s, &b);
+        });
+        assert!(matches!(e, ValidationError::PrimOutsideLeaf { .. }), "{e}");
+        let e = check(|t, _| {
+            let (i, s) = find(t, ChildRef::is_leaf);
+            t.nodes[i].bounds[s][4] = f32::NAN;
+        });
+        assert!(matches!(e, ValidationError::NonFiniteBox { .. }), "{e}");
+        let e = check(|t, _| t.bounds.max.x += 1.0);
+        assert_eq!(e, ValidationError::BoundsMismatch);
+    }
+
+    #[test]
+    fn catches_bad_links_and_cycles() {
+        let e = check(|t, _| {
+            let (i, s) = find(t, ChildRef::is_inner);
+            t.nodes[i].children[s].index = t.nodes.len() as u32;
+        });
+        assert!(matches!(e, ValidationError::ChildOutOfRange { .. }), "{e}");
+        let e = check(|t, _| {
+            let (i, s) = find(t, ChildRef::is_inner);
+            t.nodes[i].children[s].index = 0;
+        });
+        assert!(
+            matches!(e, ValidationError::ChildOutOfRange { target: 0, .. }),
+            "{e}"
+        );
+        // A deep node pointing back at node 1 makes a cycle (and a second reference).
+        let e = check(|t, _| {
+            let last = t.nodes.len() - 1;
+            let mut fixed = t.nodes[last];
+            fixed.children[0] = ChildRef::inner(1);
+            fixed.set_child_aabb(0, &t.nodes[last].aabb());
+            t.nodes[last] = fixed;
+        });
+        assert!(
+            matches!(
+                e,
+                ValidationError::NodeReachedTwice { target: 1, .. }
+                    | ValidationError::ChildOutsideParent { .. }
+            ),
+            "{e}"
+        );
+        let e = check(|t, _| t.nodes.push(t.nodes[1]));
+        assert!(matches!(e, ValidationError::Unreachable { .. }), "{e}");
+        // Swapping the root's children keeps every link valid but breaks preorder.
+        let e = check(|t, _| {
+            let r = t.nodes[0];
+            t.nodes[0] = Node::new(
+                &r.child_aabb(1),
+                r.children[1],
+                &r.child_aabb(0),
+                r.children[0],
+            );
+        });
+        assert!(matches!(e, ValidationError::NotDepthFirst { .. }), "{e}");
+    }
+
+    #[test]
+    fn catches_cycle_with_consistent_boxes() {
+        // Node 1 (child 0 of the root) made to point at itself: same box, so only the
+        // visit bookkeeping can catch it.
+        let (mut t, prims) = tree();
+        assert!(t.nodes[0].children[0].is_inner());
+        let own = t.nodes[1].aabb();
+        t.nodes[1].children[0] = ChildRef::inner(1);
+        t.nodes[1].set_child_aabb(0, &own);
+        let e = validate(&t, &prims, 4).unwrap_err();
+        assert!(
+            matches!(e, ValidationError::NodeReachedTwice { target: 1, .. }),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn catches_leaf_violations() {
+        let (t, prims) = tree();
+        let max = t.stats().max_leaf_size;
+        assert!(max >= 2);
+        let e = validate(&t, &prims, max - 1).unwrap_err();
+        assert!(matches!(e, ValidationError::LeafTooLarge { .. }), "{e}");
+        let e = check(|t, _| {
+            let (i, s) = find(t, ChildRef::is_leaf);
+            t.nodes[i].children[s].index = t.prim_indices.len() as u32;
+        });
+        assert!(matches!(e, ValidationError::LeafOutOfRange { .. }), "{e}");
+        let e = check(|t, _| {
+            let (i, s) = find(t, ChildRef::is_leaf);
+            t.nodes[i].children[s] = ChildRef::EMPTY;
+        });
+        assert!(matches!(e, ValidationError::BadEmptyChild { .. }), "{e}");
+    }
+
+    #[test]
+    fn root_child_rules() {
+        let one = vec![Aabb::new(Vec3::ZERO, Vec3::ONE)];
+        let t = Bvh2 {
+            nodes: vec![Node::new(
+                &Aabb::EMPTY,
+                ChildRef::EMPTY,
+                &one[0],
+                ChildRef::leaf(0, 1),
+            )],
+            prim_indices: vec![0],
+            bounds: one[0],
+        };
+        assert_eq!(validate(&t, &one, 1), Err(ValidationError::RootChildOrder));
+        let e = validate(&Bvh2::empty(), &one, 1).unwrap_err();
+        assert!(matches!(e, ValidationError::LeafTableLength { .. }));
+        assert_eq!(validate(&Bvh2::empty(), &[], 1), Ok(()));
+    }
+}
