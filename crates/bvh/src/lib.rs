@@ -6,7 +6,7 @@
 //! [`triangle_aabbs`] and [`indexed_triangle_aabbs`] make them from triangles. All builders
 //! are deterministic: the same input gives the same tree for any thread count.
 
-//mod binned_sah;
+mod binned_sah;
 mod bvh2;
 mod error;
 mod frag;
@@ -18,7 +18,7 @@ mod sweep_sah;
 mod testutil;
 mod validate;
 
-//pub use binned_sah::BinnedSahBuilder;
+pub use binned_sah::{BinnedSahBuilder, MAX_BINS};
 pub use bvh2::{Bvh2, TreeStats};
 pub use error::{BuildError, MAX_PRIMITIVES};
 //pub use lbvh::{LbvhBuilder, MortonBits};
@@ -73,6 +73,17 @@ pub fn indexed_triangle_aabbs(
 #[inline]
 pub(crate) fn centroid(b: &Aabb) -> Vec3 {
     b.min * 0.5 + b.max * 0.5
+}
+
+/// A float mapped to an unsigned integer with the same order (for sorting keys).
+#[inline]
+pub(crate) fn ordered_bits(f: f32) -> u32 {
+    let b = f.to_bits();
+    if b & 0x8000_0000 != 0 {
+        !b
+    } else {
+        b | 0x8000_0000
+    }
 }
 
 #[cfg(test)]

@@ -16,7 +16,7 @@ use crate::error::{check_input, in_pool, BuildError};
 use crate::frag::Frag;
 use crate::node::{ChildRef, Node};
 use crate::sah::SahParams;
-use crate::{centroid, MAX_SAH_DEPTH, PARALLEL_MIN_PRIMS};
+use crate::{centroid, ordered_bits, MAX_SAH_DEPTH, PARALLEL_MIN_PRIMS};
 use geom::{Aabb, Vec3};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicBool, Ordering};
@@ -87,17 +87,6 @@ impl<'a> Work<'a> {
                 first: self.first + k,
             },
         )
-    }
-}
-
-/// A float mapped to an unsigned integer with the same order (for sorting keys).
-#[inline]
-fn ordered_bits(f: f32) -> u32 {
-    let b = f.to_bits();
-    if b & 0x8000_0000 != 0 {
-        !b
-    } else {
-        b | 0x8000_0000
     }
 }
 
