@@ -13,6 +13,9 @@ use crate::node::{ChildRef, Node};
 /// Set in an inner child's index when it names a sub-fragment rather than a local node.
 pub(crate) const FORK_BIT: u32 = 1 << 31;
 
+/// A node still to lay out: (fragment, local node, parent (node, slot) to patch).
+type Pending<'a> = (&'a Frag, u32, Option<(usize, usize)>);
+
 /// A depth-first node array plus the sub-fragments its fork children refer to.
 #[derive(Default)]
 pub(crate) struct Frag {
@@ -46,8 +49,7 @@ impl Frag {
             return self.nodes;
         }
         let mut out: Vec<Node> = Vec::with_capacity(self.total_len());
-        // (fragment, local node, parent slot to patch)
-        let mut stack: Vec<(&Frag, u32, Option<(usize, usize)>)> = vec![(&self, 0, None)];
+        let mut stack: Vec<Pending> = vec![(&self, 0, None)];
         while let Some((frag, local, patch)) = stack.pop() {
             let at = out.len();
             if let Some((p, slot)) = patch {
