@@ -19,7 +19,7 @@ use crate::frag::Frag;
 use crate::node::{ChildRef, Node};
 use crate::sah::SahParams;
 use crate::{centroid, ordered_bits, MAX_SAH_DEPTH, PARALLEL_MIN_PRIMS};
-use geom::{Aabb, Vec3};
+use geom::{Aabb, Vec3, Vec4};
 use rayon::prelude::*;
 
 /// Largest supported bin count.
@@ -55,12 +55,12 @@ impl Default for BinnedSahBuilder {
 /// One bin: the box and count of the primitives whose centroid falls in it.
 #[derive(Clone, Copy)]
 struct Bin {
-    bounds: Aabb,
+    bounds: Box4,
     count: u32,
 }
 
 const EMPTY_BIN: Bin = Bin {
-    bounds: Aabb::EMPTY,
+    bounds: Box4::EMPTY,
     count: 0,
 };
 
@@ -69,25 +69,72 @@ struct Ctx<'a> {
     cfg: &'a BinnedSahBuilder,
 }
 
-/// A primitive reference: its box and input index. The builder partitions an array of
-/// these in place, so every pass over a node reads memory sequentially (an index array
-/// into the input boxes made every pass a random gather, which dominated the build).
+/// A box in 4-wide SIMD registers; lane `w` is not part of the box (see [`PrimRef`]).
 #[derive(Clone, Copy)]
-struct PrimRef {
-    bounds: Aabb,
-    index: u32,
+struct Box4 {
+    min: Vec4,
+    max: Vec4,
 }
 
-impl PrimRef {
+impl Box4 {
+    const EMPTY: Box4 = Box4 {
+        min: Vec4::splat(f32::INFINITY),
+        max: Vec4::splat(f32::NEG_INFINITY),
+    };
+
+    #[inline(always)]
+    fn union(self, o: Box4) -> Box4 {
+        Box4 {
+            min: self.min.min(o.min),
+            max: self.max.max(o.max),
+        }
+    }
+
+    /// Half the surface area; only meaningful for a non-empty box.
+    #[inline(always)]
+    fn half_area(&self) -> f32 {
+        let e = self.max - self.min;
+        e.x * e.y + e.y * e.z + e.z * e.x
+    }
+
+    #[inline(always)]
+    fn aabb(&self) -> Aabb {
+        Aabb::new(self.min.truncate(), self.max.truncate())
+    }
+}
+
+/// A primitive reference: its box, with the input index stored in the bits of `min.w`
+/// (32 bytes in all). The builder partitions an array of these in place, so every pass over
+/// a node reads memory sequentially (an index array into the input boxes made every pass a
+/// random gather, which dominated the build), and box unions are single SIMD min/max.
+type PrimRef = Box4;
+
+/// A primitive reference for input primitive `index`.
+#[inline]
+fn prim_ref(b: &Aabb, index: u32) -> PrimRef {
+    Box4 {
+        min: b.min.extend(f32::from_bits(index)),
+        max: b.max.extend(0.0),
+    }
+}
+
+impl Box4 {
+    /// The input index of a [`PrimRef`].
+    #[inline(always)]
+    fn index(&self) -> u32 {
+        self.min.w.to_bits()
+    }
+
+    /// Centroid of a [`PrimRef`] (same arithmetic as [`centroid`]).
     #[inline(always)]
     fn centroid(&self) -> Vec3 {
-        centroid(&self.bounds)
+        centroid(&self.aabb())
     }
 
     /// Total-order sort key along `axis`: centroid, then input index.
     #[inline]
     fn key(&self, axis: usize) -> u64 {
-        ((ordered_bits(self.centroid()[axis]) as u64) << 32) | self.index as u64
+        ((ordered_bits(self.centroid()[axis]) as u64) << 32) | self.index() as u64
     }
 }
 
@@ -125,16 +172,13 @@ impl BinnedSahBuilder {
         let mut refs: Vec<PrimRef> = aabbs
             .par_iter()
             .enumerate()
-            .map(|(i, b)| PrimRef {
-                bounds: *b,
-                index: i as u32,
-            })
+            .map(|(i, b)| prim_ref(b, i as u32))
             .collect();
         let (bounds, cbounds) = refs
             .par_iter()
             .fold(
                 || (Aabb::EMPTY, Aabb::EMPTY),
-                |(b, c), r| (b.union(r.bounds), c.grow(r.centroid())),
+                |(b, c), r| (b.union(r.aabb()), c.grow(r.centroid())),
             )
             .reduce(
                 || (Aabb::EMPTY, Aabb::EMPTY),
@@ -149,7 +193,7 @@ impl BinnedSahBuilder {
         };
         let mut frag = Frag::default();
         let root = build_rec(&ctx, task, 0, &mut frag);
-        let prim_indices = refs.par_iter().map(|r| r.index).collect();
+        let prim_indices = refs.par_iter().map(|r| r.index()).collect();
         Bvh2::from_root(root, bounds, frag.flatten(), prim_indices)
     }
 }
@@ -279,7 +323,7 @@ fn find_split_n<const N: usize>(ctx: &Ctx, t: &Task) -> Option<Split> {
     let binner = Binner::new(&t.cbounds, nb);
     let mut bins = [[EMPTY_BIN; N]; 3];
     for r in t.refs.iter() {
-        let b = r.bounds;
+        let b = *r;
         let c = r.centroid();
         for (axis, axis_bins) in bins.iter_mut().enumerate() {
             let bin = &mut axis_bins[binner.bin(c, axis)];
@@ -317,7 +361,7 @@ fn find_split_n<const N: usize>(ctx: &Ctx, t: &Task) -> Option<Split> {
                     axis,
                     bin: k,
                     sorted: false,
-                    left: left.bounds,
+                    left: left.bounds.aabb(),
                     right: Aabb::EMPTY,
                 });
             }
@@ -326,7 +370,8 @@ fn find_split_n<const N: usize>(ctx: &Ctx, t: &Task) -> Option<Split> {
     let mut s = best?;
     s.right = bins[s.axis][s.bin..nb]
         .iter()
-        .fold(Aabb::EMPTY, |b, bin| b.union(bin.bounds));
+        .fold(Box4::EMPTY, |b, bin| b.union(bin.bounds))
+        .aabb();
     Some(s)
 }
 
@@ -336,16 +381,27 @@ fn find_split_n<const N: usize>(ctx: &Ctx, t: &Task) -> Option<Split> {
 /// clearing and sweeping 3 x `bins` bins, which dominated small nodes. On return the
 /// indices are in the winning axis's centroid order, so the split is positional.
 fn sorted_split(ctx: &Ctx, t: &mut Task) -> Option<Split> {
+    // Scratch arrays sized to the bin count (n <= bins), so small nodes clear little.
+    match ctx.cfg.bins {
+        0..=8 => sorted_split_n::<8>(ctx, t),
+        9..=16 => sorted_split_n::<16>(ctx, t),
+        17..=32 => sorted_split_n::<32>(ctx, t),
+        _ => sorted_split_n::<MAX_BINS>(ctx, t),
+    }
+}
+
+/// [`sorted_split`] for nodes of at most `N <= 64` primitives.
+fn sorted_split_n<const N: usize>(ctx: &Ctx, t: &mut Task) -> Option<Split> {
     let n = t.refs.len();
-    debug_assert!(n <= MAX_BINS);
+    debug_assert!(n <= N && N <= 64);
     let p = &ctx.cfg.sah;
     let base = p.c_inner * t.bounds.half_area();
     let mut best: Option<Split> = None;
     // Orders are permutations of the node's positions, sorted as plain integer keys
     // (centroid bits, then position: a total, deterministic order).
-    let mut best_order = [0u64; MAX_BINS];
-    let mut order = [0u64; MAX_BINS];
-    let mut right_area = [0f32; MAX_BINS];
+    let mut best_order = [0u64; N];
+    let mut order = [0u64; N];
+    let mut right_area = [0f32; N];
     let refs = &*t.refs;
     for axis in 0..3 {
         let ord = &mut order[..n];
@@ -353,14 +409,14 @@ fn sorted_split(ctx: &Ctx, t: &mut Task) -> Option<Split> {
             *o = ((ordered_bits(refs[i].centroid()[axis]) as u64) << 32) | i as u64;
         }
         ord.sort_unstable();
-        let mut rbox = Aabb::EMPTY;
+        let mut rbox = Box4::EMPTY;
         for i in (1..n).rev() {
-            rbox = rbox.union(refs[ord[i] as u32 as usize].bounds);
+            rbox = rbox.union(refs[ord[i] as u32 as usize]);
             right_area[i] = rbox.half_area();
         }
-        let mut lbox = Aabb::EMPTY;
+        let mut lbox = Box4::EMPTY;
         for i in 1..n {
-            lbox = lbox.union(refs[ord[i - 1] as u32 as usize].bounds);
+            lbox = lbox.union(refs[ord[i - 1] as u32 as usize]);
             let cost = base
                 + lbox.half_area() * (p.c_leaf + p.c_tri * i as f32)
                 + right_area[i] * (p.c_leaf + p.c_tri * (n - i) as f32);
@@ -370,7 +426,7 @@ fn sorted_split(ctx: &Ctx, t: &mut Task) -> Option<Split> {
                     axis,
                     bin: i,
                     sorted: true,
-                    left: lbox,
+                    left: lbox.aabb(),
                     right: Aabb::EMPTY,
                 });
                 best_order[..n].copy_from_slice(ord);
@@ -378,17 +434,30 @@ fn sorted_split(ctx: &Ctx, t: &mut Task) -> Option<Split> {
         }
     }
     let mut s = best?;
-    let mut sorted = [PrimRef {
-        bounds: Aabb::EMPTY,
-        index: 0,
-    }; MAX_BINS];
-    for (dst, &src) in sorted.iter_mut().zip(&best_order[..n]) {
-        *dst = t.refs[src as u32 as usize];
+    // Apply the permutation in place, cycle by cycle: position j receives the element at
+    // position best_order[j]; `done` has one bit per position (n <= 64).
+    let mut done = 0u64;
+    for start in 0..n {
+        if done & (1 << start) != 0 {
+            continue;
+        }
+        let first = t.refs[start];
+        let mut j = start;
+        loop {
+            done |= 1 << j;
+            let src = best_order[j] as u32 as usize;
+            if src == start {
+                t.refs[j] = first;
+                break;
+            }
+            t.refs[j] = t.refs[src];
+            j = src;
+        }
     }
-    t.refs.copy_from_slice(&sorted[..n]);
     s.right = t.refs[s.bin..]
         .iter()
-        .fold(Aabb::EMPTY, |b, r| b.union(r.bounds));
+        .fold(Box4::EMPTY, |b, r| b.union(*r))
+        .aabb();
     Some(s)
 }
 
@@ -457,7 +526,7 @@ fn median_split<'a>(t: Task<'a>, coincident: bool) -> (Task<'a>, Task<'a>) {
     let (l, r) = refs.split_at_mut(k);
     let boxes = |s: &[PrimRef]| {
         s.iter().fold((Aabb::EMPTY, Aabb::EMPTY), |(b, c), r| {
-            (b.union(r.bounds), c.grow(r.centroid()))
+            (b.union(r.aabb()), c.grow(r.centroid()))
         })
     };
     let (lb, lc) = boxes(l);
