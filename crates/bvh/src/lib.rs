@@ -117,4 +117,24 @@ mod tests {
         let b = Aabb::new(Vec3::splat(f32::MAX), Vec3::splat(f32::MAX));
         assert!(centroid(&b).is_finite());
     }
+
+    /// Scale check of the "20M triangles": every fast builder on a 20M-triangle
+    /// soup passes the validator. Run by hand (several GB of memory, about a minute):
+    /// `cargo test --release -p bvh --lib -- --ignored twenty_million`
+    /// (`BVH_SCALE_N` overrides the triangle count).
+    #[test]
+    #[ignore]
+    fn twenty_million_triangles() {
+        let n: usize = std::env::var("BVH_SCALE_N")
+            .ok()
+            .and_then(|v| v.parse().ok())
+            .unwrap_or(20_000_000);
+        let prims = crate::testutil::proc_scene(&format!("proc:soup?n={n}"));
+        assert_eq!(prims.len(), n);
+        let t = BinnedSahBuilder::default().build(&prims).unwrap();
+        crate::testutil::assert_valid("binned", &t, &prims, 8);
+        drop(t);
+        let t = LbvhBuilder::default().build(&prims).unwrap();
+        crate::testutil::assert_valid("lbvh", &t, &prims, 1);
+    }
 }
