@@ -6,6 +6,8 @@
 //! [`triangle_aabbs`] and [`indexed_triangle_aabbs`] make them from triangles. All builders
 //! are deterministic: the same input gives the same tree for any thread count.
 
+#![warn(missing_docs)]
+
 mod binned_sah;
 mod bvh2;
 mod error;
@@ -136,5 +138,40 @@ mod tests {
         drop(t);
         let t = LbvhBuilder::default().build(&prims).unwrap();
         crate::testutil::assert_valid("lbvh", &t, &prims, 1);
+    }
+
+    /// A finite box from six arbitrary finite floats (huge, tiny, denormal, signed zero).
+    fn any_box() -> impl proptest::strategy::Strategy<Value = Aabb> {
+        use proptest::prelude::*;
+        let f = prop_oneof![
+            proptest::num::f32::NORMAL | proptest::num::f32::SUBNORMAL | proptest::num::f32::ZERO,
+            -10.0f32..10.0,
+            Just(f32::MAX),
+            Just(f32::MIN),
+        ];
+        proptest::array::uniform6(f).prop_map(|v| {
+            let a = Vec3::new(v[0], v[1], v[2]);
+            let b = Vec3::new(v[3], v[4], v[5]);
+            Aabb::new(a.min(b), a.max(b))
+        })
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(64))]
+        /// Any finite input, however extreme, gives a valid tree from every builder (no
+        /// panic, no NaN-driven wrong split): overflowing areas fall back to median splits.
+        #[test]
+        fn extreme_finite_boxes_give_valid_trees(prims in proptest::collection::vec(any_box(), 0..300)) {
+            let sweep = SweepSahBuilder { max_leaf_size: 4, ..Default::default() }.build(&prims).unwrap();
+            proptest::prop_assert_eq!(validate(&sweep, &prims, 4), Ok(()));
+            for bins in [8, 32] {
+                let b = BinnedSahBuilder { bins, max_leaf_size: 4, ..Default::default() }.build(&prims).unwrap();
+                proptest::prop_assert_eq!(validate(&b, &prims, 4), Ok(()));
+            }
+            for bits in [MortonBits::Bits30, MortonBits::Bits63] {
+                let l = LbvhBuilder { bits, threads: 0 }.build(&prims).unwrap();
+                proptest::prop_assert_eq!(validate(&l, &prims, 1), Ok(()));
+            }
+        }
     }
 }

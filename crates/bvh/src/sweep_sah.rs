@@ -207,7 +207,6 @@ fn build_rec(ctx: &Ctx, w: Work, depth: u32, frag: &mut Frag) -> (ChildRef, Aabb
 fn sweep(ctx: &Ctx, w: &mut Work) -> (Option<(f32, Split)>, Aabb) {
     let n = w.len();
     let p = &ctx.cfg.sah;
-    let node_cost_weight = p.c_inner;
     let mut best: Option<(f32, Split)> = None;
     let mut bounds = Aabb::EMPTY;
     let areas = &mut *w.areas;
@@ -219,7 +218,7 @@ fn sweep(ctx: &Ctx, w: &mut Work) -> (Option<(f32, Split)>, Aabb) {
             areas[i] = rbox.half_area();
         }
         bounds = rbox.union(ctx.aabbs[list[0] as usize]);
-        let base = node_cost_weight * bounds.half_area();
+        let base = p.c_inner * bounds.half_area();
         // Left sweep: evaluate the split before list[i].
         let mut lbox = Aabb::EMPTY;
         for i in 1..n {
