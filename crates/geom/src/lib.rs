@@ -3,6 +3,8 @@
 //!
 //! Vectors are [`glam::Vec3`] (re-exported as [`Vec3`]); everything else is plain `Copy` data.
 
+#![warn(missing_docs)]
+
 mod aabb;
 mod intersect;
 mod morton;

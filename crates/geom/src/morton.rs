@@ -47,7 +47,7 @@ pub fn morton63(q: [u32; 3]) -> u64 {
 ///
 /// Each axis of the box is split into `2^bits` equal cells; points outside the box (and
 /// NaN) are clamped to the nearest cell, so codes are always defined. An axis of zero
-/// extent (a flat scene, such as the cloth sheet of [P3] §4.4) maps every point to cell 0.
+/// extent (a flat scene, such as the cloth sheet of \[P3\] §4.4) maps every point to cell 0.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MortonQuantizer {
     origin: Vec3,

@@ -22,6 +22,8 @@
 //! the file. Degenerate but finite triangles (zero area, collinear, repeated vertices) always
 //! load and are counted.
 
+#![warn(missing_docs)]
+
 pub mod camera;
 pub mod error;
 pub mod gltf_scene;

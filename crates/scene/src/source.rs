@@ -157,7 +157,15 @@ impl Scene for StaticScene {
 }
 
 /// Loads a single mesh file (OBJ or PLY) by extension.
+/// A zero-byte file is an error (it is almost always a failed export or copy), while a
+/// file with only comments is a valid empty mesh.
 pub fn load_mesh_file(path: &Path, opts: &LoadOptions) -> Result<LoadedMesh, SceneError> {
+    let len = std::fs::metadata(path)
+        .map_err(|e| SceneError::io(path, e))?
+        .len();
+    if len == 0 {
+        return Err(SceneError::malformed(path, "empty file (0 bytes)"));
+    }
     match extension(path).as_str() {
         "ply" => ply::load(path, opts),
         "obj" => obj::load(path, opts),

@@ -1,0 +1,11 @@
+//! Fuzzes the OBJ parser: any input must give a mesh that passes `check()` or an error.
+#![no_main]
+
+use libfuzzer_sys::fuzz_target;
+use std::path::Path;
+
+fuzz_target!(|data: &[u8]| {
+    if let Ok(l) = scene::obj::parse(data, Path::new("fuzz.obj"), &Default::default()) {
+        l.mesh.check().expect("parsed mesh violates its invariants");
+    }
+});
