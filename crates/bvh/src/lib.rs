@@ -174,4 +174,53 @@ mod tests {
             }
         }
     }
+
+    /// Every real scene gives valid trees from the fast builders.
+    #[test]
+    fn real_scenes_give_valid_trees() {
+        let Some(scenes) = crate::testutil::real_scenes() else {
+            return;
+        };
+        assert!(!scenes.is_empty());
+        for (name, prims) in &scenes {
+            let t = BinnedSahBuilder::default().build(prims).unwrap();
+            crate::testutil::assert_valid(name, &t, prims, 8);
+            let t = LbvhBuilder::default().build(prims).unwrap();
+            crate::testutil::assert_valid(name, &t, prims, 1);
+        }
+    }
+
+    /// SAH of every builder on every real scene, relative to the sweep SAH build, printed as
+    /// a Markdown table (all trees validated). Run by hand:
+    /// `cargo test --release -p bvh --lib -- --ignored --nocapture real_scene_sah_table`
+    #[test]
+    #[ignore]
+    fn real_scene_sah_table() {
+        let Some(scenes) = crate::testutil::real_scenes() else {
+            return;
+        };
+        println!("| scene | triangles | sweep SAH | binned/8 | binned/16 | binned/32 | lbvh/30 | lbvh/63 |");
+        println!("|---|---|---|---|---|---|---|---|");
+        for (name, prims) in &scenes {
+            let sweep = SweepSahBuilder::default().build(prims).unwrap();
+            crate::testutil::assert_valid(name, &sweep, prims, 8);
+            let mut row = format!("| {name} | {} | {:.2} |", prims.len(), sweep.sah());
+            for bins in [8, 16, 32] {
+                let t = BinnedSahBuilder {
+                    bins,
+                    ..Default::default()
+                }
+                .build(prims)
+                .unwrap();
+                crate::testutil::assert_valid(name, &t, prims, 8);
+                row += &format!(" {:.3} |", t.sah_vs(&sweep));
+            }
+            for bits in [MortonBits::Bits30, MortonBits::Bits63] {
+                let t = LbvhBuilder { bits, threads: 0 }.build(prims).unwrap();
+                crate::testutil::assert_valid(name, &t, prims, 1);
+                row += &format!(" {:.3} |", t.sah_vs(&sweep));
+            }
+            println!("{row}");
+        }
+    }
 }

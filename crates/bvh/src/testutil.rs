@@ -104,3 +104,34 @@ pub fn cubes_at(xs: &[f32]) -> Vec<Aabb> {
         .map(|&x| Aabb::new(Vec3::new(x, 0.0, 0.0), Vec3::new(x + 1.0, 1.0, 1.0)))
         .collect()
 }
+
+/// The shared real scenes (`../../../shared/scenes` from the crate), each as (name, boxes
+/// of the frame at t = 0). `None` (after printing why) when the folder is absent, so tests
+/// skip outside the workspace.
+pub fn real_scenes() -> Option<Vec<(String, Vec<Aabb>)>> {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/scenes");
+    if !dir.is_dir() {
+        println!("skipping: {} not found", dir.display());
+        return None;
+    }
+    let mut specs: Vec<std::path::PathBuf> = std::fs::read_dir(&dir)
+        .expect("scene folder")
+        .chain(std::fs::read_dir(dir.join("gltf")).expect("gltf folder"))
+        .map(|e| e.expect("dir entry").path())
+        .filter(|p| {
+            let ext = p.extension().and_then(|e| e.to_str()).unwrap_or("");
+            matches!(ext, "ply" | "glb") || p.ends_with("horse-gallop")
+        })
+        .collect();
+    specs.sort();
+    let mut out = Vec::new();
+    for p in specs {
+        let spec = p.to_str().expect("utf-8 path");
+        let s = scene::open(spec, &Default::default()).unwrap_or_else(|e| panic!("{e}"));
+        let m = s.mesh_at(0.0).unwrap_or_else(|e| panic!("{e}"));
+        let boxes = crate::indexed_triangle_aabbs(&m.positions, &m.triangles).expect("mesh");
+        let name = p.file_name().unwrap().to_string_lossy().into_owned();
+        out.push((name, boxes));
+    }
+    Some(out)
+}
