@@ -396,6 +396,23 @@ fn sorted_split_n<const N: usize>(ctx: &Ctx, t: &mut Task) -> Option<Split> {
     debug_assert!(n <= N && N <= 64);
     let p = &ctx.cfg.sah;
     let base = p.c_inner * t.bounds.half_area();
+    if n == 2 {
+        // The only split; order the pair by centroid on the widest centroid axis.
+        let axis = t.cbounds.largest_axis();
+        if t.refs[1].key(axis) < t.refs[0].key(axis) {
+            t.refs.swap(0, 1);
+        }
+        let (l, r) = (t.refs[0].aabb(), t.refs[1].aabb());
+        let one = p.c_leaf + p.c_tri;
+        return Some(Split {
+            cost: base + (l.half_area() + r.half_area()) * one,
+            axis,
+            bin: 1,
+            sorted: true,
+            left: l,
+            right: r,
+        });
+    }
     let mut best: Option<Split> = None;
     // Orders are permutations of the node's positions, sorted as plain integer keys
     // (centroid bits, then position: a total, deterministic order).
