@@ -1,0 +1,491 @@
+//! Structural validator for [`Bvh2`], run by every builder test.
+//!
+//! It walks the tree from the root with an explicit stack and checks, in this order per
+//! node, that: child indices are in range and never point back to the root; each node is
+//! reached exactly once and in depth-first preorder (which also rules out cycles); child
+//! boxes are finite and inside the parent's box; leaves are non-empty, within the maximum
+//! leaf size and inside the leaf table; every primitive is referenced exactly once and lies
+//! inside its leaf's box; empty children only appear at the root. The first violation is
+//! returned as a typed [`ValidationError`].
+
+use crate::bvh2::Bvh2;
+use geom::Aabb;
+use thiserror::Error;
+
+/// The first violation of a tree invariant the validator found.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum ValidationError {
+    /// The node array is empty (a tree always has a root).
+    #[error("the tree has no root node")]
+    NoRoot,
+    /// The leaf table length differs from the number of primitives.
+    #[error("leaf table has {table} entries but there are {prims} primitives")]
+    LeafTableLength {
+        /// Leaf-table length.
+        table: usize,
+        /// Primitive count.
+        prims: usize,
+    },
+    /// An inner child index is outside the node array (or names the root).
+    #[error("node {node} child {slot} points to node {target}, outside 1..{len}")]
+    ChildOutOfRange {
+        /// Parent node.
+        node: usize,
+        /// Child slot (0 or 1).
+        slot: usize,
+        /// Bad target index.
+        target: u32,
+        /// Node count.
+        len: usize,
+    },
+    /// A node is reached twice (shared subtree or cycle).
+    #[error("node {target} is reached a second time (from node {node} child {slot})")]
+    NodeReachedTwice {
+        /// Parent node of the second reference.
+        node: usize,
+        /// Child slot.
+        slot: usize,
+        /// The node reached again.
+        target: u32,
+    },
+    /// Nodes are not stored in depth-first preorder.
+    #[error("node {node} is visited at preorder position {position}: nodes are not depth-first")]
+    NotDepthFirst {
+        /// The node index.
+        node: usize,
+        /// Its preorder position.
+        position: usize,
+    },
+    /// A node is never reached from the root.
+    #[error("node {node} is not reachable from the root")]
+    Unreachable {
+        /// The unreachable node.
+        node: usize,
+    },
+    /// A child box is NaN/infinite (non-empty children only).
+    #[error("node {node} child {slot} has a non-finite box")]
+    NonFiniteBox {
+        /// Node index.
+        node: usize,
+        /// Child slot.
+        slot: usize,
+    },
+    /// A child box is not inside its parent's box.
+    #[error("node {node} child {slot} box is not inside its parent's box")]
+    ChildOutsideParent {
+        /// Node index.
+        node: usize,
+        /// Child slot.
+        slot: usize,
+    },
+    /// The scene bounds are not the union of the root's child boxes.
+    #[error("scene bounds are not the union of the root's child boxes")]
+    BoundsMismatch,
+    /// An empty child appears below the root, or with a non-empty box.
+    #[error(
+        "node {node} child {slot} is empty, which is only allowed at the root with an empty box"
+    )]
+    BadEmptyChild {
+        /// Node index.
+        node: usize,
+        /// Child slot.
+        slot: usize,
+    },
+    /// The root has an empty child 0 but a non-empty child 1.
+    #[error("the root's child 0 is empty while child 1 is not")]
+    RootChildOrder,
+    /// A leaf exceeds the configured maximum size.
+    #[error("node {node} child {slot} is a leaf of {count} primitives, above the maximum {max}")]
+    LeafTooLarge {
+        /// Node index.
+        node: usize,
+        /// Child slot.
+        slot: usize,
+        /// Leaf size.
+        count: u32,
+        /// Configured maximum.
+        max: u32,
+    },
+    /// A leaf range runs past the end of the leaf table.
+    #[error("node {node} child {slot} leaf [{first}, +{count}) runs past the leaf table ({len})")]
+    LeafOutOfRange {
+        /// Node index.
+        node: usize,
+        /// Child slot.
+        slot: usize,
+        /// First entry.
+        first: u32,
+        /// Leaf size.
+        count: u32,
+        /// Leaf-table length.
+        len: usize,
+    },
+    /// A leaf-table entry names a primitive that does not exist.
+    #[error("leaf-table entry {entry} names primitive {prim}, but there are {prims}")]
+    PrimOutOfRange {
+        /// Leaf-table position.
+        entry: usize,
+        /// Bad primitive index.
+        prim: u32,
+        /// Primitive count.
+        prims: usize,
+    },
+    /// A primitive is referenced by two leaf-table entries reached through leaves.
+    #[error("primitive {prim} is referenced twice (second time at leaf-table entry {entry})")]
+    PrimReferencedTwice {
+        /// The primitive.
+        prim: u32,
+        /// Leaf-table position of the second reference.
+        entry: usize,
+    },
+    /// A primitive is not referenced by any leaf.
+    #[error("primitive {prim} is not referenced by any leaf")]
+    PrimMissing {
+        /// The primitive.
+        prim: u32,
+    },
+    /// A primitive's box is not inside the box of the leaf holding it.
+    #[error("primitive {prim} is not inside the box of its leaf (node {node} child {slot})")]
+    PrimOutsideLeaf {
+        /// The primitive.
+        prim: u32,
+        /// Node index.
+        node: usize,
+        /// Child slot.
+        slot: usize,
+    },
+}
+
+/// Checks every invariant of `bvh` built over `prims` with leaves of at most
+/// `max_leaf_size` primitives; returns the first violation.
+pub fn validate(bvh: &Bvh2, prims: &[Aabb], max_leaf_size: u32) -> Result<(), ValidationError> {
+    use ValidationError as E;
+    let n_nodes = bvh.nodes.len();
+    if n_nodes == 0 {
+        return Err(E::NoRoot);
+    }
+    if bvh.prim_indices.len() != prims.len() {
+        return Err(E::LeafTableLength {
+            table: bvh.prim_indices.len(),
+            prims: prims.len(),
+        });
+    }
+    let root = &bvh.nodes[0];
+    let root_union = root.aabb();
+    let same = |a: &Aabb, b: &Aabb| (a.is_empty() && b.is_empty()) || a == b;
+    if !same(&root_union, &bvh.bounds) {
+        return Err(E::BoundsMismatch);
+    }
+    if root.children[0].is_empty() && !root.children[1].is_empty() {
+        return Err(E::RootChildOrder);
+    }
+    let mut node_seen = vec![false; n_nodes];
+    let mut prim_seen = vec![false; prims.len()];
+    node_seen[0] = true;
+    let mut position = 0usize;
+    // (node, its box as stored in the parent)
+    let mut stack: Vec<(usize, Aabb)> = vec![(0, bvh.bounds)];
+    while let Some((i, parent_box)) = stack.pop() {
+        if i != position {
+            return Err(E::NotDepthFirst { node: i, position });
+        }
+        position += 1;
+        let node = &bvh.nodes[i];
+        for slot in [1usize, 0] {
+            let c = node.children[slot];
+            let b = node.child_aabb(slot);
+            if c.is_empty() {
+                if i != 0 || !b.is_empty() {
+                    return Err(E::BadEmptyChild { node: i, slot });
+                }
+                continue;
+            }
+            if !b.is_finite() {
+                return Err(E::NonFiniteBox { node: i, slot });
+            }
+            if b.is_empty() || !parent_box.contains(&b) {
+                return Err(E::ChildOutsideParent { node: i, slot });
+            }
+            if c.is_inner() {
+                let t = c.index as usize;
+                if t == 0 || t >= n_nodes {
+                    return Err(E::ChildOutOfRange {
+                        node: i,
+                        slot,
+                        target: c.index,
+                        len: n_nodes,
+                    });
+                }
+                if node_seen[t] {
+                    return Err(E::NodeReachedTwice {
+                        node: i,
+                        slot,
+                        target: c.index,
+                    });
+                }
+                node_seen[t] = true;
+                stack.push((t, b));
+                continue;
+            }
+            if c.count > max_leaf_size {
+                return Err(E::LeafTooLarge {
+                    node: i,
+                    slot,
+                    count: c.count,
+                    max: max_leaf_size,
+                });
+            }
+            let first = c.index as usize;
+            let end = first + c.count as usize; // both < 2^32: no overflow on 64-bit
+            if end > bvh.prim_indices.len() {
+                return Err(E::LeafOutOfRange {
+                    node: i,
+                    slot,
+                    first: c.index,
+                    count: c.count,
+                    len: bvh.prim_indices.len(),
+                });
+            }
+            for (entry, &p) in bvh.prim_indices[first..end].iter().enumerate() {
+                let entry = first + entry;
+                let Some(pb) = prims.get(p as usize) else {
+                    return Err(E::PrimOutOfRange {
+                        entry,
+                        prim: p,
+                        prims: prims.len(),
+                    });
+                };
+                if prim_seen[p as usize] {
+                    return Err(E::PrimReferencedTwice { prim: p, entry });
+                }
+                prim_seen[p as usize] = true;
+                if !b.contains(pb) {
+                    return Err(E::PrimOutsideLeaf {
+                        prim: p,
+                        node: i,
+                        slot,
+                    });
+                }
+            }
+        }
+    }
+    if let Some(node) = node_seen.iter().position(|&s| !s) {
+        return Err(E::Unreachable { node });
+    }
+    if let Some(p) = prim_seen.iter().position(|&s| !s) {
+        return Err(E::PrimMissing { prim: p as u32 });
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::node::{ChildRef, Node};
+    use crate::testutil::soup;
+    use crate::SweepSahBuilder;
+    use geom::Vec3;
+
+    fn tree() -> (Bvh2, Vec<Aabb>) {
+        let prims = soup(300, 3.0, 5);
+        let t = SweepSahBuilder {
+            max_leaf_size: 4,
+            ..Default::default()
+        }
+        .build(&prims)
+        .unwrap();
+        validate(&t, &prims, 4).unwrap();
+        assert!(t.nodes.len() > 10);
+        (t, prims)
+    }
+
+    /// The last (node, slot) holding a child that satisfies `f` (never the root, whose
+    /// boxes are also checked against the scene bounds).
+    fn find(t: &Bvh2, f: impl Fn(&ChildRef) -> bool) -> (usize, usize) {
+        for (i, n) in t.nodes.iter().enumerate().skip(1).rev() {
+            for s in 0..2 {
+                if f(&n.children[s]) {
+                    return (i, s);
+                }
+            }
+        }
+        panic!("no such child");
+    }
+
+    /// Applies `corrupt` to a valid tree and returns the validator's verdict.
+    fn check(corrupt: impl FnOnce(&mut Bvh2, &mut Vec<Aabb>)) -> ValidationError {
+        let (mut t, mut prims) = tree();
+        corrupt(&mut t, &mut prims);
+        validate(&t, &prims, 4).expect_err("corruption not detected")
+    }
+
+    #[test]
+    fn catches_missing_root_and_table_length() {
+        assert_eq!(check(|t, _| t.nodes.clear()), ValidationError::NoRoot);
+        assert!(matches!(
+            check(|t, _| {
+                t.prim_indices.pop();
+            }),
+            ValidationError::LeafTableLength { .. }
+        ));
+    }
+
+    #[test]
+    fn catches_bad_primitive_references() {
+        // A duplicate inside one leaf (so it is inside the leaf box).
+        let e = check(|t, _| {
+            let (i, s) = find(t, |c| c.count >= 2);
+            let first = t.nodes[i].children[s].index as usize;
+            t.prim_indices[first + 1] = t.prim_indices[first];
+        });
+        assert!(
+            matches!(e, ValidationError::PrimReferencedTwice { .. }),
+            "{e}"
+        );
+        let e = check(|t, _| t.prim_indices[3] = 300);
+        assert!(
+            matches!(e, ValidationError::PrimOutOfRange { prim: 300, .. }),
+            "{e}"
+        );
+        // A leaf shrunk by one entry leaves that primitive unreferenced.
+        let e = check(|t, _| {
+            let (i, s) = find(t, |c| c.count >= 2);
+            t.nodes[i].children[s].count -= 1;
+        });
+        assert!(matches!(e, ValidationError::PrimMissing { .. }), "{e}");
+        let e = check(|t, prims| {
+            // A primitive moved far away is outside its leaf box.
+            let p = t.prim_indices[0] as usize;
+            prims[p] = Aabb::from_point(Vec3::splat(-50.0));
+        });
+        assert!(matches!(e, ValidationError::PrimOutsideLeaf { .. }), "{e}");
+    }
+
+    #[test]
+    fn catches_box_violations() {
+        let e = check(|t, _| {
+            let (i, s) = find(t, ChildRef::is_inner);
+            let mut b = t.nodes[i].child_aabb(s);
+            b.min.x -= 1000.0;
+            t.nodes[i].set_child_aabb(s, &b);
+        });
+        assert!(
+            matches!(e, ValidationError::ChildOutsideParent { .. }),
+            "{e}"
+        );
+        let e = check(|t, _| {
+            let (i, s) = find(t, ChildRef::is_leaf);
+            let mut b = t.nodes[i].child_aabb(s);
+            b.max = b.min;
+            t.nodes[i].set_child_aabb(s, &b);
+        });
+        assert!(matches!(e, ValidationError::PrimOutsideLeaf { .. }), "{e}");
+        let e = check(|t, _| {
+            let (i, s) = find(t, ChildRef::is_leaf);
+            t.nodes[i].bounds[s][4] = f32::NAN;
+        });
+        assert!(matches!(e, ValidationError::NonFiniteBox { .. }), "{e}");
+        let e = check(|t, _| t.bounds.max.x += 1.0);
+        assert_eq!(e, ValidationError::BoundsMismatch);
+    }
+
+    #[test]
+    fn catches_bad_links_and_cycles() {
+        let e = check(|t, _| {
+            let (i, s) = find(t, ChildRef::is_inner);
+            t.nodes[i].children[s].index = t.nodes.len() as u32;
+        });
+        assert!(matches!(e, ValidationError::ChildOutOfRange { .. }), "{e}");
+        let e = check(|t, _| {
+            let (i, s) = find(t, ChildRef::is_inner);
+            t.nodes[i].children[s].index = 0;
+        });
+        assert!(
+            matches!(e, ValidationError::ChildOutOfRange { target: 0, .. }),
+            "{e}"
+        );
+        // A deep node pointing back at node 1 makes a cycle (and a second reference).
+        let e = check(|t, _| {
+            let last = t.nodes.len() - 1;
+            let mut fixed = t.nodes[last];
+            fixed.children[0] = ChildRef::inner(1);
+            fixed.set_child_aabb(0, &t.nodes[last].aabb());
+            t.nodes[last] = fixed;
+        });
+        assert!(
+            matches!(
+                e,
+                ValidationError::NodeReachedTwice { target: 1, .. }
+                    | ValidationError::ChildOutsideParent { .. }
+            ),
+            "{e}"
+        );
+        let e = check(|t, _| t.nodes.push(t.nodes[1]));
+        assert!(matches!(e, ValidationError::Unreachable { .. }), "{e}");
+        // Swapping the root's children keeps every link valid but breaks preorder.
+        let e = check(|t, _| {
+            let r = t.nodes[0];
+            t.nodes[0] = Node::new(
+                &r.child_aabb(1),
+                r.children[1],
+                &r.child_aabb(0),
+                r.children[0],
+            );
+        });
+        assert!(matches!(e, ValidationError::NotDepthFirst { .. }), "{e}");
+    }
+
+    #[test]
+    fn catches_cycle_with_consistent_boxes() {
+        // Node 1 (child 0 of the root) made to point at itself: same box, so only the
+        // visit bookkeeping can catch it.
+        let (mut t, prims) = tree();
+        assert!(t.nodes[0].children[0].is_inner());
+        let own = t.nodes[1].aabb();
+        t.nodes[1].children[0] = ChildRef::inner(1);
+        t.nodes[1].set_child_aabb(0, &own);
+        let e = validate(&t, &prims, 4).unwrap_err();
+        assert!(
+            matches!(e, ValidationError::NodeReachedTwice { target: 1, .. }),
+            "{e}"
+        );
+    }
+
+    #[test]
+    fn catches_leaf_violations() {
+        let (t, prims) = tree();
+        let max = t.stats().max_leaf_size;
+        assert!(max >= 2);
+        let e = validate(&t, &prims, max - 1).unwrap_err();
+        assert!(matches!(e, ValidationError::LeafTooLarge { .. }), "{e}");
+        let e = check(|t, _| {
+            let (i, s) = find(t, ChildRef::is_leaf);
+            t.nodes[i].children[s].index = t.prim_indices.len() as u32;
+        });
+        assert!(matches!(e, ValidationError::LeafOutOfRange { .. }), "{e}");
+        let e = check(|t, _| {
+            let (i, s) = find(t, ChildRef::is_leaf);
+            t.nodes[i].children[s] = ChildRef::EMPTY;
+        });
+        assert!(matches!(e, ValidationError::BadEmptyChild { .. }), "{e}");
+    }
+
+    #[test]
+    fn root_child_rules() {
+        let one = vec![Aabb::new(Vec3::ZERO, Vec3::ONE)];
+        let t = Bvh2 {
+            nodes: vec![Node::new(
+                &Aabb::EMPTY,
+                ChildRef::EMPTY,
+                &one[0],
+                ChildRef::leaf(0, 1),
+            )],
+            prim_indices: vec![0],
+            bounds: one[0],
+        };
+        assert_eq!(validate(&t, &one, 1), Err(ValidationError::RootChildOrder));
+        let e = validate(&Bvh2::empty(), &one, 1).unwrap_err();
+        assert!(matches!(e, ValidationError::LeafTableLength { .. }));
+        assert_eq!(validate(&Bvh2::empty(), &[], 1), Ok(()));
+    }
+}
