@@ -1,4 +1,4 @@
-//! Binned SAH builder (Wald 2007), the builder of Doyle et al. that [P2] compares against.
+//! Binned SAH builder (Wald 2007), the builder of Doyle et al. that \[P2\] compares against.
 //!
 //! Top-down over one index array that is partitioned in place (no allocation per node).
 //! At each node the centroid bounds are cut into `bins` equal intervals per axis; one pass

@@ -1,10 +1,10 @@
-//! `Bvh2`: the binary BVH of [P2] §4.1 — 64-byte two-AABB nodes plus a leaf table.
+//! `Bvh2`: the binary BVH of \[P2\] §4.1 — 64-byte two-AABB nodes plus a leaf table.
 //!
 //! - `nodes[0]` is the root; nodes are stored depth-first (preorder, child 0 first), so
 //!   an inner child 0 of node `i` is always node `i + 1`.
 //! - Leaves are not nodes: a leaf is a child slot with `count > 0` naming the range
 //!   `prim_indices[index .. index + count]` of the leaf table, whose entries are primitive
-//!   indices into the builder's input ([P2] §4.1 uses a reference table so that any
+//!   indices into the builder's input (\[P2\] §4.1 uses a reference table so that any
 //!   primitive type with an AABB works).
 //! - `bounds` is the scene box, the union of the root's child boxes.
 //!
@@ -17,7 +17,7 @@
 use crate::node::{ChildRef, Node};
 use geom::Aabb;
 
-/// A binary BVH with [P2]'s 64-byte nodes and a leaf table of primitive references.
+/// A binary BVH with \[P2\]'s 64-byte nodes and a leaf table of primitive references.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Bvh2 {
     /// Nodes in depth-first preorder; `nodes[0]` is the root (always present).

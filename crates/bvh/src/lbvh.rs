@@ -1,4 +1,4 @@
-//! LBVH: the linear BVH of Karras (2012), one primitive per leaf ([P2] §2.1.1, §3).
+//! LBVH: the linear BVH of Karras (2012), one primitive per leaf (\[P2\] §2.1.1, §3).
 //!
 //! 1. Primitives are sorted by the Morton code of their box centroid, quantized to the
 //!    centroid bounds with [`geom::MortonQuantizer`] (30 or 63 bits), ties broken by

@@ -1,8 +1,8 @@
-//! Arbor's BVH core: the binary tree format of [P2] §4.1, its validator and SAH cost, and
+//! Arbor's BVH core: the binary tree format of \[P2\] §4.1, its validator and SAH cost, and
 //! the builders that the thesis compares (full sweep SAH, binned SAH, LBVH).
 //!
 //! Every builder is a small config struct with one `build(&[Aabb]) -> Result<Bvh2, _>`
-//! entry point. Builders take primitive AABBs, so any primitive type works ([P2] §4.1);
+//! entry point. Builders take primitive AABBs, so any primitive type works (\[P2\] §4.1);
 //! [`triangle_aabbs`] and [`indexed_triangle_aabbs`] make them from triangles. All builders
 //! are deterministic: the same input gives the same tree for any thread count.
 

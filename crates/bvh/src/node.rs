@@ -1,8 +1,8 @@
-//! The 64-byte two-AABB node of [P2] §4.1 (Fig. 2).
+//! The 64-byte two-AABB node of \[P2\] §4.1 (Fig. 2).
 //!
 //! A node does not store its own box: it stores the boxes of its TWO children and, per child,
 //! an index and a leaf size. This is what a hardware traversal unit wants: one 64-byte fetch
-//! gives both boxes to test ([P2] §4.1, "MBVH2" of Afra et al.).
+//! gives both boxes to test (\[P2\] §4.1, "MBVH2" of Afra et al.).
 //!
 //! Exact byte layout (`#[repr(C)]`, little-endian on every target we build for, no padding):
 //!
@@ -84,7 +84,7 @@ impl ChildRef {
     }
 }
 
-/// A BVH node of [P2] Fig. 2: both child boxes, then both child references (64 bytes).
+/// A BVH node of \[P2\] Fig. 2: both child boxes, then both child references (64 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Node {

@@ -1,6 +1,6 @@
 //! Surface area heuristic (SAH) cost of a tree, as the thesis reports tree quality.
 //!
-//! [P2] §6.2: `C = C_i Σ_inner A(N)/A(R) + C_l Σ_leaves A(L)/A(R) + C_t Σ_leaves P·A(L)/A(R)`
+//! \[P2\] §6.2: `C = C_i Σ_inner A(N)/A(R) + C_l Σ_leaves A(L)/A(R) + C_t Σ_leaves P·A(L)/A(R)`
 //! over all inner nodes (the root included), all leaves with `P` primitives each, and the
 //! scene box `R`. The builders use the same parameters to decide splits. The thesis reports
 //! costs relative to a full sweep SAH build of the same scene ("SAH %"), see [`sah_ratio`].
@@ -19,7 +19,7 @@ pub struct SahParams {
 }
 
 impl SahParams {
-    /// [P2] §6.2: "C_i = 1.2, C_l = 0, C_t = 1", the GPU values of Karras and Aila.
+    /// \[P2\] §6.2: "C_i = 1.2, C_l = 0, C_t = 1", the GPU values of Karras and Aila.
     pub const THESIS: SahParams = SahParams {
         c_inner: 1.2,
         c_leaf: 0.0,

@@ -1,5 +1,5 @@
 //! Full sweep SAH builder: the quality reference the thesis normalizes SAH costs to
-//! ([P2] §6.2, "SAH costs are normalized to a full SAH sweep").
+//! (\[P2\] §6.2, "SAH costs are normalized to a full SAH sweep").
 //!
 //! Top-down: at every node, for each axis, the primitives sorted by centroid are swept once
 //! from the right (areas of all right sets) and once from the left, evaluating the SAH of

@@ -1,6 +1,6 @@
 //! Morton (Z-order) codes of points quantized to a bounding box.
 //!
-//! LBVH and HLBVH builders ([P2] §3, §5.4) sort primitives by the Morton code of their
+//! LBVH and HLBVH builders (\[P2\] §3, §5.4) sort primitives by the Morton code of their
 //! AABB centroid. A 30-bit code interleaves 10 bits per axis (1024^3 cells); a 63-bit code
 //! interleaves 21 bits per axis. In every code, bit `3i + 2` is bit `i` of x, `3i + 1` of y
 //! and `3i` of z, so x is the most significant axis (the convention of Karras 2012).
