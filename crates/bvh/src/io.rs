@@ -432,7 +432,9 @@ fn check_structure(bvh: &Bvh2) -> Result<(), ValidationError> {
                 continue;
             }
             let first = c.index as usize;
-            let Some(range) = bvh.prim_indices.get(first..first.saturating_add(c.count as usize))
+            let Some(range) = bvh
+                .prim_indices
+                .get(first..first.saturating_add(c.count as usize))
             else {
                 continue; // out of range: `validate` reports it
             };
@@ -460,7 +462,9 @@ mod tests {
     }
 
     fn sample() -> Bvh2 {
-        BinnedSahBuilder::default().build(&soup(500, 2.0, 7)).unwrap()
+        BinnedSahBuilder::default()
+            .build(&soup(500, 2.0, 7))
+            .unwrap()
     }
 
     /// Re-seals a modified file with a correct checksum, so the test reaches the check
@@ -475,8 +479,14 @@ mod tests {
     fn round_trips_every_builder_and_small_trees() {
         let prims = soup(2000, 3.0, 1);
         let trees = [
-            ("binned-sah", BinnedSahBuilder::default().build(&prims).unwrap()),
-            ("sweep-sah", SweepSahBuilder::default().build(&prims).unwrap()),
+            (
+                "binned-sah",
+                BinnedSahBuilder::default().build(&prims).unwrap(),
+            ),
+            (
+                "sweep-sah",
+                SweepSahBuilder::default().build(&prims).unwrap(),
+            ),
             ("lbvh", LbvhBuilder::default().build(&prims).unwrap()),
             ("empty", Bvh2::empty()),
             ("one", LbvhBuilder::default().build(&prims[..1]).unwrap()),
@@ -533,7 +543,10 @@ mod tests {
         ));
         let mut v = bytes_of(&sample(), "b");
         v[12] = TreeKind::Mbvh4 as u8;
-        assert!(matches!(read_bvh2(&v[..]), Err(IoError::UnsupportedKind(2))));
+        assert!(matches!(
+            read_bvh2(&v[..]),
+            Err(IoError::UnsupportedKind(2))
+        ));
     }
 
     #[test]
@@ -625,9 +638,7 @@ mod tests {
             ),
             (
                 "leaf-table entry out of range",
-                Box::new(move |v| {
-                    v[leaf_at..leaf_at + 4].copy_from_slice(&u32::MAX.to_le_bytes())
-                }),
+                Box::new(move |v| v[leaf_at..leaf_at + 4].copy_from_slice(&u32::MAX.to_le_bytes())),
             ),
             (
                 "duplicate primitive",
