@@ -255,3 +255,38 @@ fn text_output_names_the_numbers() {
     }
     assert!(Path::new(BUNDLED).exists());
 }
+
+#[test]
+fn demo_reports_every_available_builder() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = arbor(&[
+        "demo",
+        "--quiet",
+        "--frames",
+        "4",
+        "--out",
+        dir.path().to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("SAH vs sweep"), "{text}");
+    let s: Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("summary.json")).unwrap()).unwrap();
+    let builds = s["builds"].as_array().unwrap();
+    // Frames 0..=3 with 4 walked: 0, 1, 2, 3; three builders each.
+    assert_eq!(builds.len(), 4 * BUILDERS.len());
+    for b in builds {
+        assert_eq!(b["valid"], true);
+        assert!(BUILDERS.contains(&b["builder"].as_str().unwrap()));
+        let r = b["sah_vs_sweep"].as_f64().unwrap();
+        if b["builder"] == "sweep-sah" {
+            assert_eq!(r, 1.0);
+        } else {
+            assert!(r >= 0.99, "{b}");
+        }
+    }
+}
