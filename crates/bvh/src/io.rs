@@ -625,7 +625,8 @@ mod tests {
         let t = sample();
         let h = header_bytes(1);
         let leaf_at = h + 64 * t.nodes.len();
-        let cases: Vec<(&str, Box<dyn Fn(&mut Vec<u8>)>)> = vec![
+        type Corrupt = Box<dyn Fn(&mut Vec<u8>)>;
+        let cases: Vec<(&str, Corrupt)> = vec![
             (
                 "child index out of range",
                 Box::new(move |v| v[h + 48..h + 52].copy_from_slice(&999_999u32.to_le_bytes())),
