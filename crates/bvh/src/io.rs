@@ -1,6 +1,6 @@
 //! The Arbor tree file: a little-endian binary format for [`Bvh2`] that `arbor build --out`
 //! writes and that `arbor render` and the hardware models read back. The nodes are stored in
-//! exactly their 64-byte in-memory layout ([`Node`](crate::Node), \[P2\] §4.1 Fig. 2), so a
+//! exactly their 64-byte in-memory layout ([`Node`], \[P2\] §4.1 Fig. 2), so a
 //! hardware model can map the node section and fetch one node per 64-byte line.
 //!
 //! Layout (all integers and floats little-endian; `docs/tree-format.md` has the same table):
@@ -17,7 +17,7 @@
 //! | 32          | 24   | scene bounds: min x, y, z, max x, y, z (`f32`)                |
 //! | 56          | 8    | SAH cost with the thesis parameters (`f64`, informational)    |
 //! | 64          | L    | builder name, UTF-8, then zero bytes up to a multiple of 16   |
-//! | H           | 64 N | nodes, each in the 64-byte layout of [`Node`](crate::Node)          |
+//! | H           | 64 N | nodes, each in the 64-byte layout of [`Node`]          |
 //! | H + 64 N    | 4 T  | leaf table (`u32` primitive indices)                          |
 //! | end - 4     | 4    | CRC-32 (IEEE, as zlib/PNG) of every byte before it            |
 //!
