@@ -290,3 +290,44 @@ fn demo_reports_every_available_builder() {
         }
     }
 }
+
+#[test]
+fn empty_and_single_triangle_scenes_build() {
+    let dir = tempfile::tempdir().unwrap();
+    let empty = dir.path().join("empty.obj");
+    std::fs::write(&empty, "# no triangles\n").unwrap();
+    let one = dir.path().join("one.obj");
+    std::fs::write(&one, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    for b in BUILDERS {
+        let out = dir.path().join("t.bvh");
+        let j = build_json(&[
+            empty.to_str().unwrap(),
+            "--builder",
+            b,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert_eq!(
+            (j["triangles"].as_u64(), j["leaves"].as_u64()),
+            (Some(0), Some(0))
+        );
+        assert_eq!(j["valid"], true);
+        assert_eq!(bvh::io::read_bvh2_file(&out).unwrap().0, bvh::Bvh2::empty());
+        let j = build_json(&[
+            one.to_str().unwrap(),
+            "--builder",
+            b,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert_eq!(
+            (j["triangles"].as_u64(), j["leaves"].as_u64()),
+            (Some(1), Some(1))
+        );
+        assert_eq!(j["sah_vs_sweep"], 1.0);
+        assert_eq!(
+            bvh::io::read_bvh2_file(&out).unwrap().0.prim_indices,
+            vec![0]
+        );
+    }
+}

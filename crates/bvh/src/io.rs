@@ -281,10 +281,16 @@ pub fn write_bvh2_file(bvh: &Bvh2, builder: &str, path: &Path) -> Result<(), IoE
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
     };
-    let mut tmp = tempfile::Builder::new()
-        .prefix(".arbor-tree-")
-        .suffix(".tmp")
-        .tempfile_in(dir)?;
+    let mut tb = tempfile::Builder::new();
+    tb.prefix(".arbor-tree-").suffix(".tmp");
+    // Temporary files are private (0600) by default; the renamed result should get the
+    // permissions of any file the user creates (0666 less the umask).
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        tb.permissions(std::fs::Permissions::from_mode(0o666));
+    }
+    let mut tmp = tb.tempfile_in(dir)?;
     write_bvh2(bvh, builder, tmp.as_file_mut())?;
     tmp.as_file().sync_all()?;
     // On failure the temporary file is removed when `tmp` (inside the error) is dropped.
