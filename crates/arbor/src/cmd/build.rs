@@ -291,6 +291,31 @@ fn check_out_path(out: &Path) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// How `sah_vs_sweep` is obtained.
+#[derive(Debug, PartialEq)]
+enum Reference {
+    /// The tree is the sweep SAH build: the ratio is exactly 1.
+    Itself,
+    /// Build a sweep SAH tree of the same primitives.
+    Build,
+    /// Skip the reference, for this reason.
+    Skip(String),
+}
+
+/// Whether to build the sweep SAH reference for `builder` over `triangles` primitives.
+fn reference_plan(builder: &str, triangles: usize, force: bool) -> Reference {
+    if builder == "sweep-sah" {
+        Reference::Itself
+    } else if triangles > SAH_REFERENCE_MAX_TRIANGLES && !force {
+        Reference::Skip(format!(
+            "sweep SAH reference skipped above {} triangles (use --sah-reference)",
+            thousands(SAH_REFERENCE_MAX_TRIANGLES as u64)
+        ))
+    } else {
+        Reference::Build
+    }
+}
+
 /// Runs `arbor build`.
 pub fn run(args: &BuildArgs, ui: &Ui) -> anyhow::Result<()> {
     let (build_fn, cfg) = check_args(args)?;
@@ -339,26 +364,23 @@ pub fn run(args: &BuildArgs, ui: &Ui) -> anyhow::Result<()> {
 
     // The normalization reference: the tree itself for sweep-sah, else a sweep build.
     let sah = tree.sah();
-    let (sweep_sah, reference_ms, note) = if args.builder == "sweep-sah" {
-        (Some(sah), None, None)
-    } else if aabbs.len() > SAH_REFERENCE_MAX_TRIANGLES && !args.sah_reference {
-        let note = format!(
-            "sweep SAH reference skipped above {} triangles (use --sah-reference)",
-            thousands(SAH_REFERENCE_MAX_TRIANGLES as u64)
-        );
-        (None, None, Some(note))
-    } else {
-        let (r, r_ms) = pool.install(|| {
-            timed_build(
-                ui,
-                "sweep-sah (reference)",
-                |p, c| sweep(c).build(p),
-                &cfg,
-                &aabbs,
-            )
-        })?;
-        (Some(r.sah()), Some(r_ms), None)
-    };
+    let (sweep_sah, reference_ms, note) =
+        match reference_plan(&args.builder, aabbs.len(), args.sah_reference) {
+            Reference::Itself => (Some(sah), None, None),
+            Reference::Skip(note) => (None, None, Some(note)),
+            Reference::Build => {
+                let (r, r_ms) = pool.install(|| {
+                    timed_build(
+                        ui,
+                        "sweep-sah (reference)",
+                        |p, c| sweep(c).build(p),
+                        &cfg,
+                        &aabbs,
+                    )
+                })?;
+                (Some(r.sah()), Some(r_ms), None)
+            }
+        };
     let sah_vs_sweep = sweep_sah.map(|r| bvh::sah_ratio(sah, r));
 
     if let Some(out) = &args.out {
@@ -469,6 +491,22 @@ mod tests {
         assert!(e.contains("lbvh") && e.contains("mbvh4-topdown"), "{e}");
         let e = builder("hlbvh").err().unwrap().to_string();
         assert!(e.contains("not available yet"), "{e}");
+    }
+
+    #[test]
+    fn sweep_reference_is_skipped_only_for_huge_scenes_unless_forced() {
+        let big = SAH_REFERENCE_MAX_TRIANGLES + 1;
+        assert_eq!(reference_plan("sweep-sah", big, false), Reference::Itself);
+        assert_eq!(reference_plan("lbvh", 5000, false), Reference::Build);
+        assert_eq!(
+            reference_plan("lbvh", SAH_REFERENCE_MAX_TRIANGLES, false),
+            Reference::Build
+        );
+        assert_eq!(reference_plan("lbvh", big, true), Reference::Build);
+        match reference_plan("binned-sah", big, false) {
+            Reference::Skip(n) => assert!(n.contains("--sah-reference"), "{n}"),
+            other => panic!("{other:?}"),
+        }
     }
 
     #[test]
