@@ -27,6 +27,8 @@ enum Command {
     Info(cmd::info::InfoArgs),
     /// Run the main job on the bundled default scene (or another) and summarize it.
     Demo(cmd::demo::DemoArgs),
+    /// Build a BVH over a scene with a named builder, validate it, report SAH and timings.
+    Build(cmd::build::BuildArgs),
 }
 
 fn main() -> ExitCode {
@@ -35,6 +37,7 @@ fn main() -> ExitCode {
     let result = match cli.command {
         Command::Info(a) => cmd::info::run(&a, &ui),
         Command::Demo(a) => cmd::demo::run(&a, &ui),
+        Command::Build(a) => cmd::build::run(&a, &ui),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -12,6 +12,7 @@ mod binned_sah;
 mod bvh2;
 mod error;
 mod frag;
+pub mod io;
 mod lbvh;
 mod node;
 mod sah;

@@ -1,6 +1,9 @@
 //! `arbor demo`: the main job on the bundled default scene. It opens the scene, walks its
 //! animation frame by frame, and prints a short summary; each capability of Arbor adds its
 //! step here. Results also go to an output folder (`summary.json`, `frames.csv`).
+//!
+//! Steps: (1) walk the animation; (2) build a BVH with every available builder at frame 0
+//! and a few later frames, validated, with SAH relative to the sweep SAH build.
 
 use super::{info::gather, ms, open_scene, thousands, SceneArgs};
 use crate::progress::{Ui, Unit};
@@ -49,7 +52,24 @@ struct Summary {
     swept_bounds: Option<[[f32; 3]; 2]>,
     max_center_travel: f32,
     frames: Vec<FrameRow>,
+    builds: Vec<BuildRow>,
 }
+
+/// One build of the demo's build step (`builds` in `summary.json`).
+#[derive(Serialize)]
+struct BuildRow {
+    frame: u32,
+    time_s: f32,
+    builder: &'static str,
+    triangles: usize,
+    build_ms: f64,
+    sah: f64,
+    sah_vs_sweep: f64,
+    valid: bool,
+}
+
+/// Frames the build step runs on: frame 0 and up to this many more, evenly spread.
+const BUILD_STEP_EXTRA_FRAMES: u32 = 3;
 
 /// Runs `arbor demo`.
 pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
@@ -118,6 +138,9 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
         walk_ms / n as f64
     );
 
+    // Step 2: every available builder at a few frames.
+    let builds = build_step(ui, scene.as_ref(), n)?;
+
     let summary = Summary {
         schema: "arbor.demo.v1",
         info,
@@ -126,10 +149,70 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
         swept_bounds: (!swept.is_empty()).then(|| [swept.min.to_array(), swept.max.to_array()]),
         max_center_travel: travel,
         frames: rows,
+        builds,
     };
     write_outputs(&args.out, &summary)?;
     println!("  outputs    {}", args.out.display());
+    if let Some(bad) = summary.builds.iter().find(|b| !b.valid) {
+        anyhow::bail!(
+            "builder {} produced an invalid tree at frame {} (see {})",
+            bad.builder,
+            bad.frame,
+            args.out.join("summary.json").display()
+        );
+    }
     Ok(())
+}
+
+/// Builds with every available builder at frame 0 and a few of the `n` walked frames,
+/// prints a table, and returns its rows. A tree that fails validation is recorded as
+/// invalid (the caller reports it after writing the outputs).
+fn build_step(ui: &Ui, scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<BuildRow>> {
+    use super::build::{available_builders, builder, mesh_aabbs, timed_build, BuildConfig};
+    let timeline = scene.info().timeline;
+    let mut frames: Vec<u32> = (0..=BUILD_STEP_EXTRA_FRAMES)
+        .map(|k| (n - 1) * k / BUILD_STEP_EXTRA_FRAMES)
+        .collect();
+    frames.dedup();
+    let cfg = BuildConfig::default();
+    let mut rows = Vec::new();
+    println!("  builds     frame  builder      build ms  SAH vs sweep  valid");
+    for &f in &frames {
+        let t = timeline.time_of_frame(f);
+        let mesh = scene.mesh_at(t).with_context(|| format!("frame {f}"))?;
+        let (aabbs, _) = mesh_aabbs(&mesh)?;
+        drop(mesh);
+        let mut built = Vec::new();
+        for name in available_builders() {
+            let (tree, build_ms) = timed_build(ui, name, builder(name)?, &cfg, &aabbs)?;
+            let valid = bvh::validate(&tree, &aabbs, cfg.max_leaf).is_ok();
+            built.push((name, tree.sah(), build_ms, valid));
+        }
+        // The sweep SAH build is one of the builders: it normalizes the others.
+        let sweep = built
+            .iter()
+            .find(|b| b.0 == "sweep-sah")
+            .map(|b| b.1)
+            .context("the sweep-sah builder is missing")?;
+        for (name, sah, build_ms, valid) in built {
+            let ratio = bvh::sah_ratio(sah, sweep);
+            println!(
+                "             {f:>5}  {name:<11} {build_ms:>9.2}  {ratio:>12.3}  {}",
+                if valid { "yes" } else { "NO" }
+            );
+            rows.push(BuildRow {
+                frame: f,
+                time_s: t,
+                builder: name,
+                triangles: aabbs.len(),
+                build_ms,
+                sah,
+                sah_vs_sweep: ratio,
+                valid,
+            });
+        }
+    }
+    Ok(rows)
 }
 
 fn glam_vec(a: [f32; 3]) -> geom::Vec3 {

@@ -1,5 +1,6 @@
 //! Subcommands, one file each.
 
+pub mod build;
 pub mod demo;
 pub mod info;
 

@@ -1,0 +1,529 @@
+//! `arbor build`: builds a BVH over a scene at one time with a named builder, validates it,
+//! reports its shape, SAH and the SAH relative to a full sweep SAH build (the thesis's
+//! "SAH %" columns, \[P2\] §6.2), and optionally writes it as a tree file (`bvh::io`).
+//! The JSON form (`arbor.build.v1`) is documented in `docs/cli-json.md`.
+//!
+//! Builders are looked up by name in [`BUILDERS`]; a builder being written elsewhere is
+//! listed with `None` and reports "not available yet", so adding it is one line.
+
+use super::{ms, open_scene, thousands, SceneArgs};
+use crate::progress::Ui;
+use anyhow::{bail, Context};
+use bvh::{BuildError, Bvh2, LbvhBuilder, SweepSahBuilder};
+use geom::Aabb;
+use serde::Serialize;
+use std::path::{Path, PathBuf};
+use std::time::Instant;
+
+/// Above this many triangles the sweep SAH reference build (O(n log n), single pass per
+/// axis, several times slower than the fast builders) is skipped unless `--sah-reference`.
+pub const SAH_REFERENCE_MAX_TRIANGLES: usize = 2_000_000;
+/// Largest `--threads` accepted: more threads than this only adds scheduling overhead on
+/// any machine we target, and a typo like `--threads 10000` would spawn them all.
+pub const MAX_THREADS: usize = 1024;
+/// Largest `--max-leaf` accepted: leaves are ranges of a `u32` leaf table, and beyond a few
+/// hundred primitives per leaf a tree is no longer a useful acceleration structure.
+pub const MAX_LEAF_LIMIT: u32 = 1024;
+/// Leaf size limit of the SAH builders when `--max-leaf` is not given (the builders' own
+/// default).
+pub const DEFAULT_MAX_LEAF: u32 = 8;
+/// Bin counts `--bins` accepts (\[P2\] §6.2 compares binned SAH with 8, 16 and 32 bins).
+pub const BIN_CHOICES: [usize; 3] = [8, 16, 32];
+/// Bins per axis of `binned-sah` when `--bins` is not given.
+pub const DEFAULT_BINS: usize = 16;
+
+/// Settings every builder gets.
+#[derive(Clone, Debug)]
+pub struct BuildConfig {
+    /// Largest leaf (builders with a fixed leaf size, like LBVH's 1, stay below it).
+    pub max_leaf: u32,
+    /// Bins per axis for binned builders.
+    pub bins: usize,
+}
+
+impl Default for BuildConfig {
+    fn default() -> Self {
+        Self {
+            max_leaf: DEFAULT_MAX_LEAF,
+            bins: DEFAULT_BINS,
+        }
+    }
+}
+
+/// A builder entry point. It runs in the current rayon pool (`threads: 0`): the caller
+/// installs the pool that sets the thread count, so pool creation is not timed.
+pub type BuildFn = fn(&[Aabb], &BuildConfig) -> Result<Bvh2, BuildError>;
+
+/// Every builder name of the issue, in its order; `None` marks one not available yet.
+pub static BUILDERS: &[(&str, Option<BuildFn>)] = &[
+    ("lbvh", Some(|p, _| LbvhBuilder::default().build(p))),
+    ("hlbvh", None),
+    ("hlbvh+sah", None),
+    ("hlbvh+atrbvh", None),
+    (
+        "binned-sah",
+        Some(|p, c| {
+            bvh::BinnedSahBuilder {
+                bins: c.bins,
+                max_leaf_size: c.max_leaf,
+                threads: 0,
+                ..Default::default()
+            }
+            .build(p)
+        }),
+    ),
+    ("sweep-sah", Some(|p, c| sweep(c).build(p))),
+    ("atrbvh", None),
+    ("mbvh4-collapse", None),
+    ("mbvh4-topdown", None),
+];
+
+/// The sweep SAH builder for a configuration (also the SAH normalization reference).
+fn sweep(c: &BuildConfig) -> SweepSahBuilder {
+    SweepSahBuilder {
+        max_leaf_size: c.max_leaf,
+        threads: 0,
+        ..Default::default()
+    }
+}
+
+/// Names of the builders that can run now.
+pub fn available_builders() -> impl Iterator<Item = &'static str> {
+    BUILDERS
+        .iter()
+        .filter(|(_, f)| f.is_some())
+        .map(|(n, _)| *n)
+}
+
+/// The builder called `name`, or a one-line error listing the valid names.
+pub fn builder(name: &str) -> anyhow::Result<BuildFn> {
+    match BUILDERS.iter().find(|(n, _)| *n == name) {
+        Some((_, Some(f))) => Ok(*f),
+        Some((_, None)) => bail!(
+            "builder {name} is not available yet (available now: {})",
+            available_builders().collect::<Vec<_>>().join(", ")
+        ),
+        None => bail!(
+            "unknown builder '{name}'; valid names: {}",
+            BUILDERS
+                .iter()
+                .map(|(n, _)| *n)
+                .collect::<Vec<_>>()
+                .join(", ")
+        ),
+    }
+}
+
+/// Arguments of `arbor build`.
+#[derive(clap::Args, Debug)]
+pub struct BuildArgs {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Builder: lbvh, binned-sah, sweep-sah (hlbvh, hlbvh+sah, hlbvh+atrbvh, atrbvh,
+    /// mbvh4-collapse, mbvh4-topdown are coming).
+    #[arg(long, value_name = "NAME")]
+    builder: String,
+    /// Time in seconds at which to sample the scene (clamped to its timeline).
+    #[arg(long, value_name = "SECONDS", conflicts_with = "frame")]
+    time: Option<f32>,
+    /// Frame number at which to sample the scene.
+    #[arg(long, value_name = "N")]
+    frame: Option<u32>,
+    /// Worker threads (default: all cores).
+    #[arg(long, value_name = "N")]
+    threads: Option<usize>,
+    /// Largest leaf, in primitives (default 8; LBVH leaves always hold 1).
+    #[arg(long, value_name = "N")]
+    max_leaf: Option<u32>,
+    /// Bins per axis for binned-sah: 8, 16 or 32 (default 16).
+    #[arg(long, value_name = "N")]
+    bins: Option<usize>,
+    /// Print JSON (schema `arbor.build.v1`) instead of text.
+    #[arg(long)]
+    json: bool,
+    /// Write the tree to FILE in the Arbor tree format (docs/tree-format.md), atomically.
+    #[arg(long, value_name = "FILE")]
+    out: Option<PathBuf>,
+    /// Build at time T0 and refit the tree to --time/--frame (not available yet).
+    #[arg(long, value_name = "T0")]
+    refit_from: Option<f32>,
+    /// Build the sweep SAH reference for `sah_vs_sweep` even above 2M triangles.
+    #[arg(long)]
+    sah_reference: bool,
+}
+
+/// The JSON document `arbor build --json` prints (`arbor.build.v1`).
+#[derive(Serialize, Debug)]
+pub struct BuildJson {
+    /// `"arbor.build.v1"`.
+    pub schema: &'static str,
+    /// Scene spec as given.
+    pub scene: String,
+    /// Builder name.
+    pub builder: String,
+    /// Time sampled, after clamping.
+    pub time_s: f32,
+    /// `--frame` if given.
+    pub frame: Option<u32>,
+    /// Triangles (primitives) built over.
+    pub triangles: usize,
+    /// Inner nodes (64-byte nodes).
+    pub inner_nodes: usize,
+    /// Leaves.
+    pub leaves: usize,
+    /// Largest leaf in the tree.
+    pub max_leaf_size: u32,
+    /// The leaf size limit the tree was built and validated with.
+    pub max_leaf_limit: u32,
+    /// Longest root-to-leaf path in nodes.
+    pub max_depth: usize,
+    /// SAH cost with the thesis parameters.
+    pub sah: f64,
+    /// SAH relative to a sweep SAH build of the same primitives (null when skipped).
+    pub sah_vs_sweep: Option<f64>,
+    /// SAH of the sweep reference (null when skipped).
+    pub sweep_sah: Option<f64>,
+    /// Why `sah_vs_sweep` is null, else null.
+    pub sah_reference_note: Option<String>,
+    /// Builder wall time (excludes AABB computation, validation and the reference build).
+    pub build_ms: f64,
+    /// Time to compute the primitive boxes from the mesh.
+    pub aabb_ms: f64,
+    /// Time of the sweep reference build (null when skipped or when it is the tree itself).
+    pub reference_ms: Option<f64>,
+    /// Time to open the scene.
+    pub open_ms: f64,
+    /// Time to sample the mesh.
+    pub sample_ms: f64,
+    /// Worker threads of the pool the builder ran in.
+    pub threads: usize,
+    /// Bins per axis (binned builders only).
+    pub bins: Option<usize>,
+    /// `bvh::validate` passed (always true in printed output: a failure is an error).
+    pub valid: bool,
+    /// Tree file written, if any.
+    pub out: Option<String>,
+    /// Bytes of the node array plus leaf table in memory.
+    pub tree_bytes: usize,
+}
+
+/// Computes the primitive boxes of a mesh; returns them with the time taken.
+pub fn mesh_aabbs(mesh: &scene::Mesh) -> anyhow::Result<(Vec<Aabb>, f64)> {
+    let s = Instant::now();
+    let a = bvh::indexed_triangle_aabbs(&mesh.positions, &mesh.triangles)
+        .context("cannot compute triangle bounds")?;
+    Ok((a, ms(s.elapsed())))
+}
+
+/// Runs `f` on `aabbs` with a spinner; returns the tree and the builder's wall time.
+pub fn timed_build(
+    ui: &Ui,
+    name: &str,
+    f: BuildFn,
+    cfg: &BuildConfig,
+    aabbs: &[Aabb],
+) -> anyhow::Result<(Bvh2, f64)> {
+    let spinner = ui.spinner(&format!(
+        "building {name} over {} triangles",
+        thousands(aabbs.len() as u64)
+    ));
+    let s = Instant::now();
+    let t = f(aabbs, cfg).with_context(|| format!("builder {name} failed"))?;
+    let elapsed = ms(s.elapsed());
+    drop(spinner);
+    Ok((t, elapsed))
+}
+
+/// Checks the arguments that need no scene, so bad input fails before a long load.
+fn check_args(a: &BuildArgs) -> anyhow::Result<(BuildFn, BuildConfig)> {
+    let f = builder(&a.builder)?;
+    if a.refit_from.is_some() {
+        bail!("--refit-from is not available yet: the refit step is not in this build");
+    }
+    if let Some(t) = a.threads {
+        anyhow::ensure!(
+            (1..=MAX_THREADS).contains(&t),
+            "--threads must be between 1 and {MAX_THREADS}, got {t}"
+        );
+    }
+    let mut cfg = BuildConfig::default();
+    if let Some(m) = a.max_leaf {
+        anyhow::ensure!(
+            (1..=MAX_LEAF_LIMIT).contains(&m),
+            "--max-leaf must be between 1 and {MAX_LEAF_LIMIT}, got {m}"
+        );
+        cfg.max_leaf = m;
+    }
+    if let Some(b) = a.bins {
+        anyhow::ensure!(
+            a.builder == "binned-sah",
+            "--bins applies only to --builder binned-sah"
+        );
+        anyhow::ensure!(
+            BIN_CHOICES.contains(&b),
+            "--bins must be 8, 16 or 32, got {b}"
+        );
+        cfg.bins = b;
+    }
+    if let Some(out) = &a.out {
+        check_out_path(out)?;
+    }
+    Ok((f, cfg))
+}
+
+/// Fails early when `--out` cannot be written: a directory, or a missing parent folder.
+fn check_out_path(out: &Path) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        !out.is_dir(),
+        "cannot write tree file {}: it is a directory",
+        out.display()
+    );
+    let parent = match out.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    anyhow::ensure!(
+        parent.is_dir(),
+        "cannot write tree file {}: folder {} does not exist",
+        out.display(),
+        parent.display()
+    );
+    Ok(())
+}
+
+/// How `sah_vs_sweep` is obtained.
+#[derive(Debug, PartialEq)]
+enum Reference {
+    /// The tree is the sweep SAH build: the ratio is exactly 1.
+    Itself,
+    /// Build a sweep SAH tree of the same primitives.
+    Build,
+    /// Skip the reference, for this reason.
+    Skip(String),
+}
+
+/// Whether to build the sweep SAH reference for `builder` over `triangles` primitives.
+fn reference_plan(builder: &str, triangles: usize, force: bool) -> Reference {
+    if builder == "sweep-sah" {
+        Reference::Itself
+    } else if triangles > SAH_REFERENCE_MAX_TRIANGLES && !force {
+        Reference::Skip(format!(
+            "sweep SAH reference skipped above {} triangles (use --sah-reference)",
+            thousands(SAH_REFERENCE_MAX_TRIANGLES as u64)
+        ))
+    } else {
+        Reference::Build
+    }
+}
+
+/// Runs `arbor build`.
+pub fn run(args: &BuildArgs, ui: &Ui) -> anyhow::Result<()> {
+    let (build_fn, cfg) = check_args(args)?;
+    let pool = {
+        let mut b = rayon::ThreadPoolBuilder::new();
+        if let Some(t) = args.threads {
+            b = b.num_threads(t);
+        }
+        b.build().context("cannot create the worker thread pool")?
+    };
+    let (scene, open) = open_scene(&args.scene, ui)?;
+    let info = scene.info();
+    if let Some(t) = args.time {
+        anyhow::ensure!(
+            t.is_finite(),
+            "--time must be a finite number of seconds, got {t}"
+        );
+    }
+    let frames = info.timeline.frame_count();
+    if let Some(f) = args.frame {
+        anyhow::ensure!(
+            f < frames,
+            "--frame {f} is out of range: the scene has {frames} frame(s)"
+        );
+    }
+    let time_s = match (args.time, args.frame) {
+        (Some(t), _) => info.timeline.clamp(t),
+        (None, Some(f)) => info.timeline.time_of_frame(f),
+        (None, None) => 0.0,
+    };
+    let s = Instant::now();
+    let mesh = {
+        let _spinner = ui.spinner(&format!("sampling {} at t = {time_s} s", args.scene.scene));
+        scene
+            .mesh_at(time_s)
+            .with_context(|| format!("cannot sample the scene at t = {time_s} s"))?
+    };
+    let sample_ms = ms(s.elapsed());
+    let (aabbs, aabb_ms) = mesh_aabbs(&mesh)?;
+    drop(mesh);
+
+    let (tree, build_ms) =
+        pool.install(|| timed_build(ui, &args.builder, build_fn, &cfg, &aabbs))?;
+    bvh::validate(&tree, &aabbs, cfg.max_leaf)
+        .with_context(|| format!("builder {} produced an invalid tree", args.builder))?;
+
+    // The normalization reference: the tree itself for sweep-sah, else a sweep build.
+    let sah = tree.sah();
+    let (sweep_sah, reference_ms, note) =
+        match reference_plan(&args.builder, aabbs.len(), args.sah_reference) {
+            Reference::Itself => (Some(sah), None, None),
+            Reference::Skip(note) => (None, None, Some(note)),
+            Reference::Build => {
+                let (r, r_ms) = pool.install(|| {
+                    timed_build(
+                        ui,
+                        "sweep-sah (reference)",
+                        |p, c| sweep(c).build(p),
+                        &cfg,
+                        &aabbs,
+                    )
+                })?;
+                (Some(r.sah()), Some(r_ms), None)
+            }
+        };
+    let sah_vs_sweep = sweep_sah.map(|r| bvh::sah_ratio(sah, r));
+
+    if let Some(out) = &args.out {
+        bvh::io::write_bvh2_file(&tree, &args.builder, out)
+            .with_context(|| format!("cannot write tree file {}", out.display()))?;
+    }
+    let st = tree.stats();
+    let j = BuildJson {
+        schema: "arbor.build.v1",
+        scene: args.scene.scene.clone(),
+        builder: args.builder.clone(),
+        time_s,
+        frame: args.frame,
+        triangles: aabbs.len(),
+        inner_nodes: st.inner_nodes,
+        leaves: st.leaves,
+        max_leaf_size: st.max_leaf_size,
+        max_leaf_limit: cfg.max_leaf,
+        max_depth: st.max_depth,
+        sah,
+        sah_vs_sweep,
+        sweep_sah,
+        sah_reference_note: note,
+        build_ms,
+        aabb_ms,
+        reference_ms,
+        open_ms: ms(open),
+        sample_ms,
+        threads: pool.current_num_threads(),
+        bins: (args.builder == "binned-sah").then_some(cfg.bins),
+        valid: true,
+        out: args.out.as_ref().map(|p| p.display().to_string()),
+        tree_bytes: tree.nodes.len() * std::mem::size_of::<bvh::Node>()
+            + tree.prim_indices.len() * 4,
+    };
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&j)?);
+    } else {
+        print_text(&j);
+    }
+    Ok(())
+}
+
+fn print_text(j: &BuildJson) {
+    let at = match j.frame {
+        Some(f) => format!("t = {:.3} s, frame {f}", j.time_s),
+        None => format!("t = {:.3} s", j.time_s),
+    };
+    println!("scene         {} ({at})", j.scene);
+    let bins = j.bins.map(|b| format!(", {b} bins")).unwrap_or_default();
+    println!(
+        "builder       {} ({} threads, max leaf {}{bins})",
+        j.builder, j.threads, j.max_leaf_limit
+    );
+    println!("triangles     {}", thousands(j.triangles as u64));
+    println!(
+        "tree          {} inner nodes, {} leaves, largest leaf {}, depth {}, {:.1} MiB",
+        thousands(j.inner_nodes as u64),
+        thousands(j.leaves as u64),
+        j.max_leaf_size,
+        j.max_depth,
+        j.tree_bytes as f64 / (1024.0 * 1024.0)
+    );
+    match (j.sah_vs_sweep, &j.sah_reference_note) {
+        (Some(r), _) => println!(
+            "SAH           {:.3} ({:.2}% of sweep SAH)",
+            j.sah,
+            r * 100.0
+        ),
+        (None, Some(n)) => println!("SAH           {:.3} ({n})", j.sah),
+        (None, None) => println!("SAH           {:.3}", j.sah),
+    }
+    let mtris = if j.build_ms > 0.0 {
+        format!(" ({:.1} Mtris/s)", j.triangles as f64 / j.build_ms / 1e3)
+    } else {
+        String::new()
+    };
+    println!(
+        "time          build {:.2} ms{mtris}; boxes {:.2} ms; open {:.1} ms; sample {:.1} ms",
+        j.build_ms, j.aabb_ms, j.open_ms, j.sample_ms
+    );
+    println!("valid         yes");
+    if let Some(o) = &j.out {
+        println!("written       {o}");
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_issue_builder_name_is_known() {
+        for n in [
+            "lbvh",
+            "hlbvh",
+            "hlbvh+sah",
+            "hlbvh+atrbvh",
+            "binned-sah",
+            "sweep-sah",
+            "atrbvh",
+            "mbvh4-collapse",
+            "mbvh4-topdown",
+        ] {
+            assert!(BUILDERS.iter().any(|(b, _)| *b == n), "{n}");
+        }
+        let e = builder("nope").err().unwrap().to_string();
+        assert!(e.contains("lbvh") && e.contains("mbvh4-topdown"), "{e}");
+        let e = builder("hlbvh").err().unwrap().to_string();
+        assert!(e.contains("not available yet"), "{e}");
+    }
+
+    #[test]
+    fn sweep_reference_is_skipped_only_for_huge_scenes_unless_forced() {
+        let big = SAH_REFERENCE_MAX_TRIANGLES + 1;
+        assert_eq!(reference_plan("sweep-sah", big, false), Reference::Itself);
+        assert_eq!(reference_plan("lbvh", 5000, false), Reference::Build);
+        assert_eq!(
+            reference_plan("lbvh", SAH_REFERENCE_MAX_TRIANGLES, false),
+            Reference::Build
+        );
+        assert_eq!(reference_plan("lbvh", big, true), Reference::Build);
+        match reference_plan("binned-sah", big, false) {
+            Reference::Skip(n) => assert!(n.contains("--sah-reference"), "{n}"),
+            other => panic!("{other:?}"),
+        }
+    }
+
+    #[test]
+    fn available_builders_give_valid_trees() {
+        let aabbs: Vec<Aabb> = (0..300)
+            .map(|i| {
+                let p = geom::Vec3::new((i % 7) as f32, (i % 11) as f32, (i % 13) as f32);
+                Aabb::new(p, p + 0.5)
+            })
+            .collect();
+        for name in available_builders() {
+            let cfg = BuildConfig {
+                max_leaf: 4,
+                ..Default::default()
+            };
+            let t = builder(name).unwrap()(&aabbs, &cfg).unwrap();
+            assert_eq!(bvh::validate(&t, &aabbs, 4), Ok(()), "{name}");
+        }
+    }
+}

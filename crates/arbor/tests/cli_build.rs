@@ -1,0 +1,333 @@
+//! Integration tests of `arbor build`: every available builder on a procedural scene and the
+//! bundled glTF scene, tree files read back with `bvh::io`, and every bad-argument case.
+
+use serde_json::Value;
+use std::path::Path;
+use std::process::{Command, Output};
+
+/// Builders `arbor build` runs today.
+const BUILDERS: [&str; 3] = ["lbvh", "binned-sah", "sweep-sah"];
+const CLOTH: &str = "proc:cloth?n=5000";
+const BUNDLED: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/CesiumMan.glb");
+
+fn arbor(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_arbor"))
+        .args(args)
+        .output()
+        .expect("run arbor")
+}
+
+/// Runs `arbor build --json --quiet ARGS` and parses its output, failing with stderr.
+fn build_json(args: &[&str]) -> Value {
+    let mut a = vec!["build", "--json", "--quiet"];
+    a.extend_from_slice(args);
+    let out = arbor(&a);
+    assert!(
+        out.status.success(),
+        "arbor {a:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("valid JSON")
+}
+
+/// Runs `arbor build ARGS` expecting exit 1 with a one-line error; returns that line.
+fn build_error(args: &[&str]) -> String {
+    let mut a = vec!["build"];
+    a.extend_from_slice(args);
+    let out = arbor(&a);
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "arbor {a:?} did not fail with 1"
+    );
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert_eq!(err.lines().count(), 1, "expected one line, got: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(out.stdout.is_empty(), "printed a result on failure");
+    err
+}
+
+fn check_doc(j: &Value, scene: &str, builder: &str) {
+    assert_eq!(j["schema"], "arbor.build.v1");
+    assert_eq!(j["builder"], builder);
+    assert_eq!(j["valid"], true);
+    let tris = j["triangles"].as_u64().unwrap();
+    assert!(tris > 0, "{scene}");
+    let leaves = j["leaves"].as_u64().unwrap();
+    let inner = j["inner_nodes"].as_u64().unwrap();
+    // A binary tree: one inner node fewer than leaves (or one root for a single leaf).
+    assert_eq!(inner, (leaves - 1).max(1), "{scene} {builder}");
+    assert!(leaves <= tris);
+    let max_leaf = j["max_leaf_size"].as_u64().unwrap();
+    assert!((1..=8).contains(&max_leaf));
+    if builder == "lbvh" {
+        assert_eq!(max_leaf, 1);
+        assert_eq!(leaves, tris);
+    }
+    assert!(j["max_depth"].as_u64().unwrap() >= 1);
+    assert!(j["sah"].as_f64().unwrap() > 0.0);
+    let ratio = j["sah_vs_sweep"].as_f64().unwrap();
+    if builder == "sweep-sah" {
+        assert_eq!(ratio, 1.0);
+    } else {
+        assert!(ratio >= 0.99, "{scene} {builder}: {ratio}");
+    }
+    assert!(j["build_ms"].as_f64().unwrap() >= 0.0);
+    assert!(j["aabb_ms"].as_f64().unwrap() >= 0.0);
+    assert!(j["threads"].as_u64().unwrap() >= 1);
+}
+
+#[test]
+fn every_builder_on_cloth_and_bundled_scene() {
+    for scene in [CLOTH, BUNDLED] {
+        for b in BUILDERS {
+            let j = build_json(&[scene, "--builder", b]);
+            check_doc(&j, scene, b);
+        }
+    }
+    // Frames and threads are honoured.
+    let j = build_json(&[
+        BUNDLED,
+        "--builder",
+        "lbvh",
+        "--frame",
+        "3",
+        "--threads",
+        "1",
+    ]);
+    assert_eq!(j["frame"], 3);
+    assert_eq!(j["threads"], 1);
+    assert!(j["time_s"].as_f64().unwrap() > 0.0);
+}
+
+#[test]
+fn binned_bins_and_max_leaf_are_honoured() {
+    for bins in ["8", "32"] {
+        let j = build_json(&[CLOTH, "--builder", "binned-sah", "--bins", bins]);
+        assert_eq!(j["bins"].to_string(), bins);
+    }
+    let j = build_json(&[CLOTH, "--builder", "sweep-sah", "--max-leaf", "2"]);
+    assert!(j["max_leaf_size"].as_u64().unwrap() <= 2);
+    assert_eq!(j["max_leaf_limit"], 2);
+}
+
+#[test]
+fn out_file_reads_back_as_the_built_tree() {
+    let dir = tempfile::tempdir().unwrap();
+    for b in BUILDERS {
+        let path = dir.path().join(format!("{b}.bvh"));
+        let p = path.to_str().unwrap();
+        let j = build_json(&[CLOTH, "--builder", b, "--out", p]);
+        let (tree, header) = bvh::io::read_bvh2_file(&path).unwrap();
+        assert_eq!(header.builder, b);
+        assert_eq!(tree.nodes.len() as u64, j["inner_nodes"].as_u64().unwrap());
+        assert_eq!(tree.prim_count() as u64, j["triangles"].as_u64().unwrap());
+        assert_eq!(header.sah, tree.sah());
+        // serde_json parses floats to within an ulp, not bit-exactly.
+        assert!((tree.sah() - j["sah"].as_f64().unwrap()).abs() <= 1e-12 * tree.sah());
+        // Node for node equal to a build of the same mesh through the library.
+        let scene = scene::open(CLOTH, &Default::default()).unwrap();
+        let mesh = scene.mesh_at(0.0).unwrap();
+        let aabbs = bvh::indexed_triangle_aabbs(&mesh.positions, &mesh.triangles).unwrap();
+        let expect = match b {
+            "lbvh" => bvh::LbvhBuilder::default().build(&aabbs),
+            "binned-sah" => bvh::BinnedSahBuilder::default().build(&aabbs),
+            _ => bvh::SweepSahBuilder::default().build(&aabbs),
+        }
+        .unwrap();
+        assert_eq!(tree, expect, "{b}");
+        assert_eq!(bvh::validate(&tree, &aabbs, 8), Ok(()));
+    }
+}
+
+#[test]
+fn bad_arguments_are_one_line_errors() {
+    let e = build_error(&[CLOTH, "--builder", "nope"]);
+    assert!(
+        e.contains("unknown builder") && e.contains("binned-sah"),
+        "{e}"
+    );
+    for later in [
+        "hlbvh",
+        "hlbvh+sah",
+        "hlbvh+atrbvh",
+        "atrbvh",
+        "mbvh4-collapse",
+        "mbvh4-topdown",
+    ] {
+        let e = build_error(&[CLOTH, "--builder", later]);
+        assert!(
+            e.contains(&format!("builder {later} is not available yet")),
+            "{e}"
+        );
+    }
+    let e = build_error(&[CLOTH, "--builder", "lbvh", "--threads", "0"]);
+    assert!(e.contains("--threads"), "{e}");
+    let e = build_error(&[CLOTH, "--builder", "lbvh", "--threads", "100000"]);
+    assert!(e.contains("--threads"), "{e}");
+    let e = build_error(&[CLOTH, "--builder", "sweep-sah", "--max-leaf", "0"]);
+    assert!(e.contains("--max-leaf"), "{e}");
+    let e = build_error(&[CLOTH, "--builder", "binned-sah", "--bins", "12"]);
+    assert!(e.contains("--bins"), "{e}");
+    let e = build_error(&[CLOTH, "--builder", "lbvh", "--bins", "16"]);
+    assert!(e.contains("binned-sah"), "{e}");
+    let e = build_error(&[CLOTH, "--builder", "lbvh", "--refit-from", "0"]);
+    assert!(e.contains("not available yet"), "{e}");
+    let e = build_error(&[BUNDLED, "--builder", "lbvh", "--frame", "100000"]);
+    assert!(e.contains("out of range"), "{e}");
+    let e = build_error(&["no/such/file.ply", "--builder", "lbvh"]);
+    assert!(e.contains("file.ply"), "{e}");
+}
+
+#[test]
+fn unwritable_out_never_leaves_a_partial_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let missing = dir.path().join("no/such/dir/t.bvh");
+    let e = build_error(&[
+        CLOTH,
+        "--builder",
+        "lbvh",
+        "--out",
+        missing.to_str().unwrap(),
+    ]);
+    assert!(e.contains("t.bvh"), "{e}");
+    let e = build_error(&[
+        CLOTH,
+        "--builder",
+        "lbvh",
+        "--out",
+        dir.path().to_str().unwrap(),
+    ]);
+    assert!(e.contains("directory"), "{e}");
+    // An existing file survives a failing run untouched.
+    let keep = dir.path().join("keep.bvh");
+    std::fs::write(&keep, b"precious").unwrap();
+    build_error(&[
+        CLOTH,
+        "--builder",
+        "lbvh",
+        "--threads",
+        "0",
+        "--out",
+        keep.to_str().unwrap(),
+    ]);
+    assert_eq!(std::fs::read(&keep).unwrap(), b"precious");
+    assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    #[cfg(unix)]
+    {
+        // A read-only folder: the write fails and leaves nothing behind.
+        use std::os::unix::fs::PermissionsExt;
+        let ro = dir.path().join("ro");
+        std::fs::create_dir(&ro).unwrap();
+        std::fs::set_permissions(&ro, std::fs::Permissions::from_mode(0o555)).unwrap();
+        let target = ro.join("t.bvh");
+        let out = arbor(&[
+            "build",
+            CLOTH,
+            "--builder",
+            "lbvh",
+            "--out",
+            target.to_str().unwrap(),
+        ]);
+        // Root can write anywhere; only check when the folder really is read-only.
+        if std::fs::File::create(ro.join("probe")).is_err() {
+            assert_eq!(out.status.code(), Some(1));
+            assert_eq!(std::fs::read_dir(&ro).unwrap().count(), 0);
+        }
+        std::fs::set_permissions(&ro, std::fs::Permissions::from_mode(0o755)).unwrap();
+    }
+}
+
+#[test]
+fn text_output_names_the_numbers() {
+    let out = arbor(&["build", "--quiet", CLOTH, "--builder", "binned-sah"]);
+    assert!(out.status.success());
+    let text = String::from_utf8_lossy(&out.stdout);
+    for word in [
+        "triangles",
+        "inner nodes",
+        "SAH",
+        "of sweep SAH",
+        "valid",
+        "build",
+    ] {
+        assert!(text.contains(word), "missing {word}: {text}");
+    }
+    assert!(Path::new(BUNDLED).exists());
+}
+
+#[test]
+fn demo_reports_every_available_builder() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = arbor(&[
+        "demo",
+        "--quiet",
+        "--frames",
+        "4",
+        "--out",
+        dir.path().to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let text = String::from_utf8_lossy(&out.stdout);
+    assert!(text.contains("SAH vs sweep"), "{text}");
+    let s: Value =
+        serde_json::from_slice(&std::fs::read(dir.path().join("summary.json")).unwrap()).unwrap();
+    let builds = s["builds"].as_array().unwrap();
+    // Frames 0..=3 with 4 walked: 0, 1, 2, 3; three builders each.
+    assert_eq!(builds.len(), 4 * BUILDERS.len());
+    for b in builds {
+        assert_eq!(b["valid"], true);
+        assert!(BUILDERS.contains(&b["builder"].as_str().unwrap()));
+        let r = b["sah_vs_sweep"].as_f64().unwrap();
+        if b["builder"] == "sweep-sah" {
+            assert_eq!(r, 1.0);
+        } else {
+            assert!(r >= 0.99, "{b}");
+        }
+    }
+}
+
+#[test]
+fn empty_and_single_triangle_scenes_build() {
+    let dir = tempfile::tempdir().unwrap();
+    let empty = dir.path().join("empty.obj");
+    std::fs::write(&empty, "# no triangles\n").unwrap();
+    let one = dir.path().join("one.obj");
+    std::fs::write(&one, "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n").unwrap();
+    for b in BUILDERS {
+        let out = dir.path().join("t.bvh");
+        let j = build_json(&[
+            empty.to_str().unwrap(),
+            "--builder",
+            b,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert_eq!(
+            (j["triangles"].as_u64(), j["leaves"].as_u64()),
+            (Some(0), Some(0))
+        );
+        assert_eq!(j["valid"], true);
+        assert_eq!(bvh::io::read_bvh2_file(&out).unwrap().0, bvh::Bvh2::empty());
+        let j = build_json(&[
+            one.to_str().unwrap(),
+            "--builder",
+            b,
+            "--out",
+            out.to_str().unwrap(),
+        ]);
+        assert_eq!(
+            (j["triangles"].as_u64(), j["leaves"].as_u64()),
+            (Some(1), Some(1))
+        );
+        assert_eq!(j["sah_vs_sweep"], 1.0);
+        assert_eq!(
+            bvh::io::read_bvh2_file(&out).unwrap().0.prim_indices,
+            vec![0]
+        );
+    }
+}
