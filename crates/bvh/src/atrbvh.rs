@@ -762,6 +762,65 @@ mod tests {
         }
     }
 
+    /// Build times of LBVH and LBVH+ATRBVH and their SAH against the sweep SAH, on 1 thread
+    /// and the default pool. Run by hand (`BVH_BENCH` overrides the `;`-separated specs):
+    /// `cargo test --release -p bvh --lib -- --ignored --nocapture atrbvh_timings`
+    #[test]
+    #[ignore]
+    fn atrbvh_timings() {
+        let dir = concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/scenes");
+        let specs = std::env::var("BVH_BENCH")
+            .unwrap_or_else(|_| format!("proc:soup?n=1000000;{dir}/dragon.ply"));
+        let best = |f: &dyn Fn() -> Bvh2| {
+            let mut ms = f64::INFINITY;
+            let mut t = None;
+            for _ in 0..3 {
+                let s = std::time::Instant::now();
+                t = Some(f());
+                ms = ms.min(s.elapsed().as_secs_f64() * 1e3);
+            }
+            (t.unwrap(), ms)
+        };
+        for spec in specs.split(';') {
+            if !spec.starts_with("proc:") && !std::path::Path::new(spec).exists() {
+                println!("skipping: {spec} not found");
+                continue;
+            }
+            let prims = proc_scene(spec);
+            let sweep = SweepSahBuilder::default().build(&prims).unwrap();
+            for threads in [1, 0] {
+                let (l, lms) = best(&|| {
+                    LbvhBuilder {
+                        threads,
+                        ..Default::default()
+                    }
+                    .build(&prims)
+                    .unwrap()
+                });
+                let (a, ams) = best(&|| {
+                    AtrbvhBuilder {
+                        config: AtrbvhConfig {
+                            threads,
+                            ..Default::default()
+                        },
+                        ..Default::default()
+                    }
+                    .build(&prims)
+                    .unwrap()
+                });
+                assert_valid(spec, &a, &prims, 8);
+                println!(
+                    "{spec}: {} tris, threads {}: LBVH {lms:.1} ms (SAH {:.3} x sweep), LBVH+ATRBVH {ams:.1} ms ({:.2}x LBVH time, SAH {:.3} x sweep)",
+                    prims.len(),
+                    if threads == 0 { rayon::current_num_threads() } else { threads },
+                    l.sah_vs(&sweep),
+                    ams / lms,
+                    a.sah_vs(&sweep)
+                );
+            }
+        }
+    }
+
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(48))]
         #[test]
