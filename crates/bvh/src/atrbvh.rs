@@ -154,9 +154,6 @@ struct WLeaf {
     area: f32,
 }
 
-/// An input node still to copy: (input node, its box, working parent and slot to patch).
-type Pending = (usize, Aabb, Option<(usize, usize)>);
-
 /// The working tree: nodes in depth-first preorder (root 0), leaves in a side table.
 struct Work {
     nodes: Vec<WNode>,
@@ -186,7 +183,7 @@ fn optimize_checked(bvh: &mut Bvh2, cfg: &AtrbvhConfig) {
             treelet: cfg.treelet_size,
             c_inner: cfg.sah.c_inner,
         };
-        pass(&ctx, &mut w.nodes, 0);
+        pass(&ctx, &mut w.nodes, 0, 0);
     }
     // Restructured treelets reuse node indices out of order; collapsing needs preorder.
     w.nodes = w.relayout();
@@ -194,45 +191,49 @@ fn optimize_checked(bvh: &mut Bvh2, cfg: &AtrbvhConfig) {
 }
 
 impl Work {
-    /// Copies `bvh` into working form, re-laid out depth-first (child 0 first). `None` when
-    /// the root has an empty child (empty or one-leaf trees).
+    /// Copies `bvh` (validated, so in depth-first preorder with every node reachable) into
+    /// working form with the same node indices. `None` when the root has an empty child
+    /// (empty or one-leaf trees).
     fn from_bvh(bvh: &Bvh2) -> Option<Work> {
         let root = bvh.nodes.first()?;
         if root.children.iter().any(ChildRef::is_empty) {
             return None;
         }
-        let mut nodes: Vec<WNode> = Vec::with_capacity(bvh.nodes.len());
         let mut leaves: Vec<WLeaf> = Vec::with_capacity(bvh.nodes.len() + 1);
-        let mut stack: Vec<Pending> = vec![(0, bvh.bounds, None)];
-        while let Some((i, bbox, patch)) = stack.pop() {
-            let at = nodes.len();
-            if let Some((p, s)) = patch {
-                nodes[p].child[s] = at as u32;
-            }
-            let n = &bvh.nodes[i];
-            let mut child = [0u32; 2];
-            for (s, c) in n.children.iter().enumerate() {
-                if c.is_leaf() {
-                    let b = n.child_aabb(s);
-                    child[s] = LEAF_BIT | leaves.len() as u32;
-                    leaves.push(WLeaf {
-                        first: c.index,
-                        count: c.count,
-                        bbox: b,
-                        area: area(&b),
-                    });
+        let mut nodes: Vec<WNode> = bvh
+            .nodes
+            .iter()
+            .map(|n| {
+                let mut child = [0u32; 2];
+                for (s, c) in n.children.iter().enumerate() {
+                    child[s] = if c.is_leaf() {
+                        let b = n.child_aabb(s);
+                        leaves.push(WLeaf {
+                            first: c.index,
+                            count: c.count,
+                            bbox: b,
+                            area: area(&b),
+                        });
+                        LEAF_BIT | (leaves.len() as u32 - 1)
+                    } else {
+                        c.index
+                    };
                 }
-            }
-            nodes.push(WNode {
-                child,
-                bbox,
-                area: area(&bbox),
-                leaves: 0,
-            });
-            for s in [1, 0] {
-                let c = n.children[s];
-                if c.is_inner() {
-                    stack.push((c.index as usize, n.child_aabb(s), Some((at, s))));
+                WNode {
+                    child,
+                    bbox: Aabb::EMPTY,
+                    area: 0.0,
+                    leaves: 0,
+                }
+            })
+            .collect();
+        nodes[0].bbox = bvh.bounds;
+        for n in &bvh.nodes {
+            for s in 0..2 {
+                if n.children[s].is_inner() {
+                    let b = n.child_aabb(s);
+                    let c = &mut nodes[n.children[s].index as usize];
+                    c.bbox = b;
                 }
             }
         }
@@ -247,6 +248,7 @@ impl Work {
                 };
             }
             nodes[i].leaves = l;
+            nodes[i].area = area(&nodes[i].bbox);
         }
         Some(Work { nodes, leaves })
     }
@@ -278,9 +280,10 @@ impl Work {
         let mut nodes: Vec<Node> = Vec::with_capacity(self.nodes.len());
         let mut prims: Vec<u32> = Vec::with_capacity(old.prim_indices.len());
         // Appends the primitives under `c` to the leaf table and returns their range.
-        let leaf_range = |c: u32, prims: &mut Vec<u32>| -> ChildRef {
+        let mut st: Vec<u32> = Vec::new();
+        let mut leaf_range = |c: u32, prims: &mut Vec<u32>| -> ChildRef {
             let first = prims.len() as u32;
-            let mut st = vec![c];
+            st.push(c);
             while let Some(c) = st.pop() {
                 if c & LEAF_BIT != 0 {
                     let l = &self.leaves[(c & !LEAF_BIT) as usize];
@@ -378,46 +381,75 @@ struct Ctx<'a> {
     c_inner: f32,
 }
 
-/// Post-order pass over the subtree whose preorder node range is `nodes` (global index of
-/// `nodes[0]` is `base`).
-fn pass(ctx: &Ctx, nodes: &mut [WNode], base: u32) {
+/// Recursion depth below which large subtrees fork; deeper (or smaller) subtrees are
+/// processed by the iterative [`pass_seq`], so a degenerate input tree of any depth cannot
+/// overflow the stack.
+const MAX_FORK_DEPTH: u32 = 48;
+
+/// Post-order pass over the subtree whose preorder node range is `nodes` (the global index
+/// of `nodes[0]` is `base`); the two children of a large node run in parallel.
+fn pass(ctx: &Ctx, nodes: &mut [WNode], base: u32, depth: u32) {
     let root = nodes[0];
-    if (root.leaves as usize) < ctx.treelet && base != 0 {
-        // No node of this subtree is large enough to root a treelet. The tree's root always
-        // roots one, so trees smaller than a treelet are optimized too.
+    if depth >= MAX_FORK_DEPTH
+        || (root.leaves as usize) < PARALLEL_MIN_PRIMS
+        || rayon::current_num_threads() <= 1
+    {
+        return pass_seq(ctx, nodes, base);
+    }
+    // Preorder: [root][lower-indexed child's subtree][the other child's subtree].
+    let mut kids: Vec<u32> = root
+        .child
+        .into_iter()
+        .filter(|c| c & LEAF_BIT == 0)
+        .collect();
+    kids.sort_unstable();
+    let rest = &mut nodes[1..];
+    match kids[..] {
+        [a, b] => {
+            let split = nodes_below(rest, base + 1, a);
+            let (ra, rb) = rest.split_at_mut(split);
+            rayon::join(
+                || pass(ctx, ra, a, depth + 1),
+                || pass(ctx, rb, b, depth + 1),
+            );
+        }
+        [a] => pass(ctx, rest, a, depth + 1),
+        _ => {}
+    }
+    restructure(ctx, nodes, base, &mut Scratch::new());
+}
+
+/// Inner node count of the subtree of node `c`, read from the slice starting at `base`.
+#[inline]
+fn nodes_below(nodes: &[WNode], base: u32, c: u32) -> usize {
+    nodes[(c - base) as usize].leaves as usize - 1
+}
+
+/// The same post-order pass, sequential and iterative (explicit stack).
+fn pass_seq(ctx: &Ctx, nodes: &mut [WNode], base: u32) {
+    // Subtrees smaller than a treelet root none, except that the tree's root always roots
+    // one, so trees smaller than a treelet are optimized too.
+    let roots = |c: u32, nodes: &[WNode]| {
+        c & LEAF_BIT == 0 && (c == 0 || nodes[(c - base) as usize].leaves as usize >= ctx.treelet)
+    };
+    if !roots(base, nodes) {
         return;
     }
-    // Preorder, child 0 first: [root][child 0 subtree][child 1 subtree].
-    let inner_count = |c: u32, nodes: &[WNode]| -> usize {
-        if c & LEAF_BIT != 0 {
-            0
-        } else {
-            nodes[(c - base) as usize].leaves as usize - 1
+    let mut scratch = Scratch::new();
+    // (node, children already pushed)
+    let mut stack: Vec<(u32, bool)> = vec![(base, false)];
+    while let Some((i, expanded)) = stack.pop() {
+        if expanded {
+            restructure(ctx, &mut nodes[(i - base) as usize..], i, &mut scratch);
+            continue;
         }
-    };
-    let n0 = inner_count(root.child[0], nodes);
-    {
-        let (_, rest) = nodes.split_at_mut(1);
-        let (a, b) = rest.split_at_mut(n0);
-        let (b0, b1) = (base + 1, base + 1 + n0 as u32);
-        let run0 = |a: &mut [WNode]| {
-            if !a.is_empty() {
-                pass(ctx, a, b0)
+        stack.push((i, true));
+        for c in nodes[(i - base) as usize].child {
+            if roots(c, nodes) {
+                stack.push((c, false));
             }
-        };
-        let run1 = |b: &mut [WNode]| {
-            if !b.is_empty() {
-                pass(ctx, b, b1)
-            }
-        };
-        if root.leaves as usize >= PARALLEL_MIN_PRIMS && rayon::current_num_threads() > 1 {
-            rayon::join(|| run0(a), || run1(b));
-        } else {
-            run0(a);
-            run1(b);
         }
     }
-    restructure(ctx, nodes, base);
 }
 
 /// Box, area and leaf count of a working child reference.
@@ -434,7 +466,31 @@ fn info(ctx: &Ctx, nodes: &[WNode], base: u32, c: u32) -> (Aabb, f32, u32) {
 
 /// Forms the treelet rooted at `nodes[0]` and rebuilds it agglomeratively if that lowers
 /// its SAH.
-fn restructure(ctx: &Ctx, nodes: &mut [WNode], base: u32) {
+/// Per-thread work arrays of [`restructure`], allocated once per subtree pass rather than
+/// initialized for every treelet (the distance matrix alone is 4 KiB).
+struct Scratch {
+    boxes: [Aabb; MAX_TREELET_SIZE],
+    dist: [[f32; MAX_TREELET_SIZE]; MAX_TREELET_SIZE],
+    /// Merge records: (children, box, area); the last one is the treelet root.
+    merges: [([u32; 2], Aabb, f32); MAX_TREELET_SIZE],
+}
+
+impl Scratch {
+    fn new() -> Box<Scratch> {
+        Box::new(Scratch {
+            boxes: [Aabb::EMPTY; MAX_TREELET_SIZE],
+            dist: [[0.0; MAX_TREELET_SIZE]; MAX_TREELET_SIZE],
+            merges: [([0; 2], Aabb::EMPTY, 0.0); MAX_TREELET_SIZE],
+        })
+    }
+}
+
+fn restructure(ctx: &Ctx, nodes: &mut [WNode], base: u32, scratch: &mut Scratch) {
+    let Scratch {
+        boxes,
+        dist,
+        merges,
+    } = scratch;
     let mut tl = [0u32; MAX_TREELET_SIZE];
     let mut internal = [0u32; MAX_TREELET_SIZE];
     let (mut nl, mut ni) = (2usize, 0usize);
@@ -466,11 +522,9 @@ fn restructure(ctx: &Ctx, nodes: &mut [WNode], base: u32) {
     }
     // Agglomerative rebuild over the active set `ids[..m]`.
     let mut ids = tl;
-    let mut boxes = [Aabb::EMPTY; MAX_TREELET_SIZE];
     for k in 0..nl {
         boxes[k] = info(ctx, nodes, base, tl[k]).0;
     }
-    let mut dist = [[0.0f32; MAX_TREELET_SIZE]; MAX_TREELET_SIZE];
     for i in 0..nl {
         for j in i + 1..nl {
             let d = area(&boxes[i].union(boxes[j]));
@@ -478,8 +532,6 @@ fn restructure(ctx: &Ctx, nodes: &mut [WNode], base: u32) {
             dist[j][i] = d;
         }
     }
-    // Merge records: (children, box, area); the last one is the treelet root.
-    let mut merges = [([0u32; 2], Aabb::EMPTY, 0.0f32); MAX_TREELET_SIZE];
     let mut new_sum = 0.0f64;
     let mut m = nl;
     for step in 0..nl - 1 {
@@ -640,6 +692,44 @@ mod tests {
         assert!(c.nodes[0].children.iter().all(|r| r.count == 2));
     }
 
+    /// A caterpillar of 100K leaves (depth 100K): no recursion may follow the tree depth,
+    /// and restructuring must shorten it a lot.
+    #[test]
+    fn very_deep_input_tree() {
+        let n = 100_000usize;
+        let xs: Vec<f32> = (0..n).map(|i| i as f32 * 2.0).collect();
+        let prims = cubes_at(&xs);
+        let mut suffix = prims.clone();
+        for i in (0..n - 1).rev() {
+            suffix[i] = suffix[i].union(suffix[i + 1]);
+        }
+        let nodes: Vec<Node> = (0..n - 1)
+            .map(|k| {
+                let rest = if k + 2 == n {
+                    ChildRef::leaf(k as u32 + 1, 1)
+                } else {
+                    ChildRef::inner(k as u32 + 1)
+                };
+                Node::new(&prims[k], ChildRef::leaf(k as u32, 1), &suffix[k + 1], rest)
+            })
+            .collect();
+        let chain = Bvh2 {
+            nodes,
+            prim_indices: (0..n as u32).collect(),
+            bounds: suffix[0],
+        };
+        assert_valid("chain", &chain, &prims, 1);
+        for threads in [1, 2] {
+            let cfg = AtrbvhConfig {
+                threads,
+                ..Default::default()
+            };
+            let o = optimized("chain", &chain, &prims, &cfg);
+            assert!(o.stats().max_depth < n / 4, "{:?}", o.stats());
+            assert!(o.sah() < chain.sah() / 2.0);
+        }
+    }
+
     #[test]
     fn deterministic_across_thread_counts() {
         let prims = soup(30_000, 1.0, 5);
@@ -759,6 +849,21 @@ mod tests {
                 o.sah()
             );
             prev = o.sah();
+        }
+    }
+
+    /// Every real scene: LBVH+ATRBVH is valid and better than the LBVH it starts from
+    /// (dragon.ply, 871K triangles, is left to the ignored `atrbvh_timings` to keep this
+    /// test fast).
+    #[test]
+    fn real_scenes_give_valid_trees() {
+        let Some(scenes) = crate::testutil::real_scenes() else {
+            return;
+        };
+        for (name, prims) in scenes.iter().filter(|(_, p)| p.len() < 500_000) {
+            let lbvh = LbvhBuilder::default().build(prims).unwrap();
+            let t = optimized(name, &lbvh, prims, &AtrbvhConfig::default());
+            println!("{name}: LBVH+ATRBVH SAH {:.3} x LBVH", t.sah() / lbvh.sah());
         }
     }
 
