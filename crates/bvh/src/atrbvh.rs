@@ -255,22 +255,68 @@ impl Work {
 
     /// The nodes re-laid out in depth-first preorder (child 0 first).
     fn relayout(&self) -> Vec<WNode> {
-        let mut out: Vec<WNode> = Vec::with_capacity(self.nodes.len());
-        let mut stack: Vec<(u32, Option<(usize, usize)>)> = vec![(0, None)];
-        while let Some((i, patch)) = stack.pop() {
-            let at = out.len();
-            if let Some((p, s)) = patch {
-                out[p].child[s] = at as u32;
+        let blank = WNode {
+            child: [0; 2],
+            bbox: Aabb::EMPTY,
+            area: 0.0,
+            leaves: 0,
+        };
+        let mut out = vec![blank; self.nodes.len()];
+        self.emit(0, &mut out, 0, 0);
+        out
+    }
+
+    /// Writes the subtree of node `i` in preorder into `out`, whose first slot is global
+    /// position `pos`. A subtree of `k` leaves has `k - 1` nodes, so child 1 goes right
+    /// after child 0's subtree and large subtrees are written in parallel.
+    fn emit(&self, i: u32, out: &mut [WNode], pos: u32, depth: u32) {
+        let n = self.nodes[i as usize];
+        let below = |c: u32| {
+            if c & LEAF_BIT != 0 {
+                0
+            } else {
+                self.nodes[c as usize].leaves - 1
             }
-            let n = self.nodes[i as usize];
-            out.push(n);
-            for s in [1, 0] {
-                if n.child[s] & LEAF_BIT == 0 {
-                    stack.push((n.child[s], Some((at, s))));
+        };
+        if depth >= MAX_FORK_DEPTH
+            || (n.leaves as usize) < PARALLEL_MIN_PRIMS
+            || rayon::current_num_threads() <= 1
+        {
+            // Iterative: (working node, local slot).
+            let mut stack: Vec<(u32, u32)> = vec![(i, 0)];
+            while let Some((j, at)) = stack.pop() {
+                let mut m = self.nodes[j as usize];
+                let first = [at + 1, at + 1 + below(m.child[0])];
+                for s in [1, 0] {
+                    let c = m.child[s];
+                    if c & LEAF_BIT == 0 {
+                        stack.push((c, first[s]));
+                        m.child[s] = pos + first[s];
+                    }
                 }
+                out[at as usize] = m;
+            }
+            return;
+        }
+        let n0 = below(n.child[0]);
+        let mut m = n;
+        let (head, rest) = out.split_at_mut(1);
+        let (r0, r1) = rest.split_at_mut(n0 as usize);
+        let (p0, p1) = (pos + 1, pos + 1 + n0);
+        let mut go = [None, None];
+        for (s, p) in [(0, p0), (1, p1)] {
+            if m.child[s] & LEAF_BIT == 0 {
+                go[s] = Some(m.child[s]);
+                m.child[s] = p;
             }
         }
-        out
+        head[0] = m;
+        let run = |c: Option<u32>, r: &mut [WNode], p: u32| {
+            if let Some(c) = c {
+                self.emit(c, r, p, depth + 1);
+            }
+        };
+        rayon::join(|| run(go[0], r0, p0), || run(go[1], r1, p1));
     }
 
     /// The final `Bvh2`: SAH-driven leaf collapsing, then a depth-first layout of nodes and
