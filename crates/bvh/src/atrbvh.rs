@@ -987,5 +987,19 @@ mod tests {
             let cfg = AtrbvhConfig { treelet_size, iterations, max_leaf_size: leaf, ..Default::default() };
             optimized("soup", &t, &prims, &cfg);
         }
+
+        /// Extreme finite boxes (huge, tiny, subnormal, overflowing areas): no panic, a
+        /// valid tree, SAH not worse.
+        #[test]
+        fn extreme_boxes_stay_valid(v in proptest::collection::vec(proptest::array::uniform6(
+                prop_oneof![-10.0f32..10.0, Just(f32::MAX), Just(f32::MIN), Just(1e-40f32),
+                    Just(0.0f32)]), 0..200)) {
+            let prims: Vec<Aabb> = v.iter().map(|v| {
+                let (a, b) = (geom::Vec3::new(v[0], v[1], v[2]), geom::Vec3::new(v[3], v[4], v[5]));
+                Aabb::new(a.min(b), a.max(b))
+            }).collect();
+            let t = LbvhBuilder::default().build(&prims).unwrap();
+            optimized("extreme", &t, &prims, &AtrbvhConfig { treelet_size: 5, ..Default::default() });
+        }
     }
 }
