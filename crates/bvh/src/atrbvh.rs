@@ -23,11 +23,14 @@
 //! contiguous.
 //!
 //! Parallelism and determinism: a restructuring at node `r` only touches nodes of `r`'s
-//! subtree and keeps the set of inner nodes of that subtree. The working tree is laid out in
-//! depth-first preorder, so each subtree is a contiguous index range; the two children of a
-//! large node are processed in parallel on disjoint slices (`rayon::join`) before the node
-//! itself. The result equals the sequential post-order pass bit for bit, for any thread
-//! count.
+//! subtree and keeps the set of inner nodes of that subtree. Each pass starts from a
+//! depth-first preorder layout (the validated input for the first pass, a parallel
+//! re-layout before later ones), so each subtree is a contiguous index range; the two
+//! children of a large node are processed in parallel on disjoint slices (`rayon::join`)
+//! before the node itself. Below [`MAX_FORK_DEPTH`] levels, or in small subtrees, the pass is
+//! an iterative post-order walk, so input trees of any depth are safe. The result equals the
+//! sequential post-order pass bit for bit, for any thread count. The final collapse and
+//! `Bvh2` emission is one sequential depth-first walk.
 
 use crate::bvh2::Bvh2;
 use crate::error::{check_input, in_pool, BuildError};
