@@ -8,6 +8,7 @@
 
 #![warn(missing_docs)]
 
+mod atrbvh;
 mod binned_sah;
 mod bvh2;
 mod error;
@@ -21,6 +22,7 @@ mod sweep_sah;
 mod testutil;
 mod validate;
 
+pub use atrbvh::{optimize, AtrbvhBuilder, AtrbvhConfig, MAX_TREELET_SIZE, MIN_GAIN};
 pub use binned_sah::{BinnedSahBuilder, MAX_BINS};
 pub use bvh2::{Bvh2, TreeStats};
 pub use error::{BuildError, MAX_PRIMITIVES};
