@@ -73,7 +73,20 @@ pub static BUILDERS: &[(&str, Option<BuildFn>)] = &[
         }),
     ),
     ("sweep-sah", Some(|p, c| sweep(c).build(p))),
-    ("atrbvh", None),
+    (
+        "atrbvh",
+        Some(|p, c| {
+            bvh::AtrbvhBuilder {
+                bits: Default::default(),
+                config: bvh::AtrbvhConfig {
+                    max_leaf_size: c.max_leaf,
+                    threads: 0,
+                    ..Default::default()
+                },
+            }
+            .build(p)
+        }),
+    ),
     ("mbvh4-collapse", None),
     ("mbvh4-topdown", None),
 ];
