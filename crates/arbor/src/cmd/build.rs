@@ -132,8 +132,8 @@ pub fn builder(name: &str) -> anyhow::Result<BuildFn> {
 pub struct BuildArgs {
     #[command(flatten)]
     scene: SceneArgs,
-    /// Builder: lbvh, binned-sah, sweep-sah (hlbvh, hlbvh+sah, hlbvh+atrbvh, atrbvh,
-    /// mbvh4-collapse, mbvh4-topdown are coming).
+    /// Builder: lbvh, hlbvh, hlbvh+sah, hlbvh+atrbvh, binned-sah, sweep-sah, atrbvh,
+    /// mbvh4-collapse, mbvh4-topdown (one not yet implemented says so).
     #[arg(long, value_name = "NAME")]
     builder: String,
     /// Time in seconds at which to sample the scene (clamped to its timeline).
