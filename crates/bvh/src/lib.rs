@@ -12,21 +12,27 @@ mod binned_sah;
 mod bvh2;
 mod error;
 mod frag;
+mod hlbvh;
 mod lbvh;
 mod node;
 mod sah;
 mod sweep_sah;
 #[cfg(test)]
 mod testutil;
+pub mod toplevel;
 mod validate;
 
 pub use binned_sah::{BinnedSahBuilder, MAX_BINS};
 pub use bvh2::{Bvh2, TreeStats};
 pub use error::{BuildError, MAX_PRIMITIVES};
+pub use hlbvh::{
+    EmitRef, EmittedNode, Emitter, Highlevel, HighlevelRoot, HlbvhBuilder, Prim, Step,
+};
 pub use lbvh::{LbvhBuilder, MortonBits};
 pub use node::{ChildRef, Node, EMPTY_INDEX};
 pub use sah::{sah_cost, sah_cost_with, sah_ratio, SahParams};
 pub use sweep_sah::SweepSahBuilder;
+pub use toplevel::HlbvhSahBuilder;
 pub use validate::{validate, ValidationError};
 
 use geom::{Aabb, Triangle, Vec3};
