@@ -329,32 +329,55 @@ pub struct Highlevel {
 
 impl Highlevel {
     /// Appends the subtree `r` to `out` in depth-first preorder and returns its reference.
+    ///
+    /// Emission is postorder, so the nodes of a subtree are the contiguous emission range
+    /// ending at its root. One forward pass over that range counts subtree sizes; one
+    /// backward pass (parents before children) places every node at its preorder index
+    /// (child 0 right after its parent, child 1 after child 0's subtree). Both passes read
+    /// the emitted nodes sequentially.
     pub(crate) fn append_subtree(&self, r: EmitRef, out: &mut Vec<Node>) -> ChildRef {
         let EmitRef::Node(root) = r else {
             return child_ref(r);
         };
-        let start = out.len() as u32;
-        // (emitted node, (parent, slot) to patch with its final index).
-        let mut stack: Vec<(u32, Option<(usize, usize)>)> = vec![(root, None)];
-        while let Some((id, patch)) = stack.pop() {
-            let at = out.len();
-            if let Some((p, slot)) = patch {
-                out[p].children[slot] = ChildRef::inner(at as u32);
-            }
-            let e = &self.nodes[id as usize];
-            out.push(Node::new(
-                &e.aabbs[0],
-                child_ref(e.children[0]),
-                &e.aabbs[1],
-                child_ref(e.children[1]),
-            ));
-            for slot in [1, 0] {
-                if let EmitRef::Node(c) = e.children[slot] {
-                    stack.push((c, Some((at, slot))));
-                }
+        let base = out.len();
+        // The first node emitted in the subtree: descend to the first inner child.
+        let mut lo = root as usize;
+        loop {
+            match self.nodes[lo].children {
+                [EmitRef::Node(c), _] | [EmitRef::Leaf { .. }, EmitRef::Node(c)] => lo = c as usize,
+                _ => break,
             }
         }
-        ChildRef::inner(start)
+        let range = &self.nodes[lo..=root as usize];
+        // Subtree sizes, forward: children are emitted before their parent.
+        let mut size: Vec<u32> = Vec::with_capacity(range.len());
+        let sz = |size: &[u32], c: EmitRef| match c {
+            EmitRef::Node(id) => size[id as usize - lo],
+            EmitRef::Leaf { .. } => 0,
+        };
+        for e in range {
+            let s = 1 + sz(&size, e.children[0]) + sz(&size, e.children[1]);
+            size.push(s);
+        }
+        // Preorder positions, backward: a parent is placed before its children.
+        out.resize(base + range.len(), Node::EMPTY);
+        let mut pre = vec![0u32; range.len()];
+        pre[range.len() - 1] = base as u32;
+        for (k, e) in range.iter().enumerate().rev() {
+            let at = pre[k];
+            let mut refs = [child_ref(e.children[0]), child_ref(e.children[1])];
+            if let EmitRef::Node(c) = e.children[0] {
+                pre[c as usize - lo] = at + 1;
+                refs[0] = ChildRef::inner(at + 1);
+            }
+            if let EmitRef::Node(c) = e.children[1] {
+                let p = at + 1 + sz(&size, e.children[0]);
+                pre[c as usize - lo] = p;
+                refs[1] = ChildRef::inner(p);
+            }
+            out[at as usize] = Node::new(&e.aabbs[0], refs[0], &e.aabbs[1], refs[1]);
+        }
+        ChildRef::inner(base as u32)
     }
 
     /// The tree of a single-root output (no threshold) as a [`Bvh2`]; the cell roots of a
@@ -466,7 +489,14 @@ impl HlbvhBuilder {
     pub fn build_highlevel(&self, aabbs: &[Aabb]) -> Result<Highlevel, BuildError> {
         check_input(aabbs)?;
         self.check()?;
-        let (codes, order) = in_pool(self.threads, || sorted_codes(aabbs, self.bits))?;
+        let (codes, order, boxes) = in_pool(self.threads, || {
+            let (codes, order) = sorted_codes(aabbs, self.bits);
+            // Gather the boxes in sorted order up front: a tight parallel loop overlaps the
+            // cache misses of this random gather, which dominated the serial emission loop
+            // ([P2] §4.2 sorts the AABBs themselves for the same reason).
+            let boxes: Vec<Aabb> = order.par_iter().map(|&i| aabbs[i as usize]).collect();
+            (codes, order, boxes)
+        })?;
         let ties = ties(&codes, self.combine_identical, self.max_leaf_size);
         let mut em = Emitter::new(self.highlevel_threshold);
         let mut nodes = Vec::with_capacity(aabbs.len().saturating_sub(1));
@@ -474,12 +504,8 @@ impl HlbvhBuilder {
         let mut input = codes
             .iter()
             .zip(&ties)
-            .zip(&order)
-            .map(|((&code, &tie), &i)| Prim {
-                code,
-                tie,
-                aabb: aabbs[i as usize],
-            });
+            .zip(&boxes)
+            .map(|((&code, &tie), &aabb)| Prim { code, tie, aabb });
         loop {
             let inp = if em.needs_input() { input.next() } else { None };
             match em.step(inp) {
