@@ -28,10 +28,10 @@
 //! roots are the input of the toplevel builds in [`crate::toplevel`].
 
 use crate::bvh2::Bvh2;
-use crate::centroid;
 use crate::error::{check_input, in_pool, BuildError};
 use crate::lbvh::MortonBits;
 use crate::node::{ChildRef, Node};
+use crate::{centroid, PARALLEL_MIN_PRIMS};
 use geom::{Aabb, MortonQuantizer};
 use rayon::prelude::*;
 
@@ -66,6 +66,9 @@ impl Default for HlbvhBuilder {
         }
     }
 }
+
+/// Code bits of the cells that [`HlbvhBuilder::build`] emits in parallel (512 cells).
+pub const PARALLEL_CELL_BITS: u32 = 9;
 
 /// Level given to the end of the stream: above every key level and every threshold, so it
 /// pops all stack entries and sends the last subtree to the high-level output.
@@ -476,35 +479,132 @@ impl HlbvhBuilder {
 
     /// Builds a single tree over the primitive boxes `aabbs` (the threshold is not used:
     /// joining the cells by their Morton prefixes gives the uncut tree).
+    ///
+    /// Large inputs are emitted as cells of the top [`PARALLEL_CELL_BITS`] code bits in
+    /// parallel and joined by [`crate::toplevel::morton_top`]: the result is node for node
+    /// the single-stream tree (the tests check this), for any thread count.
     pub fn build(&self, aabbs: &[Aabb]) -> Result<Bvh2, BuildError> {
-        let single = HlbvhBuilder {
-            highlevel_threshold: None,
-            ..self.clone()
+        let total_bits = match self.bits {
+            MortonBits::Bits30 => 30,
+            MortonBits::Bits63 => 63,
         };
-        Ok(single.build_highlevel(aabbs)?.to_bvh2())
+        let cut = if aabbs.len() >= 2 * PARALLEL_MIN_PRIMS {
+            Some(total_bits - PARALLEL_CELL_BITS)
+        } else {
+            None
+        };
+        let hl = HlbvhBuilder {
+            highlevel_threshold: cut,
+            ..self.clone()
+        }
+        .build_highlevel(aabbs)?;
+        if hl.roots.len() <= 1 {
+            return Ok(hl.to_bvh2());
+        }
+        let top = crate::toplevel::morton_top(&hl);
+        crate::toplevel::stitch(&top, &hl)
     }
 
     /// Runs the emitter with the configured threshold and returns its raw output: the
     /// emitted nodes, the cell roots for a toplevel build, and the leaf table.
+    ///
+    /// With a threshold, runs of whole cells are emitted in parallel by separate emitters
+    /// and concatenated; cells are independent (the stack is empty at every cell boundary),
+    /// so the output equals that of one emitter over the whole stream.
     pub fn build_highlevel(&self, aabbs: &[Aabb]) -> Result<Highlevel, BuildError> {
         check_input(aabbs)?;
         self.check()?;
-        let (codes, order, boxes) = in_pool(self.threads, || {
-            let (codes, order) = sorted_codes(aabbs, self.bits);
-            // Gather the boxes in sorted order up front: a tight parallel loop overlaps the
-            // cache misses of this random gather, which dominated the serial emission loop
-            // ([P2] §4.2 sorts the AABBs themselves for the same reason).
-            let boxes: Vec<Aabb> = order.par_iter().map(|&i| aabbs[i as usize]).collect();
-            (codes, order, boxes)
-        })?;
+        in_pool(self.threads, || self.emit_all(aabbs))
+    }
+
+    fn emit_all(&self, aabbs: &[Aabb]) -> Highlevel {
+        let (codes, order) = sorted_codes(aabbs, self.bits);
+        // Gather the boxes in sorted order up front: a tight parallel loop overlaps the cache
+        // misses of this random gather, which dominated the serial emission loop ([P2] §4.2
+        // sorts the AABBs themselves for the same reason).
+        let boxes: Vec<Aabb> = order.par_iter().map(|&i| aabbs[i as usize]).collect();
         let ties = ties(&codes, self.combine_identical, self.max_leaf_size);
+        let n = codes.len();
+        // Chunk boundaries: cell boundaries near equal shares of the stream.
+        let mut bounds = vec![0usize];
+        if let Some(shift) = self.highlevel_threshold.filter(|&t| t < 64) {
+            let chunks = (n / PARALLEL_MIN_PRIMS).clamp(1, 4 * rayon::current_num_threads());
+            for c in 1..chunks {
+                let mut k = (c * n / chunks).max(*bounds.last().expect("non-empty"));
+                while k > 0 && k < n && codes[k] >> shift == codes[k - 1] >> shift {
+                    k += 1;
+                }
+                if k > *bounds.last().expect("non-empty") && k < n {
+                    bounds.push(k);
+                }
+            }
+        }
+        bounds.push(n);
+        let parts: Vec<(Vec<EmittedNode>, Vec<HighlevelRoot>)> = bounds
+            .par_windows(2)
+            .map(|w| {
+                self.emit_range(
+                    w[0],
+                    &codes[w[0]..w[1]],
+                    &ties[w[0]..w[1]],
+                    &boxes[w[0]..w[1]],
+                )
+            })
+            .collect();
+        if parts.len() == 1 {
+            let (nodes, roots) = parts.into_iter().next().expect("one part");
+            return Highlevel {
+                nodes,
+                roots,
+                order,
+            };
+        }
+        // Renumber each part's nodes after those of the parts before it.
+        let mut offsets = Vec::with_capacity(parts.len());
+        let mut total = 0u32;
+        for p in &parts {
+            offsets.push(total);
+            total += p.0.len() as u32;
+        }
+        let shift = |r: EmitRef, off: u32| match r {
+            EmitRef::Node(id) => EmitRef::Node(id + off),
+            leaf => leaf,
+        };
+        let mut nodes = Vec::with_capacity(total as usize);
+        let mut roots = Vec::new();
+        for (p, &off) in parts.iter().zip(&offsets) {
+            nodes.extend(p.0.iter().map(|e| EmittedNode {
+                aabbs: e.aabbs,
+                children: e.children.map(|c| shift(c, off)),
+            }));
+            roots.extend(p.1.iter().map(|r| HighlevelRoot {
+                root: shift(r.root, off),
+                ..*r
+            }));
+        }
+        Highlevel {
+            nodes,
+            roots,
+            order,
+        }
+    }
+
+    /// One emitter over sorted positions `first..first + codes.len()`.
+    fn emit_range(
+        &self,
+        first: usize,
+        codes: &[u64],
+        ties: &[u32],
+        boxes: &[Aabb],
+    ) -> (Vec<EmittedNode>, Vec<HighlevelRoot>) {
         let mut em = Emitter::new(self.highlevel_threshold);
-        let mut nodes = Vec::with_capacity(aabbs.len().saturating_sub(1));
+        em.read = first as u32;
+        let mut nodes = Vec::with_capacity(codes.len().saturating_sub(1));
         let mut roots = Vec::new();
         let mut input = codes
             .iter()
-            .zip(&ties)
-            .zip(&boxes)
+            .zip(ties)
+            .zip(boxes)
             .map(|((&code, &tie), &aabb)| Prim { code, tie, aabb });
         loop {
             let inp = if em.needs_input() { input.next() } else { None };
@@ -515,11 +615,7 @@ impl HlbvhBuilder {
                 Step::Loaded | Step::Combined | Step::Pushed => {}
             }
         }
-        Ok(Highlevel {
-            nodes,
-            roots,
-            order,
-        })
+        (nodes, roots)
     }
 }
 
@@ -759,6 +855,56 @@ mod tests {
             assert_eq!(cfg.build(&prims).unwrap(), plain);
             // The cells joined by their Morton prefixes are the uncut tree.
             assert_eq!(hl.to_bvh2(), plain, "threshold {t}");
+        }
+    }
+
+    /// Large inputs take the parallel-cells path of `build`; still the reference tree.
+    #[test]
+    fn large_inputs_equal_reference() {
+        let mut forest = proc_scene("proc:forest?n=20000");
+        forest.truncate(40_000);
+        for prims in [soup(30_000, 1.0, 11), forest, cubes_at(&[3.0; 20_000])] {
+            for cfg in configs() {
+                let t = cfg.build(&prims).unwrap();
+                assert_valid("large", &t, &prims, cfg.leaf_limit());
+                assert_eq!(t, reference(&prims, &cfg), "{cfg:?}");
+            }
+        }
+    }
+
+    #[test]
+    fn parallel_cells_equal_one_emitter() {
+        let prims = soup(40_000, 1.0, 2);
+        for t in [0, 12, 21, 29] {
+            let cfg = HlbvhBuilder {
+                highlevel_threshold: Some(t),
+                ..Default::default()
+            };
+            let serial = HlbvhBuilder {
+                threads: 1,
+                ..cfg.clone()
+            };
+            let one = serial.emit_range(0, &[], &[], &[]);
+            assert!(one.0.is_empty() && one.1.is_empty());
+            // One emitter over the whole stream, by hand.
+            let (codes, order) = sorted_codes(&prims, cfg.bits);
+            let boxes: Vec<Aabb> = order.iter().map(|&i| prims[i as usize]).collect();
+            let ties = ties(&codes, true, 8);
+            let (nodes, roots) = cfg.emit_range(0, &codes, &ties, &boxes);
+            let whole = Highlevel {
+                nodes,
+                roots,
+                order,
+            };
+            for threads in [1, 2, 3] {
+                let hl = HlbvhBuilder {
+                    threads,
+                    ..cfg.clone()
+                }
+                .build_highlevel(&prims)
+                .unwrap();
+                assert_eq!(hl, whole, "threshold {t} threads {threads}");
+            }
         }
     }
 
