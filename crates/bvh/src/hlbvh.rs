@@ -345,11 +345,10 @@ impl Highlevel {
         let base = out.len();
         // The first node emitted in the subtree: descend to the first inner child.
         let mut lo = root as usize;
-        loop {
-            match self.nodes[lo].children {
-                [EmitRef::Node(c), _] | [EmitRef::Leaf { .. }, EmitRef::Node(c)] => lo = c as usize,
-                _ => break,
-            }
+        while let [EmitRef::Node(c), _] | [EmitRef::Leaf { .. }, EmitRef::Node(c)] =
+            self.nodes[lo].children
+        {
+            lo = c as usize;
         }
         let range = &self.nodes[lo..=root as usize];
         // Subtree sizes, forward: children are emitted before their parent.
