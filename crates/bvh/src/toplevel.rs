@@ -375,6 +375,39 @@ mod tests {
         for (name, prims) in &scenes {
             let t = HlbvhSahBuilder::default().build(prims).unwrap();
             assert_valid(name, &t, prims, 8);
+            let plain = HlbvhBuilder::default().build(prims).unwrap();
+            assert!(t.sah() <= plain.sah(), "{name}: hlbvh+sah worse than hlbvh");
+        }
+    }
+
+    /// Cell count and SAH (relative to the sweep build) of HLBVH+SAH per cell level on the
+    /// real scenes, to choose [`default_threshold`]. Run by hand:
+    /// `cargo test -p bvh --lib -- --ignored --nocapture hlbvh_sah_threshold_table`
+    #[test]
+    #[ignore]
+    fn hlbvh_sah_threshold_table() {
+        let Some(scenes) = real_scenes() else {
+            return;
+        };
+        println!("| scene | hlbvh | top bits: cells / SAH ... |");
+        for (name, prims) in &scenes {
+            let sweep = SweepSahBuilder::default().build(prims).unwrap();
+            let plain = HlbvhBuilder::default().build(prims).unwrap();
+            let mut row = format!("| {name} | {:.3} |", plain.sah_vs(&sweep));
+            for top_bits in [6, 9, 12, 15, 18] {
+                let cfg = HlbvhSahBuilder {
+                    hlbvh: HlbvhBuilder {
+                        highlevel_threshold: Some(30 - top_bits),
+                        ..Default::default()
+                    },
+                    ..Default::default()
+                };
+                let cells = cfg.highlevel(prims).unwrap().roots.len();
+                let t = cfg.build(prims).unwrap();
+                assert_valid(name, &t, prims, 8);
+                row += &format!(" {top_bits}: {cells} / {:.3} |", t.sah_vs(&sweep));
+            }
+            println!("{row}");
         }
     }
 }
