@@ -26,6 +26,11 @@
 //! above the threshold is complete for its grid cell (all its primitives share the code bits
 //! above the threshold) and goes to the high-level output instead of the stack. Those cell
 //! roots are the input of the toplevel builds in [`crate::toplevel`].
+//!
+//! Threads: coding, sorting and the gather of boxes in sorted order are parallel. Emission
+//! is serial per stream, as in the hardware, but cells are independent (the stack is empty
+//! at every cell boundary), so runs of whole cells are emitted by separate emitters in
+//! parallel and concatenated; the output equals one emitter's, for any thread count.
 
 use crate::bvh2::Bvh2;
 use crate::error::{check_input, in_pool, BuildError};
@@ -68,7 +73,7 @@ impl Default for HlbvhBuilder {
 }
 
 /// Code bits of the cells that [`HlbvhBuilder::build`] emits in parallel (512 cells).
-pub const PARALLEL_CELL_BITS: u32 = 9;
+pub(crate) const PARALLEL_CELL_BITS: u32 = 9;
 
 /// Level given to the end of the stream: above every key level and every threshold, so it
 /// pops all stack entries and sends the last subtree to the high-level output.
@@ -479,7 +484,7 @@ impl HlbvhBuilder {
     /// Builds a single tree over the primitive boxes `aabbs` (the threshold is not used:
     /// joining the cells by their Morton prefixes gives the uncut tree).
     ///
-    /// Large inputs are emitted as cells of the top [`PARALLEL_CELL_BITS`] code bits in
+    /// Large inputs are emitted as cells of the top `PARALLEL_CELL_BITS` (9) code bits in
     /// parallel and joined by [`crate::toplevel::morton_top`]: the result is node for node
     /// the single-stream tree (the tests check this), for any thread count.
     pub fn build(&self, aabbs: &[Aabb]) -> Result<Bvh2, BuildError> {
