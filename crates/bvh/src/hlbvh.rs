@@ -854,6 +854,39 @@ mod tests {
         assert!(em.max_stack_depth() <= 2);
     }
 
+    /// \[P2\] §5.4: one primitive per leaf costs exactly one push and one pop per node,
+    /// `2m - 2` stack operations for `m` leaves, plus the first load and the final output.
+    #[test]
+    fn step_count_is_two_per_node() {
+        let prims = soup(5000, 1.0, 8);
+        let (codes, order) = sorted_codes(&prims, MortonBits::Bits30);
+        let ties = ties(&codes, false, 1);
+        let mut em = Emitter::new(None);
+        let mut input = codes
+            .iter()
+            .zip(&ties)
+            .zip(&order)
+            .map(|((&code, &tie), &i)| Prim {
+                code,
+                tie,
+                aabb: prims[i as usize],
+            });
+        let (mut steps, mut stack_ops) = (0usize, 0usize);
+        loop {
+            let inp = if em.needs_input() { input.next() } else { None };
+            let s = em.step(inp);
+            if s == Step::Done {
+                break;
+            }
+            steps += 1;
+            stack_ops += matches!(s, Step::Pushed | Step::Emitted(_)) as usize;
+        }
+        let m = prims.len();
+        assert_eq!(stack_ops, 2 * m - 2);
+        assert_eq!(steps, 2 * m);
+        assert!(em.max_stack_depth() <= 30 + 32);
+    }
+
     #[test]
     fn emitter_order_is_bottom_up_and_stack_is_bounded() {
         let prims = soup(20_000, 1.0, 5);

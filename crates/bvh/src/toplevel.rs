@@ -235,7 +235,41 @@ impl Default for HlbvhSahBuilder {
     }
 }
 
+/// A toplevel build with any top builder: runs the HLBVH emitter of `hlbvh` with its
+/// threshold (`None` uses [`default_threshold`]), builds the top tree with
+/// `top(&cells, &root_boxes)` (a valid tree over the root boxes, e.g. [`morton_top`] or any
+/// builder's output, optionally optimized), and [`stitch`]es the cells under it.
+///
+/// HLBVH+ATRBVH is this with `top = |hl, boxes| { let mut t = morton_top(hl);
+/// atrbvh::optimize(&mut t, boxes, cfg); Ok(t) }` (treelet size 8, two iterations).
+// TODO(hlbvh+atrbvh): add `HlbvhAtrbvhBuilder` on this once `crate::atrbvh` is merged.
+pub fn build_toplevel(
+    hlbvh: &HlbvhBuilder,
+    aabbs: &[Aabb],
+    top: impl FnOnce(&Highlevel, &[Aabb]) -> Result<Bvh2, BuildError>,
+) -> Result<Bvh2, BuildError> {
+    let hl = HlbvhBuilder {
+        highlevel_threshold: Some(
+            hlbvh
+                .highlevel_threshold
+                .unwrap_or_else(|| default_threshold(hlbvh.bits)),
+        ),
+        ..hlbvh.clone()
+    }
+    .build_highlevel(aabbs)?;
+    let t = top(&hl, &root_boxes(&hl))?;
+    stitch(&t, &hl)
+}
+
 impl HlbvhSahBuilder {
+    /// The HLBVH configuration with this builder's thread count.
+    fn hlbvh(&self) -> HlbvhBuilder {
+        HlbvhBuilder {
+            threads: self.threads,
+            ..self.hlbvh.clone()
+        }
+    }
+
     /// The streaming HLBVH pass with the cell threshold applied.
     pub fn highlevel(&self, aabbs: &[Aabb]) -> Result<Highlevel, BuildError> {
         HlbvhBuilder {
@@ -244,26 +278,23 @@ impl HlbvhSahBuilder {
                     .highlevel_threshold
                     .unwrap_or_else(|| default_threshold(self.hlbvh.bits)),
             ),
-            threads: self.threads,
-            ..self.hlbvh.clone()
+            ..self.hlbvh()
         }
         .build_highlevel(aabbs)
     }
 
     /// Builds a tree over the primitive boxes `aabbs`.
     pub fn build(&self, aabbs: &[Aabb]) -> Result<Bvh2, BuildError> {
-        let hl = self.highlevel(aabbs)?;
-        let top = BinnedSahBuilder {
-            bins: self.bins,
-            max_leaf_size: 1,
-            min_leaf_size: 1,
-            threads: self.threads,
-            ..Default::default()
-        }
-        .build(&root_boxes(&hl))?;
-        // TODO(hlbvh+atrbvh): the same shape with `top = morton_top(&hl)` optimized by
-        // `crate::atrbvh::optimize(&mut top, &root_boxes(&hl), cfg)` before stitching.
-        stitch(&top, &hl)
+        build_toplevel(&self.hlbvh(), aabbs, |_, boxes| {
+            BinnedSahBuilder {
+                bins: self.bins,
+                max_leaf_size: 1,
+                min_leaf_size: 1,
+                threads: self.threads,
+                ..Default::default()
+            }
+            .build(boxes)
+        })
     }
 }
 
@@ -303,6 +334,19 @@ mod tests {
             assert_valid("top", &top, &root_boxes(&hl), 1);
             assert_eq!(stitch(&top, &hl).unwrap(), plain, "threshold {t}");
         }
+    }
+
+    #[test]
+    fn build_toplevel_with_the_morton_top_is_plain_hlbvh() {
+        let prims = proc_scene("proc:forest?n=10000");
+        let cfg = HlbvhBuilder::default();
+        let t = build_toplevel(&cfg, &prims, |hl, _| Ok(morton_top(hl))).unwrap();
+        assert_eq!(t, cfg.build(&prims).unwrap());
+        // A top tree over the wrong boxes is refused, not stitched.
+        let bad = build_toplevel(&cfg, &prims, |_, b| {
+            BinnedSahBuilder::default().build(&b[..b.len() / 2])
+        });
+        assert!(matches!(bad, Err(BuildError::InvalidConfig(_))));
     }
 
     #[test]
