@@ -367,6 +367,43 @@ mod tests {
         }
     }
 
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(48))]
+        /// A top tree from any builder, over cells of any level, stitches to a valid tree.
+        #[test]
+        fn any_top_over_any_cells_stitches_to_a_valid_tree(
+            n in 0usize..1500,
+            seed: u64,
+            t in 0u32..31,
+            which in 0usize..4,
+            max_leaf in 1u32..5,
+        ) {
+            let prims = soup(n, 3.0, seed);
+            let hl = HlbvhBuilder {
+                highlevel_threshold: Some(t),
+                ..Default::default()
+            }
+            .build_highlevel(&prims)
+            .unwrap();
+            let boxes = root_boxes(&hl);
+            let top = match which {
+                0 => morton_top(&hl),
+                1 => BinnedSahBuilder { max_leaf_size: max_leaf, ..Default::default() }
+                    .build(&boxes)
+                    .unwrap(),
+                2 => SweepSahBuilder { max_leaf_size: max_leaf, ..Default::default() }
+                    .build(&boxes)
+                    .unwrap(),
+                _ => crate::LbvhBuilder::default().build(&boxes).unwrap(),
+            };
+            let st = stitch(&top, &hl).unwrap();
+            proptest::prop_assert_eq!(crate::validate(&st, &prims, 8), Ok(()));
+            if which == 0 {
+                proptest::prop_assert_eq!(st, HlbvhBuilder::default().build(&prims).unwrap());
+            }
+        }
+    }
+
     #[test]
     fn stitch_rejects_a_top_tree_over_other_boxes() {
         let prims = soup(1000, 1.0, 1);
