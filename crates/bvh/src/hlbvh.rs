@@ -336,26 +336,41 @@ pub struct Highlevel {
 }
 
 impl Highlevel {
+    /// The first emitted node of the subtree rooted at emitted node `root`: its nodes are
+    /// the emission range `first..=root` (emission is postorder).
+    pub(crate) fn subtree_first(&self, root: u32) -> u32 {
+        // Descend to the first inner child until there is none.
+        let mut lo = root;
+        while let [EmitRef::Node(c), _] | [EmitRef::Leaf { .. }, EmitRef::Node(c)] =
+            self.nodes[lo as usize].children
+        {
+            lo = c;
+        }
+        lo
+    }
+
     /// Appends the subtree `r` to `out` in depth-first preorder and returns its reference.
-    ///
-    /// Emission is postorder, so the nodes of a subtree are the contiguous emission range
-    /// ending at its root. One forward pass over that range counts subtree sizes; one
-    /// backward pass (parents before children) places every node at its preorder index
-    /// (child 0 right after its parent, child 1 after child 0's subtree). Both passes read
-    /// the emitted nodes sequentially.
     pub(crate) fn append_subtree(&self, r: EmitRef, out: &mut Vec<Node>) -> ChildRef {
         let EmitRef::Node(root) = r else {
             return child_ref(r);
         };
         let base = out.len();
-        // The first node emitted in the subtree: descend to the first inner child.
-        let mut lo = root as usize;
-        while let [EmitRef::Node(c), _] | [EmitRef::Leaf { .. }, EmitRef::Node(c)] =
-            self.nodes[lo].children
-        {
-            lo = c as usize;
-        }
+        let first = self.subtree_first(root);
+        out.resize(base + (root - first) as usize + 1, Node::EMPTY);
+        self.write_subtree(first, root, base as u32, &mut out[base..]);
+        ChildRef::inner(base as u32)
+    }
+
+    /// Writes the subtree of emitted nodes `first..=root` in depth-first preorder to `out`
+    /// (exactly that many nodes), whose first node will be node `base` of the tree.
+    ///
+    /// One forward pass over the emission range counts subtree sizes; one backward pass
+    /// (parents before children) places every node at its preorder index (child 0 right
+    /// after its parent, child 1 after child 0's subtree). Both read the nodes sequentially.
+    pub(crate) fn write_subtree(&self, first: u32, root: u32, base: u32, out: &mut [Node]) {
+        let lo = first as usize;
         let range = &self.nodes[lo..=root as usize];
+        debug_assert_eq!(out.len(), range.len());
         // Subtree sizes, forward: children are emitted before their parent.
         let mut size: Vec<u32> = Vec::with_capacity(range.len());
         let sz = |size: &[u32], c: EmitRef| match c {
@@ -366,25 +381,22 @@ impl Highlevel {
             let s = 1 + sz(&size, e.children[0]) + sz(&size, e.children[1]);
             size.push(s);
         }
-        // Preorder positions, backward: a parent is placed before its children.
-        out.resize(base + range.len(), Node::EMPTY);
+        // Preorder positions (local), backward: a parent is placed before its children.
         let mut pre = vec![0u32; range.len()];
-        pre[range.len() - 1] = base as u32;
         for (k, e) in range.iter().enumerate().rev() {
             let at = pre[k];
             let mut refs = [child_ref(e.children[0]), child_ref(e.children[1])];
             if let EmitRef::Node(c) = e.children[0] {
                 pre[c as usize - lo] = at + 1;
-                refs[0] = ChildRef::inner(at + 1);
+                refs[0] = ChildRef::inner(base + at + 1);
             }
             if let EmitRef::Node(c) = e.children[1] {
                 let p = at + 1 + sz(&size, e.children[0]);
                 pre[c as usize - lo] = p;
-                refs[1] = ChildRef::inner(p);
+                refs[1] = ChildRef::inner(base + p);
             }
             out[at as usize] = Node::new(&e.aabbs[0], refs[0], &e.aabbs[1], refs[1]);
         }
-        ChildRef::inner(base as u32)
     }
 
     /// The tree of a single-root output (no threshold) as a [`Bvh2`]; the cell roots of a
@@ -497,16 +509,21 @@ impl HlbvhBuilder {
         } else {
             None
         };
-        let hl = HlbvhBuilder {
+        check_input(aabbs)?;
+        self.check()?;
+        let cfg = HlbvhBuilder {
             highlevel_threshold: cut,
             ..self.clone()
-        }
-        .build_highlevel(aabbs)?;
-        if hl.roots.len() <= 1 {
-            return Ok(hl.to_bvh2());
-        }
-        let top = crate::toplevel::morton_top(&hl);
-        crate::toplevel::stitch(&top, &hl)
+        };
+        // One pool for the emission and the parallel layout of the cells.
+        in_pool(self.threads, || {
+            let hl = cfg.emit_all(aabbs);
+            if hl.roots.len() <= 1 {
+                return Ok(hl.to_bvh2());
+            }
+            let top = crate::toplevel::morton_top(&hl);
+            crate::toplevel::stitch(&top, &hl)
+        })?
     }
 
     /// Runs the emitter with the configured threshold and returns its raw output: the

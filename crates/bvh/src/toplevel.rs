@@ -12,12 +12,13 @@
 
 use crate::binned_sah::BinnedSahBuilder;
 use crate::bvh2::Bvh2;
-use crate::error::BuildError;
+use crate::error::{in_pool, BuildError};
 use crate::hlbvh::{EmitRef, Emitter, Highlevel, HlbvhBuilder, Prim, Step};
 use crate::lbvh::MortonBits;
 use crate::node::{ChildRef, Node};
 use crate::validate::validate;
 use geom::Aabb;
+use rayon::prelude::*;
 
 /// The default cell level of the toplevel builds: the top 12 code bits (4 octree levels,
 /// at most 4096 cells; the thesis's toplevel trees have "ca. 500–2,000 nodes").
@@ -144,14 +145,21 @@ impl Stitcher<'_> {
     }
 
     /// Lays out the node item `root` and everything below it in preorder.
+    ///
+    /// The top part is laid out serially; each cell subtree only reserves its range (its
+    /// size is known from the emission order), and the cells are then written in parallel
+    /// into their disjoint ranges.
     fn layout(&self, root: Item) -> Vec<Node> {
         let mut out = Vec::with_capacity(self.hl.nodes.len() + self.top.nodes.len());
+        // (first emitted node, root emitted node, position in `out`) of each cell subtree.
+        let mut cells: Vec<(u32, u32, usize)> = Vec::new();
         let mut stack: Vec<(Item, Option<(usize, usize)>)> = vec![(root, None)];
         while let Some((item, patch)) = stack.pop() {
             let at = out.len();
-            let r = if let Item::Sub(sub) = item {
-                // A whole cell subtree: copied in one preorder pass.
-                self.hl.append_subtree(sub, &mut out)
+            if let Item::Sub(EmitRef::Node(r)) = item {
+                let first = self.hl.subtree_first(r);
+                cells.push((first, r, at));
+                out.resize(at + (r - first) as usize + 1, Node::EMPTY);
             } else {
                 let ch = self.children(item);
                 out.push(Node::new(
@@ -165,12 +173,27 @@ impl Stitcher<'_> {
                         stack.push((ch[slot].0, Some((at, slot))));
                     }
                 }
-                ChildRef::inner(at as u32)
-            };
+            }
             if let Some((p, slot)) = patch {
-                out[p].children[slot] = r;
+                out[p].children[slot] = ChildRef::inner(at as u32);
             }
         }
+        // Disjoint slices of the reserved ranges, in increasing position order.
+        let mut slices = Vec::with_capacity(cells.len());
+        let mut rest = out.as_mut_slice();
+        let mut taken = 0usize;
+        for &(first, r, at) in &cells {
+            let (_, tail) = rest.split_at_mut(at - taken);
+            let (mine, tail) = tail.split_at_mut((r - first) as usize + 1);
+            taken = at + mine.len();
+            slices.push(mine);
+            rest = tail;
+        }
+        slices
+            .into_par_iter()
+            .zip(cells.par_iter())
+            .with_min_len(4)
+            .for_each(|(sl, &(first, r, at))| self.hl.write_subtree(first, r, at as u32, sl));
         out
     }
 }
@@ -258,7 +281,8 @@ pub fn build_toplevel(
     }
     .build_highlevel(aabbs)?;
     let t = top(&hl, &root_boxes(&hl))?;
-    stitch(&t, &hl)
+    // The cells are laid out in parallel: in the configured pool.
+    in_pool(hlbvh.threads, || stitch(&t, &hl))?
 }
 
 impl HlbvhSahBuilder {
