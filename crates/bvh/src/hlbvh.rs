@@ -553,14 +553,16 @@ impl HlbvhBuilder {
                 order,
             };
         }
-        // Chunk boundaries (every chunk non-empty): cell boundaries near equal shares of the stream.
+        // Chunk boundaries (every chunk non-empty): the first cell boundary at or after each
+        // equal share of the stream (cells are runs of equal `code >> shift`).
         let mut bounds = vec![0usize];
         if let Some(shift) = self.highlevel_threshold.filter(|&t| t < 64) {
             let chunks = (n / PARALLEL_MIN_PRIMS).clamp(1, 4 * rayon::current_num_threads());
             for c in 1..chunks {
                 let mut k = (c * n / chunks).max(*bounds.last().expect("non-empty"));
-                while k > 0 && k < n && codes[k] >> shift == codes[k - 1] >> shift {
-                    k += 1;
+                if k > 0 && k < n {
+                    let cell = codes[k - 1] >> shift;
+                    k += codes[k..].partition_point(|&c| c >> shift == cell);
                 }
                 if k > *bounds.last().expect("non-empty") && k < n {
                     bounds.push(k);
@@ -581,7 +583,7 @@ impl HlbvhBuilder {
             slices.push(head);
             rest = tail;
         }
-        let mut parts: Vec<(u32, Vec<HighlevelRoot>)> = bounds
+        let parts: Vec<(u32, Vec<HighlevelRoot>)> = bounds
             .par_windows(2)
             .zip(slices.into_par_iter())
             .map(|(w, out)| {
@@ -624,7 +626,7 @@ impl HlbvhBuilder {
         }
         nodes.truncate(total as usize);
         let mut roots = Vec::new();
-        for (p, &off) in parts.iter_mut().zip(&offsets) {
+        for (p, &off) in parts.iter().zip(&offsets) {
             roots.extend(p.1.iter().map(|r| HighlevelRoot {
                 root: shift(r.root, off),
                 ..*r
