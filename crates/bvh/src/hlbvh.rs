@@ -169,6 +169,27 @@ struct Sub {
 /// primitive (or `None` at the end of the stream) to [`Emitter::step`]; otherwise pass
 /// `None`. Each step performs one stack push, one pop with a node emission, one high-level
 /// output, or one leaf enlargement, so a cycle model can call it once per cycle.
+///
+/// ```
+/// use bvh::{Emitter, Prim, Step};
+/// use geom::{Aabb, Vec3};
+/// let unit = Aabb::new(Vec3::ZERO, Vec3::ONE);
+/// let mut input = [1u64, 2, 4].into_iter().map(|code| Prim { code, tie: 0, aabb: unit });
+/// let mut em = Emitter::new(None);
+/// let (mut nodes, mut cycles) = (Vec::new(), 0);
+/// loop {
+///     // A cycle model would stall here while its input FIFO is empty.
+///     let inp = if em.needs_input() { input.next() } else { None };
+///     match em.step(inp) {
+///         Step::Emitted(n) => nodes.push(n),
+///         Step::Done => break,
+///         _ => {}
+///     }
+///     cycles += 1;
+/// }
+/// assert_eq!(nodes.len(), 2); // 3 leaves, 2 inner nodes, bottom-up
+/// assert_eq!(cycles, 6); // load, 2 pushes, 2 pops, the root to the high-level output
+/// ```
 #[derive(Clone, Debug)]
 pub struct Emitter {
     /// Internal threshold on key levels (code level + [`TIE_BITS`]).
