@@ -7,7 +7,10 @@
 //! `BVH_ONLY=name` runs only builders whose name contains it; `BVH_SKIP_SWEEP=1` skips the
 //! sweep reference (for profiling).
 
-use bvh::{validate, BinnedSahBuilder, BuildError, Bvh2, LbvhBuilder, MortonBits, SweepSahBuilder};
+use bvh::{
+    validate, BinnedSahBuilder, BuildError, Bvh2, HlbvhBuilder, HlbvhSahBuilder, LbvhBuilder,
+    MortonBits, SweepSahBuilder,
+};
 use geom::Aabb;
 use std::time::Instant;
 
@@ -104,6 +107,40 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 LbvhBuilder {
                     bits: MortonBits::Bits63,
                     threads: t,
+                }
+                .build(p)
+            }),
+        ),
+        (
+            "hlbvh/30",
+            8,
+            Box::new(|p, t| {
+                HlbvhBuilder {
+                    threads: t,
+                    ..Default::default()
+                }
+                .build(p)
+            }),
+        ),
+        (
+            "hlbvh/63",
+            8,
+            Box::new(|p, t| {
+                HlbvhBuilder {
+                    bits: MortonBits::Bits63,
+                    threads: t,
+                    ..Default::default()
+                }
+                .build(p)
+            }),
+        ),
+        (
+            "hlbvh+sah",
+            8,
+            Box::new(|p, t| {
+                HlbvhSahBuilder {
+                    threads: t,
+                    ..Default::default()
                 }
                 .build(p)
             }),

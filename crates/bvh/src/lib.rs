@@ -13,6 +13,7 @@ mod binned_sah;
 mod bvh2;
 mod error;
 mod frag;
+mod hlbvh;
 pub mod io;
 mod lbvh;
 mod node;
@@ -20,16 +21,21 @@ mod sah;
 mod sweep_sah;
 #[cfg(test)]
 mod testutil;
+pub mod toplevel;
 mod validate;
 
 pub use atrbvh::{optimize, AtrbvhBuilder, AtrbvhConfig, MAX_TREELET_SIZE, MIN_GAIN};
 pub use binned_sah::{BinnedSahBuilder, MAX_BINS};
 pub use bvh2::{Bvh2, TreeStats};
 pub use error::{BuildError, MAX_PRIMITIVES};
+pub use hlbvh::{
+    EmitRef, EmittedNode, Emitter, Highlevel, HighlevelRoot, HlbvhBuilder, Prim, Step,
+};
 pub use lbvh::{LbvhBuilder, MortonBits};
 pub use node::{ChildRef, Node, EMPTY_INDEX};
 pub use sah::{sah_cost, sah_cost_with, sah_ratio, SahParams};
 pub use sweep_sah::SweepSahBuilder;
+pub use toplevel::{HlbvhAtrbvhBuilder, HlbvhSahBuilder};
 pub use validate::{validate, ValidationError};
 
 use geom::{Aabb, Triangle, Vec3};

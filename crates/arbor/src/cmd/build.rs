@@ -29,6 +29,9 @@ pub const MAX_LEAF_LIMIT: u32 = 1024;
 pub const DEFAULT_MAX_LEAF: u32 = 8;
 /// Bin counts `--bins` accepts (\[P2\] §6.2 compares binned SAH with 8, 16 and 32 bins).
 pub const BIN_CHOICES: [usize; 3] = [8, 16, 32];
+/// Builders that take `--bins` (binned SAH over primitives, or over HLBVH cells).
+const BINNED: [&str; 2] = ["binned-sah", "hlbvh+sah"];
+
 /// Bins per axis of `binned-sah` when `--bins` is not given.
 pub const DEFAULT_BINS: usize = 16;
 
@@ -57,9 +60,28 @@ pub type BuildFn = fn(&[Aabb], &BuildConfig) -> Result<Bvh2, BuildError>;
 /// Every builder name of the issue, in its order; `None` marks one not available yet.
 pub static BUILDERS: &[(&str, Option<BuildFn>)] = &[
     ("lbvh", Some(|p, _| LbvhBuilder::default().build(p))),
-    ("hlbvh", None),
-    ("hlbvh+sah", None),
-    ("hlbvh+atrbvh", None),
+    ("hlbvh", Some(|p, c| hlbvh(c).build(p))),
+    (
+        "hlbvh+sah",
+        Some(|p, c| {
+            bvh::HlbvhSahBuilder {
+                hlbvh: hlbvh(c),
+                bins: c.bins,
+                threads: 0,
+            }
+            .build(p)
+        }),
+    ),
+    (
+        "hlbvh+atrbvh",
+        Some(|p, c| {
+            bvh::HlbvhAtrbvhBuilder {
+                hlbvh: hlbvh(c),
+                ..Default::default()
+            }
+            .build(p)
+        }),
+    ),
     (
         "binned-sah",
         Some(|p, c| {
@@ -90,6 +112,16 @@ pub static BUILDERS: &[(&str, Option<BuildFn>)] = &[
     ("mbvh4-collapse", None),
     ("mbvh4-topdown", None),
 ];
+
+/// The streaming HLBVH builder for a configuration (\[P2\] leaf combining of identical
+/// Morton codes, leaves up to `max_leaf`).
+fn hlbvh(c: &BuildConfig) -> bvh::HlbvhBuilder {
+    bvh::HlbvhBuilder {
+        max_leaf_size: c.max_leaf,
+        threads: 0,
+        ..Default::default()
+    }
+}
 
 /// The sweep SAH builder for a configuration (also the SAH normalization reference).
 fn sweep(c: &BuildConfig) -> SweepSahBuilder {
@@ -269,8 +301,9 @@ fn check_args(a: &BuildArgs) -> anyhow::Result<(BuildFn, BuildConfig)> {
     }
     if let Some(b) = a.bins {
         anyhow::ensure!(
-            a.builder == "binned-sah",
-            "--bins applies only to --builder binned-sah"
+            BINNED.contains(&a.builder.as_str()),
+            "--bins applies only to --builder {}",
+            BINNED.join(" or ")
         );
         anyhow::ensure!(
             BIN_CHOICES.contains(&b),
@@ -423,7 +456,7 @@ pub fn run(args: &BuildArgs, ui: &Ui) -> anyhow::Result<()> {
         open_ms: ms(open),
         sample_ms,
         threads: pool.current_num_threads(),
-        bins: (args.builder == "binned-sah").then_some(cfg.bins),
+        bins: BINNED.contains(&args.builder.as_str()).then_some(cfg.bins),
         valid: true,
         out: args.out.as_ref().map(|p| p.display().to_string()),
         tree_bytes: tree.nodes.len() * std::mem::size_of::<bvh::Node>()
@@ -502,7 +535,7 @@ mod tests {
         }
         let e = builder("nope").err().unwrap().to_string();
         assert!(e.contains("lbvh") && e.contains("mbvh4-topdown"), "{e}");
-        let e = builder("hlbvh").err().unwrap().to_string();
+        let e = builder("mbvh4-topdown").err().unwrap().to_string();
         assert!(e.contains("not available yet"), "{e}");
     }
 
