@@ -326,7 +326,7 @@ impl HlbvhSahBuilder {
 /// Configuration of HLBVH+ATRBVH (\[P2\] §5.6, §6.2): streaming HLBVH cells; the top tree
 /// over the cell roots starts as the Morton-prefix top ([`morton_top`]) and is optimized by
 /// ATRBVH (treelet size 8, two iterations by default).
-#[derive(Clone, Debug, PartialEq)]
+#[derive(Clone, Debug, PartialEq, Default)]
 pub struct HlbvhAtrbvhBuilder {
     /// The HLBVH configuration; its `highlevel_threshold` selects the cells (`None` uses
     /// [`default_threshold`]) and its `threads` is overridden by `threads`.
@@ -336,16 +336,6 @@ pub struct HlbvhAtrbvhBuilder {
     pub atrbvh: AtrbvhConfig,
     /// Worker threads: 0 uses the current rayon pool, `n` a private pool of `n` threads.
     pub threads: usize,
-}
-
-impl Default for HlbvhAtrbvhBuilder {
-    fn default() -> Self {
-        Self {
-            hlbvh: HlbvhBuilder::default(),
-            atrbvh: AtrbvhConfig::default(),
-            threads: 0,
-        }
-    }
 }
 
 impl HlbvhAtrbvhBuilder {
