@@ -1,0 +1,472 @@
+//! Refit: bottom-up box update of a [`Bvh2`] or [`Mbvh4`] for animated scenes whose
+//! topology is stable (same primitives, same ids, moved), and SAH tracking across frames.
+//!
+//! Rebuilding every frame costs a full build; refitting keeps the tree and recomputes every
+//! box from the new primitive boxes in one pass, which is much cheaper but lets quality
+//! drift as primitives that were close at build time move apart. [`RefitTracker`] records
+//! the SAH of each refitted frame relative to the SAH at build time and advises a rebuild
+//! once it has grown past a threshold.
+//!
+//! Both formats store nodes depth-first (preorder), so every inner child has a larger index
+//! than its parent; a single reverse pass over the node array therefore sees every child
+//! before its parent and can take a child node's box as the union of its (already updated)
+//! child boxes. The pass checks that invariant as it goes, so a corrupt tree gives a
+//! [`RefitError`] instead of a panic or a wrong box.
+
+use crate::bvh2::Bvh2;
+use crate::mbvh4::Mbvh4;
+use crate::node::ChildRef;
+use crate::sah::sah_ratio;
+use geom::Aabb;
+use thiserror::Error;
+
+/// Why a tree could not be refitted.
+#[derive(Debug, Error, Clone, PartialEq)]
+pub enum RefitError {
+    /// The number of primitive boxes differs from the tree's primitive count (the topology
+    /// changed: rebuild instead).
+    #[error("the tree holds {tree} primitives but {given} boxes were given: rebuild instead")]
+    PrimCountChanged {
+        /// Primitives in the tree.
+        tree: usize,
+        /// Boxes given.
+        given: usize,
+    },
+    /// A primitive box has a NaN or infinite coordinate.
+    #[error("primitive {index} has a non-finite bounding box")]
+    NonFinite {
+        /// Index of the offending primitive.
+        index: usize,
+    },
+    /// A primitive box has `min > max` on some axis.
+    #[error("primitive {index} has an empty or inverted bounding box (min > max)")]
+    InvertedBox {
+        /// Index of the offending primitive.
+        index: usize,
+    },
+    /// A child link or leaf range is out of range, or an inner child does not come after
+    /// its parent. The boxes of nodes after `node` may already have been updated.
+    #[error("node {node} child {slot} is corrupt (bad link or leaf range)")]
+    CorruptTree {
+        /// Node index.
+        node: usize,
+        /// Child slot.
+        slot: usize,
+    },
+    /// The tracker threshold is not a finite number above 0.
+    #[error("rebuild threshold {0} must be a finite number above 0")]
+    BadThreshold(f64),
+}
+
+/// Checks the new primitive boxes: same count as the tree, finite, not inverted.
+fn check_prims(tree_prims: usize, prims: &[Aabb]) -> Result<(), RefitError> {
+    if prims.len() != tree_prims {
+        return Err(RefitError::PrimCountChanged {
+            tree: tree_prims,
+            given: prims.len(),
+        });
+    }
+    for (index, b) in prims.iter().enumerate() {
+        if !b.is_finite() {
+            return Err(RefitError::NonFinite { index });
+        }
+        if b.is_empty() {
+            return Err(RefitError::InvertedBox { index });
+        }
+    }
+    Ok(())
+}
+
+/// The box of the leaf `c` (union of its primitives' boxes), or `None` when its range or a
+/// primitive index is out of range.
+#[inline]
+fn leaf_box(c: ChildRef, table: &[u32], prims: &[Aabb]) -> Option<Aabb> {
+    let first = c.index as usize;
+    let refs = table.get(first..first + c.count as usize)?;
+    let mut b = Aabb::EMPTY;
+    for &p in refs {
+        b = b.union(*prims.get(p as usize)?);
+    }
+    Some(b)
+}
+
+/// Recomputes every box of `bvh` from the new primitive boxes `prims` (same ids as at
+/// build time). Refitting to the boxes the tree was built from gives the identical tree.
+/// On error the topology is unchanged but some boxes may already be updated.
+pub fn refit_bvh2(bvh: &mut Bvh2, prims: &[Aabb]) -> Result<(), RefitError> {
+    check_prims(bvh.prim_indices.len(), prims)?;
+    let n = bvh.nodes.len();
+    for i in (0..n).rev() {
+        for slot in 0..2 {
+            let c = bvh.nodes[i].children[slot];
+            let b = if c.is_leaf() {
+                leaf_box(c, &bvh.prim_indices, prims)
+            } else if c.is_inner() {
+                let t = c.index as usize;
+                (t > i && t < n).then(|| bvh.nodes[t].aabb())
+            } else {
+                continue;
+            };
+            let b = b.ok_or(RefitError::CorruptTree { node: i, slot })?;
+            bvh.nodes[i].set_child_aabb(slot, &b);
+        }
+    }
+    bvh.bounds = bvh.nodes.first().map_or(Aabb::EMPTY, |r| r.aabb());
+    Ok(())
+}
+
+/// Recomputes every box of the 4-wide `tree` from the new primitive boxes `prims`; the
+/// 4-wide counterpart of [`refit_bvh2`].
+pub fn refit_mbvh4(tree: &mut Mbvh4, prims: &[Aabb]) -> Result<(), RefitError> {
+    check_prims(tree.prim_indices.len(), prims)?;
+    let n = tree.nodes.len();
+    for i in (0..n).rev() {
+        for slot in 0..4 {
+            let c = tree.nodes[i].children[slot];
+            let b = if c.is_leaf() {
+                leaf_box(c, &tree.prim_indices, prims)
+            } else if c.is_inner() {
+                let t = c.index as usize;
+                (t > i && t < n).then(|| tree.nodes[t].aabb())
+            } else {
+                continue;
+            };
+            let b = b.ok_or(RefitError::CorruptTree { node: i, slot })?;
+            tree.nodes[i].set_child_aabb(slot, &b);
+        }
+    }
+    tree.bounds = tree.nodes.first().map_or(Aabb::EMPTY, |r| r.aabb());
+    Ok(())
+}
+
+/// One recorded frame of a [`RefitTracker`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RefitFrame {
+    /// Frame number (0-based, in recording order since the last rebuild or creation).
+    pub frame: usize,
+    /// SAH of the refitted tree.
+    pub sah: f64,
+    /// `sah` over the SAH at build time (1.0 = no degradation).
+    pub ratio: f64,
+    /// Whether `ratio` exceeds the tracker's threshold.
+    pub rebuild_advised: bool,
+}
+
+/// Records the SAH of a refitted tree frame by frame, relative to the SAH when the tree was
+/// built, and advises a rebuild when the ratio exceeds a threshold.
+///
+/// The SAH is normalized by the scene box area, so the ratio measures how much worse the
+/// refitted tree is for rays that hit the scene, independent of the scene growing.
+#[derive(Clone, Debug, PartialEq)]
+pub struct RefitTracker {
+    build_sah: f64,
+    threshold: f64,
+    frames: Vec<RefitFrame>,
+}
+
+impl RefitTracker {
+    /// Default rebuild threshold: advise a rebuild once the SAH is 30% above the build's.
+    pub const DEFAULT_THRESHOLD: f64 = 1.3;
+
+    /// A tracker for a tree whose SAH right after the build is `build_sah`; a rebuild is
+    /// advised once `sah / build_sah > threshold`.
+    pub fn new(build_sah: f64, threshold: f64) -> Result<Self, RefitError> {
+        if !(threshold.is_finite() && threshold > 0.0) {
+            return Err(RefitError::BadThreshold(threshold));
+        }
+        Ok(Self {
+            build_sah,
+            threshold,
+            frames: Vec::new(),
+        })
+    }
+
+    /// A tracker with [`Self::DEFAULT_THRESHOLD`].
+    pub fn with_default_threshold(build_sah: f64) -> Self {
+        Self {
+            build_sah,
+            threshold: Self::DEFAULT_THRESHOLD,
+            frames: Vec::new(),
+        }
+    }
+
+    /// Records the SAH of the next refitted frame and returns its record.
+    pub fn record(&mut self, sah: f64) -> RefitFrame {
+        let ratio = sah_ratio(sah, self.build_sah);
+        let f = RefitFrame {
+            frame: self.frames.len(),
+            sah,
+            ratio,
+            // NaN ratios (NaN SAH) also advise a rebuild: the tree cannot be trusted.
+            rebuild_advised: ratio.is_nan() || ratio > self.threshold,
+        };
+        self.frames.push(f);
+        f
+    }
+
+    /// Records the SAH of a refitted [`Bvh2`].
+    pub fn record_bvh2(&mut self, bvh: &Bvh2) -> RefitFrame {
+        self.record(bvh.sah())
+    }
+
+    /// Records the SAH of a refitted [`Mbvh4`].
+    pub fn record_mbvh4(&mut self, tree: &Mbvh4) -> RefitFrame {
+        self.record(tree.sah())
+    }
+
+    /// Starts over after a rebuild whose SAH is `build_sah` (clears the history).
+    pub fn rebuilt(&mut self, build_sah: f64) {
+        self.build_sah = build_sah;
+        self.frames.clear();
+    }
+
+    /// Whether the latest frame advises a rebuild (false before any frame).
+    pub fn rebuild_advised(&self) -> bool {
+        self.frames.last().is_some_and(|f| f.rebuild_advised)
+    }
+
+    /// SAH at build time.
+    pub fn build_sah(&self) -> f64 {
+        self.build_sah
+    }
+
+    /// The rebuild threshold.
+    pub fn threshold(&self) -> f64 {
+        self.threshold
+    }
+
+    /// The frames recorded since creation or the last rebuild.
+    pub fn frames(&self) -> &[RefitFrame] {
+        &self.frames
+    }
+
+    /// Largest ratio recorded so far (1.0 before any frame).
+    pub fn worst_ratio(&self) -> f64 {
+        self.frames.iter().map(|f| f.ratio).fold(1.0, f64::max)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mbvh4::validate_mbvh4;
+    use crate::testutil::{adversarial, soup};
+    use crate::{collapse, validate, BinnedSahBuilder, LbvhBuilder, Mbvh4TopDownBuilder};
+    use geom::Vec3;
+
+    /// Boxes of a procedural scene at time `t`.
+    fn frame(s: &dyn scene::Scene, t: f32) -> Vec<Aabb> {
+        let m = s.mesh_at(t).unwrap();
+        crate::indexed_triangle_aabbs(&m.positions, &m.triangles).unwrap()
+    }
+
+    /// Reference refit: boxes recomputed top-down by plain recursion.
+    fn reference(bvh: &Bvh2, prims: &[Aabb]) -> Bvh2 {
+        fn rec(t: &mut Bvh2, c: ChildRef, prims: &[Aabb]) -> Aabb {
+            if c.is_leaf() {
+                let s = c.index as usize;
+                return t.prim_indices[s..s + c.count as usize]
+                    .iter()
+                    .fold(Aabb::EMPTY, |b, &p| b.union(prims[p as usize]));
+            }
+            let i = c.index as usize;
+            let mut all = Aabb::EMPTY;
+            for slot in 0..2 {
+                let k = t.nodes[i].children[slot];
+                if !k.is_empty() {
+                    let b = rec(t, k, prims);
+                    t.nodes[i].set_child_aabb(slot, &b);
+                    all = all.union(b);
+                }
+            }
+            all
+        }
+        let mut t = bvh.clone();
+        t.bounds = rec(&mut t, ChildRef::inner(0), prims);
+        t
+    }
+
+    #[test]
+    fn refit_to_the_same_boxes_is_the_identity() {
+        let mut inputs = adversarial();
+        inputs.push(("soup", soup(3000, 2.0, 4)));
+        inputs.push(("none", Vec::new()));
+        for (name, prims) in inputs {
+            for t in [
+                BinnedSahBuilder::default().build(&prims).unwrap(),
+                LbvhBuilder::default().build(&prims).unwrap(),
+            ] {
+                let mut r = t.clone();
+                refit_bvh2(&mut r, &prims).unwrap();
+                assert_eq!(r, t, "{name}");
+                let m = collapse(&t).unwrap();
+                let mut r = m.clone();
+                refit_mbvh4(&mut r, &prims).unwrap();
+                assert_eq!(r, m, "{name}");
+            }
+            let m = Mbvh4TopDownBuilder::default().build(&prims).unwrap();
+            let mut r = m.clone();
+            refit_mbvh4(&mut r, &prims).unwrap();
+            assert_eq!(r, m, "{name}");
+        }
+    }
+
+    #[test]
+    fn refit_after_motion_is_valid_and_equals_a_fresh_computation() {
+        let s = scene::open("proc:cloth?n=5000", &Default::default()).unwrap();
+        let d = s.info().timeline.duration_s;
+        let p0 = frame(s.as_ref(), 0.0);
+        let bvh = BinnedSahBuilder::default().build(&p0).unwrap();
+        let m4 = Mbvh4TopDownBuilder::default().build(&p0).unwrap();
+        for t in [0.25 * d, 0.5 * d, d] {
+            let p = frame(s.as_ref(), t);
+            assert_ne!(p, p0);
+            let mut r = bvh.clone();
+            refit_bvh2(&mut r, &p).unwrap();
+            assert_eq!(validate(&r, &p, 8), Ok(()));
+            assert_eq!(r, reference(&bvh, &p));
+            // A collapsed tree refits validly too, and a 4-wide tree refitted back to
+            // frame 0 is the original again.
+            let mut c = collapse(&bvh).unwrap();
+            refit_mbvh4(&mut c, &p).unwrap();
+            assert_eq!(validate_mbvh4(&c, &p, 8), Ok(()));
+            let mut m = m4.clone();
+            refit_mbvh4(&mut m, &p).unwrap();
+            assert_eq!(validate_mbvh4(&m, &p, 8), Ok(()));
+            refit_mbvh4(&mut m, &p0).unwrap();
+            assert_eq!(m, m4);
+        }
+    }
+
+    /// Refits a tree built at t = 0 over 11 frames of `spec`; returns the tracker and,
+    /// per frame, the refitted SAH over the SAH of a fresh build of that frame.
+    fn track(spec: &str) -> (RefitTracker, Vec<f64>) {
+        let s = scene::open(spec, &Default::default()).unwrap();
+        let tl = s.info().timeline;
+        let p0 = frame(s.as_ref(), 0.0);
+        let mut bvh = BinnedSahBuilder::default().build(&p0).unwrap();
+        let mut tr = RefitTracker::with_default_threshold(bvh.sah());
+        let mut vs_rebuild = Vec::new();
+        let frames = tl.frame_count().min(12);
+        for k in 1..frames {
+            let t = tl.duration_s * k as f32 / (frames - 1) as f32;
+            let p = frame(s.as_ref(), t);
+            refit_bvh2(&mut bvh, &p).unwrap();
+            assert_eq!(validate(&bvh, &p, 8), Ok(()), "{spec} t={t}");
+            tr.record_bvh2(&bvh);
+            let fresh = BinnedSahBuilder::default().build(&p).unwrap();
+            vs_rebuild.push(bvh.sah_vs(&fresh));
+        }
+        (tr, vs_rebuild)
+    }
+
+    #[test]
+    fn tracker_separates_explode_from_cloth() {
+        let (ex, ex_fresh) = track("proc:explode?n=5000");
+        let ratios: Vec<f64> = ex.frames().iter().map(|f| f.ratio).collect();
+        println!("explode SAH vs build {ratios:.2?}\n        vs rebuild {ex_fresh:.2?}");
+        assert!(ex.rebuild_advised(), "explode: {ratios:?}");
+        assert!(ex.worst_ratio() > 2.5, "explode: {ratios:?}");
+        assert!(
+            ratios.windows(2).all(|w| w[1] >= w[0]),
+            "explode grows: {ratios:?}"
+        );
+        assert!(
+            ex_fresh.last().unwrap() > &2.5,
+            "explode vs rebuild: {ex_fresh:?}"
+        );
+        let (cl, cl_fresh) = track("proc:cloth?n=5000");
+        let ratios: Vec<f64> = cl.frames().iter().map(|f| f.ratio).collect();
+        println!("cloth SAH vs build {ratios:.2?}\n      vs rebuild {cl_fresh:.2?}");
+        // The cloth folds, so even its fresh builds change SAH; refit stays moderate.
+        assert!(cl.worst_ratio() < 1.6, "cloth: {ratios:?}");
+        assert!(!cl.frames()[0].rebuild_advised, "cloth: {ratios:?}");
+        assert!(
+            cl_fresh.iter().all(|&r| r < 1.6),
+            "cloth vs rebuild: {cl_fresh:?}"
+        );
+    }
+
+    #[test]
+    fn tracker_bookkeeping() {
+        assert!(RefitTracker::new(1.0, f64::NAN).is_err());
+        assert!(RefitTracker::new(1.0, 0.0).is_err());
+        let mut t = RefitTracker::new(10.0, 1.5).unwrap();
+        assert!(!t.rebuild_advised());
+        assert_eq!(t.record(12.0).ratio, 1.2);
+        assert!(!t.rebuild_advised());
+        let f = t.record(16.0);
+        assert!(f.rebuild_advised && f.frame == 1);
+        assert!(t.record(f64::NAN).rebuild_advised);
+        t.rebuilt(16.0);
+        assert!(t.frames().is_empty() && t.build_sah() == 16.0);
+        assert!(!t.record(16.0).rebuild_advised);
+        // An empty scene (SAH 0) stays at ratio 1.
+        let mut z = RefitTracker::with_default_threshold(0.0);
+        assert_eq!(z.record(0.0).ratio, 1.0);
+    }
+
+    #[test]
+    fn bad_inputs_are_errors_not_panics() {
+        let prims = soup(500, 2.0, 8);
+        let mut bvh = BinnedSahBuilder::default().build(&prims).unwrap();
+        let mut m = collapse(&bvh).unwrap();
+        assert_eq!(
+            refit_bvh2(&mut bvh, &prims[..499]),
+            Err(RefitError::PrimCountChanged {
+                tree: 500,
+                given: 499
+            })
+        );
+        let mut more = prims.clone();
+        more.push(prims[0]);
+        assert!(matches!(
+            refit_mbvh4(&mut m, &more),
+            Err(RefitError::PrimCountChanged { .. })
+        ));
+        let mut nan = prims.clone();
+        nan[7].max.y = f32::NAN;
+        assert_eq!(
+            refit_bvh2(&mut bvh, &nan),
+            Err(RefitError::NonFinite { index: 7 })
+        );
+        let mut inv = prims.clone();
+        inv[9] = Aabb::new(Vec3::ONE, Vec3::ZERO);
+        assert_eq!(
+            refit_mbvh4(&mut m, &inv),
+            Err(RefitError::InvertedBox { index: 9 })
+        );
+        // Corrupt links: a back edge, an out-of-range node, a leaf past the table, a bad
+        // primitive id.
+        let mut c = bvh.clone();
+        c.nodes[2].children[0] = ChildRef::inner(1);
+        assert!(matches!(
+            refit_bvh2(&mut c, &prims),
+            Err(RefitError::CorruptTree { .. })
+        ));
+        let mut c = bvh.clone();
+        c.nodes[2].children[1] = ChildRef::inner(u32::MAX - 1);
+        assert!(matches!(
+            refit_bvh2(&mut c, &prims),
+            Err(RefitError::CorruptTree { .. })
+        ));
+        let mut c = m.clone();
+        c.nodes[0].children[0] = ChildRef::leaf(u32::MAX - 1, 9);
+        assert!(matches!(
+            refit_mbvh4(&mut c, &prims),
+            Err(RefitError::CorruptTree { .. })
+        ));
+        let mut c = m.clone();
+        c.prim_indices[3] = 10_000;
+        assert!(matches!(
+            refit_mbvh4(&mut c, &prims),
+            Err(RefitError::CorruptTree { .. })
+        ));
+        let mut c = Bvh2 {
+            nodes: Vec::new(),
+            ..Bvh2::empty()
+        };
+        refit_bvh2(&mut c, &[]).unwrap();
+        assert!(c.bounds.is_empty());
+    }
+}
