@@ -151,6 +151,23 @@ impl Ctx<'_> {
 
     /// Best split of the references `refs` whose centroid box is `cbounds`.
     fn find_split(&self, refs: &[Ref], cbounds: &Aabb, depth: u32) -> Option<Split> {
+        // Bin arrays sized to the bin count: clearing 64 bins per call dominated the
+        // small candidates near the leaves.
+        match self.cfg.bins {
+            0..=8 => self.find_split_n::<8>(refs, cbounds, depth),
+            9..=16 => self.find_split_n::<16>(refs, cbounds, depth),
+            17..=32 => self.find_split_n::<32>(refs, cbounds, depth),
+            _ => self.find_split_n::<MAX_BINS>(refs, cbounds, depth),
+        }
+    }
+
+    /// [`Self::find_split`] with bin arrays of `N >= bins` entries.
+    fn find_split_n<const N: usize>(
+        &self,
+        refs: &[Ref],
+        cbounds: &Aabb,
+        depth: u32,
+    ) -> Option<Split> {
         let n = refs.len();
         if n < 2 {
             return None;
@@ -170,9 +187,9 @@ impl Ctx<'_> {
         }
         let bins = self.cfg.bins;
         let mut best: Option<Split> = None;
-        let mut bmin = [[Vec4::ZERO; MAX_BINS]; 3];
-        let mut bmax = [[Vec4::ZERO; MAX_BINS]; 3];
-        let mut cnt = [[0u32; MAX_BINS]; 3];
+        let mut bmin = [[Vec4::ZERO; N]; 3];
+        let mut bmax = [[Vec4::ZERO; N]; 3];
+        let mut cnt = [[0u32; N]; 3];
         let mut scale = [0f32; 3];
         for axis in 0..3 {
             let ext = cbounds.max[axis] - cbounds.min[axis];
@@ -199,7 +216,7 @@ impl Ctx<'_> {
                 }
             }
         }
-        let mut right_cost = [0f64; MAX_BINS];
+        let mut right_cost = [0f64; N];
         for axis in 0..3 {
             if scale[axis] == 0.0 {
                 continue;

@@ -387,6 +387,109 @@ mod tests {
         );
     }
 
+    /// Real animated scenes (horse-gallop keyframes, skinned glTF): a tree built at t = 0
+    /// refits over the animation and stays valid; real static scenes collapse and build
+    /// 4-wide validly. Skips when the shared scene folder is absent.
+    #[test]
+    fn real_scenes_refit_and_build_4_wide() {
+        let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../../shared/scenes");
+        if !dir.is_dir() {
+            println!("skipping: {} not found", dir.display());
+            return;
+        }
+        for name in ["horse-gallop", "gltf/BrainStem.glb", "gltf/CesiumMan.glb"] {
+            let s = scene::open(dir.join(name).to_str().unwrap(), &Default::default()).unwrap();
+            let tl = s.info().timeline;
+            let p0 = frame(s.as_ref(), 0.0);
+            let mut bvh = BinnedSahBuilder::default().build(&p0).unwrap();
+            let mut m = Mbvh4TopDownBuilder::default().build(&p0).unwrap();
+            let mut tr = RefitTracker::with_default_threshold(bvh.sah());
+            for k in 1..=6 {
+                let t = tl.duration_s * k as f32 / 6.0;
+                let p = frame(s.as_ref(), t);
+                refit_bvh2(&mut bvh, &p).unwrap();
+                refit_mbvh4(&mut m, &p).unwrap();
+                assert_eq!(validate(&bvh, &p, 8), Ok(()), "{name} t={t}");
+                assert_eq!(validate_mbvh4(&m, &p, 8), Ok(()), "{name} t={t}");
+                tr.record_bvh2(&bvh);
+            }
+            println!("{name}: refit SAH ratio worst {:.2}", tr.worst_ratio());
+        }
+        let Some(scenes) = crate::testutil::real_scenes() else {
+            return;
+        };
+        for (name, prims) in scenes.iter().filter(|(_, p)| p.len() < 400_000) {
+            let c = collapse(&BinnedSahBuilder::default().build(prims).unwrap()).unwrap();
+            assert_eq!(validate_mbvh4(&c, prims, 8), Ok(()), "{name} collapse");
+            let t = Mbvh4TopDownBuilder::default().build(prims).unwrap();
+            assert_eq!(validate_mbvh4(&t, prims, 8), Ok(()), "{name} top-down");
+        }
+    }
+
+    /// Release timings of refit, collapse and the top-down build, printed. Run by hand:
+    /// `cargo test --release -p bvh --lib -- --ignored --nocapture mbvh4_refit_timings`
+    #[test]
+    #[ignore]
+    fn mbvh4_refit_timings() {
+        use std::time::Instant;
+        fn ms(t: Instant) -> f64 {
+            t.elapsed().as_secs_f64() * 1e3
+        }
+        let threads = rayon::current_num_threads();
+        let dragon = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../../shared/scenes/dragon.ply");
+        let mut inputs = vec![(
+            "soup 1M".to_string(),
+            crate::testutil::proc_scene("proc:soup?n=1000000"),
+        )];
+        if dragon.is_file() {
+            let s = scene::open(dragon.to_str().unwrap(), &Default::default()).unwrap();
+            inputs.insert(0, ("dragon.ply".to_string(), frame(s.as_ref(), 0.0)));
+        }
+        for (name, prims) in &inputs {
+            let t = Instant::now();
+            let bvh = BinnedSahBuilder::default().build(prims).unwrap();
+            let binned_ms = ms(t);
+            let mut r = bvh.clone();
+            let mut best = f64::MAX;
+            for _ in 0..5 {
+                let t = Instant::now();
+                refit_bvh2(&mut r, prims).unwrap();
+                best = best.min(ms(t));
+            }
+            let t = Instant::now();
+            let c = collapse(&bvh).unwrap();
+            let collapse_ms = ms(t);
+            let mut rc = c.clone();
+            let mut best4 = f64::MAX;
+            for _ in 0..5 {
+                let t = Instant::now();
+                refit_mbvh4(&mut rc, prims).unwrap();
+                best4 = best4.min(ms(t));
+            }
+            let mut td = Vec::new();
+            for th in [1, 2] {
+                let b = Mbvh4TopDownBuilder {
+                    threads: th,
+                    ..Default::default()
+                };
+                let t = Instant::now();
+                let m = b.build(prims).unwrap();
+                td.push((th, ms(t), m.sah(), m.nodes.len()));
+            }
+            println!(
+                "{name}: {} prims, pool {threads} threads | binned {binned_ms:.0} ms, {} nodes, SAH {:.2} | \
+                 refit Bvh2 {best:.1} ms | collapse {collapse_ms:.1} ms -> {} nodes, SAH {:.2} | \
+                 refit Mbvh4 {best4:.1} ms | top-down {td:.1?}",
+                prims.len(),
+                bvh.nodes.len(),
+                bvh.sah(),
+                c.nodes.len(),
+                c.sah()
+            );
+        }
+    }
+
     #[test]
     fn tracker_bookkeeping() {
         assert!(RefitTracker::new(1.0, f64::NAN).is_err());
