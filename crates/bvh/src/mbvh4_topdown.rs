@@ -24,7 +24,7 @@ use crate::error::{check_input, in_pool, BuildError};
 use crate::mbvh4::{Mbvh4, Node4, MBVH_WIDTH};
 use crate::node::ChildRef;
 use crate::sah::SahParams;
-use crate::{MAX_BINS, MAX_SAH_DEPTH, PARALLEL_MIN_PRIMS};
+use crate::{ordered_bits, MAX_BINS, MAX_SAH_DEPTH, PARALLEL_MIN_PRIMS};
 use geom::{Aabb, Vec4};
 use rayon::prelude::*;
 
@@ -103,6 +103,9 @@ struct Split {
     cost: f64,
     /// Split at the middle of the range instead of binning.
     median: bool,
+    /// Exact split of a small candidate: the first `pos` references in centroid order
+    /// along `axis` go left ([`Ctx::sorted_split`]).
+    sorted: bool,
 }
 
 /// A candidate child of the node under construction.
@@ -125,17 +128,73 @@ impl Cand {
 
 /// Box and centroid box of a run of references.
 fn bounds_of(refs: &[Ref]) -> (Aabb, Aabb) {
-    let mut b = (Vec4::splat(f32::INFINITY), Vec4::splat(f32::NEG_INFINITY));
-    let mut c = b;
-    for r in refs {
-        b = (b.0.min(r.min), b.1.max(r.max));
+    type B = [Vec4; 4];
+    let empty = || -> B {
+        let (lo, hi) = (Vec4::splat(f32::INFINITY), Vec4::splat(f32::NEG_INFINITY));
+        [lo, hi, lo, hi]
+    };
+    let add = |b: B, r: &Ref| {
         let m = r.centroid();
-        c = (c.0.min(m), c.1.max(m));
-    }
+        [b[0].min(r.min), b[1].max(r.max), b[2].min(m), b[3].max(m)]
+    };
+    let b = if refs.len() >= PAR_BIN_MIN {
+        refs.par_chunks(PAR_BIN_MIN / 4)
+            .map(|c| c.iter().fold(empty(), add))
+            .reduce(empty, |a, b| {
+                [
+                    a[0].min(b[0]),
+                    a[1].max(b[1]),
+                    a[2].min(b[2]),
+                    a[3].max(b[3]),
+                ]
+            })
+    } else {
+        refs.iter().fold(empty(), add)
+    };
     (
-        Aabb::new(b.0.truncate(), b.1.truncate()),
-        Aabb::new(c.0.truncate(), c.1.truncate()),
+        Aabb::new(b[0].truncate(), b[1].truncate()),
+        Aabb::new(b[2].truncate(), b[3].truncate()),
     )
+}
+
+/// Candidates of at most this many primitives get an exact sorted split, not bins.
+const SMALL: usize = 16;
+
+/// Total order of references along `axis`: centroid, then input index.
+#[inline]
+fn sort_key(r: &Ref, axis: usize) -> u64 {
+    ((ordered_bits(r.centroid()[axis]) as u64) << 32) | r.index() as u64
+}
+
+/// Candidates of at least this many primitives are binned and bounded in parallel chunks.
+const PAR_BIN_MIN: usize = 1 << 16;
+
+/// Per-axis bins of a split search: box and count of the primitives in each bin.
+struct Bins<const N: usize> {
+    min: [[Vec4; N]; 3],
+    max: [[Vec4; N]; 3],
+    cnt: [[u32; N]; 3],
+}
+
+impl<const N: usize> Bins<N> {
+    fn new() -> Self {
+        Self {
+            min: [[Vec4::splat(f32::INFINITY); N]; 3],
+            max: [[Vec4::splat(f32::NEG_INFINITY); N]; 3],
+            cnt: [[0; N]; 3],
+        }
+    }
+
+    fn merge(mut self, o: Self) -> Self {
+        for a in 0..3 {
+            for i in 0..N {
+                self.min[a][i] = self.min[a][i].min(o.min[a][i]);
+                self.max[a][i] = self.max[a][i].max(o.max[a][i]);
+                self.cnt[a][i] += o.cnt[a][i];
+            }
+        }
+        self
+    }
 }
 
 struct Ctx<'a> {
@@ -180,42 +239,59 @@ impl Ctx<'_> {
                 pos: 0,
                 cost: area(&l) * (n / 2) as f64 + area(&r) * (n - n / 2) as f64,
                 median: true,
+                sorted: false,
             })
         };
         if depth > MAX_SAH_DEPTH {
             return median();
         }
+        if n <= SMALL {
+            return Self::sorted_split(refs).or_else(median);
+        }
         let bins = self.cfg.bins;
         let mut best: Option<Split> = None;
-        let mut bmin = [[Vec4::ZERO; N]; 3];
-        let mut bmax = [[Vec4::ZERO; N]; 3];
-        let mut cnt = [[0u32; N]; 3];
         let mut scale = [0f32; 3];
-        for axis in 0..3 {
+        for (axis, sc) in scale.iter_mut().enumerate() {
             let ext = cbounds.max[axis] - cbounds.min[axis];
             let k = bins as f32 / ext;
             // Zero, subnormal or overflowing extents give no usable planes on this axis.
             if ext > 0.0 && k.is_finite() && k > 0.0 {
-                scale[axis] = k;
-                bmin[axis][..bins].fill(Vec4::splat(f32::INFINITY));
-                bmax[axis][..bins].fill(Vec4::splat(f32::NEG_INFINITY));
+                *sc = k;
             }
         }
         if scale == [0.0; 3] {
             return median();
         }
         let lo = cbounds.min;
-        for r in refs {
-            let m = r.centroid();
-            for axis in 0..3 {
-                if scale[axis] > 0.0 {
-                    let b = self.bin(m[axis], lo[axis], scale[axis]);
-                    bmin[axis][b] = bmin[axis][b].min(r.min);
-                    bmax[axis][b] = bmax[axis][b].max(r.max);
-                    cnt[axis][b] += 1;
+        // Fills bins in place: folding a 1.7 KB bin array by value copied it per primitive.
+        let fill = |refs: &[Ref]| {
+            let mut b = Bins::<N>::new();
+            for r in refs {
+                let m = r.centroid();
+                for axis in 0..3 {
+                    if scale[axis] > 0.0 {
+                        let i = self.bin(m[axis], lo[axis], scale[axis]);
+                        b.min[axis][i] = b.min[axis][i].min(r.min);
+                        b.max[axis][i] = b.max[axis][i].max(r.max);
+                        b.cnt[axis][i] += 1;
+                    }
                 }
             }
-        }
+            b
+        };
+        // Min, max and counts are exact and order-independent, so the parallel binning of
+        // large candidates gives the same bins as the sequential one.
+        let Bins {
+            min: bmin,
+            max: bmax,
+            cnt,
+        } = if n >= PAR_BIN_MIN {
+            refs.par_chunks(PAR_BIN_MIN / 4)
+                .map(fill)
+                .reduce(Bins::new, Bins::merge)
+        } else {
+            fill(refs)
+        };
         let mut right_cost = [0f64; N];
         for axis in 0..3 {
             if scale[axis] == 0.0 {
@@ -252,6 +328,7 @@ impl Ctx<'_> {
                         pos: i,
                         cost,
                         median: false,
+                        sorted: false,
                     });
                 }
             }
@@ -259,10 +336,52 @@ impl Ctx<'_> {
         best.or_else(median)
     }
 
+    /// Exact SAH split of at most [`SMALL`] references: per axis, sort by centroid and
+    /// sweep every position (cheaper than clearing and sweeping the bins for tiny
+    /// candidates, which are most of them, and never worse in SAH).
+    fn sorted_split(refs: &[Ref]) -> Option<Split> {
+        let n = refs.len();
+        let mut best: Option<Split> = None;
+        let mut ord = [(0u64, 0u8); SMALL];
+        let mut right = [0f64; SMALL];
+        for axis in 0..3 {
+            for (k, r) in refs.iter().enumerate() {
+                ord[k] = (sort_key(r, axis), k as u8);
+            }
+            ord[..n].sort_unstable();
+            let inf = (Vec4::splat(f32::INFINITY), Vec4::splat(f32::NEG_INFINITY));
+            let (mut mn, mut mx) = inf;
+            for i in (1..n).rev() {
+                let r = &refs[ord[i].1 as usize];
+                (mn, mx) = (mn.min(r.min), mx.max(r.max));
+                right[i] = area4(mn, mx) * (n - i) as f64;
+            }
+            let (mut mn, mut mx) = inf;
+            for i in 1..n {
+                let r = &refs[ord[i - 1].1 as usize];
+                (mn, mx) = (mn.min(r.min), mx.max(r.max));
+                let cost = area4(mn, mx) * i as f64 + right[i];
+                if best.is_none_or(|b| cost < b.cost) {
+                    best = Some(Split {
+                        axis,
+                        pos: i,
+                        cost,
+                        median: false,
+                        sorted: true,
+                    });
+                }
+            }
+        }
+        best.filter(|b| b.cost.is_finite())
+    }
+
     /// Partitions the candidate's references by `s`; returns the two halves as candidates.
     fn apply(&self, refs: &mut [Ref], c: &Cand, s: &Split) -> (Cand, Cand) {
         let mid = if s.median {
             refs.len() / 2
+        } else if s.sorted {
+            refs.sort_unstable_by_key(|r| sort_key(r, s.axis));
+            s.pos
         } else {
             let (axis, lo) = (s.axis, c.cbounds.min[s.axis]);
             let k = self.cfg.bins as f32 / (c.cbounds.max[axis] - lo);
