@@ -108,6 +108,9 @@ struct Split {
     sorted: bool,
 }
 
+/// Both halves of a split as ((box, centroid box), (box, centroid box), left count).
+type Halves = ((Aabb, Aabb), (Aabb, Aabb), usize);
+
 /// A candidate child of the node under construction.
 #[derive(Clone, Copy)]
 struct Cand {
@@ -264,17 +267,18 @@ impl Ctx<'_> {
         }
         let lo = cbounds.min;
         // Fills bins in place: folding a 1.7 KB bin array by value copied it per primitive.
+        let (lo4, k4) = (lo.extend(0.0), Vec4::new(scale[0], scale[1], scale[2], 0.0));
         let fill = |refs: &[Ref]| {
             let mut b = Bins::<N>::new();
             for r in refs {
-                let m = r.centroid();
+                // All three bin indices at once; the same arithmetic as `Ctx::bin`, so the
+                // partition agrees. Unused axes (scale 0) all land in bin 0 and are ignored.
+                let f = (r.centroid() - lo4) * k4;
                 for axis in 0..3 {
-                    if scale[axis] > 0.0 {
-                        let i = self.bin(m[axis], lo[axis], scale[axis]);
-                        b.min[axis][i] = b.min[axis][i].min(r.min);
-                        b.max[axis][i] = b.max[axis][i].max(r.max);
-                        b.cnt[axis][i] += 1;
-                    }
+                    let i = (f[axis] as usize).min(bins - 1);
+                    b.min[axis][i] = b.min[axis][i].min(r.min);
+                    b.max[axis][i] = b.max[axis][i].max(r.max);
+                    b.cnt[axis][i] += 1;
                 }
             }
             b
@@ -375,30 +379,57 @@ impl Ctx<'_> {
         best.filter(|b| b.cost.is_finite())
     }
 
-    /// Partitions the candidate's references by `s`; returns the two halves as candidates.
-    fn apply(&self, refs: &mut [Ref], c: &Cand, s: &Split) -> (Cand, Cand) {
+    /// Median or sorted split: cuts the (sorted) references at a position, then bounds both.
+    fn split_at(&self, refs: &mut [Ref], s: &Split) -> Halves {
         let mid = if s.median {
             refs.len() / 2
-        } else if s.sorted {
+        } else {
             refs.sort_unstable_by_key(|r| sort_key(r, s.axis));
             s.pos
-        } else {
-            let (axis, lo) = (s.axis, c.cbounds.min[s.axis]);
-            let k = self.cfg.bins as f32 / (c.cbounds.max[axis] - lo);
-            let left = |r: &Ref| self.bin(r.centroid()[axis], lo, k) < s.pos;
-            let (mut i, mut j) = (0usize, refs.len());
-            while i < j {
-                if left(&refs[i]) {
-                    i += 1;
-                } else {
-                    j -= 1;
-                    refs.swap(i, j);
-                }
-            }
-            i
         };
-        let (lb, lc) = bounds_of(&refs[..mid]);
-        let (rb, rc) = bounds_of(&refs[mid..]);
+        (bounds_of(&refs[..mid]), bounds_of(&refs[mid..]), mid)
+    }
+
+    /// In-place partition by a binned split that also accumulates both sides' box and
+    /// centroid box, so no second pass over the references is needed.
+    fn partition(&self, refs: &mut [Ref], c: &Cand, s: &Split) -> Halves {
+        let (axis, lo) = (s.axis, c.cbounds.min[s.axis]);
+        let k = self.cfg.bins as f32 / (c.cbounds.max[axis] - lo);
+        let inf = (Vec4::splat(f32::INFINITY), Vec4::splat(f32::NEG_INFINITY));
+        let (mut l, mut lcb, mut r, mut rcb) = (inf, inf, inf, inf);
+        let (mut i, mut j) = (0usize, refs.len());
+        while i < j {
+            let x = refs[i];
+            let m = x.centroid();
+            if self.bin(m[axis], lo, k) < s.pos {
+                l = (l.0.min(x.min), l.1.max(x.max));
+                lcb = (lcb.0.min(m), lcb.1.max(m));
+                i += 1;
+            } else {
+                r = (r.0.min(x.min), r.1.max(x.max));
+                rcb = (rcb.0.min(m), rcb.1.max(m));
+                j -= 1;
+                refs.swap(i, j);
+            }
+        }
+        let bx = |b: (Vec4, Vec4)| Aabb::new(b.0.truncate(), b.1.truncate());
+        ((bx(l), bx(lcb)), (bx(r), bx(rcb)), i)
+    }
+
+    /// Partitions the candidate's references by `s`; returns the two halves as candidates.
+    fn apply(&self, refs: &mut [Ref], c: &Cand, s: &Split) -> (Cand, Cand) {
+        let ((lb, lc), (rb, rc), mid) = if s.median || s.sorted {
+            self.split_at(refs, s)
+        } else {
+            let res = self.partition(refs, c, s);
+            if res.2 == 0 || res.2 == refs.len() {
+                // Cannot happen (binning and partition use the same arithmetic); never emit an
+                // empty child if it did.
+                self.split_at(refs, &Split { median: true, ..*s })
+            } else {
+                res
+            }
+        };
         let mk = |start, end, bounds, cbounds| Cand {
             start,
             end,
