@@ -12,6 +12,10 @@
 //! no `C_i` term. Each final candidate becomes a leaf when it fits and its leaf cost is not
 //! above `C_i·A + C_t·(best split cost)`, otherwise a 4-wide node built the same way.
 //!
+//! Candidates of at most 16 primitives get an exact split instead (per axis, sort by
+//! centroid and sweep every position), which is cheaper than clearing and sweeping bins
+//! for the many tiny candidates near the leaves and never worse in SAH.
+//!
 //! Robustness is as in the binned binary builder: areas are computed in `f64` (no overflow
 //! for huge coordinates), coincident centroids are split at the middle of the range, and
 //! beyond [`MAX_SAH_DEPTH`](crate::MAX_SAH_DEPTH) levels every split is a median split so the

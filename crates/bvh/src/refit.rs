@@ -490,6 +490,36 @@ mod tests {
         }
     }
 
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(48))]
+        /// Any tree refitted to randomly moved boxes validates and equals the recursive
+        /// reference; its collapsed and native 4-wide trees refit validly too.
+        #[test]
+        fn random_motion_refits_exactly(n in 0usize..600, seed: u64, shift in 0.0f32..50.0) {
+            let p0 = soup(n, 2.0, seed);
+            let mut rng = crate::testutil::Rng::new(seed ^ 0xABCD);
+            let p1: Vec<Aabb> = p0
+                .iter()
+                .map(|b| {
+                    let d = (rng.point(2.0) - Vec3::ONE) * shift;
+                    let g = rng.point(1.0);
+                    Aabb::new(b.min + d - g, b.max + d)
+                })
+                .collect();
+            let bvh = LbvhBuilder::default().build(&p0).unwrap();
+            let mut r = bvh.clone();
+            refit_bvh2(&mut r, &p1).unwrap();
+            proptest::prop_assert_eq!(validate(&r, &p1, 1), Ok(()));
+            proptest::prop_assert_eq!(&r, &reference(&bvh, &p1));
+            let mut c = collapse(&bvh).unwrap();
+            refit_mbvh4(&mut c, &p1).unwrap();
+            proptest::prop_assert_eq!(validate_mbvh4(&c, &p1, 1), Ok(()));
+            let mut m = Mbvh4TopDownBuilder::default().build(&p0).unwrap();
+            refit_mbvh4(&mut m, &p1).unwrap();
+            proptest::prop_assert_eq!(validate_mbvh4(&m, &p1, 8), Ok(()));
+        }
+    }
+
     #[test]
     fn tracker_bookkeeping() {
         assert!(RefitTracker::new(1.0, f64::NAN).is_err());
