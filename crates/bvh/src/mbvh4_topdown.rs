@@ -472,11 +472,12 @@ impl Ctx<'_> {
     fn build_node(&self, refs: &mut [Ref], root: Cand, depth: u32, out: &mut Vec<Node4>) -> u32 {
         let base = root.start;
         let max_leaf = self.cfg.max_leaf_size as usize;
-        let mut cands: Vec<Cand> = Vec::with_capacity(MBVH_WIDTH);
-        cands.push(root);
-        while cands.len() < MBVH_WIDTH {
+        // Fixed arrays, not vectors: two allocations per node showed in profiles.
+        let mut cands = [root; MBVH_WIDTH];
+        let mut len = 1;
+        while len < MBVH_WIDTH {
             let mut best: Option<(usize, bool, f64)> = None;
-            for (k, c) in cands.iter_mut().enumerate() {
+            for (k, c) in cands[..len].iter_mut().enumerate() {
                 let r = &refs[c.start - base..c.end - base];
                 let split = match c.split {
                     Some(s) => s,
@@ -494,30 +495,35 @@ impl Ctx<'_> {
                 }
             }
             let Some((k, _, _)) = best else { break };
-            let c = cands.remove(k);
-            let s = c.split.flatten().expect("chosen candidates have a split");
+            let c = cands[k];
+            let Some(Some(s)) = c.split else { break }; // chosen candidates have a split
             let (l, r) = self.apply(&mut refs[c.start - base..c.end - base], &c, &s);
-            cands.insert(k, r);
-            cands.insert(k, l);
+            cands.copy_within(k + 1..len, k + 2);
+            cands[k] = l;
+            cands[k + 1] = r;
+            len += 1;
         }
         let at = out.len();
         out.push(Node4::EMPTY);
-        let mut inner: Vec<(usize, Cand)> = Vec::with_capacity(MBVH_WIDTH);
-        for (slot, c) in cands.iter_mut().enumerate() {
+        let mut inner = [(0usize, root); MBVH_WIDTH];
+        let mut n_inner = 0;
+        for (slot, c) in cands[..len].iter_mut().enumerate() {
             let leaf = self.is_leaf(&refs[c.start - base..c.end - base], c, depth + 1);
             out[at].set_child_aabb(slot, &c.bounds);
             if leaf {
                 out[at].children[slot] = ChildRef::leaf(c.start as u32, c.len() as u32);
             } else {
-                inner.push((slot, *c));
+                inner[n_inner] = (slot, *c);
+                n_inner += 1;
             }
         }
+        let inner = &inner[..n_inner];
         if refs.len() >= PARALLEL_MIN_PRIMS && inner.len() > 1 {
             // Parallel: each inner child into its own array, appended in slot order.
             let mut jobs: Vec<(usize, Cand, &mut [Ref])> = Vec::with_capacity(inner.len());
             let mut rest = refs;
             let mut rest_start = base;
-            for &(slot, c) in &inner {
+            for &(slot, c) in inner {
                 let tail = std::mem::take(&mut rest);
                 let (_, tail) = tail.split_at_mut(c.start - rest_start);
                 let (mine, tail) = tail.split_at_mut(c.len());
@@ -544,7 +550,7 @@ impl Ctx<'_> {
                 }));
             }
         } else {
-            for (slot, c) in inner {
+            for &(slot, c) in inner {
                 let r = &mut refs[c.start - base..c.end - base];
                 let idx = self.build_node(r, c, depth + 1, out);
                 out[at].children[slot] = ChildRef::inner(idx);
