@@ -14,8 +14,8 @@
 //! [`RefitError`] instead of a panic or a wrong box.
 
 use crate::bvh2::Bvh2;
-use crate::mbvh4::Mbvh4;
-use crate::node::ChildRef;
+use crate::mbvh4::{Mbvh4, Node4};
+use crate::node::{ChildRef, Node};
 use crate::sah::sah_ratio;
 use geom::Aabb;
 use thiserror::Error;
@@ -90,27 +90,164 @@ fn leaf_box(c: ChildRef, table: &[u32], prims: &[Aabb]) -> Option<Aabb> {
     Some(b)
 }
 
-/// Recomputes every box of `bvh` from the new primitive boxes `prims` (same ids as at
-/// build time). Refitting to the boxes the tree was built from gives the identical tree.
-/// On error the topology is unchanged but some boxes may already be updated.
-pub fn refit_bvh2(bvh: &mut Bvh2, prims: &[Aabb]) -> Result<(), RefitError> {
-    check_prims(bvh.prim_indices.len(), prims)?;
-    let n = bvh.nodes.len();
-    for i in (0..n).rev() {
-        for slot in 0..2 {
-            let c = bvh.nodes[i].children[slot];
-            let b = if c.is_leaf() {
-                leaf_box(c, &bvh.prim_indices, prims)
-            } else if c.is_inner() {
-                let t = c.index as usize;
-                (t > i && t < n).then(|| bvh.nodes[t].aabb())
-            } else {
-                continue;
-            };
-            let b = b.ok_or(RefitError::CorruptTree { node: i, slot })?;
-            bvh.nodes[i].set_child_aabb(slot, &b);
+/// The node operations a refit needs, for the binary and the 4-wide node.
+trait RefitNode: Copy + Send + Sync {
+    /// Slots per node.
+    const WIDTH: usize;
+    fn child(&self, slot: usize) -> ChildRef;
+    fn own_box(&self) -> Aabb;
+    fn set_box(&mut self, slot: usize, b: &Aabb);
+}
+
+impl RefitNode for Node {
+    const WIDTH: usize = 2;
+    #[inline(always)]
+    fn child(&self, slot: usize) -> ChildRef {
+        self.children[slot]
+    }
+    #[inline(always)]
+    fn own_box(&self) -> Aabb {
+        self.aabb()
+    }
+    #[inline(always)]
+    fn set_box(&mut self, slot: usize, b: &Aabb) {
+        self.set_child_aabb(slot, b)
+    }
+}
+
+impl RefitNode for Node4 {
+    const WIDTH: usize = 4;
+    #[inline(always)]
+    fn child(&self, slot: usize) -> ChildRef {
+        self.children[slot]
+    }
+    #[inline(always)]
+    fn own_box(&self) -> Aabb {
+        self.aabb()
+    }
+    #[inline(always)]
+    fn set_box(&mut self, slot: usize, b: &Aabb) {
+        self.set_child_aabb(slot, b)
+    }
+}
+
+/// Trees with at least this many nodes are refitted in parallel.
+const PAR_REFIT_MIN_NODES: usize = 1 << 15;
+
+/// Refits node `i` (absolute index) of `nodes`, which holds nodes `base..base + len`; its
+/// inner children must lie after it inside that window.
+#[inline(always)]
+fn refit_node<N: RefitNode>(
+    nodes: &mut [N],
+    base: usize,
+    i: usize,
+    table: &[u32],
+    prims: &[Aabb],
+) -> Result<(), RefitError> {
+    let end = base + nodes.len();
+    for slot in 0..N::WIDTH {
+        let c = nodes[i - base].child(slot);
+        let b = if c.is_leaf() {
+            leaf_box(c, table, prims)
+        } else if c.is_inner() {
+            let t = c.index as usize;
+            (t > i && t < end).then(|| nodes[t - base].own_box())
+        } else {
+            continue;
+        };
+        let b = b.ok_or(RefitError::CorruptTree { node: i, slot })?;
+        nodes[i - base].set_box(slot, &b);
+    }
+    Ok(())
+}
+
+/// Refits a window of nodes holding whole subtrees, bottom-up (reverse preorder).
+fn refit_window<N: RefitNode>(
+    nodes: &mut [N],
+    base: usize,
+    table: &[u32],
+    prims: &[Aabb],
+) -> Result<(), RefitError> {
+    for i in (base..base + nodes.len()).rev() {
+        refit_node(nodes, base, i, table, prims)?;
+    }
+    Ok(())
+}
+
+/// Bottom-up refit of a depth-first node array. Large trees: in preorder every subtree is
+/// a contiguous index range, so the top of the tree is cut into disjoint subtree windows
+/// that are refitted in parallel, then the few nodes above them are refitted in reverse
+/// order. The result is the same as the sequential pass (min/max are exact).
+fn refit_nodes<N: RefitNode>(
+    nodes: &mut [N],
+    table: &[u32],
+    prims: &[Aabb],
+) -> Result<(), RefitError> {
+    let n = nodes.len();
+    if n < PAR_REFIT_MIN_NODES || rayon::current_num_threads() < 2 {
+        return refit_window(nodes, 0, table, prims);
+    }
+    // Expand subtrees [start, end) from the root until they are small enough.
+    let target = n / (8 * rayon::current_num_threads()).max(1);
+    let mut top: Vec<usize> = Vec::new();
+    let mut windows: Vec<(usize, usize)> = Vec::new();
+    let mut work = vec![(0usize, n)];
+    while let Some((s, e)) = work.pop() {
+        if e - s <= target || top.len() >= 4096 {
+            windows.push((s, e));
+            continue;
+        }
+        top.push(s);
+        let mut kids: Vec<usize> = (0..N::WIDTH)
+            .map(|slot| nodes[s].child(slot))
+            .filter(ChildRef::is_inner)
+            .map(|c| c.index as usize)
+            .collect();
+        kids.sort_unstable();
+        if kids.first().is_some_and(|&c| c != s + 1) {
+            // Not a preorder tree: leave the checks to the sequential pass.
+            return refit_window(nodes, 0, table, prims);
+        }
+        for (k, &c) in kids.iter().enumerate() {
+            let ce = kids.get(k + 1).copied().unwrap_or(e);
+            if c <= s || c >= ce {
+                // Not a preorder tree: leave the checks to the sequential pass.
+                return refit_window(nodes, 0, table, prims);
+            }
+            work.push((c, ce));
         }
     }
+    windows.sort_unstable();
+    let mut jobs: Vec<(usize, &mut [N])> = Vec::with_capacity(windows.len());
+    let mut rest: &mut [N] = nodes;
+    let mut at = 0;
+    for &(s, e) in &windows {
+        let tail = std::mem::take(&mut rest);
+        let (_, tail) = tail.split_at_mut(s - at);
+        let (mine, tail) = tail.split_at_mut(e - s);
+        jobs.push((s, mine));
+        rest = tail;
+        at = e;
+    }
+    {
+        use rayon::prelude::*;
+        jobs.into_par_iter()
+            .try_for_each(|(s, w)| refit_window(w, s, table, prims))?;
+    }
+    top.sort_unstable_by(|a, b| b.cmp(a));
+    for i in top {
+        refit_node(nodes, 0, i, table, prims)?;
+    }
+    Ok(())
+}
+
+/// Recomputes every box of `bvh` from the new primitive boxes `prims` (same ids as at
+/// build time). Refitting to the boxes the tree was built from gives the identical tree.
+/// Trees of at least 32768 nodes are refitted in parallel (same result). On error the
+/// topology is unchanged but some boxes may already be updated.
+pub fn refit_bvh2(bvh: &mut Bvh2, prims: &[Aabb]) -> Result<(), RefitError> {
+    check_prims(bvh.prim_indices.len(), prims)?;
+    refit_nodes(&mut bvh.nodes, &bvh.prim_indices, prims)?;
     bvh.bounds = bvh.nodes.first().map_or(Aabb::EMPTY, |r| r.aabb());
     Ok(())
 }
@@ -119,22 +256,7 @@ pub fn refit_bvh2(bvh: &mut Bvh2, prims: &[Aabb]) -> Result<(), RefitError> {
 /// 4-wide counterpart of [`refit_bvh2`].
 pub fn refit_mbvh4(tree: &mut Mbvh4, prims: &[Aabb]) -> Result<(), RefitError> {
     check_prims(tree.prim_indices.len(), prims)?;
-    let n = tree.nodes.len();
-    for i in (0..n).rev() {
-        for slot in 0..4 {
-            let c = tree.nodes[i].children[slot];
-            let b = if c.is_leaf() {
-                leaf_box(c, &tree.prim_indices, prims)
-            } else if c.is_inner() {
-                let t = c.index as usize;
-                (t > i && t < n).then(|| tree.nodes[t].aabb())
-            } else {
-                continue;
-            };
-            let b = b.ok_or(RefitError::CorruptTree { node: i, slot })?;
-            tree.nodes[i].set_child_aabb(slot, &b);
-        }
-    }
+    refit_nodes(&mut tree.nodes, &tree.prim_indices, prims)?;
     tree.bounds = tree.nodes.first().map_or(Aabb::EMPTY, |r| r.aabb());
     Ok(())
 }
@@ -517,6 +639,45 @@ mod tests {
             let mut m = Mbvh4TopDownBuilder::default().build(&p0).unwrap();
             refit_mbvh4(&mut m, &p1).unwrap();
             proptest::prop_assert_eq!(validate_mbvh4(&m, &p1, 8), Ok(()));
+        }
+    }
+
+    /// The parallel refit of a large tree (2 and 4 threads) equals the sequential pass.
+    #[test]
+    fn parallel_refit_equals_sequential() {
+        let p0 = soup(100_000, 2.0, 21);
+        let p1 = soup(100_000, 3.0, 22);
+        let bvh = LbvhBuilder::default().build(&p0).unwrap();
+        assert!(bvh.nodes.len() >= PAR_REFIT_MIN_NODES);
+        let mut seq = bvh.clone();
+        refit_window(&mut seq.nodes, 0, &seq.prim_indices, &p1).unwrap();
+        seq.bounds = seq.nodes[0].aabb();
+        let m0 = collapse(&bvh).unwrap();
+        assert!(m0.nodes.len() >= PAR_REFIT_MIN_NODES);
+        let mut mseq = m0.clone();
+        refit_window(&mut mseq.nodes, 0, &mseq.prim_indices, &p1).unwrap();
+        mseq.bounds = mseq.nodes[0].aabb();
+        for threads in [2, 4] {
+            let pool = rayon::ThreadPoolBuilder::new()
+                .num_threads(threads)
+                .build()
+                .unwrap();
+            let mut par = bvh.clone();
+            pool.install(|| refit_bvh2(&mut par, &p1)).unwrap();
+            assert_eq!(par, seq, "{threads} threads");
+            let mut m = m0.clone();
+            pool.install(|| refit_mbvh4(&mut m, &p1)).unwrap();
+            assert_eq!(m, mseq, "{threads} threads");
+            assert_eq!(validate_mbvh4(&m, &p1, 1), Ok(()));
+            // A corrupt link inside a window is still an error.
+            let mut c = bvh.clone();
+            let last = c.nodes.len() - 1;
+            c.nodes[last].children[0] = ChildRef::inner(5);
+            let got = pool.install(|| refit_bvh2(&mut c, &p1));
+            assert!(
+                matches!(got, Err(RefitError::CorruptTree { .. })),
+                "{got:?}"
+            );
         }
     }
 
