@@ -11,12 +11,16 @@
 mod atrbvh;
 mod binned_sah;
 mod bvh2;
+mod collapse;
 mod error;
 mod frag;
 mod hlbvh;
 pub mod io;
 mod lbvh;
+mod mbvh4;
+mod mbvh4_topdown;
 mod node;
+mod refit;
 mod sah;
 mod sweep_sah;
 #[cfg(test)]
@@ -27,12 +31,16 @@ mod validate;
 pub use atrbvh::{optimize, AtrbvhBuilder, AtrbvhConfig, MAX_TREELET_SIZE, MIN_GAIN};
 pub use binned_sah::{BinnedSahBuilder, MAX_BINS};
 pub use bvh2::{Bvh2, TreeStats};
+pub use collapse::{collapse, Collapse, CollapseError};
 pub use error::{BuildError, MAX_PRIMITIVES};
 pub use hlbvh::{
     EmitRef, EmittedNode, Emitter, Highlevel, HighlevelRoot, HlbvhBuilder, Prim, Step,
 };
 pub use lbvh::{LbvhBuilder, MortonBits};
+pub use mbvh4::{mbvh4_sah_cost_with, validate_mbvh4, Mbvh4, Mbvh4Stats, Node4, MBVH_WIDTH};
+pub use mbvh4_topdown::Mbvh4TopDownBuilder;
 pub use node::{ChildRef, Node, EMPTY_INDEX};
+pub use refit::{refit_bvh2, refit_mbvh4, RefitError, RefitFrame, RefitTracker};
 pub use sah::{sah_cost, sah_cost_with, sah_ratio, SahParams};
 pub use sweep_sah::SweepSahBuilder;
 pub use toplevel::{HlbvhAtrbvhBuilder, HlbvhSahBuilder};

@@ -1,0 +1,508 @@
+//! `Mbvh4`: the 4-wide BVH of \[P4\] §3.1 — 128-byte nodes with four child boxes — plus its
+//! validator and SAH cost.
+//!
+//! \[P4\] replaces the 64-byte two-child node by a 128-byte node with four children, so one
+//! fetch of twice the size serves the box tests that would take about two binary nodes
+//! (Fig. 1 of \[P4\]: six 64 B nodes become two 128 B nodes). Like [`Bvh2`](crate::Bvh2), a
+//! node stores its children's boxes, not its own, and leaves are ranges of a leaf table of
+//! primitive references.
+//!
+//! Exact byte layout of [`Node4`] (`#[repr(C)]`, little-endian, no padding). Boxes are
+//! stored structure-of-arrays, one 16-byte row of four lanes per box plane, so a 4-wide
+//! SIMD unit (or \[P4\]'s four box-test units) reads one plane of all children at once:
+//!
+//! | bytes    | field          | meaning                                       |
+//! |----------|----------------|-----------------------------------------------|
+//! | 0..16    | `min_x[0..4]`  | box min x of children 0..3 (`f32`)            |
+//! | 16..32   | `min_y[0..4]`  | box min y of children 0..3                    |
+//! | 32..48   | `min_z[0..4]`  | box min z of children 0..3                    |
+//! | 48..64   | `max_x[0..4]`  | box max x of children 0..3                    |
+//! | 64..80   | `max_y[0..4]`  | box max y of children 0..3                    |
+//! | 80..96   | `max_z[0..4]`  | box max z of children 0..3                    |
+//! | 96..128  | `children[0..4]` | per child `index: u32` then `count: u32` (8 B each) |
+//!
+//! Child encoding (the same [`ChildRef`] as the binary node):
+//! - `count == 0`, `index != EMPTY_INDEX`: inner child, `index` is a node index;
+//! - `count > 0`: leaf of `prim_indices[index .. index + count]`;
+//! - `count == 0`, `index == EMPTY_INDEX`: empty slot, with the empty box (`min = +inf`,
+//!   `max = -inf`) that no slab test hits. Empty slots come after all used slots. Every
+//!   node below the root has at least two children; the root may have fewer (trees of 0
+//!   primitives, or a single root leaf).
+//!
+//! Nodes are stored depth-first (preorder, slot 0 first), so every inner child has a
+//! larger index than its parent, which a bottom-up refit relies on ([`crate::refit_mbvh4`]).
+
+use crate::node::ChildRef;
+use crate::sah::SahParams;
+use crate::validate::ValidationError;
+use geom::{Aabb, Vec3};
+
+/// Branching factor of [`Node4`].
+pub const MBVH_WIDTH: usize = 4;
+
+/// A 4-wide node of \[P4\]: four child boxes (structure of arrays) and four child refs.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Node4 {
+    /// Box min x of each child.
+    pub min_x: [f32; 4],
+    /// Box min y of each child.
+    pub min_y: [f32; 4],
+    /// Box min z of each child.
+    pub min_z: [f32; 4],
+    /// Box max x of each child.
+    pub max_x: [f32; 4],
+    /// Box max y of each child.
+    pub max_y: [f32; 4],
+    /// Box max z of each child.
+    pub max_z: [f32; 4],
+    /// Child references; empty slots ([`ChildRef::EMPTY`]) come last.
+    pub children: [ChildRef; 4],
+}
+
+// [P4] §3.1: 128-byte MBVH4 nodes, twice the 64-byte binary node.
+const _: () = assert!(std::mem::size_of::<Node4>() == 128);
+const _: () = assert!(std::mem::align_of::<Node4>() == 4);
+
+impl Node4 {
+    /// A node whose four slots are empty.
+    pub const EMPTY: Node4 = Node4 {
+        min_x: [f32::INFINITY; 4],
+        min_y: [f32::INFINITY; 4],
+        min_z: [f32::INFINITY; 4],
+        max_x: [f32::NEG_INFINITY; 4],
+        max_y: [f32::NEG_INFINITY; 4],
+        max_z: [f32::NEG_INFINITY; 4],
+        children: [ChildRef::EMPTY; 4],
+    };
+
+    /// A node from up to four (box, child) pairs; the remaining slots are empty.
+    pub fn from_children(kids: &[(Aabb, ChildRef)]) -> Self {
+        debug_assert!(kids.len() <= MBVH_WIDTH);
+        let mut n = Self::EMPTY;
+        for (i, (b, c)) in kids.iter().take(MBVH_WIDTH).enumerate() {
+            n.set_child_aabb(i, b);
+            n.children[i] = *c;
+        }
+        n
+    }
+
+    /// The box of child `i` (0..4).
+    #[inline]
+    pub fn child_aabb(&self, i: usize) -> Aabb {
+        Aabb::new(
+            Vec3::new(self.min_x[i], self.min_y[i], self.min_z[i]),
+            Vec3::new(self.max_x[i], self.max_y[i], self.max_z[i]),
+        )
+    }
+
+    /// Sets the box of child `i`.
+    #[inline]
+    pub fn set_child_aabb(&mut self, i: usize, b: &Aabb) {
+        self.min_x[i] = b.min.x;
+        self.min_y[i] = b.min.y;
+        self.min_z[i] = b.min.z;
+        self.max_x[i] = b.max.x;
+        self.max_y[i] = b.max.y;
+        self.max_z[i] = b.max.z;
+    }
+
+    /// The union of the child boxes (this node's own box).
+    #[inline]
+    pub fn aabb(&self) -> Aabb {
+        (0..MBVH_WIDTH).fold(Aabb::EMPTY, |a, i| a.union(self.child_aabb(i)))
+    }
+
+    /// Number of used (non-empty) slots.
+    #[inline]
+    pub fn child_count(&self) -> usize {
+        self.children.iter().filter(|c| !c.is_empty()).count()
+    }
+}
+
+/// A 4-wide BVH: 128-byte [`Node4`]s in depth-first order plus a leaf table.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Mbvh4 {
+    /// Nodes in depth-first preorder; `nodes[0]` is the root (always present).
+    pub nodes: Vec<Node4>,
+    /// Leaf table: primitive indices, each leaf a contiguous range of it.
+    pub prim_indices: Vec<u32>,
+    /// Scene bounds: the box of the root (empty for an empty tree).
+    pub bounds: Aabb,
+}
+
+/// Shape statistics of an [`Mbvh4`].
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Mbvh4Stats {
+    /// Number of nodes.
+    pub inner_nodes: usize,
+    /// Number of leaf child slots.
+    pub leaves: usize,
+    /// Largest leaf size.
+    pub max_leaf_size: u32,
+    /// Longest root-to-leaf path in nodes (root alone = 1; 0 for an empty tree).
+    pub max_depth: usize,
+    /// Mean number of used slots per node (4 = every node full).
+    pub mean_children: f64,
+}
+
+impl Mbvh4 {
+    /// The tree of zero primitives: a root with four empty slots.
+    pub fn empty() -> Self {
+        Self {
+            nodes: vec![Node4::EMPTY],
+            prim_indices: Vec::new(),
+            bounds: Aabb::EMPTY,
+        }
+    }
+
+    /// Number of primitives (leaf-table entries).
+    pub fn prim_count(&self) -> usize {
+        self.prim_indices.len()
+    }
+
+    /// Shape statistics; bounded walk that never panics on a corrupt tree.
+    pub fn stats(&self) -> Mbvh4Stats {
+        let mut s = Mbvh4Stats {
+            inner_nodes: self.nodes.len(),
+            ..Default::default()
+        };
+        if self.nodes.is_empty() {
+            return s;
+        }
+        let used: usize = self.nodes.iter().map(Node4::child_count).sum();
+        s.mean_children = used as f64 / self.nodes.len() as f64;
+        let mut stack = vec![(0usize, 1usize)];
+        let mut steps = 0usize;
+        while let Some((i, depth)) = stack.pop() {
+            steps += 1;
+            if steps > self.nodes.len() {
+                break; // a cycle: the validator reports it
+            }
+            let Some(node) = self.nodes.get(i) else {
+                continue;
+            };
+            for c in node.children {
+                if c.is_leaf() {
+                    s.leaves += 1;
+                    s.max_leaf_size = s.max_leaf_size.max(c.count);
+                    s.max_depth = s.max_depth.max(depth);
+                } else if c.is_inner() {
+                    stack.push((c.index as usize, depth + 1));
+                    s.max_depth = s.max_depth.max(depth);
+                }
+            }
+        }
+        s
+    }
+
+    /// SAH cost with the thesis parameters ([`mbvh4_sah_cost_with`]).
+    pub fn sah(&self) -> f64 {
+        mbvh4_sah_cost_with(self, &SahParams::THESIS)
+    }
+}
+
+/// SAH cost of an [`Mbvh4`] with the given weights, normalized by the scene box area: the
+/// formula of [`crate::sah_cost_with`] with 4-wide nodes (each node, the root included,
+/// costs `C_i` times its area ratio; each leaf `C_l + C_t · count` times its area ratio).
+/// A zero-area scene box takes every ratio as 1; an empty tree costs 0.
+pub fn mbvh4_sah_cost_with(t: &Mbvh4, p: &SahParams) -> f64 {
+    let Some(root) = t.nodes.first() else {
+        return 0.0;
+    };
+    if root.children.iter().all(ChildRef::is_empty) {
+        return 0.0;
+    }
+    let root_area = t.bounds.half_area() as f64;
+    let ratio = |a: f32| {
+        if root_area > 0.0 {
+            a as f64 / root_area
+        } else {
+            1.0
+        }
+    };
+    let (ci, cl, ct) = (p.c_inner as f64, p.c_leaf as f64, p.c_tri as f64);
+    let mut cost = ci * ratio(t.bounds.half_area());
+    let mut stack = vec![0usize];
+    let mut steps = 0usize;
+    while let Some(i) = stack.pop() {
+        steps += 1;
+        let Some(node) = t.nodes.get(i).filter(|_| steps <= t.nodes.len()) else {
+            continue;
+        };
+        for (slot, c) in node.children.iter().enumerate() {
+            if c.is_leaf() {
+                cost += ratio(node.child_aabb(slot).half_area()) * (cl + ct * c.count as f64);
+            } else if c.is_inner() {
+                cost += ratio(node.child_aabb(slot).half_area()) * ci;
+                stack.push(c.index as usize);
+            }
+        }
+    }
+    cost
+}
+
+/// Checks every invariant of an [`Mbvh4`] over `prims` with leaves of at most
+/// `max_leaf_size`, the same checks as [`crate::validate`]: root present, leaf table as long
+/// as `prims`, scene bounds equal to the root's box, nodes reached exactly once in
+/// depth-first preorder (no cycles, none unreachable), finite child boxes inside the parent
+/// box, leaves non-empty, within the maximum and inside the leaf table, every primitive
+/// referenced once and inside its leaf box. Slot rules specific to 4-wide nodes are
+/// reported as [`ValidationError::BadEmptyChild`]: an empty slot must have the empty box and
+/// come after all used slots, and a node below the root must use at least two slots.
+pub fn validate_mbvh4(
+    t: &Mbvh4,
+    prims: &[Aabb],
+    max_leaf_size: u32,
+) -> Result<(), ValidationError> {
+    use ValidationError as E;
+    let n_nodes = t.nodes.len();
+    if n_nodes == 0 {
+        return Err(E::NoRoot);
+    }
+    if t.prim_indices.len() != prims.len() {
+        return Err(E::LeafTableLength {
+            table: t.prim_indices.len(),
+            prims: prims.len(),
+        });
+    }
+    let root_union = t.nodes[0].aabb();
+    let same = |a: &Aabb, b: &Aabb| (a.is_empty() && b.is_empty()) || a == b;
+    if !same(&root_union, &t.bounds) {
+        return Err(E::BoundsMismatch);
+    }
+    let mut node_seen = vec![false; n_nodes];
+    let mut prim_seen = vec![false; prims.len()];
+    node_seen[0] = true;
+    let mut position = 0usize;
+    let mut stack: Vec<(usize, Aabb)> = vec![(0, t.bounds)];
+    while let Some((i, parent_box)) = stack.pop() {
+        if i != position {
+            return Err(E::NotDepthFirst { node: i, position });
+        }
+        position += 1;
+        let node = &t.nodes[i];
+        // Slot order: used slots first, then empty ones; two or more below the root.
+        let used = node.child_count();
+        for slot in 0..MBVH_WIDTH {
+            let c = node.children[slot];
+            if c.is_empty() != (slot >= used) || (c.is_empty() && !node.child_aabb(slot).is_empty())
+            {
+                return Err(E::BadEmptyChild { node: i, slot });
+            }
+        }
+        if i != 0 && used < 2 {
+            return Err(E::BadEmptyChild {
+                node: i,
+                slot: used,
+            });
+        }
+        for slot in (0..used).rev() {
+            let c = node.children[slot];
+            let b = node.child_aabb(slot);
+            if !b.is_finite() {
+                return Err(E::NonFiniteBox { node: i, slot });
+            }
+            if b.is_empty() || !parent_box.contains(&b) {
+                return Err(E::ChildOutsideParent { node: i, slot });
+            }
+            if c.is_inner() {
+                let tgt = c.index as usize;
+                if tgt == 0 || tgt >= n_nodes {
+                    return Err(E::ChildOutOfRange {
+                        node: i,
+                        slot,
+                        target: c.index,
+                        len: n_nodes,
+                    });
+                }
+                if node_seen[tgt] {
+                    return Err(E::NodeReachedTwice {
+                        node: i,
+                        slot,
+                        target: c.index,
+                    });
+                }
+                node_seen[tgt] = true;
+                stack.push((tgt, b));
+                continue;
+            }
+            if c.count > max_leaf_size {
+                return Err(E::LeafTooLarge {
+                    node: i,
+                    slot,
+                    count: c.count,
+                    max: max_leaf_size,
+                });
+            }
+            let first = c.index as usize;
+            let end = first + c.count as usize;
+            if end > t.prim_indices.len() {
+                return Err(E::LeafOutOfRange {
+                    node: i,
+                    slot,
+                    first: c.index,
+                    count: c.count,
+                    len: t.prim_indices.len(),
+                });
+            }
+            for (k, &p) in t.prim_indices[first..end].iter().enumerate() {
+                let entry = first + k;
+                let Some(pb) = prims.get(p as usize) else {
+                    return Err(E::PrimOutOfRange {
+                        entry,
+                        prim: p,
+                        prims: prims.len(),
+                    });
+                };
+                if prim_seen[p as usize] {
+                    return Err(E::PrimReferencedTwice { prim: p, entry });
+                }
+                prim_seen[p as usize] = true;
+                if !b.contains(pb) {
+                    return Err(E::PrimOutsideLeaf {
+                        prim: p,
+                        node: i,
+                        slot,
+                    });
+                }
+            }
+        }
+    }
+    if let Some(node) = node_seen.iter().position(|&s| !s) {
+        return Err(E::Unreachable { node });
+    }
+    if let Some(p) = prim_seen.iter().position(|&s| !s) {
+        return Err(E::PrimMissing { prim: p as u32 });
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn unit(x: f32) -> Aabb {
+        Aabb::new(Vec3::new(x, 0.0, 0.0), Vec3::new(x + 1.0, 1.0, 1.0))
+    }
+
+    /// Root with two inner children, each with two single-primitive leaves.
+    fn small() -> (Mbvh4, Vec<Aabb>) {
+        let prims: Vec<Aabb> = (0..5).map(|i| unit(i as f32 * 2.0)).collect();
+        let l = |i: usize| (prims[i], ChildRef::leaf(i as u32, 1));
+        let n1 = Node4::from_children(&[l(0), l(1)]);
+        let n2 = Node4::from_children(&[l(2), l(3)]);
+        let root = Node4::from_children(&[
+            (n1.aabb(), ChildRef::inner(1)),
+            (n2.aabb(), ChildRef::inner(2)),
+            l(4),
+        ]);
+        let t = Mbvh4 {
+            bounds: root.aabb(),
+            nodes: vec![root, n1, n2],
+            prim_indices: (0..5).collect(),
+        };
+        (t, prims)
+    }
+
+    #[test]
+    fn byte_layout_matches_module_doc() {
+        let mut n = Node4::EMPTY;
+        n.set_child_aabb(
+            2,
+            &Aabb::new(Vec3::new(1.0, 2.0, 3.0), Vec3::new(4.0, 5.0, 6.0)),
+        );
+        n.children[3] = ChildRef::leaf(7, 8);
+        let base = &n as *const Node4 as usize;
+        let off = |p: *const u8| p as usize - base;
+        assert_eq!(off(&n.min_x[0] as *const f32 as *const u8), 0);
+        assert_eq!(off(&n.min_y[0] as *const f32 as *const u8), 16);
+        assert_eq!(off(&n.min_z[2] as *const f32 as *const u8), 40);
+        assert_eq!(off(&n.max_x[0] as *const f32 as *const u8), 48);
+        assert_eq!(off(&n.max_z[3] as *const f32 as *const u8), 92);
+        assert_eq!(off(&n.children[0].index as *const u32 as *const u8), 96);
+        assert_eq!(off(&n.children[3].count as *const u32 as *const u8), 124);
+        assert_eq!(n.min_z[2], 3.0);
+        assert_eq!(n.child_aabb(2).max, Vec3::new(4.0, 5.0, 6.0));
+        assert!(n.child_aabb(0).is_empty());
+    }
+
+    #[test]
+    fn valid_tree_passes_and_has_expected_cost() {
+        let (t, prims) = small();
+        assert_eq!(validate_mbvh4(&t, &prims, 1), Ok(()));
+        let s = t.stats();
+        assert_eq!(
+            (s.inner_nodes, s.leaves, s.max_depth, s.max_leaf_size),
+            (3, 5, 2, 1)
+        );
+        // Root area ratio 1 (x1.2), two inner nodes, five unit-cube leaves.
+        let ra = t.bounds.half_area() as f64;
+        let a1 = t.nodes[0].child_aabb(0).half_area() as f64 / ra;
+        let leaf = unit(0.0).half_area() as f64 / ra;
+        let want = 1.2 + 2.0 * 1.2 * a1 + 5.0 * leaf;
+        assert!(
+            (t.sah() - want).abs() < 1e-6 * want,
+            "{} vs {want}",
+            t.sah()
+        );
+        assert_eq!(Mbvh4::empty().sah(), 0.0);
+        assert_eq!(validate_mbvh4(&Mbvh4::empty(), &[], 1), Ok(()));
+    }
+
+    #[test]
+    fn corruptions_are_reported() {
+        use ValidationError as E;
+        let (t, prims) = small();
+        let check = |f: &dyn Fn(&mut Mbvh4), want: fn(&ValidationError) -> bool| {
+            let mut c = t.clone();
+            f(&mut c);
+            let got = validate_mbvh4(&c, &prims, 1);
+            assert!(matches!(&got, Err(e) if want(e)), "got {got:?}");
+        };
+        check(&|c| c.nodes[1].children[1] = ChildRef::inner(0), |e| {
+            matches!(e, E::ChildOutOfRange { .. })
+        });
+        check(&|c| c.nodes[1].children[1] = ChildRef::inner(2), |e| {
+            matches!(e, E::NotDepthFirst { .. } | E::NodeReachedTwice { .. })
+        });
+        check(&|c| c.nodes[0].children[2] = ChildRef::leaf(4, 2), |e| {
+            matches!(e, E::LeafTooLarge { .. })
+        });
+        check(&|c| c.prim_indices[4] = 0, |e| {
+            matches!(e, E::PrimReferencedTwice { .. } | E::PrimOutsideLeaf { .. })
+        });
+        check(&|c| c.prim_indices[4] = 9, |e| {
+            matches!(e, E::PrimOutOfRange { .. })
+        });
+        check(&|c| c.nodes[1].max_x[0] = 0.5, |e| {
+            matches!(e, E::PrimOutsideLeaf { .. })
+        });
+        check(&|c| c.nodes[0].max_x[0] = 0.5, |e| {
+            matches!(e, E::ChildOutsideParent { .. })
+        });
+        check(&|c| c.nodes[0].min_x[1] = f32::NAN, |e| {
+            matches!(e, E::NonFiniteBox { .. } | E::BoundsMismatch)
+        });
+        check(&|c| c.nodes[0].children.swap(2, 3), |e| {
+            matches!(e, E::BadEmptyChild { .. })
+        });
+        check(
+            &|c| {
+                c.nodes[2].children[1] = ChildRef::EMPTY;
+                c.nodes[2].set_child_aabb(1, &Aabb::EMPTY);
+            },
+            |e| matches!(e, E::BadEmptyChild { .. }),
+        );
+        check(&|c| c.nodes.push(Node4::EMPTY), |e| {
+            matches!(e, E::Unreachable { .. })
+        });
+        check(&|c| c.bounds = unit(0.0), |e| {
+            matches!(e, E::BoundsMismatch)
+        });
+        check(&|c| c.nodes[0].children[2] = ChildRef::leaf(9, 1), |e| {
+            matches!(e, E::LeafOutOfRange { .. })
+        });
+        check(&|c| c.nodes.clear(), |e| matches!(e, E::NoRoot));
+    }
+}
