@@ -177,8 +177,16 @@ fn bad_arguments_are_one_line_errors() {
     assert!(e.contains("--bins"), "{e}");
     let e = build_error(&[CLOTH, "--builder", "lbvh", "--bins", "16"]);
     assert!(e.contains("binned-sah"), "{e}");
-    let e = build_error(&[CLOTH, "--builder", "lbvh", "--refit-from", "0"]);
-    assert!(e.contains("not available yet"), "{e}");
+    let e = build_error(&[
+        "proc:fluid?n=2000",
+        "--builder",
+        "lbvh",
+        "--refit-from",
+        "0",
+    ]);
+    assert!(e.contains("stable topology"), "{e}");
+    let e = build_error(&[CLOTH, "--builder", "lbvh", "--refit-from", "inf"]);
+    assert!(e.contains("--refit-from"), "{e}");
     let e = build_error(&[BUNDLED, "--builder", "lbvh", "--frame", "100000"]);
     assert!(e.contains("out of range"), "{e}");
     let e = build_error(&["no/such/file.ply", "--builder", "lbvh"]);
@@ -336,4 +344,36 @@ fn empty_and_single_triangle_scenes_build() {
             vec![0]
         );
     }
+}
+
+#[test]
+fn refit_from_an_earlier_frame_gives_a_valid_tree_of_the_later_frame() {
+    // The explode scene degrades under refitting; cloth barely does.
+    let explode = "proc:explode?n=3000";
+    let fresh = build_json(&[explode, "--builder", "binned-sah", "--time", "2"]);
+    let refit = build_json(&[
+        explode,
+        "--builder",
+        "binned-sah",
+        "--time",
+        "2",
+        "--refit-from",
+        "0",
+    ]);
+    assert_eq!(refit["valid"], true);
+    assert_eq!(refit["refit_from_s"], 0.0);
+    assert!(refit["refit_ms"].as_f64().unwrap() >= 0.0);
+    assert_eq!(refit["triangles"], fresh["triangles"]);
+    // Same topology as the T0 build, boxes of the later frame: worse SAH than a rebuild.
+    let (r, f) = (
+        refit["sah"].as_f64().unwrap(),
+        fresh["sah"].as_f64().unwrap(),
+    );
+    assert!(r > 1.2 * f, "refit SAH {r} vs rebuild {f}");
+    // Refitting to the build time itself changes nothing.
+    let same = build_json(&[explode, "--builder", "binned-sah", "--refit-from", "0"]);
+    let built = build_json(&[explode, "--builder", "binned-sah"]);
+    assert_eq!(same["sah"], built["sah"]);
+    assert_eq!(same["sah_at_build"], built["sah"]);
+    assert!(fresh["refit_from_s"].is_null());
 }

@@ -189,7 +189,8 @@ pub struct BuildArgs {
     /// Write the tree to FILE in the Arbor tree format (docs/tree-format.md), atomically.
     #[arg(long, value_name = "FILE")]
     out: Option<PathBuf>,
-    /// Build at time T0 and refit the tree to --time/--frame (not available yet).
+    /// Build the tree at time T0 (seconds), then refit it to --time/--frame (the scene's
+    /// topology must be stable); reports the refitted tree.
     #[arg(long, value_name = "T0")]
     refit_from: Option<f32>,
     /// Build the sweep SAH reference for `sah_vs_sweep` even above 2M triangles.
@@ -248,6 +249,12 @@ pub struct BuildJson {
     pub valid: bool,
     /// Tree file written, if any.
     pub out: Option<String>,
+    /// With `--refit-from`: the time the tree was built at (null otherwise).
+    pub refit_from_s: Option<f32>,
+    /// With `--refit-from`: SAH of the tree at its build time, over that frame's boxes.
+    pub sah_at_build: Option<f64>,
+    /// With `--refit-from`: wall time of the refit (`build_ms` is the build at T0).
+    pub refit_ms: Option<f64>,
     /// Bytes of the node array plus leaf table in memory.
     pub tree_bytes: usize,
 }
@@ -282,8 +289,11 @@ pub fn timed_build(
 /// Checks the arguments that need no scene, so bad input fails before a long load.
 fn check_args(a: &BuildArgs) -> anyhow::Result<(BuildFn, BuildConfig)> {
     let f = builder(&a.builder)?;
-    if a.refit_from.is_some() {
-        bail!("--refit-from is not available yet: the refit step is not in this build");
+    if let Some(t0) = a.refit_from {
+        anyhow::ensure!(
+            t0.is_finite(),
+            "--refit-from must be a finite number of seconds, got {t0}"
+        );
     }
     if let Some(t) = a.threads {
         anyhow::ensure!(
@@ -403,8 +413,34 @@ pub fn run(args: &BuildArgs, ui: &Ui) -> anyhow::Result<()> {
     let (aabbs, aabb_ms) = mesh_aabbs(&mesh)?;
     drop(mesh);
 
-    let (tree, build_ms) =
-        pool.install(|| timed_build(ui, &args.builder, build_fn, &cfg, &aabbs))?;
+    // With --refit-from, build over the boxes at T0, then refit to the boxes at time_s.
+    let (tree, build_ms, refit) = match args.refit_from {
+        None => {
+            let (tree, build_ms) =
+                pool.install(|| timed_build(ui, &args.builder, build_fn, &cfg, &aabbs))?;
+            (tree, build_ms, None)
+        }
+        Some(t0) => {
+            anyhow::ensure!(
+                info.stable_topology,
+                "--refit-from needs a scene with stable topology; {} changes its triangles over time",
+                args.scene.scene
+            );
+            let t0 = info.timeline.clamp(t0);
+            let mesh0 = scene
+                .mesh_at(t0)
+                .with_context(|| format!("cannot sample the scene at t = {t0} s"))?;
+            let (aabbs0, _) = mesh_aabbs(&mesh0)?;
+            drop(mesh0);
+            let (mut tree, build_ms) =
+                pool.install(|| timed_build(ui, &args.builder, build_fn, &cfg, &aabbs0))?;
+            let sah_at_build = tree.sah();
+            let s = Instant::now();
+            pool.install(|| bvh::refit_bvh2(&mut tree, &aabbs))
+                .context("cannot refit the tree")?;
+            (tree, build_ms, Some((t0, sah_at_build, ms(s.elapsed()))))
+        }
+    };
     bvh::validate(&tree, &aabbs, cfg.max_leaf)
         .with_context(|| format!("builder {} produced an invalid tree", args.builder))?;
 
@@ -459,6 +495,9 @@ pub fn run(args: &BuildArgs, ui: &Ui) -> anyhow::Result<()> {
         bins: BINNED.contains(&args.builder.as_str()).then_some(cfg.bins),
         valid: true,
         out: args.out.as_ref().map(|p| p.display().to_string()),
+        refit_from_s: refit.map(|r| r.0),
+        sah_at_build: refit.map(|r| r.1),
+        refit_ms: refit.map(|r| r.2),
         tree_bytes: tree.nodes.len() * std::mem::size_of::<bvh::Node>()
             + tree.prim_indices.len() * 4,
     };
@@ -508,6 +547,12 @@ fn print_text(j: &BuildJson) {
         "time          build {:.2} ms{mtris}; boxes {:.2} ms; open {:.1} ms; sample {:.1} ms",
         j.build_ms, j.aabb_ms, j.open_ms, j.sample_ms
     );
+    if let (Some(t0), Some(sah0), Some(r_ms)) = (j.refit_from_s, j.sah_at_build, j.refit_ms) {
+        println!(
+            "refit         built at t = {t0:.3} s (SAH {sah0:.3}), refitted in {r_ms:.2} ms; SAH now {:.2}x its build-time SAH",
+            bvh::sah_ratio(j.sah, sah0)
+        );
+    }
     println!("valid         yes");
     if let Some(o) = &j.out {
         println!("written       {o}");
