@@ -127,9 +127,7 @@ fn convert(tree: &Bvh<f32, 3>, aabbs: &[Aabb]) -> Result<bvh::Bvh2, PeerError> {
     };
     to_bvh2("bvh crate", aabbs.len(), 0usize, root_box, |i| {
         match tree.nodes[i] {
-            BvhNode::Leaf { shape_index, .. } => {
-                PeerNode::Leaf(&ids[shape_index..shape_index + 1])
-            }
+            BvhNode::Leaf { shape_index, .. } => PeerNode::Leaf(&ids[shape_index..shape_index + 1]),
             BvhNode::Node {
                 child_l_index,
                 child_l_aabb,

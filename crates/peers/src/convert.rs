@@ -70,9 +70,9 @@ pub(crate) fn to_bvh2<'a, N: Copy>(
     // Stack entries: a peer inner node and the slot of its parent that will point to it.
     let mut stack: Vec<(N, usize, usize)> = Vec::new();
     let visit = |children: [(N, Aabb); 2],
-                     nodes: &mut Vec<Node>,
-                     stack: &mut Vec<(N, usize, usize)>,
-                     prim_indices: &mut Vec<u32>|
+                 nodes: &mut Vec<Node>,
+                 stack: &mut Vec<(N, usize, usize)>,
+                 prim_indices: &mut Vec<u32>|
      -> Result<(), PeerError> {
         if nodes.len() >= max_nodes {
             return Err(malformed(format!(
@@ -167,8 +167,14 @@ mod tests {
         let t = convert(&tree, &prims).unwrap();
         assert_eq!(bvh::validate(&t, &prims, 2), Ok(()));
         assert_eq!(t.nodes.len(), 3);
-        assert_eq!(t.nodes[0].children, [ChildRef::inner(1), ChildRef::inner(2)]);
-        assert_eq!(t.nodes[1].children, [ChildRef::leaf(0, 2), ChildRef::leaf(2, 1)]);
+        assert_eq!(
+            t.nodes[0].children,
+            [ChildRef::inner(1), ChildRef::inner(2)]
+        );
+        assert_eq!(
+            t.nodes[1].children,
+            [ChildRef::leaf(0, 2), ChildRef::leaf(2, 1)]
+        );
         assert_eq!(t.prim_indices, vec![0, 1, 2, 3, 4]);
     }
 

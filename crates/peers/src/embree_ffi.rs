@@ -61,15 +61,29 @@ pub struct RtcBounds {
 
 /// `RTCCreateNodeFunction`.
 pub type RtcCreateNodeFunction = Option<
-    unsafe extern "C" fn(alloc: RtcThreadLocalAllocator, child_count: u32, user: *mut c_void) -> *mut c_void,
+    unsafe extern "C" fn(
+        alloc: RtcThreadLocalAllocator,
+        child_count: u32,
+        user: *mut c_void,
+    ) -> *mut c_void,
 >;
 /// `RTCSetNodeChildrenFunction`.
 pub type RtcSetNodeChildrenFunction = Option<
-    unsafe extern "C" fn(node: *mut c_void, children: *mut *mut c_void, child_count: u32, user: *mut c_void),
+    unsafe extern "C" fn(
+        node: *mut c_void,
+        children: *mut *mut c_void,
+        child_count: u32,
+        user: *mut c_void,
+    ),
 >;
 /// `RTCSetNodeBoundsFunction`.
 pub type RtcSetNodeBoundsFunction = Option<
-    unsafe extern "C" fn(node: *mut c_void, bounds: *mut *const RtcBounds, child_count: u32, user: *mut c_void),
+    unsafe extern "C" fn(
+        node: *mut c_void,
+        bounds: *mut *const RtcBounds,
+        child_count: u32,
+        user: *mut c_void,
+    ),
 >;
 /// `RTCCreateLeafFunction`.
 pub type RtcCreateLeafFunction = Option<
@@ -92,7 +106,8 @@ pub type RtcSplitPrimitiveFunction = Option<
     ),
 >;
 /// `RTCProgressMonitorFunction`.
-pub type RtcProgressMonitorFunction = Option<unsafe extern "C" fn(user: *mut c_void, n: f64) -> bool>;
+pub type RtcProgressMonitorFunction =
+    Option<unsafe extern "C" fn(user: *mut c_void, n: f64) -> bool>;
 
 /// `struct RTCBuildArguments`, field for field.
 #[repr(C)]
@@ -141,7 +156,11 @@ extern "C" {
     /// `void* rtcBuildBVH(const struct RTCBuildArguments* args)`.
     pub fn rtcBuildBVH(args: *const RtcBuildArguments) -> *mut c_void;
     /// `void* rtcThreadLocalAlloc(RTCThreadLocalAllocator allocator, size_t bytes, size_t align)`.
-    pub fn rtcThreadLocalAlloc(alloc: RtcThreadLocalAllocator, bytes: usize, align: usize) -> *mut c_void;
+    pub fn rtcThreadLocalAlloc(
+        alloc: RtcThreadLocalAllocator,
+        bytes: usize,
+        align: usize,
+    ) -> *mut c_void;
     /// `void rtcReleaseBVH(RTCBVH bvh)`.
     pub fn rtcReleaseBVH(bvh: RtcBvh);
 }

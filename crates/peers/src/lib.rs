@@ -28,7 +28,7 @@ mod testinputs;
 
 pub use bvh_crate::BvhCrateBuilder;
 #[cfg(feature = "embree")]
-pub use embree::{EmbreeBuilder, EmbreeQuality};
+pub use embree::{EmbreeBuilder, EmbreeDevice, EmbreeQuality};
 pub use obvhs_peer::{ObvhsBuilder, ObvhsPreset};
 
 use bvh::{BuildError, Bvh2, MAX_PRIMITIVES};
@@ -134,10 +134,7 @@ mod tests {
 
     #[test]
     fn with_threads_runs_on_the_requested_pool() {
-        assert_eq!(
-            with_threads(2, rayon::current_num_threads).unwrap(),
-            2
-        );
+        assert_eq!(with_threads(2, rayon::current_num_threads).unwrap(), 2);
         assert_eq!(with_threads(0, || 7).unwrap(), 7);
     }
 }

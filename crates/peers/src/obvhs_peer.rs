@@ -99,9 +99,7 @@ impl ObvhsBuilder {
             .collect();
         let params = self.preset.params();
         let mut build_time = Duration::ZERO;
-        let tree = with_threads(self.threads, || {
-            build_bvh2(&prims, params, &mut build_time)
-        })?;
+        let tree = with_threads(self.threads, || build_bvh2(&prims, params, &mut build_time))?;
         let start = Instant::now();
         let bvh = convert(&tree, aabbs.len())?;
         Ok(PeerBuild {
@@ -121,7 +119,9 @@ fn convert(tree: &obvhs::bvh2::Bvh2, prims: usize) -> Result<bvh::Bvh2, PeerErro
     for (i, n) in nodes.iter().enumerate() {
         let (first, count) = (n.first_index as usize, n.prim_count as usize);
         let ok = if n.is_leaf() {
-            first.checked_add(count).is_some_and(|end| end <= table.len())
+            first
+                .checked_add(count)
+                .is_some_and(|end| end <= table.len())
         } else {
             first.checked_add(1).is_some_and(|end| end < nodes.len())
         };
@@ -172,7 +172,11 @@ mod tests {
                 for threads in [1, 2] {
                     let b = ObvhsBuilder { preset, threads }.build(&prims).unwrap();
                     let max = preset.max_leaf_size();
-                    assert_eq!(bvh::validate(&b.bvh, &prims, max), Ok(()), "n={n} {preset:?}");
+                    assert_eq!(
+                        bvh::validate(&b.bvh, &prims, max),
+                        Ok(()),
+                        "n={n} {preset:?}"
+                    );
                     assert!(b.bvh.sah().is_finite() && b.bvh.sah() > 0.0);
                 }
             }
@@ -185,7 +189,11 @@ mod tests {
             for preset in [ObvhsPreset::FastestBuild, ObvhsPreset::FastBuild] {
                 let b = ObvhsBuilder { preset, threads: 2 }.build(&prims).unwrap();
                 let max = preset.max_leaf_size();
-                assert_eq!(bvh::validate(&b.bvh, &prims, max), Ok(()), "{name} {preset:?}");
+                assert_eq!(
+                    bvh::validate(&b.bvh, &prims, max),
+                    Ok(()),
+                    "{name} {preset:?}"
+                );
             }
         }
     }

@@ -46,7 +46,10 @@ pub fn adversarial() -> Vec<(&'static str, Vec<Aabb>)> {
     huge[1234] = Aabb::new(Vec3::splat(-1e4), Vec3::splat(1e4));
     vec![
         ("one", vec![unit]),
-        ("two", vec![unit, Aabb::new(Vec3::splat(2.0), Vec3::splat(3.0))]),
+        (
+            "two",
+            vec![unit, Aabb::new(Vec3::splat(2.0), Vec3::splat(3.0))],
+        ),
         ("two identical", vec![unit, unit]),
         ("all centroids equal (5000)", vec![unit; 5000]),
         (
