@@ -9,7 +9,7 @@
 //! is timed separately ([`PeerBuild::convert_time`]) and excluded from throughput.
 //!
 //! Peers:
-//! - [`EmbreeBuilder`] (feature `embree`, needs `libembree3`): Embree 3's `rtcBuildBVH`,
+//! - `EmbreeBuilder` (feature `embree`, needs `libembree3`): Embree 3's `rtcBuildBVH`,
 //!   quality `LOW` (Morton builder) or `MEDIUM` (binned SAH), through a hand-written FFI.
 //! - [`ObvhsBuilder`]: the PLOC builder of the `obvhs` crate (0.4), with one of its presets.
 //! - [`BvhCrateBuilder`]: the binned SAH builder of the `bvh` crate (0.13, svenstaro/bvh).
