@@ -69,13 +69,21 @@ impl BvhCrateBuilder {
             })
             .collect();
         let start = Instant::now();
-        let tree: Bvh<f32, 3> = if self.threads == 1 {
-            Bvh::build(&mut shapes)
-        } else {
-            with_threads(self.threads, || {
-                Bvh::build_with_executor(&mut shapes, rayon_executor)
-            })?
-        };
+        // The crate panics on some finite inputs (boxes near f32::MAX overflow its bucket
+        // arithmetic to NaN and it unwraps); that becomes an error here, never a panic.
+        let tree = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| {
+            if self.threads == 1 {
+                Ok(Bvh::<f32, 3>::build(&mut shapes))
+            } else {
+                with_threads(self.threads, || {
+                    Bvh::build_with_executor(&mut shapes, rayon_executor)
+                })
+            }
+        }))
+        .map_err(|_| PeerError::Peer {
+            peer: "bvh crate",
+            message: "the build panicked (coordinates too large for its arithmetic?)".into(),
+        })??;
         let build_time = start.elapsed();
         let start = Instant::now();
         let bvh = convert(&tree, aabbs)?;
@@ -164,6 +172,17 @@ mod tests {
         for (name, prims) in adversarial() {
             let b = BvhCrateBuilder { threads: 2 }.build(&prims).unwrap();
             assert_eq!(bvh::validate(&b.bvh, &prims, 1), Ok(()), "{name}");
+        }
+    }
+
+    #[test]
+    fn overflowing_coordinates_are_an_error_not_a_panic() {
+        let prims = crate::testinputs::huge_coordinates();
+        for threads in [1, 2] {
+            assert!(matches!(
+                BvhCrateBuilder { threads }.build(&prims),
+                Err(PeerError::Peer { .. })
+            ));
         }
     }
 

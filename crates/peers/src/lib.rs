@@ -137,4 +137,36 @@ mod tests {
         assert_eq!(with_threads(2, rayon::current_num_threads).unwrap(), 2);
         assert_eq!(with_threads(0, || 7).unwrap(), 7);
     }
+
+    /// A box with corners from a small grid (so duplicates, shared centroids and flat
+    /// boxes are common) or from a continuous range.
+    fn any_box() -> impl proptest::strategy::Strategy<Value = Aabb> {
+        use proptest::prelude::*;
+        let f = prop_oneof![(-4i32..4).prop_map(|i| i as f32), -1e3f32..1e3];
+        proptest::array::uniform6(f).prop_map(|v| {
+            let a = Vec3::new(v[0], v[1], v[2]);
+            let b = Vec3::new(v[3], v[4], v[5]);
+            Aabb::new(a.min(b), a.max(b))
+        })
+    }
+
+    proptest::proptest! {
+        #![proptest_config(proptest::prelude::ProptestConfig::with_cases(48))]
+        /// Every adapter turns any valid input into a tree the validator accepts.
+        #[test]
+        fn any_input_gives_valid_trees(prims in proptest::collection::vec(any_box(), 0..300)) {
+            for threads in [1, 2] {
+                let o = ObvhsBuilder { preset: ObvhsPreset::FastBuild, threads }.build(&prims).unwrap();
+                let max = ObvhsPreset::FastBuild.max_leaf_size();
+                proptest::prop_assert_eq!(bvh::validate(&o.bvh, &prims, max), Ok(()));
+                let c = BvhCrateBuilder { threads }.build(&prims).unwrap();
+                proptest::prop_assert_eq!(bvh::validate(&c.bvh, &prims, 1), Ok(()));
+            }
+            #[cfg(feature = "embree")]
+            for quality in [EmbreeQuality::Low, EmbreeQuality::Medium] {
+                let e = EmbreeBuilder { quality, ..Default::default() }.build(&prims, 2).unwrap();
+                proptest::prop_assert_eq!(bvh::validate(&e.bvh, &prims, 8), Ok(()));
+            }
+        }
+    }
 }

@@ -199,6 +199,13 @@ mod tests {
     }
 
     #[test]
+    fn huge_coordinates_give_a_valid_tree() {
+        let prims = crate::testinputs::huge_coordinates();
+        let b = ObvhsBuilder::default().build(&prims).unwrap();
+        assert_eq!(bvh::validate(&b.bvh, &prims, 1), Ok(()));
+    }
+
+    #[test]
     fn empty_input_gives_the_empty_tree() {
         let b = ObvhsBuilder::default().build(&[]).unwrap();
         assert_eq!(b.bvh, bvh::Bvh2::empty());

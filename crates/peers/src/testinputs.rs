@@ -74,3 +74,12 @@ pub fn adversarial() -> Vec<(&'static str, Vec<Aabb>)> {
         ),
     ]
 }
+
+/// Boxes near `f32::MAX`, whose centroid arithmetic overflows in naive builders.
+pub fn huge_coordinates() -> Vec<Aabb> {
+    vec![
+        Aabb::new(Vec3::splat(-3e38), Vec3::splat(3e38)),
+        Aabb::from_point(Vec3::splat(3e38)),
+        Aabb::from_point(Vec3::splat(-3e38)),
+    ]
+}
