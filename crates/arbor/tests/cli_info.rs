@@ -304,6 +304,12 @@ fn demo_runs_and_writes_its_outputs() {
         serde_json::from_slice(&std::fs::read(out_dir.join("summary.json")).unwrap()).unwrap();
     assert_eq!(summary["schema"], "arbor.demo.v1");
     assert_eq!(summary["frames"].as_array().unwrap().len(), 5);
+    // The rebuild-vs-refit step: refitting frame 0's tree to frame 0 changes nothing.
+    let refits = summary["refits"].as_array().unwrap();
+    assert!(refits.len() >= 2, "{refits:?}");
+    assert_eq!(refits[0]["frame"], 0);
+    assert_eq!(refits[0]["refit_sah"], refits[0]["rebuild_sah"]);
+    assert_eq!(refits[0]["ratio_to_build"], 1.0);
     let csv = std::fs::read_to_string(out_dir.join("frames.csv")).unwrap();
     assert_eq!(csv.lines().count(), 6);
 }

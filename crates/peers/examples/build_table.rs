@@ -70,6 +70,37 @@ fn builders(threads: usize) -> Result<Vec<Entry>, String> {
             }
             .build(a)
         }),
+        arbor("arbor hlbvh", 8, |a, threads| {
+            bvh::HlbvhBuilder {
+                threads,
+                ..Default::default()
+            }
+            .build(a)
+        }),
+        arbor("arbor hlbvh+sah", 8, |a, threads| {
+            bvh::HlbvhSahBuilder {
+                threads,
+                ..Default::default()
+            }
+            .build(a)
+        }),
+        arbor("arbor hlbvh+atrbvh", 8, |a, threads| {
+            bvh::HlbvhAtrbvhBuilder {
+                threads,
+                ..Default::default()
+            }
+            .build(a)
+        }),
+        arbor("arbor atrbvh", 8, |a, threads| {
+            bvh::AtrbvhBuilder {
+                config: bvh::AtrbvhConfig {
+                    threads,
+                    ..Default::default()
+                },
+                ..Default::default()
+            }
+            .build(a)
+        }),
         arbor("arbor binned-sah/16", 8, |a, threads| {
             BinnedSahBuilder {
                 bins: 16,

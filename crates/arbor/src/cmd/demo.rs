@@ -53,6 +53,7 @@ struct Summary {
     max_center_travel: f32,
     frames: Vec<FrameRow>,
     builds: Vec<BuildRow>,
+    refits: Vec<RefitRow>,
 }
 
 /// One build of the demo's build step (`builds` in `summary.json`).
@@ -67,6 +68,23 @@ struct BuildRow {
     sah_vs_sweep: f64,
     valid: bool,
 }
+
+/// One frame of the demo's rebuild-vs-refit comparison (`refits` in `summary.json`).
+#[derive(Serialize)]
+struct RefitRow {
+    frame: u32,
+    time_s: f32,
+    refit_ms: f64,
+    rebuild_ms: f64,
+    refit_sah: f64,
+    rebuild_sah: f64,
+    /// Refitted SAH over the SAH the tree had when built (what the tracker watches).
+    ratio_to_build: f64,
+    rebuild_advised: bool,
+}
+
+/// Builder of the rebuild-vs-refit comparison.
+const REFIT_BUILDER: &str = "binned-sah";
 
 /// Frames the build step runs on: frame 0 and up to this many more, evenly spread.
 const BUILD_STEP_EXTRA_FRAMES: u32 = 3;
@@ -140,6 +158,13 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
 
     // Step 2: every available builder at a few frames.
     let builds = build_step(ui, scene.as_ref(), n)?;
+    // Step 3: refit one tree over the animation against rebuilding every frame.
+    let refits = if scene.info().stable_topology {
+        refit_step(ui, scene.as_ref(), n)?
+    } else {
+        println!("  refit      skipped: the scene's topology changes over time");
+        Vec::new()
+    };
 
     let summary = Summary {
         schema: "arbor.demo.v1",
@@ -150,6 +175,7 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
         max_center_travel: travel,
         frames: rows,
         builds,
+        refits,
     };
     write_outputs(&args.out, &summary)?;
     println!("  outputs    {}", args.out.display());
@@ -176,7 +202,7 @@ fn build_step(ui: &Ui, scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<B
     frames.dedup();
     let cfg = BuildConfig::default();
     let mut rows = Vec::new();
-    println!("  builds     frame  builder      build ms  SAH vs sweep  valid");
+    println!("  builds     frame  builder        build ms  SAH vs sweep  valid");
     for &f in &frames {
         let t = timeline.time_of_frame(f);
         let mesh = scene.mesh_at(t).with_context(|| format!("frame {f}"))?;
@@ -197,7 +223,7 @@ fn build_step(ui: &Ui, scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<B
         for (name, sah, build_ms, valid) in built {
             let ratio = bvh::sah_ratio(sah, sweep);
             println!(
-                "             {f:>5}  {name:<11} {build_ms:>9.2}  {ratio:>12.3}  {}",
+                "             {f:>5}  {name:<13} {build_ms:>9.2}  {ratio:>12.3}  {}",
                 if valid { "yes" } else { "NO" }
             );
             rows.push(BuildRow {
@@ -211,6 +237,64 @@ fn build_step(ui: &Ui, scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<B
                 valid,
             });
         }
+    }
+    Ok(rows)
+}
+
+/// Builds a tree at frame 0 and refits it to evenly spread frames, next to a fresh build
+/// of each frame; a [`bvh::RefitTracker`] says when the refitted tree has degraded enough
+/// that a rebuild is advised.
+fn refit_step(ui: &Ui, scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<RefitRow>> {
+    use super::build::{builder, mesh_aabbs, timed_build, BuildConfig};
+    use std::time::Instant;
+    let timeline = scene.info().timeline;
+    let cfg = BuildConfig::default();
+    let build = builder(REFIT_BUILDER)?;
+    let frames: Vec<u32> = {
+        let mut f: Vec<u32> = (0..=8).map(|k| (n - 1) * k / 8).collect();
+        f.dedup();
+        f
+    };
+    let mesh0 = scene.mesh_at(timeline.time_of_frame(0))?;
+    let (aabbs0, _) = mesh_aabbs(&mesh0)?;
+    drop(mesh0);
+    let (mut tree, _) = timed_build(ui, REFIT_BUILDER, build, &cfg, &aabbs0)?;
+    let mut tracker = bvh::RefitTracker::with_default_threshold(tree.sah());
+    println!(
+        "  refit      frame  refit ms  rebuild ms  refit SAH / rebuild SAH  vs build  rebuild?"
+    );
+    let mut rows = Vec::new();
+    for &f in &frames {
+        let t = timeline.time_of_frame(f);
+        let mesh = scene.mesh_at(t).with_context(|| format!("frame {f}"))?;
+        let (aabbs, _) = mesh_aabbs(&mesh)?;
+        drop(mesh);
+        let s = Instant::now();
+        bvh::refit_bvh2(&mut tree, &aabbs).with_context(|| format!("refit to frame {f}"))?;
+        let refit_ms = super::ms(s.elapsed());
+        bvh::validate(&tree, &aabbs, cfg.max_leaf)
+            .with_context(|| format!("refitted tree invalid at frame {f}"))?;
+        let (fresh, rebuild_ms) = timed_build(ui, REFIT_BUILDER, build, &cfg, &aabbs)?;
+        let rec = tracker.record_bvh2(&tree);
+        let row = RefitRow {
+            frame: f,
+            time_s: t,
+            refit_ms,
+            rebuild_ms,
+            refit_sah: rec.sah,
+            rebuild_sah: fresh.sah(),
+            ratio_to_build: rec.ratio,
+            rebuild_advised: rec.rebuild_advised,
+        };
+        println!(
+            "             {f:>5}  {:>8.2}  {:>10.2}  {:>23.3}  {:>8.3}  {}",
+            row.refit_ms,
+            row.rebuild_ms,
+            bvh::sah_ratio(row.refit_sah, row.rebuild_sah),
+            row.ratio_to_build,
+            if row.rebuild_advised { "yes" } else { "no" }
+        );
+        rows.push(row);
     }
     Ok(rows)
 }
