@@ -34,7 +34,7 @@
 
 use crate::node::ChildRef;
 use crate::sah::SahParams;
-use crate::validate::ValidationError;
+use crate::validate::{ValidationError, Walk};
 use geom::{Aabb, Vec3};
 
 /// Branching factor of [`Node4`].
@@ -256,31 +256,18 @@ pub fn validate_mbvh4(
     max_leaf_size: u32,
 ) -> Result<(), ValidationError> {
     use ValidationError as E;
-    let n_nodes = t.nodes.len();
-    if n_nodes == 0 {
+    let Some(root) = t.nodes.first() else {
         return Err(E::NoRoot);
-    }
-    if t.prim_indices.len() != prims.len() {
-        return Err(E::LeafTableLength {
-            table: t.prim_indices.len(),
-            prims: prims.len(),
-        });
-    }
-    let root_union = t.nodes[0].aabb();
-    let same = |a: &Aabb, b: &Aabb| (a.is_empty() && b.is_empty()) || a == b;
-    if !same(&root_union, &t.bounds) {
-        return Err(E::BoundsMismatch);
-    }
-    let mut node_seen = vec![false; n_nodes];
-    let mut prim_seen = vec![false; prims.len()];
-    node_seen[0] = true;
-    let mut position = 0usize;
-    let mut stack: Vec<(usize, Aabb)> = vec![(0, t.bounds)];
-    while let Some((i, parent_box)) = stack.pop() {
-        if i != position {
-            return Err(E::NotDepthFirst { node: i, position });
-        }
-        position += 1;
+    };
+    let mut walk = Walk::new(
+        t.nodes.len(),
+        &t.prim_indices,
+        prims,
+        max_leaf_size,
+        root.aabb(),
+        t.bounds,
+    )?;
+    while let Some((i, parent_box)) = walk.next_node()? {
         let node = &t.nodes[i];
         // Slot order: used slots first, then empty ones; two or more below the root.
         let used = node.child_count();
@@ -298,84 +285,16 @@ pub fn validate_mbvh4(
             });
         }
         for slot in (0..used).rev() {
-            let c = node.children[slot];
-            let b = node.child_aabb(slot);
-            if !b.is_finite() {
-                return Err(E::NonFiniteBox { node: i, slot });
-            }
-            if b.is_empty() || !parent_box.contains(&b) {
-                return Err(E::ChildOutsideParent { node: i, slot });
-            }
-            if c.is_inner() {
-                let tgt = c.index as usize;
-                if tgt == 0 || tgt >= n_nodes {
-                    return Err(E::ChildOutOfRange {
-                        node: i,
-                        slot,
-                        target: c.index,
-                        len: n_nodes,
-                    });
-                }
-                if node_seen[tgt] {
-                    return Err(E::NodeReachedTwice {
-                        node: i,
-                        slot,
-                        target: c.index,
-                    });
-                }
-                node_seen[tgt] = true;
-                stack.push((tgt, b));
-                continue;
-            }
-            if c.count > max_leaf_size {
-                return Err(E::LeafTooLarge {
-                    node: i,
-                    slot,
-                    count: c.count,
-                    max: max_leaf_size,
-                });
-            }
-            let first = c.index as usize;
-            let end = first + c.count as usize;
-            if end > t.prim_indices.len() {
-                return Err(E::LeafOutOfRange {
-                    node: i,
-                    slot,
-                    first: c.index,
-                    count: c.count,
-                    len: t.prim_indices.len(),
-                });
-            }
-            for (k, &p) in t.prim_indices[first..end].iter().enumerate() {
-                let entry = first + k;
-                let Some(pb) = prims.get(p as usize) else {
-                    return Err(E::PrimOutOfRange {
-                        entry,
-                        prim: p,
-                        prims: prims.len(),
-                    });
-                };
-                if prim_seen[p as usize] {
-                    return Err(E::PrimReferencedTwice { prim: p, entry });
-                }
-                prim_seen[p as usize] = true;
-                if !b.contains(pb) {
-                    return Err(E::PrimOutsideLeaf {
-                        prim: p,
-                        node: i,
-                        slot,
-                    });
-                }
-            }
+            walk.child(
+                i,
+                slot,
+                node.children[slot],
+                node.child_aabb(slot),
+                &parent_box,
+            )?;
         }
     }
-    if let Some(node) = node_seen.iter().position(|&s| !s) {
-        return Err(E::Unreachable { node });
-    }
-    if let Some(p) = prim_seen.iter().position(|&s| !s) {
-        return Err(E::PrimMissing { prim: p as u32 });
-    }
-    Ok(())
+    walk.finish()
 }
 
 #[cfg(test)]

@@ -9,6 +9,7 @@
 //! returned as a typed [`ValidationError`].
 
 use crate::bvh2::Bvh2;
+use crate::node::ChildRef;
 use geom::Aabb;
 use thiserror::Error;
 
@@ -160,36 +161,21 @@ pub enum ValidationError {
 /// `max_leaf_size` primitives; returns the first violation.
 pub fn validate(bvh: &Bvh2, prims: &[Aabb], max_leaf_size: u32) -> Result<(), ValidationError> {
     use ValidationError as E;
-    let n_nodes = bvh.nodes.len();
-    if n_nodes == 0 {
+    let Some(root) = bvh.nodes.first() else {
         return Err(E::NoRoot);
-    }
-    if bvh.prim_indices.len() != prims.len() {
-        return Err(E::LeafTableLength {
-            table: bvh.prim_indices.len(),
-            prims: prims.len(),
-        });
-    }
-    let root = &bvh.nodes[0];
-    let root_union = root.aabb();
-    let same = |a: &Aabb, b: &Aabb| (a.is_empty() && b.is_empty()) || a == b;
-    if !same(&root_union, &bvh.bounds) {
-        return Err(E::BoundsMismatch);
-    }
+    };
+    let mut walk = Walk::new(
+        bvh.nodes.len(),
+        &bvh.prim_indices,
+        prims,
+        max_leaf_size,
+        root.aabb(),
+        bvh.bounds,
+    )?;
     if root.children[0].is_empty() && !root.children[1].is_empty() {
         return Err(E::RootChildOrder);
     }
-    let mut node_seen = vec![false; n_nodes];
-    let mut prim_seen = vec![false; prims.len()];
-    node_seen[0] = true;
-    let mut position = 0usize;
-    // (node, its box as stored in the parent)
-    let mut stack: Vec<(usize, Aabb)> = vec![(0, bvh.bounds)];
-    while let Some((i, parent_box)) = stack.pop() {
-        if i != position {
-            return Err(E::NotDepthFirst { node: i, position });
-        }
-        position += 1;
+    while let Some((i, parent_box)) = walk.next_node()? {
         let node = &bvh.nodes[i];
         for slot in [1usize, 0] {
             let c = node.children[slot];
@@ -200,82 +186,172 @@ pub fn validate(bvh: &Bvh2, prims: &[Aabb], max_leaf_size: u32) -> Result<(), Va
                 }
                 continue;
             }
-            if !b.is_finite() {
-                return Err(E::NonFiniteBox { node: i, slot });
-            }
-            if b.is_empty() || !parent_box.contains(&b) {
-                return Err(E::ChildOutsideParent { node: i, slot });
-            }
-            if c.is_inner() {
-                let t = c.index as usize;
-                if t == 0 || t >= n_nodes {
-                    return Err(E::ChildOutOfRange {
-                        node: i,
-                        slot,
-                        target: c.index,
-                        len: n_nodes,
-                    });
-                }
-                if node_seen[t] {
-                    return Err(E::NodeReachedTwice {
-                        node: i,
-                        slot,
-                        target: c.index,
-                    });
-                }
-                node_seen[t] = true;
-                stack.push((t, b));
-                continue;
-            }
-            if c.count > max_leaf_size {
-                return Err(E::LeafTooLarge {
-                    node: i,
-                    slot,
-                    count: c.count,
-                    max: max_leaf_size,
-                });
-            }
-            let first = c.index as usize;
-            let end = first + c.count as usize; // both < 2^32: no overflow on 64-bit
-            if end > bvh.prim_indices.len() {
-                return Err(E::LeafOutOfRange {
-                    node: i,
-                    slot,
-                    first: c.index,
-                    count: c.count,
-                    len: bvh.prim_indices.len(),
-                });
-            }
-            for (entry, &p) in bvh.prim_indices[first..end].iter().enumerate() {
-                let entry = first + entry;
-                let Some(pb) = prims.get(p as usize) else {
-                    return Err(E::PrimOutOfRange {
-                        entry,
-                        prim: p,
-                        prims: prims.len(),
-                    });
-                };
-                if prim_seen[p as usize] {
-                    return Err(E::PrimReferencedTwice { prim: p, entry });
-                }
-                prim_seen[p as usize] = true;
-                if !b.contains(pb) {
-                    return Err(E::PrimOutsideLeaf {
-                        prim: p,
-                        node: i,
-                        slot,
-                    });
-                }
-            }
+            walk.child(i, slot, c, b, &parent_box)?;
         }
     }
-    if let Some(node) = node_seen.iter().position(|&s| !s) {
-        return Err(E::Unreachable { node });
+    walk.finish()
+}
+
+/// A depth-first validation walk over a tree whose nodes hold child boxes and child
+/// references (`Bvh2` and `Mbvh4` alike): the checks of every non-empty child slot, of the
+/// leaf table, and of reachability. Children must be visited last slot first, so that the
+/// walk's stack reproduces the depth-first storage order.
+pub(crate) struct Walk<'a> {
+    prim_indices: &'a [u32],
+    prims: &'a [Aabb],
+    max_leaf_size: u32,
+    node_seen: Vec<bool>,
+    prim_seen: Vec<bool>,
+    /// (node, its box as stored in the parent)
+    stack: Vec<(usize, Aabb)>,
+    position: usize,
+}
+
+impl<'a> Walk<'a> {
+    /// Starts a walk over `n_nodes` nodes (at least one) whose root encloses `root_union`
+    /// and whose stored bounds are `bounds`.
+    pub(crate) fn new(
+        n_nodes: usize,
+        prim_indices: &'a [u32],
+        prims: &'a [Aabb],
+        max_leaf_size: u32,
+        root_union: Aabb,
+        bounds: Aabb,
+    ) -> Result<Self, ValidationError> {
+        use ValidationError as E;
+        if n_nodes == 0 {
+            return Err(E::NoRoot);
+        }
+        if prim_indices.len() != prims.len() {
+            return Err(E::LeafTableLength {
+                table: prim_indices.len(),
+                prims: prims.len(),
+            });
+        }
+        let same = (root_union.is_empty() && bounds.is_empty()) || root_union == bounds;
+        if !same {
+            return Err(E::BoundsMismatch);
+        }
+        let mut node_seen = vec![false; n_nodes];
+        node_seen[0] = true;
+        Ok(Walk {
+            prim_indices,
+            prims,
+            max_leaf_size,
+            node_seen,
+            prim_seen: vec![false; prims.len()],
+            stack: vec![(0, bounds)],
+            position: 0,
+        })
     }
-    if let Some(p) = prim_seen.iter().position(|&s| !s) {
-        return Err(E::PrimMissing { prim: p as u32 });
+
+    /// The next node to check with the box its parent stores for it, or None at the end.
+    pub(crate) fn next_node(&mut self) -> Result<Option<(usize, Aabb)>, ValidationError> {
+        let Some((i, parent_box)) = self.stack.pop() else {
+            return Ok(None);
+        };
+        if i != self.position {
+            return Err(ValidationError::NotDepthFirst {
+                node: i,
+                position: self.position,
+            });
+        }
+        self.position += 1;
+        Ok(Some((i, parent_box)))
     }
-    Ok(())
+
+    /// Checks the non-empty child `c` in `slot` of node `i`, with box `b`, inside
+    /// `parent_box`; queues an inner child for its own visit.
+    pub(crate) fn child(
+        &mut self,
+        i: usize,
+        slot: usize,
+        c: ChildRef,
+        b: Aabb,
+        parent_box: &Aabb,
+    ) -> Result<(), ValidationError> {
+        use ValidationError as E;
+        if !b.is_finite() {
+            return Err(E::NonFiniteBox { node: i, slot });
+        }
+        if b.is_empty() || !parent_box.contains(&b) {
+            return Err(E::ChildOutsideParent { node: i, slot });
+        }
+        let n_nodes = self.node_seen.len();
+        if c.is_inner() {
+            let t = c.index as usize;
+            if t == 0 || t >= n_nodes {
+                return Err(E::ChildOutOfRange {
+                    node: i,
+                    slot,
+                    target: c.index,
+                    len: n_nodes,
+                });
+            }
+            if self.node_seen[t] {
+                return Err(E::NodeReachedTwice {
+                    node: i,
+                    slot,
+                    target: c.index,
+                });
+            }
+            self.node_seen[t] = true;
+            self.stack.push((t, b));
+            return Ok(());
+        }
+        if c.count > self.max_leaf_size {
+            return Err(E::LeafTooLarge {
+                node: i,
+                slot,
+                count: c.count,
+                max: self.max_leaf_size,
+            });
+        }
+        let first = c.index as usize;
+        let end = first + c.count as usize; // both < 2^32: no overflow on 64-bit
+        if end > self.prim_indices.len() {
+            return Err(E::LeafOutOfRange {
+                node: i,
+                slot,
+                first: c.index,
+                count: c.count,
+                len: self.prim_indices.len(),
+            });
+        }
+        for (entry, &p) in self.prim_indices[first..end].iter().enumerate() {
+            let entry = first + entry;
+            let Some(pb) = self.prims.get(p as usize) else {
+                return Err(E::PrimOutOfRange {
+                    entry,
+                    prim: p,
+                    prims: self.prims.len(),
+                });
+            };
+            if self.prim_seen[p as usize] {
+                return Err(E::PrimReferencedTwice { prim: p, entry });
+            }
+            self.prim_seen[p as usize] = true;
+            if !b.contains(pb) {
+                return Err(E::PrimOutsideLeaf {
+                    prim: p,
+                    node: i,
+                    slot,
+                });
+            }
+        }
+        Ok(())
+    }
+
+    /// Ends the walk: every node reached and every primitive referenced.
+    pub(crate) fn finish(self) -> Result<(), ValidationError> {
+        if let Some(node) = self.node_seen.iter().position(|&s| !s) {
+            return Err(ValidationError::Unreachable { node });
+        }
+        if let Some(p) = self.prim_seen.iter().position(|&s| !s) {
+            return Err(ValidationError::PrimMissing { prim: p as u32 });
+        }
+        Ok(())
+    }
 }
 
 #[cfg(test)]
