@@ -3,6 +3,10 @@
 //!
 //! `cargo run --release -p bvh --example sah_table -- ../shared/scenes`
 //!
+//! After the table, one line per scene gives the number of highlevel cells (toplevel
+//! primitives) at Arbor's default threshold, to compare with the "ca. 500–2,000 nodes" of
+//! the thesis's toplevel trees ([P2] §6.1).
+//!
 //! Every tree is checked with `bvh::validate`; SAH % is relative to Arbor's own full sweep
 //! SAH build of the same primitives, as the thesis normalizes to a full SAH sweep. Nothing
 //! here is tuned to the thesis: every builder runs with its default configuration.
@@ -115,6 +119,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let dir = std::env::args()
         .nth(1)
         .ok_or("usage: sah_table SCENES_DIR (e.g. ../shared/scenes)")?;
+    let mut cells = Vec::new();
     println!("| scene | triangles | builder | SAH | SAH % of sweep (Arbor) | thesis SAH % ([P2] Table III, line) |");
     println!("|---|---:|---|---:|---:|---|");
     for row in &SCENES {
@@ -137,6 +142,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             prims.len(),
             reference
         );
+        let hl = HlbvhSahBuilder::default().highlevel(&prims)?;
+        cells.push((row.file, hl.roots.len()));
         for (name, column, max_leaf, build) in builders() {
             let tree = build(&prims)?;
             validate(&tree, &prims, max_leaf)
@@ -156,6 +163,14 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 thesis
             );
         }
+    }
+    println!();
+    for (file, n) in cells {
+        println!(
+            "{file}: {n} highlevel cells at threshold {} (top 12 of 30 code bits): a top tree of {} inner nodes",
+            bvh::toplevel::default_threshold(bvh::MortonBits::Bits30),
+            n.saturating_sub(1)
+        );
     }
     Ok(())
 }
