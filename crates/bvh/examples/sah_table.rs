@@ -120,8 +120,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .nth(1)
         .ok_or("usage: sah_table SCENES_DIR (e.g. ../shared/scenes)")?;
     let mut cells = Vec::new();
-    println!("| scene | triangles | builder | SAH | SAH % of sweep (Arbor) | thesis SAH % ([P2] Table III, line) |");
-    println!("|---|---:|---|---:|---:|---|");
+    println!("| scene | triangles | builder | SAH | SAH % of sweep (Arbor) | % of sweep, 1-prim leaves (diagnostic) | thesis SAH % ([P2] Table III, line) |");
+    println!("|---|---:|---|---:|---:|---:|---|");
     for row in &SCENES {
         let path = Path::new(&dir).join(row.file);
         if !path.exists() {
@@ -136,11 +136,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let sweep = sweep_cfg.build(&prims)?;
         validate(&sweep, &prims, sweep_cfg.max_leaf_size)?;
         let reference = sweep.sah();
+        // Diagnostic only: a sweep reference with one primitive per leaf, in case the
+        // thesis's reference used that policy (its leaf policy is not stated).
+        let sweep1_cfg = SweepSahBuilder {
+            max_leaf_size: 1,
+            ..Default::default()
+        };
+        let sweep1 = sweep1_cfg.build(&prims)?;
+        validate(&sweep1, &prims, 1)?;
+        let reference1 = sweep1.sah();
         println!(
-            "| {} | {} | sweep-sah (reference) | {:.2} | 100.0% | 100% |",
+            "| {} | {} | sweep-sah (reference) | {:.2} | 100.0% | {:.1}% | 100% |",
             row.file,
             prims.len(),
-            reference
+            reference,
+            100.0 * reference / reference1
         );
         let hl = HlbvhSahBuilder::default().highlevel(&prims)?;
         cells.push((row.file, hl.roots.len()));
@@ -154,12 +164,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
                 None => "—".to_string(),
             };
             println!(
-                "| {} | {} | {} | {:.2} | {:.1}% | {} |",
+                "| {} | {} | {} | {:.2} | {:.1}% | {:.1}% | {} |",
                 row.file,
                 prims.len(),
                 name,
                 sah,
                 100.0 * sah / reference,
+                100.0 * sah / reference1,
                 thesis
             );
         }
