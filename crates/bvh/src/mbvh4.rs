@@ -207,39 +207,16 @@ impl Mbvh4 {
 /// costs `C_i` times its area ratio; each leaf `C_l + C_t · count` times its area ratio).
 /// A zero-area scene box takes every ratio as 1; an empty tree costs 0.
 pub fn mbvh4_sah_cost_with(t: &Mbvh4, p: &SahParams) -> f64 {
-    let Some(root) = t.nodes.first() else {
-        return 0.0;
-    };
-    if root.children.iter().all(ChildRef::is_empty) {
-        return 0.0;
+    crate::sah::wide_sah_cost(&t.nodes, &t.bounds, p)
+}
+
+impl crate::sah::WideNode for Node4 {
+    fn child_refs(&self) -> &[ChildRef] {
+        &self.children
     }
-    let root_area = t.bounds.half_area() as f64;
-    let ratio = |a: f32| {
-        if root_area > 0.0 {
-            a as f64 / root_area
-        } else {
-            1.0
-        }
-    };
-    let (ci, cl, ct) = (p.c_inner as f64, p.c_leaf as f64, p.c_tri as f64);
-    let mut cost = ci * ratio(t.bounds.half_area());
-    let mut stack = vec![0usize];
-    let mut steps = 0usize;
-    while let Some(i) = stack.pop() {
-        steps += 1;
-        let Some(node) = t.nodes.get(i).filter(|_| steps <= t.nodes.len()) else {
-            continue;
-        };
-        for (slot, c) in node.children.iter().enumerate() {
-            if c.is_leaf() {
-                cost += ratio(node.child_aabb(slot).half_area()) * (cl + ct * c.count as f64);
-            } else if c.is_inner() {
-                cost += ratio(node.child_aabb(slot).half_area()) * ci;
-                stack.push(c.index as usize);
-            }
-        }
+    fn slot_aabb(&self, slot: usize) -> Aabb {
+        self.child_aabb(slot)
     }
-    cost
 }
 
 /// Checks every invariant of an [`Mbvh4`] over `prims` with leaves of at most

@@ -6,6 +6,8 @@
 //! costs relative to a full sweep SAH build of the same scene ("SAH %"), see [`sah_ratio`].
 
 use crate::bvh2::Bvh2;
+use crate::node::{ChildRef, Node};
+use geom::Aabb;
 
 /// Cost weights of the SAH.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -44,13 +46,40 @@ pub fn sah_cost(bvh: &Bvh2) -> f64 {
 /// line), every area ratio is taken as 1, since any ray that reaches the root reaches every
 /// node. Child links are trusted as far as they stay inside `nodes` (a validated tree).
 pub fn sah_cost_with(bvh: &Bvh2, p: &SahParams) -> f64 {
-    let Some(root) = bvh.nodes.first() else {
+    wide_sah_cost(&bvh.nodes, &bvh.bounds, p)
+}
+
+/// A node with child boxes and child references, of any width: what the SAH cost walk
+/// needs from `Node` (2-wide) and `Node4` (4-wide).
+pub(crate) trait WideNode {
+    /// The child references, empty slots included.
+    fn child_refs(&self) -> &[ChildRef];
+    /// The box of child `slot`.
+    fn slot_aabb(&self, slot: usize) -> Aabb;
+}
+
+impl WideNode for Node {
+    fn child_refs(&self) -> &[ChildRef] {
+        &self.children
+    }
+    fn slot_aabb(&self, slot: usize) -> Aabb {
+        self.child_aabb(slot)
+    }
+}
+
+/// SAH cost of a tree of nodes of any width, normalized by the area of `bounds`: the root
+/// costs `C_i`, every inner child `C_i` times its area ratio, every leaf `C_l + C_t * count`
+/// times its area ratio. A zero-area scene box takes every ratio as 1; an empty tree costs
+/// 0. Child links are trusted as far as they stay inside `nodes`, and the walk stops after
+/// `nodes.len()` steps, so a corrupt tree cannot loop.
+pub(crate) fn wide_sah_cost<N: WideNode>(nodes: &[N], bounds: &Aabb, p: &SahParams) -> f64 {
+    let Some(root) = nodes.first() else {
         return 0.0;
     };
-    if root.children.iter().all(|c| c.is_empty()) {
+    if root.child_refs().iter().all(|c| c.is_empty()) {
         return 0.0;
     }
-    let root_area = bvh.bounds.half_area() as f64;
+    let root_area = bounds.half_area() as f64;
     let ratio = |a: f32| {
         if root_area > 0.0 {
             a as f64 / root_area
@@ -59,16 +88,16 @@ pub fn sah_cost_with(bvh: &Bvh2, p: &SahParams) -> f64 {
         }
     };
     let (ci, cl, ct) = (p.c_inner as f64, p.c_leaf as f64, p.c_tri as f64);
-    let mut cost = ci * ratio(bvh.bounds.half_area());
+    let mut cost = ci * ratio(bounds.half_area());
     let mut stack = vec![0usize];
     let mut steps = 0usize;
     while let Some(i) = stack.pop() {
         steps += 1;
-        let Some(node) = bvh.nodes.get(i).filter(|_| steps <= bvh.nodes.len()) else {
+        let Some(node) = nodes.get(i).filter(|_| steps <= nodes.len()) else {
             continue;
         };
-        for (slot, c) in node.children.iter().enumerate() {
-            let a = ratio(node.child_aabb(slot).half_area());
+        for (slot, c) in node.child_refs().iter().enumerate() {
+            let a = ratio(node.slot_aabb(slot).half_area());
             if c.is_leaf() {
                 cost += a * (cl + ct * c.count as f64);
             } else if c.is_inner() {
