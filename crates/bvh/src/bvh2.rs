@@ -14,7 +14,7 @@
 //! - A tree whose top-level build decision is a single leaf (1 primitive, or a few that
 //!   the SAH keeps together): the root holds that leaf in child 0 and an empty child 1.
 
-use crate::node::{ChildRef, Node};
+use crate::node::{ChildRef, Node, TreeNode};
 use geom::Aabb;
 
 /// A binary BVH with \[P2\]'s 64-byte nodes and a leaf table of primitive references.
@@ -80,40 +80,46 @@ impl Bvh2 {
     /// point outside `nodes`, so it never panics, even on a corrupt tree (run
     /// [`crate::validate`] first to trust the numbers).
     pub fn stats(&self) -> TreeStats {
-        let mut s = TreeStats {
-            inner_nodes: self.nodes.len(),
-            ..TreeStats::default()
-        };
-        if self.nodes.is_empty() {
-            return s;
-        }
-        let mut stack = vec![(0usize, 1usize)];
-        let mut steps = 0usize;
-        while let Some((i, depth)) = stack.pop() {
-            steps += 1;
-            if steps > self.nodes.len() {
-                break; // a cycle: the validator reports it
-            }
-            let Some(node) = self.nodes.get(i) else {
-                continue;
-            };
-            let mut has_child = false;
-            for c in node.children {
-                if c.is_leaf() {
-                    s.leaves += 1;
-                    s.max_leaf_size = s.max_leaf_size.max(c.count);
-                    has_child = true;
-                } else if c.is_inner() {
-                    stack.push((c.index as usize, depth + 1));
-                    has_child = true;
-                }
-            }
-            if has_child {
-                s.max_depth = s.max_depth.max(depth);
-            }
-        }
-        s
+        shape_stats(&self.nodes)
     }
+}
+
+/// Shape statistics of a tree of nodes of any width (root = node 0). Follows child links
+/// with an explicit stack, at most `nodes.len()` steps, and ignores links outside `nodes`.
+pub(crate) fn shape_stats<N: TreeNode>(nodes: &[N]) -> TreeStats {
+    let mut s = TreeStats {
+        inner_nodes: nodes.len(),
+        ..TreeStats::default()
+    };
+    if nodes.is_empty() {
+        return s;
+    }
+    let mut stack = vec![(0usize, 1usize)];
+    let mut steps = 0usize;
+    while let Some((i, depth)) = stack.pop() {
+        steps += 1;
+        if steps > nodes.len() {
+            break; // a cycle: the validator reports it
+        }
+        let Some(node) = nodes.get(i) else {
+            continue;
+        };
+        let mut has_child = false;
+        for c in node.child_refs() {
+            if c.is_leaf() {
+                s.leaves += 1;
+                s.max_leaf_size = s.max_leaf_size.max(c.count);
+                has_child = true;
+            } else if c.is_inner() {
+                stack.push((c.index as usize, depth + 1));
+                has_child = true;
+            }
+        }
+        if has_child {
+            s.max_depth = s.max_depth.max(depth);
+        }
+    }
+    s
 }
 
 #[cfg(test)]

@@ -32,7 +32,7 @@
 //! Nodes are stored depth-first (preorder, slot 0 first), so every inner child has a
 //! larger index than its parent, which a bottom-up refit relies on ([`crate::refit_mbvh4`]).
 
-use crate::node::ChildRef;
+use crate::node::{ChildRef, TreeNode};
 use crate::sah::SahParams;
 use crate::validate::{ValidationError, Walk};
 use geom::{Aabb, Vec3};
@@ -163,37 +163,19 @@ impl Mbvh4 {
 
     /// Shape statistics; bounded walk that never panics on a corrupt tree.
     pub fn stats(&self) -> Mbvh4Stats {
-        let mut s = Mbvh4Stats {
-            inner_nodes: self.nodes.len(),
-            ..Default::default()
-        };
-        if self.nodes.is_empty() {
-            return s;
-        }
+        let t = crate::bvh2::shape_stats(&self.nodes);
         let used: usize = self.nodes.iter().map(Node4::child_count).sum();
-        s.mean_children = used as f64 / self.nodes.len() as f64;
-        let mut stack = vec![(0usize, 1usize)];
-        let mut steps = 0usize;
-        while let Some((i, depth)) = stack.pop() {
-            steps += 1;
-            if steps > self.nodes.len() {
-                break; // a cycle: the validator reports it
-            }
-            let Some(node) = self.nodes.get(i) else {
-                continue;
-            };
-            for c in node.children {
-                if c.is_leaf() {
-                    s.leaves += 1;
-                    s.max_leaf_size = s.max_leaf_size.max(c.count);
-                    s.max_depth = s.max_depth.max(depth);
-                } else if c.is_inner() {
-                    stack.push((c.index as usize, depth + 1));
-                    s.max_depth = s.max_depth.max(depth);
-                }
-            }
+        Mbvh4Stats {
+            inner_nodes: t.inner_nodes,
+            leaves: t.leaves,
+            max_leaf_size: t.max_leaf_size,
+            max_depth: t.max_depth,
+            mean_children: if self.nodes.is_empty() {
+                0.0
+            } else {
+                used as f64 / self.nodes.len() as f64
+            },
         }
-        s
     }
 
     /// SAH cost with the thesis parameters ([`mbvh4_sah_cost_with`]).
@@ -210,12 +192,23 @@ pub fn mbvh4_sah_cost_with(t: &Mbvh4, p: &SahParams) -> f64 {
     crate::sah::wide_sah_cost(&t.nodes, &t.bounds, p)
 }
 
-impl crate::sah::WideNode for Node4 {
+impl TreeNode for Node4 {
+    const WIDTH: usize = MBVH_WIDTH;
+    #[inline(always)]
     fn child_refs(&self) -> &[ChildRef] {
         &self.children
     }
+    #[inline(always)]
     fn slot_aabb(&self, slot: usize) -> Aabb {
         self.child_aabb(slot)
+    }
+    #[inline(always)]
+    fn set_slot_aabb(&mut self, slot: usize, b: &Aabb) {
+        self.set_child_aabb(slot, b)
+    }
+    #[inline(always)]
+    fn own_box(&self) -> Aabb {
+        self.aabb()
     }
 }
 

@@ -148,6 +148,41 @@ impl Node {
     }
 }
 
+/// What the tree walks (SAH cost, statistics, refit) need from a node of any width: the
+/// binary [`Node`] and the 4-wide `Node4` both implement it, so each walk is written once.
+pub(crate) trait TreeNode: Copy + Send + Sync {
+    /// Child slots per node.
+    const WIDTH: usize;
+    /// The child references, empty slots included.
+    fn child_refs(&self) -> &[ChildRef];
+    /// The box stored for child `slot`.
+    fn slot_aabb(&self, slot: usize) -> Aabb;
+    /// Stores the box of child `slot`.
+    fn set_slot_aabb(&mut self, slot: usize, b: &Aabb);
+    /// The union of the child boxes (the node's own box).
+    fn own_box(&self) -> Aabb;
+}
+
+impl TreeNode for Node {
+    const WIDTH: usize = 2;
+    #[inline(always)]
+    fn child_refs(&self) -> &[ChildRef] {
+        &self.children
+    }
+    #[inline(always)]
+    fn slot_aabb(&self, slot: usize) -> Aabb {
+        self.child_aabb(slot)
+    }
+    #[inline(always)]
+    fn set_slot_aabb(&mut self, slot: usize, b: &Aabb) {
+        self.set_child_aabb(slot, b)
+    }
+    #[inline(always)]
+    fn own_box(&self) -> Aabb {
+        self.aabb()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

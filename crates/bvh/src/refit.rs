@@ -14,8 +14,8 @@
 //! [`RefitError`] instead of a panic or a wrong box.
 
 use crate::bvh2::Bvh2;
-use crate::mbvh4::{Mbvh4, Node4};
-use crate::node::{ChildRef, Node};
+use crate::mbvh4::Mbvh4;
+use crate::node::{ChildRef, TreeNode};
 use crate::sah::sah_ratio;
 use geom::Aabb;
 use thiserror::Error;
@@ -90,54 +90,13 @@ fn leaf_box(c: ChildRef, table: &[u32], prims: &[Aabb]) -> Option<Aabb> {
     Some(b)
 }
 
-/// The node operations a refit needs, for the binary and the 4-wide node.
-trait RefitNode: Copy + Send + Sync {
-    /// Slots per node.
-    const WIDTH: usize;
-    fn child(&self, slot: usize) -> ChildRef;
-    fn own_box(&self) -> Aabb;
-    fn set_box(&mut self, slot: usize, b: &Aabb);
-}
-
-impl RefitNode for Node {
-    const WIDTH: usize = 2;
-    #[inline(always)]
-    fn child(&self, slot: usize) -> ChildRef {
-        self.children[slot]
-    }
-    #[inline(always)]
-    fn own_box(&self) -> Aabb {
-        self.aabb()
-    }
-    #[inline(always)]
-    fn set_box(&mut self, slot: usize, b: &Aabb) {
-        self.set_child_aabb(slot, b)
-    }
-}
-
-impl RefitNode for Node4 {
-    const WIDTH: usize = 4;
-    #[inline(always)]
-    fn child(&self, slot: usize) -> ChildRef {
-        self.children[slot]
-    }
-    #[inline(always)]
-    fn own_box(&self) -> Aabb {
-        self.aabb()
-    }
-    #[inline(always)]
-    fn set_box(&mut self, slot: usize, b: &Aabb) {
-        self.set_child_aabb(slot, b)
-    }
-}
-
 /// Trees with at least this many nodes are refitted in parallel.
 const PAR_REFIT_MIN_NODES: usize = 1 << 15;
 
 /// Refits node `i` (absolute index) of `nodes`, which holds nodes `base..base + len`; its
 /// inner children must lie after it inside that window.
 #[inline(always)]
-fn refit_node<N: RefitNode>(
+fn refit_node<N: TreeNode>(
     nodes: &mut [N],
     base: usize,
     i: usize,
@@ -146,7 +105,7 @@ fn refit_node<N: RefitNode>(
 ) -> Result<(), RefitError> {
     let end = base + nodes.len();
     for slot in 0..N::WIDTH {
-        let c = nodes[i - base].child(slot);
+        let c = nodes[i - base].child_refs()[slot];
         let b = if c.is_leaf() {
             leaf_box(c, table, prims)
         } else if c.is_inner() {
@@ -156,13 +115,13 @@ fn refit_node<N: RefitNode>(
             continue;
         };
         let b = b.ok_or(RefitError::CorruptTree { node: i, slot })?;
-        nodes[i - base].set_box(slot, &b);
+        nodes[i - base].set_slot_aabb(slot, &b);
     }
     Ok(())
 }
 
 /// Refits a window of nodes holding whole subtrees, bottom-up (reverse preorder).
-fn refit_window<N: RefitNode>(
+fn refit_window<N: TreeNode>(
     nodes: &mut [N],
     base: usize,
     table: &[u32],
@@ -178,7 +137,7 @@ fn refit_window<N: RefitNode>(
 /// a contiguous index range, so the top of the tree is cut into disjoint subtree windows
 /// that are refitted in parallel, then the few nodes above them are refitted in reverse
 /// order. The result is the same as the sequential pass (min/max are exact).
-fn refit_nodes<N: RefitNode>(
+fn refit_nodes<N: TreeNode>(
     nodes: &mut [N],
     table: &[u32],
     prims: &[Aabb],
@@ -199,7 +158,7 @@ fn refit_nodes<N: RefitNode>(
         }
         top.push(s);
         let mut kids: Vec<usize> = (0..N::WIDTH)
-            .map(|slot| nodes[s].child(slot))
+            .map(|slot| nodes[s].child_refs()[slot])
             .filter(ChildRef::is_inner)
             .map(|c| c.index as usize)
             .collect();

@@ -6,7 +6,7 @@
 //! costs relative to a full sweep SAH build of the same scene ("SAH %"), see [`sah_ratio`].
 
 use crate::bvh2::Bvh2;
-use crate::node::{ChildRef, Node};
+use crate::node::TreeNode;
 use geom::Aabb;
 
 /// Cost weights of the SAH.
@@ -49,30 +49,12 @@ pub fn sah_cost_with(bvh: &Bvh2, p: &SahParams) -> f64 {
     wide_sah_cost(&bvh.nodes, &bvh.bounds, p)
 }
 
-/// A node with child boxes and child references, of any width: what the SAH cost walk
-/// needs from `Node` (2-wide) and `Node4` (4-wide).
-pub(crate) trait WideNode {
-    /// The child references, empty slots included.
-    fn child_refs(&self) -> &[ChildRef];
-    /// The box of child `slot`.
-    fn slot_aabb(&self, slot: usize) -> Aabb;
-}
-
-impl WideNode for Node {
-    fn child_refs(&self) -> &[ChildRef] {
-        &self.children
-    }
-    fn slot_aabb(&self, slot: usize) -> Aabb {
-        self.child_aabb(slot)
-    }
-}
-
 /// SAH cost of a tree of nodes of any width, normalized by the area of `bounds`: the root
 /// costs `C_i`, every inner child `C_i` times its area ratio, every leaf `C_l + C_t * count`
 /// times its area ratio. A zero-area scene box takes every ratio as 1; an empty tree costs
 /// 0. Child links are trusted as far as they stay inside `nodes`, and the walk stops after
 /// `nodes.len()` steps, so a corrupt tree cannot loop.
-pub(crate) fn wide_sah_cost<N: WideNode>(nodes: &[N], bounds: &Aabb, p: &SahParams) -> f64 {
+pub(crate) fn wide_sah_cost<N: TreeNode>(nodes: &[N], bounds: &Aabb, p: &SahParams) -> f64 {
     let Some(root) = nodes.first() else {
         return 0.0;
     };
