@@ -480,41 +480,29 @@ fn sorted_split_n<const N: usize>(ctx: &Ctx, t: &mut Task) -> Option<Split> {
 
 /// Partitions the node in place by the plane `s`, computing the children's centroid boxes.
 fn partition<'a>(ctx: &Ctx, t: Task<'a>, s: &Split) -> (Task<'a>, Task<'a>) {
-    if s.sorted {
-        let (l, r) = t.refs.split_at_mut(s.bin);
-        let cb = |x: &[PrimRef]| x.iter().fold(Aabb::EMPTY, |b, r| b.grow(r.centroid()));
-        let (lc, rc) = (cb(l), cb(r));
-        return (
-            Task {
-                refs: l,
-                first: t.first,
-                bounds: s.left,
-                cbounds: lc,
-            },
-            Task {
-                refs: r,
-                first: t.first + s.bin,
-                bounds: s.right,
-                cbounds: rc,
-            },
-        );
-    }
-    let binner = Binner::new(&t.cbounds, ctx.cfg.bins);
     let refs = t.refs;
-    let (mut lc, mut rc) = (Aabb::EMPTY, Aabb::EMPTY);
-    let (mut i, mut j) = (0usize, refs.len());
-    while i < j {
-        let c = refs[i].centroid();
-        if binner.bin(c, s.axis) < s.bin {
-            lc = lc.grow(c);
-            i += 1;
-        } else {
-            rc = rc.grow(c);
-            j -= 1;
-            refs.swap(i, j);
+    let (mid, lc, rc) = if s.sorted {
+        // Already ordered by the exact sweep: the split is a position.
+        let cb = |x: &[PrimRef]| x.iter().fold(Aabb::EMPTY, |b, r| b.grow(r.centroid()));
+        (s.bin, cb(&refs[..s.bin]), cb(&refs[s.bin..]))
+    } else {
+        let binner = Binner::new(&t.cbounds, ctx.cfg.bins);
+        let (mut lc, mut rc) = (Aabb::EMPTY, Aabb::EMPTY);
+        let (mut i, mut j) = (0usize, refs.len());
+        while i < j {
+            let c = refs[i].centroid();
+            if binner.bin(c, s.axis) < s.bin {
+                lc = lc.grow(c);
+                i += 1;
+            } else {
+                rc = rc.grow(c);
+                j -= 1;
+                refs.swap(i, j);
+            }
         }
-    }
-    let (l, r) = refs.split_at_mut(i);
+        (i, lc, rc)
+    };
+    let (l, r) = refs.split_at_mut(mid);
     (
         Task {
             refs: l,
@@ -524,7 +512,7 @@ fn partition<'a>(ctx: &Ctx, t: Task<'a>, s: &Split) -> (Task<'a>, Task<'a>) {
         },
         Task {
             refs: r,
-            first: t.first + i,
+            first: t.first + mid,
             bounds: s.right,
             cbounds: rc,
         },
