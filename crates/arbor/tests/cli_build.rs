@@ -1,9 +1,11 @@
 //! Integration tests of `arbor build`: every available builder on a procedural scene and the
 //! bundled glTF scene, tree files read back with `bvh::io`, and every bad-argument case.
 
+mod common;
+
+use common::arbor;
 use serde_json::Value;
 use std::path::Path;
-use std::process::{Command, Output};
 
 /// Builders `arbor build` runs today.
 const BUILDERS: [&str; 7] = [
@@ -18,24 +20,9 @@ const BUILDERS: [&str; 7] = [
 const CLOTH: &str = "proc:cloth?n=5000";
 const BUNDLED: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/CesiumMan.glb");
 
-fn arbor(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_arbor"))
-        .args(args)
-        .output()
-        .expect("run arbor")
-}
-
 /// Runs `arbor build --json --quiet ARGS` and parses its output, failing with stderr.
 fn build_json(args: &[&str]) -> Value {
-    let mut a = vec!["build", "--json", "--quiet"];
-    a.extend_from_slice(args);
-    let out = arbor(&a);
-    assert!(
-        out.status.success(),
-        "arbor {a:?} failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("valid JSON")
+    common::json("build", args)
 }
 
 /// Runs `arbor build ARGS` expecting exit 1 with a one-line error; returns that line.

@@ -1,27 +1,14 @@
 //! Integration tests of `arbor info` and `arbor demo`: the binary as a user runs it.
 
+mod common;
+
+use common::arbor;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
-use std::process::{Command, Output};
-
-fn arbor(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_arbor"))
-        .args(args)
-        .output()
-        .expect("run arbor")
-}
 
 /// Runs `arbor info --json` and parses its output, failing with stderr on error.
 fn info_json(args: &[&str]) -> Value {
-    let mut a = vec!["info", "--json", "--quiet"];
-    a.extend_from_slice(args);
-    let out = arbor(&a);
-    assert!(
-        out.status.success(),
-        "arbor {a:?} failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("valid JSON")
+    common::json("info", args)
 }
 
 /// Runs `arbor info` expecting failure; returns the single stderr line.
