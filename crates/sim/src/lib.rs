@@ -1,0 +1,14 @@
+//! Cycle-level models of the hardware of the thesis, following the conventions of
+//! `shared/DESIGN.md`: each unit is a struct that advances one clock cycle at a time,
+//! units talk through bounded [`fifo::Fifo`]s whose capacities are configuration, and every
+//! byte of memory traffic goes through one [`dram::MemoryPort`], so it is counted in one
+//! place.
+//!
+//! - [`clock`]: exact crossing between two clock domains of any periods.
+//! - [`fifo`]: the bounded FIFO that connects units, with occupancy statistics.
+//! - [`dram`]: the memory-port interface and its backends.
+#![warn(missing_docs)]
+
+pub mod clock;
+pub mod dram;
+pub mod fifo;
