@@ -15,6 +15,74 @@ pub mod simple;
 
 use serde::Serialize;
 
+use crate::clock::PeriodFs;
+use simple::{SimpleDram, SimpleDramConfig};
+
+/// The named memory systems of the thesis, with their peak bandwidths in bytes per second:
+/// [P2] 6.2 "slow", "medium" and "fast", and the 2x32-bit system of [P3] 5.3 and [P4] 3.2.
+pub const MEMORY_SYSTEMS: &[(&str, u64, &str)] = &[
+    (
+        "lpddr3-1600-1x64",
+        12_800_000_000,
+        "one 64-bit LPDDR3-1600 channel, 12.8 GB/s ([P2] 6.2 slow)",
+    ),
+    (
+        "lpddr3-1600-2x64",
+        25_600_000_000,
+        "two 64-bit LPDDR3-1600 channels, 25.6 GB/s ([P2] 6.2 medium)",
+    ),
+    (
+        "lpddr3-1333-4x64",
+        42_656_000_000,
+        "four 64-bit LPDDR3-1333 channels, 42.7 GB/s ([P2] 6.2 fast)",
+    ),
+    (
+        "lpddr3-1600-2x32",
+        12_800_000_000,
+        "two 32-bit LPDDR3-1600 channels, 12.8 GB/s ([P3] 5.3, [P4] 3.2)",
+    ),
+];
+
+/// Errors from choosing or configuring a memory backend.
+#[derive(Debug, thiserror::Error)]
+pub enum DramError {
+    /// The name matches no memory system.
+    #[error("unknown memory system '{name}' (known: {known})")]
+    UnknownSystem {
+        /// The name asked for.
+        name: String,
+        /// The names that exist, comma-separated.
+        known: String,
+    },
+}
+
+/// Opens the memory system `name`, driven by a unit clock of period `unit_period_fs`.
+///
+/// `simple:NAME` gives the [`SimpleDram`] model with NAME's peak bandwidth. A bare NAME
+/// gives the cycle-accurate backend for that system.
+// The cycle-accurate (DRAMsim3) backend is not wired in yet; until it is, a bare NAME also
+// gives the simple model.
+pub fn open(name: &str, unit_period_fs: PeriodFs) -> Result<Box<dyn MemoryPort>, DramError> {
+    let bare = name.strip_prefix("simple:").unwrap_or(name);
+    let Some(&(_, peak_bytes_per_s, _)) = MEMORY_SYSTEMS.iter().find(|(n, _, _)| *n == bare) else {
+        let known = MEMORY_SYSTEMS
+            .iter()
+            .map(|(n, _, _)| *n)
+            .collect::<Vec<_>>()
+            .join(", ");
+        return Err(DramError::UnknownSystem {
+            name: name.to_string(),
+            known,
+        });
+    };
+    let config = SimpleDramConfig {
+        unit_period_fs,
+        peak_bytes_per_s,
+        ..SimpleDramConfig::lpddr3_1600_1x64_like()
+    };
+    Ok(Box::new(SimpleDram::new(config)))
+}
+
 /// Direction of a memory access.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize)]
 pub enum AccessKind {
@@ -194,6 +262,19 @@ pub fn bursts_of(addr: u64, bytes: u32, burst_bytes: u32) -> u64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn open_knows_every_named_system_and_rejects_others() {
+        for (name, bw, _) in MEMORY_SYSTEMS {
+            let port = open(&format!("simple:{name}"), 1_000_000).unwrap();
+            assert!((port.peak_bytes_per_unit_cycle() - *bw as f64 * 1e-9).abs() < 1e-9);
+        }
+        let err = open("ddr9", 1_000_000).err().unwrap().to_string();
+        assert!(
+            err.contains("ddr9") && err.contains("lpddr3-1600-1x64"),
+            "{err}"
+        );
+    }
 
     #[test]
     fn bursts_count_alignment() {
