@@ -7,8 +7,10 @@
 //! - [`clock`]: exact crossing between two clock domains of any periods.
 //! - [`fifo`]: the bounded FIFO that connects units, with occupancy statistics.
 //! - [`dram`]: the memory-port interface and its backends.
+//! - [`mergetree`]: the MergeTree HLBVH builder of \[P1\] and \[P2\].
 #![warn(missing_docs)]
 
 pub mod clock;
 pub mod dram;
 pub mod fifo;
+pub mod mergetree;

@@ -1,0 +1,426 @@
+//! Configuration of the MergeTree model: the architecture parameters of \[P1\] §4 and
+//! \[P2\] §5-6.2, FIFO capacities, and the HLBVH options that select the tree.
+//!
+//! Two presets follow the thesis: `p1` (\[P1\] §4: M = 4096, B = 8, a 128 KB scratchpad,
+//! 4 presorters) and `p2` (\[P2\] §6.2: M = 8192, B = 16, 256 KB, 8 presorters), both at
+//! 1 GHz. Every field can be overridden by name with [`MergeTreeConfig::set`], or from a
+//! file of `key = value` lines (flat TOML) or a flat JSON object
+//! ([`MergeTreeConfig::apply_file`]).
+
+use serde::Serialize;
+
+/// Bytes of one sort element in DRAM and in the scratchpad: an AABB (24 B), a primitive
+/// reference (4 B) and the 4-byte Morton code, 256 bits (\[P2\] §5.1). In DRAM the code slot
+/// is padding (\[P1\] §4.1: codes are omitted when writing out).
+pub const ELEM_BYTES: u64 = 32;
+
+/// Bytes of one BVH node (\[P2\] §4.1: two child AABBs, two references).
+pub const NODE_BYTES: u64 = 64;
+
+/// Bytes of one leaf-table entry (\[P2\] §4.1: a pointer to primitive data).
+pub const LEAF_ENTRY_BYTES: u64 = 4;
+
+/// Bytes of one high-level output record: the cell root's AABB and reference.
+pub const HIGHLEVEL_BYTES: u64 = 32;
+
+/// Errors of configuration.
+#[derive(Debug, thiserror::Error, PartialEq)]
+pub enum ConfigError {
+    /// No preset of that name.
+    #[error("unknown MergeTree preset '{0}' (known: p1, p2)")]
+    UnknownPreset(String),
+    /// No parameter of that name.
+    #[error("unknown MergeTree parameter '{key}' (known: {known})")]
+    UnknownKey {
+        /// The key given.
+        key: String,
+        /// The keys that exist.
+        known: String,
+    },
+    /// The value does not parse or is out of range for the key.
+    #[error("bad value '{value}' for MergeTree parameter '{key}': {why}")]
+    BadValue {
+        /// The key.
+        key: String,
+        /// The value given.
+        value: String,
+        /// What is wrong.
+        why: String,
+    },
+    /// The parameters are inconsistent with each other.
+    #[error("inconsistent MergeTree configuration: {0}")]
+    Inconsistent(String),
+    /// A configuration file could not be read or parsed.
+    #[error("MergeTree configuration file {path}: {why}")]
+    File {
+        /// The file.
+        path: String,
+        /// What went wrong.
+        why: String,
+    },
+}
+
+/// Every parameter of the model. See the module documentation for the presets.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct MergeTreeConfig {
+    /// Name of the preset this started from (informational).
+    pub preset: String,
+    /// Unit clock in MHz (\[P2\] §6.2: 1 GHz).
+    pub clock_mhz: u32,
+    /// Scratchpad capacity M in elements (\[P2\] §6.2: 8192).
+    pub m: u32,
+    /// Buffer length B in elements: the DRAM read length of the multi-merge (\[P2\] §6.2: 16).
+    pub b: u32,
+    /// Number of insertion presorters (\[P2\] §6.2: 8).
+    pub presorters: u32,
+    /// Read buffers of B elements in front of each presorter (read-ahead depth).
+    pub presort_slots: u32,
+    /// Elements in the FIFO from the multi-merge unit to the hierarchy emitter.
+    pub emit_fifo: u32,
+    /// Elements in the FIFO from the multi-merge unit to the run writer (>= B).
+    pub run_write_fifo: u32,
+    /// Bytes of the node write buffer of the hierarchy emitter (>= write_chunk_bytes).
+    pub node_buffer_bytes: u32,
+    /// Bytes of the leaf-table write buffer (>= write_chunk_bytes).
+    pub leaf_buffer_bytes: u32,
+    /// Size of one node, leaf-table or high-level write request in bytes.
+    pub write_chunk_bytes: u32,
+    /// Morton code length: 30 or 63 bits.
+    pub morton_bits: u32,
+    /// Identical Morton codes share a leaf (\[P2\] §5.4) rather than being split (\[P1\]).
+    pub combine_identical: bool,
+    /// Largest leaf when combining identical codes.
+    pub max_leaf_size: u32,
+    /// Code-bit level above which subtrees go to the high-level output (\[P2\] Alg. 1
+    /// lines 15..19); `None` emits one tree.
+    pub highlevel_threshold: Option<u32>,
+    /// Run the toplevel binned SAH unit over the high-level output (\[P2\] §6.1); needs a
+    /// threshold.
+    pub toplevel_sah: bool,
+    /// Bins per axis of the toplevel binned SAH build.
+    pub toplevel_bins: u32,
+    /// Cycles of SAH evaluation at the end of each toplevel sweep (\[P2\] §6.1: 32).
+    pub sah_cycles_per_sweep: u32,
+    /// Cycles per row of the busy-fraction time series.
+    pub trace_window_cycles: u64,
+}
+
+/// Names of the parameters [`MergeTreeConfig::set`] accepts.
+pub const KEYS: &[&str] = &[
+    "clock_mhz",
+    "m",
+    "b",
+    "presorters",
+    "presort_slots",
+    "emit_fifo",
+    "run_write_fifo",
+    "node_buffer_bytes",
+    "leaf_buffer_bytes",
+    "write_chunk_bytes",
+    "morton_bits",
+    "combine_identical",
+    "max_leaf_size",
+    "highlevel_threshold",
+    "toplevel_sah",
+    "toplevel_bins",
+    "sah_cycles_per_sweep",
+    "trace_window_cycles",
+];
+
+impl MergeTreeConfig {
+    /// \[P1\] §4: M = 4096, B = 8 (128 KB scratchpad), 4 presorters, 1 GHz.
+    pub fn p1() -> Self {
+        Self {
+            preset: "p1".into(),
+            m: 4096,
+            b: 8,
+            presorters: 4,
+            presort_slots: 4,
+            run_write_fifo: 32,
+            ..Self::p2()
+        }
+    }
+
+    /// \[P2\] §6.2: M = 8192, B = 16 (256 KB scratchpad), 8 presorters, 1 GHz.
+    pub fn p2() -> Self {
+        Self {
+            preset: "p2".into(),
+            clock_mhz: 1000,
+            m: 8192,
+            b: 16,
+            presorters: 8,
+            presort_slots: 4,
+            emit_fifo: 64,
+            run_write_fifo: 64,
+            node_buffer_bytes: 2048,
+            leaf_buffer_bytes: 1024,
+            write_chunk_bytes: 512,
+            morton_bits: 30,
+            combine_identical: true,
+            max_leaf_size: 8,
+            highlevel_threshold: None,
+            toplevel_sah: false,
+            toplevel_bins: 16,
+            sah_cycles_per_sweep: 32,
+            trace_window_cycles: 10_000,
+        }
+    }
+
+    /// The preset called `name` (`p1` or `p2`).
+    pub fn preset(name: &str) -> Result<Self, ConfigError> {
+        match name {
+            "p1" => Ok(Self::p1()),
+            "p2" => Ok(Self::p2()),
+            _ => Err(ConfigError::UnknownPreset(name.to_string())),
+        }
+    }
+
+    /// Merge width of one multi-merge pass: M / (2B) double-buffered queues.
+    pub fn fan_in(&self) -> u64 {
+        self.m as u64 / (2 * self.b as u64)
+    }
+
+    /// Largest scene sorted with one multi-merge pass: M^2 / (2B) (\[P1\] §6).
+    pub fn single_pass_limit(&self) -> u64 {
+        self.m as u64 * self.fan_in()
+    }
+
+    /// Clock period in femtoseconds.
+    pub fn period_fs(&self) -> u64 {
+        1_000_000_000 / self.clock_mhz as u64
+    }
+
+    /// Sets parameter `key` from its text `value`.
+    pub fn set(&mut self, key: &str, value: &str) -> Result<(), ConfigError> {
+        let value = value.trim().trim_matches('"');
+        let bad = |why: &str| ConfigError::BadValue {
+            key: key.to_string(),
+            value: value.to_string(),
+            why: why.to_string(),
+        };
+        let num = |min: u64| -> Result<u64, ConfigError> {
+            let v: u64 = value
+                .replace('_', "")
+                .parse()
+                .map_err(|_| bad("expected a non-negative integer"))?;
+            if v < min {
+                return Err(bad(&format!("must be at least {min}")));
+            }
+            Ok(v)
+        };
+        let num32 = |min: u64| -> Result<u32, ConfigError> {
+            u32::try_from(num(min)?).map_err(|_| bad("too large"))
+        };
+        let boolean = || match value {
+            "true" | "1" | "yes" | "on" => Ok(true),
+            "false" | "0" | "no" | "off" => Ok(false),
+            _ => Err(bad("expected true or false")),
+        };
+        match key {
+            "clock_mhz" => self.clock_mhz = num32(1)?,
+            "m" => self.m = num32(2)?,
+            "b" => self.b = num32(1)?,
+            "presorters" => self.presorters = num32(1)?,
+            "presort_slots" => self.presort_slots = num32(2)?,
+            "emit_fifo" => self.emit_fifo = num32(1)?,
+            "run_write_fifo" => self.run_write_fifo = num32(1)?,
+            "node_buffer_bytes" => self.node_buffer_bytes = num32(64)?,
+            "leaf_buffer_bytes" => self.leaf_buffer_bytes = num32(4)?,
+            "write_chunk_bytes" => self.write_chunk_bytes = num32(64)?,
+            "morton_bits" => {
+                self.morton_bits = match num(0)? {
+                    30 => 30,
+                    63 => 63,
+                    _ => return Err(bad("must be 30 or 63")),
+                }
+            }
+            "combine_identical" => self.combine_identical = boolean()?,
+            "max_leaf_size" => self.max_leaf_size = num32(1)?,
+            "highlevel_threshold" => {
+                self.highlevel_threshold = if value == "none" {
+                    None
+                } else {
+                    Some(num32(0)?)
+                }
+            }
+            "toplevel_sah" => self.toplevel_sah = boolean()?,
+            "toplevel_bins" => self.toplevel_bins = num32(2)?,
+            "sah_cycles_per_sweep" => self.sah_cycles_per_sweep = num32(0)?,
+            "trace_window_cycles" => self.trace_window_cycles = num(1)?,
+            _ => {
+                return Err(ConfigError::UnknownKey {
+                    key: key.to_string(),
+                    known: KEYS.join(", "),
+                })
+            }
+        }
+        Ok(())
+    }
+
+    /// Applies a `KEY=VALUE` override (the `--set` syntax).
+    pub fn set_pair(&mut self, pair: &str) -> Result<(), ConfigError> {
+        let Some((k, v)) = pair.split_once('=') else {
+            return Err(ConfigError::BadValue {
+                key: pair.to_string(),
+                value: String::new(),
+                why: "expected KEY=VALUE".into(),
+            });
+        };
+        self.set(k.trim(), v)
+    }
+
+    /// Applies the overrides in the text of a configuration file: a flat JSON object
+    /// (`{"m": 4096, "b": 8}`) or `key = value` lines (flat TOML; `#` starts a comment).
+    /// A `preset` key, if present, must come first and resets every field.
+    pub fn apply_text(&mut self, text: &str, path: &str) -> Result<(), ConfigError> {
+        let file_err = |why: String| ConfigError::File {
+            path: path.to_string(),
+            why,
+        };
+        let mut pairs: Vec<(String, String)> = Vec::new();
+        if text.trim_start().starts_with('{') {
+            let v: serde_json::Value =
+                serde_json::from_str(text).map_err(|e| file_err(e.to_string()))?;
+            let obj = v
+                .as_object()
+                .ok_or_else(|| file_err("expected a JSON object".into()))?;
+            for (k, v) in obj {
+                let s = match v {
+                    serde_json::Value::String(s) => s.clone(),
+                    serde_json::Value::Null => "none".into(),
+                    other => other.to_string(),
+                };
+                pairs.push((k.clone(), s));
+            }
+        } else {
+            for (n, line) in text.lines().enumerate() {
+                let line = line.split('#').next().unwrap_or("").trim();
+                if line.is_empty() {
+                    continue;
+                }
+                let (k, v) = line
+                    .split_once('=')
+                    .ok_or_else(|| file_err(format!("line {}: expected key = value", n + 1)))?;
+                pairs.push((k.trim().to_string(), v.trim().to_string()));
+            }
+        }
+        for (k, v) in pairs {
+            if k == "preset" {
+                *self = Self::preset(v.trim_matches('"'))?;
+            } else {
+                self.set(&k, &v)?;
+            }
+        }
+        Ok(())
+    }
+
+    /// Reads `path` and applies it with [`MergeTreeConfig::apply_text`].
+    pub fn apply_file(&mut self, path: &std::path::Path) -> Result<(), ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|e| ConfigError::File {
+            path: path.display().to_string(),
+            why: e.to_string(),
+        })?;
+        self.apply_text(&text, &path.display().to_string())
+    }
+
+    /// Checks that the parameters fit together.
+    pub fn validate(&self) -> Result<(), ConfigError> {
+        let err = |s: String| Err(ConfigError::Inconsistent(s));
+        if !(self.m as u64).is_multiple_of(2 * self.b as u64) || self.fan_in() < 2 {
+            return err(format!(
+                "M ({}) must be a multiple of 2B ({}) with at least two queues",
+                self.m,
+                2 * self.b
+            ));
+        }
+        if self.run_write_fifo < self.b {
+            return err(format!(
+                "run_write_fifo ({}) must hold at least B ({}) elements",
+                self.run_write_fifo, self.b
+            ));
+        }
+        if self.node_buffer_bytes < self.write_chunk_bytes
+            || self.leaf_buffer_bytes < self.write_chunk_bytes
+        {
+            return err("node and leaf buffers must hold at least one write chunk".into());
+        }
+        if self.toplevel_sah && self.highlevel_threshold.is_none() {
+            return err("toplevel_sah needs a highlevel_threshold".into());
+        }
+        if let Some(t) = self.highlevel_threshold {
+            if t > self.morton_bits {
+                return err(format!(
+                    "highlevel_threshold ({t}) exceeds morton_bits ({})",
+                    self.morton_bits
+                ));
+            }
+        }
+        Ok(())
+    }
+}
+
+impl Default for MergeTreeConfig {
+    fn default() -> Self {
+        Self::p2()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn presets_match_the_thesis() {
+        let p1 = MergeTreeConfig::p1();
+        assert_eq!((p1.m, p1.b, p1.presorters), (4096, 8, 4));
+        assert_eq!(p1.m as u64 * ELEM_BYTES, 128 * 1024);
+        assert_eq!(p1.single_pass_limit(), 1 << 20); // [P1] §6: 1M
+        let p2 = MergeTreeConfig::p2();
+        assert_eq!((p2.m, p2.b, p2.presorters), (8192, 16, 8));
+        assert_eq!(p2.m as u64 * ELEM_BYTES, 256 * 1024);
+        assert_eq!(p2.fan_in(), 256); // [P2] §6.2: 256-way merge
+        assert_eq!(p2.single_pass_limit(), 2 << 20); // 2M triangles
+        p1.validate().unwrap();
+        p2.validate().unwrap();
+    }
+
+    #[test]
+    fn set_parses_and_rejects() {
+        let mut c = MergeTreeConfig::p2();
+        c.set("m", "1024").unwrap();
+        c.set_pair("b=4").unwrap();
+        c.set("highlevel_threshold", "18").unwrap();
+        c.set("combine_identical", "false").unwrap();
+        assert_eq!((c.m, c.b, c.highlevel_threshold), (1024, 4, Some(18)));
+        assert!(!c.combine_identical);
+        c.set("highlevel_threshold", "none").unwrap();
+        assert_eq!(c.highlevel_threshold, None);
+        assert!(matches!(
+            c.set("bogus", "1"),
+            Err(ConfigError::UnknownKey { .. })
+        ));
+        assert!(matches!(c.set("m", "x"), Err(ConfigError::BadValue { .. })));
+        assert!(matches!(c.set("b", "0"), Err(ConfigError::BadValue { .. })));
+        assert!(matches!(
+            c.set("morton_bits", "32"),
+            Err(ConfigError::BadValue { .. })
+        ));
+        assert!(c.set_pair("m").is_err());
+        c.set("m", "1002").unwrap();
+        assert!(c.validate().is_err());
+    }
+
+    #[test]
+    fn files_in_toml_and_json() {
+        let mut c = MergeTreeConfig::p2();
+        c.apply_text("preset = \"p1\"\n# comment\nm = 2048 # inline\n", "x.toml")
+            .unwrap();
+        assert_eq!((c.preset.as_str(), c.m, c.b), ("p1", 2048, 8));
+        c.apply_text(r#"{"b": 4, "highlevel_threshold": null}"#, "x.json")
+            .unwrap();
+        assert_eq!((c.m, c.b), (2048, 4));
+        assert!(c.apply_text("m 5", "bad.toml").is_err());
+        assert!(c.apply_text("{", "bad.json").is_err());
+        assert!(c.apply_text("zz = 1", "bad.toml").is_err());
+    }
+}

@@ -1,0 +1,148 @@
+//! The hierarchy emitter of \[P2\] §5.4 (Algorithm 1) as a unit.
+//!
+//! It drives the very same step machine as the software HLBVH builder
+//! ([`bvh::Emitter`]), one step per cycle: each step is one stack operation, one leaf
+//! enlargement or one high-level output. Sorted elements arrive through a FIFO from the
+//! multi-merge unit; the emitter stalls when it needs an input and the FIFO is empty, or
+//! when a write buffer has no room. The sort-key tie field of the software builder (the
+//! chunk index inside a run of identical codes, or the sorted position) is computed on the
+//! fly from the stream, as a counter. Every primitive read writes one 4-byte leaf-table
+//! entry; every emitted node one 64-byte node; every high-level root one 32-byte record.
+//! Padding elements (\[P2\] §5.3) sort after the scene and end the stream.
+
+use bvh::{EmittedNode, Emitter, HighlevelRoot, Prim, Step};
+
+use super::config::{HIGHLEVEL_BYTES, LEAF_ENTRY_BYTES, NODE_BYTES};
+use super::machine::WriteBuffer;
+use super::Elem;
+use crate::fifo::Fifo;
+
+/// Why the emitter did not step in a cycle.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct EmitterStalls {
+    /// Cycles it needed an input and its FIFO was empty.
+    pub starved_cycles: u64,
+    /// Cycles a write buffer (nodes, leaf table, high-level) was full.
+    pub write_full_cycles: u64,
+}
+
+/// The hierarchy emitter unit and the tree it has produced so far.
+#[derive(Clone, Debug)]
+pub(super) struct EmitUnit {
+    em: Emitter,
+    /// Real primitives in the scene (the stream ends after them).
+    total: u64,
+    /// Primitives read so far.
+    pub consumed: u64,
+    prev_code: u64,
+    run: u32,
+    combine: bool,
+    max_leaf: u32,
+    /// Emitted nodes in emission order.
+    pub nodes: Vec<EmittedNode>,
+    /// High-level roots.
+    pub roots: Vec<HighlevelRoot>,
+    /// Leaf table: primitive index at each sorted position.
+    pub order: Vec<u32>,
+    /// True once the step machine reported `Done`.
+    pub done: bool,
+    /// Steps performed.
+    pub steps: u64,
+    /// Stall counters.
+    pub stalls: EmitterStalls,
+}
+
+impl EmitUnit {
+    /// An emitter for `total` primitives.
+    pub fn new(total: u64, threshold: Option<u32>, combine: bool, max_leaf: u32) -> Self {
+        Self {
+            em: Emitter::new(threshold),
+            total,
+            consumed: 0,
+            prev_code: 0,
+            run: 0,
+            combine,
+            max_leaf,
+            nodes: Vec::with_capacity(total.saturating_sub(1) as usize),
+            roots: Vec::new(),
+            order: Vec::with_capacity(total as usize),
+            done: false,
+            steps: 0,
+            stalls: EmitterStalls::default(),
+        }
+    }
+
+    /// Deepest stack seen.
+    pub fn max_stack_depth(&self) -> usize {
+        self.em.max_stack_depth()
+    }
+
+    /// One cycle. Returns true when a step was performed.
+    pub fn tick(
+        &mut self,
+        input: &mut Fifo<Elem>,
+        nodes_out: &mut WriteBuffer,
+        leaves_out: &mut WriteBuffer,
+        highlevel_out: &mut WriteBuffer,
+    ) -> bool {
+        // Padding sorts after every real element: once the scene is read, drop it.
+        if self.consumed == self.total {
+            while input.front().is_some_and(|e| e.is_pad()) {
+                input.pop();
+            }
+        }
+        if self.done {
+            return false;
+        }
+        // Room for whatever this step may write.
+        if !nodes_out.has_room(NODE_BYTES)
+            || !leaves_out.has_room(LEAF_ENTRY_BYTES)
+            || !highlevel_out.has_room(HIGHLEVEL_BYTES)
+        {
+            self.stalls.write_full_cycles += 1;
+            return false;
+        }
+        let mut prim = None;
+        if self.em.needs_input() && self.consumed < self.total {
+            let Some(e) = input.pop() else {
+                self.stalls.starved_cycles += 1;
+                return false;
+            };
+            debug_assert!(!e.is_pad(), "padding before the end of the scene");
+            let code = e.code();
+            self.run = if self.consumed > 0 && code == self.prev_code {
+                self.run + 1
+            } else {
+                0
+            };
+            self.prev_code = code;
+            let tie = if self.combine {
+                self.run / self.max_leaf
+            } else {
+                self.consumed as u32
+            };
+            self.order.push(e.index());
+            self.consumed += 1;
+            leaves_out.add(LEAF_ENTRY_BYTES);
+            prim = Some(Prim {
+                code,
+                tie,
+                aabb: e.aabb,
+            });
+        }
+        self.steps += 1;
+        match self.em.step(prim) {
+            Step::Emitted(n) => {
+                self.nodes.push(n);
+                nodes_out.add(NODE_BYTES);
+            }
+            Step::Highlevel(r) => {
+                self.roots.push(r);
+                highlevel_out.add(HIGHLEVEL_BYTES);
+            }
+            Step::Done => self.done = true,
+            Step::Loaded | Step::Combined | Step::Pushed => {}
+        }
+        true
+    }
+}

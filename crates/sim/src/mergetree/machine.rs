@@ -1,0 +1,942 @@
+//! The MergeTree machine: the units of \[P2\] Fig. 1 wired together, the control FSM of
+//! \[P1\] Fig. 2 / \[P2\] Fig. 3 (partial sorts, multi-merge passes, hierarchy emission),
+//! the memory arbiter, and the cycle loop.
+//!
+//! # DRAM layout
+//! All regions start on 4 KiB boundaries, in this order:
+//! - `input`: the N primitive AABBs, 32 bytes each (the unit's input, written by the host);
+//! - `runs[0]`, `runs[1]`: two sort-run regions of Npad * 32 bytes (Npad = N rounded up to
+//!   B). Partial sorts write their M-element runs to `runs[0]`; multi-merge pass `p` reads
+//!   `runs[p % 2]` and writes `runs[(p + 1) % 2]` (double-buffered); the final pass is not
+//!   written back but streamed into the hierarchy emitter;
+//! - `nodes`: BVH nodes, 64 bytes each, in emission (bottom-up) order;
+//! - `leaves`: the leaf table, one 4-byte primitive reference per sorted position;
+//! - `highlevel`: 32-byte high-level roots (with a threshold) and the toplevel nodes.
+//!
+//! # Memory arbiter
+//! Five requesters share the port: the run writer, the node, leaf-table and high-level
+//! write buffers, and the reader (input reads for the presorters, refills for the merge
+//! queues). One request may be issued per cycle, granted round robin among the ready
+//! requesters; a request refused by a full controller queue is retried.
+
+use std::collections::VecDeque;
+
+use geom::{Aabb, MortonQuantizer};
+
+use super::config::{MergeTreeConfig, ELEM_BYTES};
+use super::emitter::EmitUnit;
+use super::merge::{MergeState, Merger};
+use super::presort::{PresortState, Presorter};
+use super::report::{PhaseReport, StallReport, TraceRow};
+use super::toplevel::TopUnit;
+use super::{Elem, MergeTreeError};
+use crate::dram::{AccessKind, MemRequest, MemoryPort};
+use crate::fifo::Fifo;
+
+/// Cycles without progress of any unit and with no memory request outstanding after which
+/// the machine reports a deadlock.
+const DEADLOCK_CYCLES: u64 = 10_000;
+
+/// Cycles without any progress, with requests outstanding, after which the memory is taken
+/// to have stopped answering (a backend bug; far above any DRAM latency).
+const MEMORY_TIMEOUT_CYCLES: u64 = 1_000_000;
+
+/// Marks a write in a request tag; the low 32 bits hold the byte count.
+const WRITE_TAG: u64 = 1 << 63;
+
+/// Alignment of the DRAM regions.
+const REGION_ALIGN: u64 = 4096;
+
+/// Base addresses of the DRAM regions (see the module documentation).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct MemoryLayout {
+    /// Input AABBs.
+    pub input: u64,
+    /// The two sort-run regions.
+    pub runs: [u64; 2],
+    /// BVH nodes.
+    pub nodes: u64,
+    /// Leaf table.
+    pub leaves: u64,
+    /// High-level roots and toplevel nodes.
+    pub highlevel: u64,
+    /// First byte after the layout.
+    pub end: u64,
+}
+
+impl MemoryLayout {
+    /// The layout for `n` primitives padded to `npad` elements.
+    pub fn new(n: u64, npad: u64) -> Self {
+        let up = |x: u64| x.div_ceil(REGION_ALIGN) * REGION_ALIGN;
+        let input = 0;
+        let run0 = up(input + n * ELEM_BYTES);
+        let run1 = up(run0 + npad * ELEM_BYTES);
+        let nodes = up(run1 + npad * ELEM_BYTES);
+        let leaves = up(nodes + n.saturating_sub(1) * super::config::NODE_BYTES);
+        let highlevel = up(leaves + n * super::config::LEAF_ENTRY_BYTES);
+        let end = up(highlevel + n * super::config::HIGHLEVEL_BYTES);
+        Self {
+            input,
+            runs: [run0, run1],
+            nodes,
+            leaves,
+            highlevel,
+            end,
+        }
+    }
+}
+
+/// A write-combining buffer in front of the port: a unit adds bytes, the arbiter writes
+/// them out in chunks to consecutive addresses.
+#[derive(Clone, Debug)]
+pub struct WriteBuffer {
+    next_addr: u64,
+    pending: u64,
+    capacity: u64,
+    chunk: u64,
+    /// Write out a partial chunk (the producer has finished).
+    pub flush: bool,
+    /// Bytes handed to the port.
+    pub written: u64,
+}
+
+impl WriteBuffer {
+    /// A buffer of `capacity` bytes that writes `chunk`-byte requests from `base` on.
+    pub fn new(base: u64, capacity: u64, chunk: u64) -> Self {
+        Self {
+            next_addr: base,
+            pending: 0,
+            capacity,
+            chunk,
+            flush: false,
+            written: 0,
+        }
+    }
+
+    /// A large buffer at address 0 for unit tests.
+    #[cfg(test)]
+    pub fn new_for_test(capacity: u64) -> Self {
+        Self::new(0, capacity, 64)
+    }
+
+    /// True when `bytes` more fit.
+    pub fn has_room(&self, bytes: u64) -> bool {
+        self.pending + bytes <= self.capacity
+    }
+
+    /// Adds `bytes` produced by the unit.
+    pub fn add(&mut self, bytes: u64) {
+        debug_assert!(self.has_room(bytes));
+        self.pending += bytes;
+    }
+
+    /// The write request ready to go, if any.
+    fn ready(&self) -> Option<(u64, u32)> {
+        if self.pending >= self.chunk || (self.flush && self.pending > 0) {
+            Some((self.next_addr, self.pending.min(self.chunk) as u32))
+        } else {
+            None
+        }
+    }
+
+    fn issued(&mut self, bytes: u32) {
+        self.pending -= bytes as u64;
+        self.next_addr += bytes as u64;
+        self.written += bytes as u64;
+    }
+
+    /// Bytes waiting.
+    pub fn pending(&self) -> u64 {
+        self.pending
+    }
+}
+
+/// Where a read's data goes.
+#[derive(Clone, Copy, Debug)]
+enum ReadDest {
+    /// Ring slot `slot` of presorter `p` (input AABBs).
+    Presort { p: u32, slot: u32 },
+    /// Buffer half `buf` of the merge scratchpad (sort runs).
+    Merge { buf: u32 },
+}
+
+/// An outstanding read.
+#[derive(Clone, Copy, Debug)]
+struct ReadDesc {
+    dest: ReadDest,
+    /// First element (input index or run-region position).
+    src: u64,
+    /// Elements delivered (padding included).
+    count: u32,
+    /// Bytes read.
+    bytes: u32,
+}
+
+/// Control state (\[P1\] Fig. 2).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Phase {
+    /// Reading, presorting and merging the N / M blocks.
+    PartialSort,
+    /// Multi-merge pass `p` (0-based).
+    MergePass(u32),
+    /// Waiting for the last writes of a phase before the next one reads them.
+    Fence(u32),
+    /// The final merge feeds the emitter; then the last writes drain.
+    Emit,
+    /// The toplevel binned SAH unit.
+    Toplevel,
+    /// Finished.
+    Done,
+}
+
+/// Requesters of the memory arbiter.
+const REQUESTERS: usize = 5;
+
+/// The whole unit. See the module documentation.
+pub(super) struct Machine<'a> {
+    cfg: MergeTreeConfig,
+    aabbs: &'a [Aabb],
+    quant: MortonQuantizer,
+    n: u64,
+    npad: u64,
+    blocks: u64,
+    pub passes_total: u32,
+    pub layout: MemoryLayout,
+    port: Box<dyn MemoryPort>,
+    pub cycle: u64,
+    phase: Phase,
+    // Partial sort.
+    presorters: Vec<Presorter>,
+    in_next: u64,
+    fill_block: u64,
+    sub_ready: u64,
+    // Merge.
+    merger: Merger,
+    refill: VecDeque<u32>,
+    emit_fifo: Fifo<Elem>,
+    run_fifo: Fifo<Elem>,
+    to_emitter: bool,
+    run_flush: bool,
+    region: [Vec<Elem>; 2],
+    dst: usize,
+    wr_pos: u64,
+    pass_run_len: u64,
+    pass_runs: u64,
+    group: u64,
+    // Emission.
+    emit_active: bool,
+    pub emit: EmitUnit,
+    nodes_wb: WriteBuffer,
+    leaves_wb: WriteBuffer,
+    hl_wb: WriteBuffer,
+    top: Option<TopUnit>,
+    // Memory.
+    inflight: Vec<ReadDesc>,
+    free_tags: Vec<u32>,
+    rr: usize,
+    outstanding_writes: u64,
+    pub port_refusals: u64,
+    pub reader_blocked_cycles: u64,
+    // Report.
+    pub phases: Vec<PhaseReport>,
+    phase_start: u64,
+    phase_read: u64,
+    phase_written: u64,
+    pub trace: Vec<TraceRow>,
+    win: TraceRow,
+    idle: u64,
+    progress_hook: Option<&'a mut dyn FnMut(u64, u64)>,
+}
+
+impl<'a> Machine<'a> {
+    /// A machine ready to sort and emit `aabbs` whose centroids lie in `centroid_bounds`.
+    pub fn new(
+        aabbs: &'a [Aabb],
+        centroid_bounds: &Aabb,
+        cfg: &MergeTreeConfig,
+        port: Box<dyn MemoryPort>,
+        progress_hook: Option<&'a mut dyn FnMut(u64, u64)>,
+    ) -> Self {
+        let n = aabbs.len() as u64;
+        let b = cfg.b as u64;
+        let m = cfg.m as u64;
+        let npad = n.div_ceil(b) * b;
+        let blocks = npad.div_ceil(m).max(1);
+        let fan = cfg.fan_in();
+        let mut passes_total = 0;
+        let mut runs = blocks;
+        while runs > 1 {
+            runs = runs.div_ceil(fan);
+            passes_total += 1;
+        }
+        let layout = MemoryLayout::new(n, npad);
+        let subs = npad.div_ceil(2 * b);
+        let presorters = (0..cfg.presorters)
+            .map(|p| {
+                let mut ps = Presorter::new(cfg.presort_slots, cfg.b, p as u64);
+                if (p as u64) < subs {
+                    ps.start(p as u64, Self::sub_len(npad, b, p as u64));
+                } else {
+                    ps.state = PresortState::Finished;
+                }
+                ps
+            })
+            .collect();
+        let region_len = if passes_total > 0 { npad as usize } else { 0 };
+        Self {
+            cfg: cfg.clone(),
+            aabbs,
+            quant: MortonQuantizer::new(centroid_bounds),
+            n,
+            npad,
+            blocks,
+            passes_total,
+            layout,
+            port,
+            cycle: 0,
+            phase: Phase::PartialSort,
+            presorters,
+            in_next: 0,
+            fill_block: 0,
+            sub_ready: 0,
+            merger: Merger::new(cfg.m, cfg.b),
+            refill: VecDeque::with_capacity(2 * fan as usize),
+            emit_fifo: Fifo::new("merge->emitter", cfg.emit_fifo as usize),
+            run_fifo: Fifo::new("merge->run writer", cfg.run_write_fifo as usize),
+            to_emitter: blocks == 1,
+            run_flush: false,
+            region: [vec![Elem::PAD; region_len], vec![Elem::PAD; region_len]],
+            dst: 0,
+            wr_pos: 0,
+            pass_run_len: m,
+            pass_runs: blocks,
+            group: 0,
+            emit_active: blocks == 1,
+            emit: EmitUnit::new(
+                n,
+                cfg.highlevel_threshold,
+                cfg.combine_identical,
+                cfg.max_leaf_size,
+            ),
+            nodes_wb: WriteBuffer::new(
+                layout.nodes,
+                cfg.node_buffer_bytes as u64,
+                cfg.write_chunk_bytes as u64,
+            ),
+            leaves_wb: WriteBuffer::new(
+                layout.leaves,
+                cfg.leaf_buffer_bytes as u64,
+                cfg.write_chunk_bytes as u64,
+            ),
+            hl_wb: WriteBuffer::new(
+                layout.highlevel,
+                cfg.node_buffer_bytes as u64,
+                cfg.write_chunk_bytes as u64,
+            ),
+            top: None,
+            inflight: Vec::with_capacity(64),
+            free_tags: Vec::with_capacity(64),
+            rr: 0,
+            outstanding_writes: 0,
+            port_refusals: 0,
+            reader_blocked_cycles: 0,
+            phases: Vec::new(),
+            phase_start: 0,
+            phase_read: 0,
+            phase_written: 0,
+            trace: Vec::new(),
+            win: TraceRow::default(),
+            idle: 0,
+            progress_hook,
+        }
+    }
+
+    fn sub_len(npad: u64, b: u64, sub: u64) -> u32 {
+        (npad - sub * 2 * b).min(2 * b) as u32
+    }
+
+    fn block_len(&self, k: u64) -> u64 {
+        (self.npad - k * self.cfg.m as u64).min(self.cfg.m as u64)
+    }
+
+    /// The element for input primitive `i` (padding past the end), with its Morton code
+    /// computed as it streams in (\[P2\] §5.1).
+    fn input_elem(&self, i: u64) -> Elem {
+        if i >= self.n {
+            return Elem::pad(i);
+        }
+        let a = self.aabbs[i as usize];
+        // The same centroid expression as the software builder.
+        let c = a.min * 0.5 + a.max * 0.5;
+        let code = if self.cfg.morton_bits == 30 {
+            self.quant.code30(c) as u64
+        } else {
+            self.quant.code63(c)
+        };
+        Elem::new(code, i as u32, a)
+    }
+
+    /// Runs to completion; returns the cycle count.
+    pub fn run(&mut self) -> Result<u64, MergeTreeError> {
+        if self.n == 0 {
+            self.phase = Phase::Done;
+            return Ok(0);
+        }
+        self.win.cycle_start = 0;
+        loop {
+            let mut progress = false;
+            while let Some(r) = self.port.pop_response() {
+                progress = true;
+                self.on_response(r.tag);
+            }
+            progress |= self.control();
+            if self.phase == Phase::Done {
+                break;
+            }
+            if self.emit_active {
+                let stepped = self.emit.tick(
+                    &mut self.emit_fifo,
+                    &mut self.nodes_wb,
+                    &mut self.leaves_wb,
+                    &mut self.hl_wb,
+                );
+                if stepped {
+                    self.win.emitter_steps += 1;
+                }
+                progress |= stepped;
+            }
+            if let Some(top) = &mut self.top {
+                progress |= top.tick(&mut self.hl_wb);
+                self.win.toplevel_busy += top.busy as u64;
+            }
+            let out = if self.to_emitter {
+                &mut self.emit_fifo
+            } else {
+                &mut self.run_fifo
+            };
+            let before = self.merger.outputs;
+            progress |= self.merger.tick(self.cycle, out, &mut self.refill);
+            self.win.merge_outputs += self.merger.outputs - before;
+            progress |= self.presort_tick();
+            progress |= self.issue();
+            if progress || self.cycle < self.merger.next_op {
+                self.idle = 0;
+            } else {
+                self.idle += 1;
+                // Nothing outstanding: no unit can ever progress. Requests outstanding for
+                // far longer than any DRAM latency: the memory has stopped answering.
+                if (self.idle > DEADLOCK_CYCLES && self.port.outstanding() == 0)
+                    || self.idle > MEMORY_TIMEOUT_CYCLES
+                {
+                    return Err(MergeTreeError::Deadlock(self.state_dump()));
+                }
+            }
+            self.port.tick();
+            self.cycle += 1;
+            self.win.cycles += 1;
+            if self.win.cycles == self.cfg.trace_window_cycles {
+                self.close_window();
+            }
+        }
+        self.close_window();
+        Ok(self.cycle)
+    }
+
+    fn close_window(&mut self) {
+        if self.win.cycles > 0 {
+            let mut w = std::mem::take(&mut self.win);
+            w.phase = self.phase_name();
+            self.trace.push(w);
+            if let Some(h) = self.progress_hook.as_mut() {
+                h(self.emit.consumed + self.merger.outputs, self.n);
+            }
+        }
+        self.win.cycle_start = self.cycle;
+    }
+
+    fn phase_name(&self) -> String {
+        match self.phase {
+            Phase::PartialSort => "partial_sort".into(),
+            Phase::MergePass(p) | Phase::Fence(p) => format!("merge_pass_{}", p + 1),
+            Phase::Emit => {
+                if self.passes_total == 0 {
+                    "sort_and_emit".into()
+                } else {
+                    format!("merge_pass_{}_and_emit", self.passes_total)
+                }
+            }
+            Phase::Toplevel => "toplevel_sah".into(),
+            Phase::Done => "done".into(),
+        }
+    }
+
+    /// Closes the current phase's report row.
+    fn end_phase(&mut self) {
+        self.phases.push(PhaseReport {
+            name: self.phase_name(),
+            start_cycle: self.phase_start,
+            end_cycle: self.cycle,
+            bytes_read: self.phase_read,
+            bytes_written: self.phase_written,
+        });
+        self.phase_start = self.cycle;
+        self.phase_read = 0;
+        self.phase_written = 0;
+    }
+
+    /// The control FSM. Returns true when it changed state.
+    fn control(&mut self) -> bool {
+        match self.phase {
+            Phase::PartialSort => {
+                let k = self.fill_block;
+                let nsub = self.block_len(k).div_ceil(2 * self.cfg.b as u64);
+                if self.merger.state == MergeState::Idle && self.sub_ready == nsub {
+                    let first = k * self.cfg.m as u64 / (2 * self.cfg.b as u64);
+                    let (npad, b) = (self.npad, self.cfg.b as u64);
+                    self.merger.setup_partial(
+                        (first..first + nsub).map(|s| Self::sub_len(npad, b, s)),
+                        self.cycle,
+                    );
+                    self.run_flush = false;
+                    return true;
+                }
+                if self.merger.state == MergeState::Done {
+                    self.merger.state = MergeState::Idle;
+                    self.fill_block += 1;
+                    self.sub_ready = 0;
+                    self.run_flush = true;
+                    if self.fill_block == self.blocks {
+                        if self.passes_total == 0 {
+                            self.phase = Phase::Emit;
+                        } else {
+                            self.end_phase();
+                            self.phase = Phase::Fence(0);
+                        }
+                    }
+                    return true;
+                }
+                false
+            }
+            Phase::Fence(p) => {
+                if self.run_fifo.is_empty() && self.outstanding_writes == 0 {
+                    self.start_pass(p);
+                    return true;
+                }
+                false
+            }
+            Phase::MergePass(p) => {
+                if self.merger.state != MergeState::Done {
+                    return false;
+                }
+                self.group += 1;
+                let groups = self.pass_runs.div_ceil(self.cfg.fan_in());
+                if self.group < groups {
+                    self.setup_group();
+                } else {
+                    self.merger.state = MergeState::Idle;
+                    self.run_flush = true;
+                    self.end_phase();
+                    self.phase = Phase::Fence(p + 1);
+                }
+                true
+            }
+            Phase::Emit => {
+                if self.emit.done {
+                    self.nodes_wb.flush = true;
+                    self.leaves_wb.flush = true;
+                    self.hl_wb.flush = true;
+                    if self.nodes_wb.pending() == 0
+                        && self.leaves_wb.pending() == 0
+                        && self.hl_wb.pending() == 0
+                        && self.port.outstanding() == 0
+                    {
+                        self.end_phase();
+                        if self.cfg.toplevel_sah && self.emit.roots.len() > 1 {
+                            self.top = Some(TopUnit::new(&self.emit.roots, &self.cfg));
+                            self.hl_wb.flush = false;
+                            self.phase = Phase::Toplevel;
+                        } else {
+                            self.phase = Phase::Done;
+                        }
+                        return true;
+                    }
+                }
+                false
+            }
+            Phase::Toplevel => {
+                let top = self.top.as_ref().expect("toplevel unit in its phase");
+                if top.done() {
+                    self.hl_wb.flush = true;
+                    if self.hl_wb.pending() == 0 && self.port.outstanding() == 0 {
+                        self.end_phase();
+                        self.phase = Phase::Done;
+                        return true;
+                    }
+                }
+                false
+            }
+            Phase::Done => false,
+        }
+    }
+
+    /// Starts multi-merge pass `p` (runs of `M * F^p` elements).
+    fn start_pass(&mut self, p: u32) {
+        let fan = self.cfg.fan_in();
+        self.pass_run_len = self.cfg.m as u64 * fan.pow(p);
+        self.pass_runs = self.npad.div_ceil(self.pass_run_len);
+        self.group = 0;
+        self.dst = (p as usize + 1) % 2;
+        self.wr_pos = 0;
+        self.to_emitter = p + 1 == self.passes_total;
+        self.emit_active |= self.to_emitter;
+        self.phase = if self.to_emitter {
+            Phase::Emit
+        } else {
+            Phase::MergePass(p)
+        };
+        self.setup_group();
+    }
+
+    fn setup_group(&mut self) {
+        let fan = self.cfg.fan_in();
+        let first = self.group * fan;
+        let last = (first + fan).min(self.pass_runs);
+        let (len, npad) = (self.pass_run_len, self.npad);
+        self.run_flush = false;
+        self.merger.setup_multi(
+            (first..last).map(|r| (r * len, (npad - r * len).min(len))),
+            &mut self.refill,
+            self.cycle,
+        );
+    }
+
+    /// One cycle of the presorters and of the scratchpad write port.
+    fn presort_tick(&mut self) -> bool {
+        if self.phase != Phase::PartialSort {
+            return false;
+        }
+        let b = self.cfg.b as u64;
+        let subs_per_block = self.cfg.m as u64 / (2 * b);
+        let total_subs = self.npad.div_ceil(2 * b);
+        let mut progress = false;
+        let mut port_free = true;
+        let p_count = self.presorters.len() as u64;
+        for ps in self.presorters.iter_mut() {
+            match ps.state {
+                PresortState::Finished => {}
+                PresortState::Sorting => {
+                    if ps.sorted() {
+                        ps.state = PresortState::Draining { pos: 0 };
+                    } else {
+                        let worked = ps.tick_sort(self.cfg.b);
+                        progress |= worked;
+                        self.win.presort_busy += worked as u64;
+                        continue;
+                    }
+                }
+                PresortState::Draining { .. } => {}
+            }
+            if let PresortState::Draining { pos } = ps.state {
+                let block = ps.sub / subs_per_block;
+                let can = port_free
+                    && block == self.fill_block
+                    && self.merger.state == MergeState::Idle;
+                if !can {
+                    ps.wait_scratchpad_cycles += 1;
+                    continue;
+                }
+                port_free = false;
+                let slot = (ps.sub % subs_per_block) * 2 * b;
+                self.merger.scratch[(slot + pos as u64) as usize] = ps.buf[pos as usize];
+                ps.busy_cycles += 1;
+                self.win.presort_busy += 1;
+                progress = true;
+                if pos + 1 == ps.sub_len {
+                    self.sub_ready += 1;
+                    let next = ps.sub + p_count;
+                    if next < total_subs {
+                        ps.start(next, Self::sub_len(self.npad, b, next));
+                    } else {
+                        ps.state = PresortState::Finished;
+                    }
+                } else {
+                    ps.state = PresortState::Draining { pos: pos + 1 };
+                }
+            }
+        }
+        progress
+    }
+
+    fn new_tag(&mut self, d: ReadDesc) -> u64 {
+        match self.free_tags.pop() {
+            Some(t) => {
+                self.inflight[t as usize] = d;
+                t as u64
+            }
+            None => {
+                self.inflight.push(d);
+                (self.inflight.len() - 1) as u64
+            }
+        }
+    }
+
+    /// The read the reader wants to issue now, if any.
+    fn next_read(&self) -> Option<(ReadDesc, u64)> {
+        let b = self.cfg.b as u64;
+        if self.phase == Phase::PartialSort {
+            if self.in_next >= self.npad {
+                return None;
+            }
+            let sub = self.in_next / (2 * b);
+            let p = (sub % self.cfg.presorters as u64) as u32;
+            let ps = &self.presorters[p as usize];
+            if ps.used == ps.slots() {
+                return None;
+            }
+            let real = self.n.min(self.in_next + b) - self.in_next;
+            let d = ReadDesc {
+                dest: ReadDest::Presort { p, slot: ps.tail },
+                src: self.in_next,
+                count: b as u32,
+                bytes: (real * ELEM_BYTES) as u32,
+            };
+            return Some((d, self.layout.input + self.in_next * ELEM_BYTES));
+        }
+        let &buf = self.refill.front()?;
+        let (at, count) = self.merger.peek_fetch(buf);
+        let src_region = 1 - self.dst;
+        let d = ReadDesc {
+            dest: ReadDest::Merge { buf },
+            src: at,
+            count,
+            bytes: count * ELEM_BYTES as u32,
+        };
+        Some((d, self.layout.runs[src_region] + at * ELEM_BYTES))
+    }
+
+    /// The memory arbiter: issues at most one request. Returns true when it did.
+    fn issue(&mut self) -> bool {
+        for k in 0..REQUESTERS {
+            let who = (self.rr + k) % REQUESTERS;
+            let ok = match who {
+                0 => self.try_run_write(),
+                1 => Self::try_buffer_write(
+                    &mut self.nodes_wb,
+                    &mut *self.port,
+                    &mut self.outstanding_writes,
+                ),
+                2 => Self::try_buffer_write(
+                    &mut self.leaves_wb,
+                    &mut *self.port,
+                    &mut self.outstanding_writes,
+                ),
+                3 => Self::try_buffer_write(
+                    &mut self.hl_wb,
+                    &mut *self.port,
+                    &mut self.outstanding_writes,
+                ),
+                _ => self.try_read(),
+            };
+            match ok {
+                None => continue,
+                Some(Ok(bytes)) => {
+                    if who == 4 {
+                        self.phase_read += bytes;
+                    } else {
+                        self.phase_written += bytes;
+                    }
+                    self.rr = (who + 1) % REQUESTERS;
+                    return true;
+                }
+                Some(Err(())) => {
+                    self.port_refusals += 1;
+                    return false;
+                }
+            }
+        }
+        false
+    }
+
+    /// Bytes as the port counts them (whole bursts).
+    fn burst_bytes(port: &dyn MemoryPort, addr: u64, bytes: u32) -> u64 {
+        let bb = port.burst_bytes();
+        crate::dram::bursts_of(addr, bytes, bb) * bb as u64
+    }
+
+    fn try_read(&mut self) -> Option<Result<u64, ()>> {
+        let Some((d, addr)) = self.next_read() else {
+            if self.phase == Phase::PartialSort && self.in_next < self.npad {
+                self.reader_blocked_cycles += 1;
+            }
+            return None;
+        };
+        let tag = self.new_tag(d);
+        let req = MemRequest {
+            tag,
+            addr,
+            bytes: d.bytes,
+            kind: AccessKind::Read,
+        };
+        if self.port.send(req).is_err() {
+            self.free_tags.push(tag as u32);
+            return Some(Err(()));
+        }
+        match d.dest {
+            ReadDest::Presort { p, .. } => {
+                self.presorters[p as usize].alloc_slot();
+                self.in_next += self.cfg.b as u64;
+            }
+            ReadDest::Merge { buf } => {
+                self.refill.pop_front();
+                self.merger.commit_fetch(buf, d.count);
+            }
+        }
+        Some(Ok(Self::burst_bytes(&*self.port, addr, d.bytes)))
+    }
+
+    fn try_run_write(&mut self) -> Option<Result<u64, ()>> {
+        let len = self.run_fifo.len() as u64;
+        let b = self.cfg.b as u64;
+        if len == 0 || (len < b && !self.run_flush) {
+            return None;
+        }
+        let count = len.min(b);
+        let bytes = (count * ELEM_BYTES) as u32;
+        let addr = self.layout.runs[self.dst] + self.wr_pos * ELEM_BYTES;
+        let req = MemRequest {
+            tag: WRITE_TAG | bytes as u64,
+            addr,
+            bytes,
+            kind: AccessKind::Write,
+        };
+        if self.port.send(req).is_err() {
+            return Some(Err(()));
+        }
+        for _ in 0..count {
+            let e = self.run_fifo.pop().expect("counted");
+            self.region[self.dst][self.wr_pos as usize] = e;
+            self.wr_pos += 1;
+        }
+        self.outstanding_writes += 1;
+        Some(Ok(Self::burst_bytes(&*self.port, addr, bytes)))
+    }
+
+    fn try_buffer_write(
+        wb: &mut WriteBuffer,
+        port: &mut dyn MemoryPort,
+        outstanding: &mut u64,
+    ) -> Option<Result<u64, ()>> {
+        let (addr, bytes) = wb.ready()?;
+        let req = MemRequest {
+            tag: WRITE_TAG | bytes as u64,
+            addr,
+            bytes,
+            kind: AccessKind::Write,
+        };
+        if port.send(req).is_err() {
+            return Some(Err(()));
+        }
+        wb.issued(bytes);
+        *outstanding += 1;
+        Some(Ok(Self::burst_bytes(port, addr, bytes)))
+    }
+
+    fn on_response(&mut self, tag: u64) {
+        if tag & WRITE_TAG != 0 {
+            self.outstanding_writes -= 1;
+            self.win.bus_bytes += tag & 0xffff_ffff;
+            return;
+        }
+        let d = self.inflight[tag as usize];
+        self.free_tags.push(tag as u32);
+        self.win.bus_bytes += d.bytes as u64;
+        match d.dest {
+            ReadDest::Presort { p, slot } => {
+                let b = self.cfg.b as usize;
+                for i in 0..d.count as usize {
+                    let e = self.input_elem(d.src + i as u64);
+                    self.presorters[p as usize].ring[slot as usize * b + i] = e;
+                }
+                let ps = &mut self.presorters[p as usize];
+                ps.slot_count[slot as usize] = d.count;
+                ps.slot_valid[slot as usize] = true;
+            }
+            ReadDest::Merge { buf } => {
+                let src = &self.region[1 - self.dst];
+                let s = d.src as usize;
+                self.merger.fill(buf, &src[s..s + d.count as usize]);
+            }
+        }
+    }
+
+    /// Every FIFO and unit state, for a deadlock report.
+    fn state_dump(&self) -> String {
+        let mut s = format!(
+            "no unit progressed for {} cycles at cycle {} in phase {:?} ({} memory requests outstanding); ",
+            self.idle,
+            self.cycle,
+            self.phase,
+            self.port.outstanding()
+        );
+        for f in [self.emit_fifo.stats(), self.run_fifo.stats()] {
+            s += &format!(
+                "FIFO {}: {}/{} (peak {}, {} pushes); ",
+                f.name, f.len, f.capacity, f.peak, f.pushes
+            );
+        }
+        for (i, p) in self.presorters.iter().enumerate() {
+            s += &format!(
+                "presorter {i}: {:?}, sub-block {} {}/{} inserted, ring {}/{} used; ",
+                p.state,
+                p.sub,
+                p.inserted,
+                p.sub_len,
+                p.used,
+                p.slots()
+            );
+        }
+        s += &format!(
+            "merge: {:?}, heap {} live, refill queue {}; emitter: {} read, done {}; \
+             write buffers: nodes {}, leaves {}, highlevel {} bytes pending; \
+             {} writes outstanding",
+            self.merger.state,
+            self.merger.heap.live(),
+            self.refill.len(),
+            self.emit.consumed,
+            self.emit.done,
+            self.nodes_wb.pending(),
+            self.leaves_wb.pending(),
+            self.hl_wb.pending(),
+            self.outstanding_writes
+        );
+        s
+    }
+
+    /// Stall and busy counters of every unit.
+    pub fn stall_report(&self) -> StallReport {
+        let p = &self.presorters;
+        StallReport {
+            presort_busy_cycles: p.iter().map(|x| x.busy_cycles).sum(),
+            presort_starved_cycles: p.iter().map(|x| x.starved_cycles).sum(),
+            presort_wait_scratchpad_cycles: p.iter().map(|x| x.wait_scratchpad_cycles).sum(),
+            merge: self.merger.stalls,
+            merge_outputs: self.merger.outputs,
+            heap_ops: self.merger.ops,
+            emitter: self.emit.stalls,
+            emitter_steps: self.emit.steps,
+            reader_blocked_cycles: self.reader_blocked_cycles,
+            port_refusals: self.port_refusals,
+            fifos: vec![self.emit_fifo.stats(), self.run_fifo.stats()],
+        }
+    }
+
+    /// The memory port (for its statistics).
+    pub fn port(&self) -> &dyn MemoryPort {
+        &*self.port
+    }
+
+    /// The toplevel unit, if it ran.
+    pub fn toplevel(&self) -> Option<&TopUnit> {
+        self.top.as_ref()
+    }
+}

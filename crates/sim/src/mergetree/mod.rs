@@ -1,0 +1,266 @@
+//! MergeTree, the hardware HLBVH builder of \[P1\] and \[P2\] §4-6, as a cycle-level model
+//! whose speed is set by its DRAM traffic.
+//!
+//! The unit sorts the primitives' AABBs by the Morton codes of their centroids with an
+//! external multi-merge sort and streams the sorted AABBs into the hierarchy emitter:
+//! - [`config`]: parameters and the presets `p1` and `p2`;
+//! - input (in [`machine`]): 32-byte AABBs read in bursts of B, Morton codes computed as
+//!   they stream in (\[P2\] §5.1);
+//! - [`presort`]: the insertion presorters of the partial-sort mode (\[P2\] §5.5);
+//! - [`heap`]: the pipelined merge heap (\[P2\] §5.2);
+//! - [`merge`]: the multi-merge unit, its double-buffered scratchpad and the even/odd
+//!   schedule of \[P2\] Fig. 4 (§5.3), with as many merge passes as the scene needs;
+//! - [`emitter`]: the hierarchy emitter (\[P2\] §5.4, Algorithm 1), which drives the same
+//!   [`bvh::Emitter`] as the software builder, so the tree is the software tree;
+//! - [`toplevel`]: the optional toplevel binned SAH unit (\[P2\] §6.1);
+//! - [`report`]: cycles, traffic, utilization, stalls, time series (CSV and SVG).
+//!
+//! The centroid bounds that scale the Morton codes are an input of the unit (a
+//! configuration register written by the host, as the scene bounds are known to the
+//! application); computing them would take one more streaming read of the AABBs.
+//!
+//! Padding: the scene is padded to a multiple of B with elements whose code lies above
+//! every real code (\[P2\] §5.3), so they sort last and end the emitter's stream.
+
+pub mod config;
+pub mod emitter;
+pub mod heap;
+pub mod machine;
+pub mod merge;
+pub mod presort;
+pub mod report;
+pub mod toplevel;
+
+pub use config::{ConfigError, MergeTreeConfig};
+pub use machine::MemoryLayout;
+pub use report::{MergeTreeReport, PhaseReport, StallReport, TraceRow};
+
+use bvh::{Bvh2, HlbvhBuilder, HlbvhSahBuilder, MortonBits};
+use geom::Aabb;
+
+use crate::dram::MemoryPort;
+
+/// Morton code of the padding elements: above every 63-bit code.
+const PAD_CODE: u64 = 1 << 63;
+
+/// One sort element (\[P2\] §5.1): the AABB and the sort key (Morton code, then primitive
+/// reference, so the order is the software builder's stable (code, index) order).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Elem {
+    /// `code << 32 | index`.
+    pub key: u128,
+    /// The primitive's box.
+    pub aabb: Aabb,
+}
+
+impl Elem {
+    /// Placeholder contents of empty storage.
+    pub const PAD: Elem = Elem {
+        key: (PAD_CODE as u128) << 32,
+        aabb: Aabb::EMPTY,
+    };
+
+    /// The element of primitive `index` with Morton code `code`.
+    pub fn new(code: u64, index: u32, aabb: Aabb) -> Self {
+        Self {
+            key: ((code as u128) << 32) | index as u128,
+            aabb,
+        }
+    }
+
+    /// A padding element at position `i` past the end of the scene.
+    pub fn pad(i: u64) -> Self {
+        Self {
+            key: ((PAD_CODE as u128) << 32) | (i as u32) as u128,
+            aabb: Aabb::EMPTY,
+        }
+    }
+
+    /// Morton code.
+    pub fn code(&self) -> u64 {
+        (self.key >> 32) as u64
+    }
+
+    /// Primitive reference.
+    pub fn index(&self) -> u32 {
+        self.key as u32
+    }
+
+    /// True for padding.
+    pub fn is_pad(&self) -> bool {
+        self.code() >= PAD_CODE
+    }
+}
+
+/// Errors of a simulation.
+#[derive(Debug, thiserror::Error)]
+pub enum MergeTreeError {
+    /// The configuration is invalid.
+    #[error(transparent)]
+    Config(#[from] ConfigError),
+    /// The input cannot be built.
+    #[error("invalid input: {0}")]
+    Input(String),
+    /// No unit could make progress while work remained.
+    #[error("MergeTree deadlock: {0}")]
+    Deadlock(String),
+    /// The software reference builder failed.
+    #[error(transparent)]
+    Build(#[from] bvh::BuildError),
+}
+
+/// The centroid bounds of `aabbs`, with the software builder's centroid expression.
+pub fn centroid_bounds(aabbs: &[Aabb]) -> Aabb {
+    aabbs
+        .iter()
+        .fold(Aabb::EMPTY, |b, a| b.grow(a.min * 0.5 + a.max * 0.5))
+}
+
+/// Simulates MergeTree building a BVH over the primitive boxes `aabbs` with configuration
+/// `cfg` and memory `port`.
+pub fn simulate(
+    aabbs: &[Aabb],
+    cfg: &MergeTreeConfig,
+    port: Box<dyn MemoryPort>,
+) -> Result<MergeTreeReport, MergeTreeError> {
+    simulate_with_progress(aabbs, cfg, port, None)
+}
+
+/// [`simulate`] with a callback `(elements done, total)` called once per trace window.
+pub fn simulate_with_progress<'a>(
+    aabbs: &'a [Aabb],
+    cfg: &MergeTreeConfig,
+    port: Box<dyn MemoryPort>,
+    progress: Option<&'a mut dyn FnMut(u64, u64)>,
+) -> Result<MergeTreeReport, MergeTreeError> {
+    cfg.validate()?;
+    if aabbs.len() >= u32::MAX as usize / 2 {
+        return Err(MergeTreeError::Input(format!(
+            "{} primitives exceed the 32-bit references",
+            aabbs.len()
+        )));
+    }
+    if let Some(i) = aabbs.iter().position(|a| !a.is_finite() || a.is_empty()) {
+        return Err(MergeTreeError::Input(format!(
+            "primitive {i} has a non-finite or inverted box"
+        )));
+    }
+    let cb = centroid_bounds(aabbs);
+    let mut m = machine::Machine::new(aabbs, &cb, cfg, port, progress);
+    let cycles = m.run()?;
+    let mem = m.port().stats();
+    let peak = m.port().peak_bytes_per_unit_cycle();
+    let stalls = m.stall_report();
+    let partial_cycles: u64 = m
+        .phases
+        .iter()
+        .filter(|p| p.name == "partial_sort" || p.name == "sort_and_emit")
+        .map(|p| p.end_cycle - p.start_cycle)
+        .sum();
+    let (toplevel_sweeps, toplevel_cycles, top_tree) = match m.toplevel() {
+        Some(t) => (
+            t.sweeps.len() as u64,
+            m.phases
+                .iter()
+                .find(|p| p.name == "toplevel_sah")
+                .map_or(0, |p| p.end_cycle - p.start_cycle),
+            Some(t.tree.clone()),
+        ),
+        None => (0, 0, None),
+    };
+    let blocks = (aabbs.len() as u64).div_ceil(cfg.m as u64);
+    let report = MergeTreeReport {
+        triangles: aabbs.len() as u64,
+        config: cfg.clone(),
+        dram: m.port().name(),
+        cycles,
+        ms: cycles as f64 / (cfg.clock_mhz as f64 * 1e3),
+        bytes_read: mem.bytes_read,
+        bytes_written: mem.bytes_written,
+        bus_utilization: if cycles == 0 {
+            0.0
+        } else {
+            (mem.bytes_read + mem.bytes_written) as f64 / (peak * cycles as f64)
+        },
+        peak_bytes_per_cycle: peak,
+        partial_sort_blocks: blocks,
+        merge_passes: m.passes_total,
+        phases: std::mem::take(&mut m.phases),
+        presort_busy_fraction: if partial_cycles == 0 {
+            0.0
+        } else {
+            stalls.presort_busy_cycles as f64 / (cfg.presorters as f64 * partial_cycles as f64)
+        },
+        merge_elements_per_cycle: if cycles == 0 {
+            0.0
+        } else {
+            stalls.merge_outputs as f64 / cycles as f64
+        },
+        stalls,
+        nodes: m.emit.nodes.len() as u64,
+        leaf_entries: m.emit.order.len() as u64,
+        highlevel_roots: m.emit.roots.len() as u64,
+        max_stack_depth: m.emit.max_stack_depth(),
+        toplevel_sweeps,
+        toplevel_cycles,
+        layout: m.layout,
+        memory: mem,
+        trace: std::mem::take(&mut m.trace),
+        highlevel: bvh::Highlevel {
+            nodes: std::mem::take(&mut m.emit.nodes),
+            roots: std::mem::take(&mut m.emit.roots),
+            order: std::mem::take(&mut m.emit.order),
+        },
+        top_tree,
+    };
+    Ok(report)
+}
+
+/// The software HLBVH builder with the same tree options as `cfg`.
+pub fn software_builder(cfg: &MergeTreeConfig) -> HlbvhBuilder {
+    HlbvhBuilder {
+        bits: if cfg.morton_bits == 30 {
+            MortonBits::Bits30
+        } else {
+            MortonBits::Bits63
+        },
+        combine_identical: cfg.combine_identical,
+        max_leaf_size: cfg.max_leaf_size,
+        highlevel_threshold: cfg.highlevel_threshold,
+        threads: 0,
+    }
+}
+
+/// The tree the software builder makes for `cfg` (HLBVH, or HLBVH+SAH with the toplevel
+/// unit).
+pub fn software_tree(aabbs: &[Aabb], cfg: &MergeTreeConfig) -> Result<Bvh2, MergeTreeError> {
+    let hl = software_builder(cfg);
+    if cfg.toplevel_sah {
+        return Ok(HlbvhSahBuilder {
+            hlbvh: hl,
+            bins: cfg.toplevel_bins as usize,
+            threads: 0,
+        }
+        .build(aabbs)?);
+    }
+    Ok(hl.build(aabbs)?)
+}
+
+/// True when the simulated unit's tree equals the software builder's node for node (and,
+/// with a threshold, its high-level output equals the software emitter's).
+pub fn tree_matches_software(
+    report: &MergeTreeReport,
+    aabbs: &[Aabb],
+) -> Result<bool, MergeTreeError> {
+    let cfg = &report.config;
+    if cfg.highlevel_threshold.is_some() {
+        let hl = software_builder(cfg).build_highlevel(aabbs)?;
+        if hl != report.highlevel {
+            return Ok(false);
+        }
+    }
+    Ok(report.tree()? == software_tree(aabbs, cfg)?)
+}
+
+#[cfg(test)]
+mod tests;

@@ -1,0 +1,237 @@
+//! The insertion presorters of the partial-sort mode (\[P2\] §5.5).
+//!
+//! Input data are streamed into a small number of presorters, each sorting one
+//! double-buffer-sized sub-block (2B elements, one merge queue of the partial-sort merge)
+//! by insertion sort "at a rate of one compare-and-swap per cycle, plus one cycle of
+//! overhead for each inner loop". Inserting an element into a sorted prefix therefore takes
+//! `compares + 1` cycles, where `compares` counts the compare-and-swaps of its inner loop;
+//! insertion starts as soon as an element arrives, so sorting overlaps reading. A sorted
+//! sub-block is copied into its scratchpad slot at one element per cycle through the
+//! scratchpad's single write port (shared by all presorters), once the merge of the
+//! previous block has released the scratchpad.
+//!
+//! Reads land in a ring of `presort_slots` buffers of B elements in front of each
+//! presorter, consumed in the order they were requested, so responses that return out of
+//! order (a cycle-accurate DRAM) cannot mix sub-blocks.
+
+use super::Elem;
+
+/// What a presorter is doing.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum PresortState {
+    /// Inserting the elements of its current sub-block.
+    Sorting,
+    /// Copying its sorted sub-block to the scratchpad; `pos` elements done.
+    Draining {
+        /// Elements copied so far.
+        pos: u32,
+    },
+    /// No sub-blocks left.
+    Finished,
+}
+
+/// One insertion presorter with its read ring.
+#[derive(Clone, Debug)]
+pub(super) struct Presorter {
+    /// Ring of `slots` read buffers of `b` elements.
+    pub ring: Vec<Elem>,
+    /// Elements delivered into each slot (valid once the read completed).
+    pub slot_count: Vec<u32>,
+    /// Read of the slot completed.
+    pub slot_valid: Vec<bool>,
+    /// Slot consumed next.
+    pub head: u32,
+    /// Next slot to allocate to a read.
+    pub tail: u32,
+    /// Slots allocated (requested, not yet consumed).
+    pub used: u32,
+    /// Next element inside the head slot.
+    pub head_pos: u32,
+    /// Global index of the sub-block being sorted.
+    pub sub: u64,
+    /// Its length.
+    pub sub_len: u32,
+    /// Elements inserted so far.
+    pub inserted: u32,
+    /// The sort buffer (sorted prefix of `inserted` elements).
+    pub buf: Vec<Elem>,
+    /// Remaining cycles of the insertion in progress.
+    pub busy: u32,
+    /// State.
+    pub state: PresortState,
+    /// Cycles spent inserting or copying.
+    pub busy_cycles: u64,
+    /// Cycles waiting for read data.
+    pub starved_cycles: u64,
+    /// Cycles waiting for the scratchpad (previous block still merging, or port taken).
+    pub wait_scratchpad_cycles: u64,
+}
+
+impl Presorter {
+    /// A presorter with `slots` ring buffers of `b` elements, starting at sub-block `first`.
+    pub fn new(slots: u32, b: u32, first: u64) -> Self {
+        Self {
+            ring: vec![Elem::PAD; (slots * b) as usize],
+            slot_count: vec![0; slots as usize],
+            slot_valid: vec![false; slots as usize],
+            head: 0,
+            tail: 0,
+            used: 0,
+            head_pos: 0,
+            sub: first,
+            sub_len: 0,
+            inserted: 0,
+            buf: Vec::with_capacity(2 * b as usize),
+            busy: 0,
+            state: PresortState::Sorting,
+            busy_cycles: 0,
+            starved_cycles: 0,
+            wait_scratchpad_cycles: 0,
+        }
+    }
+
+    /// Number of ring slots.
+    pub fn slots(&self) -> u32 {
+        self.slot_count.len() as u32
+    }
+
+    /// Allocates the next ring slot for a read; `None` when the ring is full.
+    pub fn alloc_slot(&mut self) -> Option<u32> {
+        if self.used == self.slots() {
+            return None;
+        }
+        let s = self.tail;
+        self.tail = (self.tail + 1) % self.slots();
+        self.used += 1;
+        self.slot_valid[s as usize] = false;
+        Some(s)
+    }
+
+    /// Takes the next delivered element from the ring, in request order.
+    fn take(&mut self, b: u32) -> Option<Elem> {
+        if self.used == 0 || !self.slot_valid[self.head as usize] {
+            return None;
+        }
+        let h = self.head as usize;
+        let e = self.ring[h * b as usize + self.head_pos as usize];
+        self.head_pos += 1;
+        if self.head_pos == self.slot_count[h] {
+            self.head_pos = 0;
+            self.head = (self.head + 1) % self.slots();
+            self.used -= 1;
+        }
+        Some(e)
+    }
+
+    /// One cycle of sorting. Returns true when the presorter did work.
+    pub fn tick_sort(&mut self, b: u32) -> bool {
+        if self.busy > 0 {
+            self.busy -= 1;
+            self.busy_cycles += 1;
+            return true;
+        }
+        if self.inserted == self.sub_len {
+            return false;
+        }
+        let Some(e) = self.take(b) else {
+            self.starved_cycles += 1;
+            return false;
+        };
+        // Insertion: one compare-and-swap per cycle, plus one cycle for the inner loop.
+        let i = self.buf.len();
+        self.buf.push(e);
+        let mut j = i;
+        let mut compares = 0u32;
+        while j > 0 {
+            compares += 1;
+            if self.buf[j - 1].key > e.key {
+                self.buf[j] = self.buf[j - 1];
+                j -= 1;
+            } else {
+                break;
+            }
+        }
+        self.buf[j] = e;
+        self.inserted += 1;
+        // This cycle is the first of the `compares + 1`.
+        self.busy = compares;
+        self.busy_cycles += 1;
+        true
+    }
+
+    /// True when the sub-block is sorted and ready to copy.
+    pub fn sorted(&self) -> bool {
+        self.state == PresortState::Sorting && self.busy == 0 && self.inserted == self.sub_len
+    }
+
+    /// Starts sorting sub-block `sub` of `len` elements.
+    pub fn start(&mut self, sub: u64, len: u32) {
+        self.sub = sub;
+        self.sub_len = len;
+        self.inserted = 0;
+        self.buf.clear();
+        self.state = PresortState::Sorting;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use geom::Aabb;
+
+    fn elem(k: u128) -> Elem {
+        Elem {
+            key: k,
+            aabb: Aabb::EMPTY,
+        }
+    }
+
+    #[test]
+    fn insertion_sort_cost_counts_compares_plus_one() {
+        // b = 4, a sub-block of 4: deliver 3 1 2 0.
+        let mut p = Presorter::new(2, 4, 0);
+        p.start(0, 4);
+        let s = p.alloc_slot().unwrap();
+        for (i, k) in [3u128, 1, 2, 0].into_iter().enumerate() {
+            p.ring[s as usize * 4 + i] = elem(k);
+        }
+        p.slot_count[s as usize] = 4;
+        p.slot_valid[s as usize] = true;
+        let mut cycles = 0;
+        while !p.sorted() {
+            p.tick_sort(4);
+            cycles += 1;
+        }
+        // 3: 0 compares (1 cycle); 1: 1 compare, swap to front (2); 2: 2 compares (3);
+        // 0: 3 compares to the front (4). Total 10.
+        assert_eq!(cycles, 10);
+        let keys: Vec<u128> = p.buf.iter().map(|e| e.key).collect();
+        assert_eq!(keys, vec![0, 1, 2, 3]);
+        assert_eq!(p.busy_cycles, 10);
+    }
+
+    #[test]
+    fn ring_is_consumed_in_request_order() {
+        let mut p = Presorter::new(2, 2, 0);
+        p.start(0, 4);
+        let a = p.alloc_slot().unwrap();
+        let b = p.alloc_slot().unwrap();
+        assert!(p.alloc_slot().is_none());
+        // The second read completes first: nothing may be taken until the first has.
+        p.ring[b as usize * 2] = elem(7);
+        p.ring[b as usize * 2 + 1] = elem(8);
+        p.slot_count[b as usize] = 2;
+        p.slot_valid[b as usize] = true;
+        assert!(!p.tick_sort(2));
+        assert_eq!(p.starved_cycles, 1);
+        p.ring[a as usize * 2] = elem(5);
+        p.ring[a as usize * 2 + 1] = elem(6);
+        p.slot_count[a as usize] = 2;
+        p.slot_valid[a as usize] = true;
+        while !p.sorted() {
+            p.tick_sort(2);
+        }
+        assert_eq!(p.buf[0].key, 5);
+        assert_eq!(p.used, 0);
+    }
+}
