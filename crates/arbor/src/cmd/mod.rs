@@ -3,6 +3,7 @@
 pub mod build;
 pub mod demo;
 pub mod info;
+pub mod sim_mergetree;
 
 use crate::progress::{Ui, Unit};
 use anyhow::Context;

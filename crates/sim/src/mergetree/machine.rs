@@ -448,7 +448,9 @@ impl<'a> Machine<'a> {
             w.phase = self.phase_name();
             self.trace.push(w);
             if let Some(h) = self.progress_hook.as_mut() {
-                h(self.emit.consumed + self.merger.outputs, self.n);
+                // Work: every merge output (partial sorts and passes) and every emitter read.
+                let total = self.npad * (self.passes_total as u64 + 1) + self.n;
+                h(self.emit.consumed + self.merger.outputs, total);
             }
         }
         self.win.cycle_start = self.cycle;
