@@ -103,6 +103,8 @@ pub struct MergeTreeConfig {
     pub sah_cycles_per_sweep: u32,
     /// Cycles per row of the busy-fraction time series.
     pub trace_window_cycles: u64,
+    /// Skip cycles in which every unit waits for memory (exact; off only to test that).
+    pub fast_forward: bool,
 }
 
 /// Names of the parameters [`MergeTreeConfig::set`] accepts.
@@ -125,6 +127,7 @@ pub const KEYS: &[&str] = &[
     "toplevel_bins",
     "sah_cycles_per_sweep",
     "trace_window_cycles",
+    "fast_forward",
 ];
 
 impl MergeTreeConfig {
@@ -163,6 +166,7 @@ impl MergeTreeConfig {
             toplevel_bins: 16,
             sah_cycles_per_sweep: 32,
             trace_window_cycles: 10_000,
+            fast_forward: true,
         }
     }
 
@@ -247,6 +251,7 @@ impl MergeTreeConfig {
             "toplevel_bins" => self.toplevel_bins = num32(2)?,
             "sah_cycles_per_sweep" => self.sah_cycles_per_sweep = num32(0)?,
             "trace_window_cycles" => self.trace_window_cycles = num(1)?,
+            "fast_forward" => self.fast_forward = boolean()?,
             _ => {
                 return Err(ConfigError::UnknownKey {
                     key: key.to_string(),

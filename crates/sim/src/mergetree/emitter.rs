@@ -109,7 +109,7 @@ impl EmitUnit {
                 return false;
             };
             debug_assert!(!e.is_pad(), "padding before the end of the scene");
-            let code = e.code();
+            let code = e.code;
             self.run = if self.consumed > 0 && code == self.prev_code {
                 self.run + 1
             } else {
@@ -121,7 +121,7 @@ impl EmitUnit {
             } else {
                 self.consumed as u32
             };
-            self.order.push(e.index());
+            self.order.push(e.index);
             self.consumed += 1;
             leaves_out.add(LEAF_ENTRY_BYTES);
             prim = Some(Prim {

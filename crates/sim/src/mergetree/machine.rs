@@ -208,6 +208,9 @@ pub(super) struct Machine<'a> {
     // Partial sort.
     presorters: Vec<Presorter>,
     in_next: u64,
+    /// Presorter of the sub-block at `in_next`, and whether `in_next` is its second half.
+    in_p: u32,
+    in_second_half: bool,
     fill_block: u64,
     sub_ready: u64,
     // Merge.
@@ -245,6 +248,13 @@ pub(super) struct Machine<'a> {
     pub trace: Vec<TraceRow>,
     win: TraceRow,
     idle: u64,
+    /// Stall counters at the start of a probe cycle, and their change over it.
+    snap_before: Vec<u64>,
+    snap_after: Vec<u64>,
+    /// The previous cycle was idle: snapshot this one to fast-forward if it is too.
+    probe: bool,
+    /// Cycles skipped by fast-forwarding.
+    pub skipped_cycles: u64,
     progress_hook: Option<&'a mut dyn FnMut(u64, u64)>,
 }
 
@@ -275,14 +285,20 @@ impl<'a> Machine<'a> {
             .map(|p| {
                 let mut ps = Presorter::new(cfg.presort_slots, cfg.b, p as u64);
                 if (p as u64) < subs {
-                    ps.start(p as u64, Self::sub_len(npad, b, p as u64));
+                    ps.start(
+                        p as u64,
+                        Self::sub_len(npad, b, p as u64),
+                        p as u64 * 2 * b / m,
+                    );
                 } else {
                     ps.state = PresortState::Finished;
                 }
                 ps
             })
             .collect();
-        let region_len = if passes_total > 0 { npad as usize } else { 0 };
+        // Functional contents of the run regions: region 0 holds the partial-sort runs
+        // when a merge pass follows; region 1 is written only by non-final passes.
+        let region_len = |needed: bool| if needed { npad as usize } else { 0 };
         Self {
             cfg: cfg.clone(),
             aabbs,
@@ -297,6 +313,8 @@ impl<'a> Machine<'a> {
             phase: Phase::PartialSort,
             presorters,
             in_next: 0,
+            in_p: 0,
+            in_second_half: false,
             fill_block: 0,
             sub_ready: 0,
             merger: Merger::new(cfg.m, cfg.b),
@@ -305,7 +323,10 @@ impl<'a> Machine<'a> {
             run_fifo: Fifo::new("merge->run writer", cfg.run_write_fifo as usize),
             to_emitter: blocks == 1,
             run_flush: false,
-            region: [vec![Elem::PAD; region_len], vec![Elem::PAD; region_len]],
+            region: [
+                vec![Elem::PAD; region_len(passes_total > 0)],
+                vec![Elem::PAD; region_len(passes_total > 1)],
+            ],
             dst: 0,
             wr_pos: 0,
             pass_run_len: m,
@@ -347,6 +368,10 @@ impl<'a> Machine<'a> {
             trace: Vec::new(),
             win: TraceRow::default(),
             idle: 0,
+            snap_before: vec![0; 7 + 2 * cfg.presorters as usize],
+            snap_after: vec![0; 7 + 2 * cfg.presorters as usize],
+            probe: false,
+            skipped_cycles: 0,
             progress_hook,
         }
     }
@@ -384,6 +409,12 @@ impl<'a> Machine<'a> {
         }
         self.win.cycle_start = 0;
         loop {
+            let probe = self.probe;
+            if probe {
+                let mut snap = std::mem::take(&mut self.snap_before);
+                self.snapshot(&mut snap);
+                self.snap_before = snap;
+            }
             let mut progress = false;
             while let Some(r) = self.port.pop_response() {
                 progress = true;
@@ -419,8 +450,10 @@ impl<'a> Machine<'a> {
             self.win.merge_outputs += self.merger.outputs - before;
             progress |= self.presort_tick();
             progress |= self.issue();
-            if progress || self.cycle < self.merger.next_op {
+            let idle = !progress && self.cycle >= self.merger.next_op;
+            if !idle {
                 self.idle = 0;
+                self.probe = false;
             } else {
                 self.idle += 1;
                 // Nothing outstanding: no unit can ever progress. Requests outstanding for
@@ -431,15 +464,82 @@ impl<'a> Machine<'a> {
                     return Err(MergeTreeError::Deadlock(self.state_dump()));
                 }
             }
-            self.port.tick();
-            self.cycle += 1;
-            self.win.cycles += 1;
-            if self.win.cycles == self.cfg.trace_window_cycles {
-                self.close_window();
+            self.advance();
+            if idle && probe && self.cfg.fast_forward {
+                self.fast_forward();
             }
+            self.probe = idle;
         }
         self.close_window();
         Ok(self.cycle)
+    }
+
+    /// Ends the cycle: the memory and the trace advance.
+    #[inline]
+    fn advance(&mut self) {
+        self.port.tick();
+        self.cycle += 1;
+        self.win.cycles += 1;
+        if self.win.cycles == self.cfg.trace_window_cycles {
+            self.close_window();
+        }
+    }
+
+    /// The stall counters that an idle cycle increments, into `out`.
+    fn snapshot(&self, out: &mut [u64]) {
+        let m = &self.merger.stalls;
+        let e = &self.emit.stalls;
+        out[..7].copy_from_slice(&[
+            m.queue_dry_cycles,
+            m.output_full_cycles,
+            m.init_wait_cycles,
+            e.starved_cycles,
+            e.write_full_cycles,
+            self.reader_blocked_cycles,
+            self.port_refusals,
+        ]);
+        for (i, p) in self.presorters.iter().enumerate() {
+            out[7 + 2 * i] = p.starved_cycles;
+            out[8 + 2 * i] = p.wait_scratchpad_cycles;
+        }
+    }
+
+    /// After an idle probe cycle: no unit can change state until a memory response
+    /// arrives (no unit is counting down, nothing was issued, the merge slot is open), so
+    /// every cycle until then repeats the probe cycle exactly. Skip them, adding the probe
+    /// cycle's stall counts once per skipped cycle.
+    fn fast_forward(&mut self) {
+        let mut after = std::mem::take(&mut self.snap_after);
+        self.snapshot(&mut after);
+        for (a, b) in after.iter_mut().zip(&self.snap_before) {
+            *a -= b;
+        }
+        let mut k = 0u64;
+        while self.port.completed_waiting() == 0
+            && self.port.outstanding() > 0
+            && self.idle + k < MEMORY_TIMEOUT_CYCLES
+        {
+            self.advance();
+            k += 1;
+        }
+        if k > 0 {
+            let m = &mut self.merger.stalls;
+            m.queue_dry_cycles += k * after[0];
+            m.output_full_cycles += k * after[1];
+            m.init_wait_cycles += k * after[2];
+            let e = &mut self.emit.stalls;
+            e.starved_cycles += k * after[3];
+            e.write_full_cycles += k * after[4];
+            self.reader_blocked_cycles += k * after[5];
+            self.port_refusals += k * after[6];
+            for (i, p) in self.presorters.iter_mut().enumerate() {
+                p.starved_cycles += k * after[7 + 2 * i];
+                p.wait_scratchpad_cycles += k * after[8 + 2 * i];
+            }
+            self.idle += k;
+            self.skipped_cycles += k;
+        }
+        self.snap_after = after;
     }
 
     fn close_window(&mut self) {
@@ -639,9 +739,8 @@ impl<'a> Machine<'a> {
                 PresortState::Draining { .. } => {}
             }
             if let PresortState::Draining { pos } = ps.state {
-                let block = ps.sub / subs_per_block;
                 let can = port_free
-                    && block == self.fill_block
+                    && ps.block == self.fill_block
                     && self.merger.state == MergeState::Idle;
                 if !can {
                     ps.wait_scratchpad_cycles += 1;
@@ -657,7 +756,7 @@ impl<'a> Machine<'a> {
                     self.sub_ready += 1;
                     let next = ps.sub + p_count;
                     if next < total_subs {
-                        ps.start(next, Self::sub_len(self.npad, b, next));
+                        ps.start(next, Self::sub_len(self.npad, b, next), next / subs_per_block);
                     } else {
                         ps.state = PresortState::Finished;
                     }
@@ -689,8 +788,7 @@ impl<'a> Machine<'a> {
             if self.in_next >= self.npad {
                 return None;
             }
-            let sub = self.in_next / (2 * b);
-            let p = (sub % self.cfg.presorters as u64) as u32;
+            let p = self.in_p;
             let ps = &self.presorters[p as usize];
             if ps.used == ps.slots() {
                 return None;
@@ -718,8 +816,11 @@ impl<'a> Machine<'a> {
 
     /// The memory arbiter: issues at most one request. Returns true when it did.
     fn issue(&mut self) -> bool {
-        for k in 0..REQUESTERS {
-            let who = (self.rr + k) % REQUESTERS;
+        let mut who = self.rr;
+        for _ in 0..REQUESTERS {
+            if who == REQUESTERS {
+                who = 0;
+            }
             let ok = match who {
                 0 => self.try_run_write(),
                 1 => Self::try_buffer_write(
@@ -740,14 +841,17 @@ impl<'a> Machine<'a> {
                 _ => self.try_read(),
             };
             match ok {
-                None => continue,
+                None => {
+                    who += 1;
+                    continue;
+                }
                 Some(Ok(bytes)) => {
                     if who == 4 {
                         self.phase_read += bytes;
                     } else {
                         self.phase_written += bytes;
                     }
-                    self.rr = (who + 1) % REQUESTERS;
+                    self.rr = who + 1;
                     return true;
                 }
                 Some(Err(())) => {
@@ -787,6 +891,14 @@ impl<'a> Machine<'a> {
             ReadDest::Presort { p, .. } => {
                 self.presorters[p as usize].alloc_slot();
                 self.in_next += self.cfg.b as u64;
+                // Two buffers make a sub-block; sub-blocks go round robin to presorters.
+                self.in_second_half = !self.in_second_half;
+                if !self.in_second_half {
+                    self.in_p += 1;
+                    if self.in_p == self.cfg.presorters {
+                        self.in_p = 0;
+                    }
+                }
             }
             ReadDest::Merge { buf } => {
                 self.refill.pop_front();

@@ -209,13 +209,13 @@ impl Merger {
                 let q = &self.queues[self.init_q as usize];
                 if q.run_len == 0 {
                     self.init_q += 1;
-                    return false;
+                    return true;
                 }
                 if !q.valid[0] {
                     self.stalls.init_wait_cycles += 1;
                     return false;
                 }
-                let key = self.scratch[q.base[0] as usize].key;
+                let key = self.scratch[q.base[0] as usize].key();
                 self.heap.insert(key, self.init_q);
                 self.init_q += 1;
                 self.ops += 1;
@@ -225,19 +225,19 @@ impl Merger {
             MergeState::Merge => {
                 let Some((_, qi)) = self.heap.top() else {
                     self.state = MergeState::Done;
-                    return false;
+                    return true;
                 };
                 let q = self.queues[qi as usize];
                 let pos = (q.base[q.cur] + q.idx) as usize;
                 let succ_key = if q.idx + 1 < q.count[q.cur] {
-                    self.scratch[pos + 1].key
+                    self.scratch[pos + 1].key()
                 } else if q.consumed + 1 < q.run_len {
                     let other = 1 - q.cur;
                     if !q.valid[other] {
                         self.stalls.queue_dry_cycles += 1;
                         return false;
                     }
-                    self.scratch[q.base[other] as usize].key
+                    self.scratch[q.base[other] as usize].key()
                 } else {
                     INF_KEY
                 };

@@ -47,8 +47,10 @@ const PAD_CODE: u64 = 1 << 63;
 /// reference, so the order is the software builder's stable (code, index) order).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Elem {
-    /// `code << 32 | index`.
-    pub key: u128,
+    /// Morton code (padding: above every code).
+    pub code: u64,
+    /// Primitive reference.
+    pub index: u32,
     /// The primitive's box.
     pub aabb: Aabb,
 }
@@ -56,39 +58,34 @@ pub struct Elem {
 impl Elem {
     /// Placeholder contents of empty storage.
     pub const PAD: Elem = Elem {
-        key: (PAD_CODE as u128) << 32,
+        code: PAD_CODE,
+        index: 0,
         aabb: Aabb::EMPTY,
     };
 
     /// The element of primitive `index` with Morton code `code`.
     pub fn new(code: u64, index: u32, aabb: Aabb) -> Self {
-        Self {
-            key: ((code as u128) << 32) | index as u128,
-            aabb,
-        }
+        Self { code, index, aabb }
     }
 
     /// A padding element at position `i` past the end of the scene.
     pub fn pad(i: u64) -> Self {
         Self {
-            key: ((PAD_CODE as u128) << 32) | (i as u32) as u128,
+            code: PAD_CODE,
+            index: i as u32,
             aabb: Aabb::EMPTY,
         }
     }
 
-    /// Morton code.
-    pub fn code(&self) -> u64 {
-        (self.key >> 32) as u64
-    }
-
-    /// Primitive reference.
-    pub fn index(&self) -> u32 {
-        self.key as u32
+    /// The sort key `code << 32 | index`: the software builder's (code, index) order.
+    #[inline]
+    pub fn key(&self) -> u128 {
+        ((self.code as u128) << 32) | self.index as u128
     }
 
     /// True for padding.
     pub fn is_pad(&self) -> bool {
-        self.code() >= PAD_CODE
+        self.code >= PAD_CODE
     }
 }
 
@@ -203,6 +200,7 @@ pub fn simulate_with_progress<'a>(
         max_stack_depth: m.emit.max_stack_depth(),
         toplevel_sweeps,
         toplevel_cycles,
+        fast_forward_cycles: m.skipped_cycles,
         layout: m.layout,
         memory: mem,
         trace: std::mem::take(&mut m.trace),

@@ -49,6 +49,8 @@ pub(super) struct Presorter {
     pub head_pos: u32,
     /// Global index of the sub-block being sorted.
     pub sub: u64,
+    /// Partial-sort block of that sub-block.
+    pub block: u64,
     /// Its length.
     pub sub_len: u32,
     /// Elements inserted so far.
@@ -79,6 +81,7 @@ impl Presorter {
             used: 0,
             head_pos: 0,
             sub: first,
+            block: 0,
             sub_len: 0,
             inserted: 0,
             buf: Vec::with_capacity(2 * b as usize),
@@ -101,7 +104,11 @@ impl Presorter {
             return None;
         }
         let s = self.tail;
-        self.tail = (self.tail + 1) % self.slots();
+        self.tail = if self.tail + 1 == self.slots() {
+            0
+        } else {
+            self.tail + 1
+        };
         self.used += 1;
         self.slot_valid[s as usize] = false;
         Some(s)
@@ -117,7 +124,11 @@ impl Presorter {
         self.head_pos += 1;
         if self.head_pos == self.slot_count[h] {
             self.head_pos = 0;
-            self.head = (self.head + 1) % self.slots();
+            self.head = if self.head + 1 == self.slots() {
+                0
+            } else {
+                self.head + 1
+            };
             self.used -= 1;
         }
         Some(e)
@@ -144,7 +155,7 @@ impl Presorter {
         let mut compares = 0u32;
         while j > 0 {
             compares += 1;
-            if self.buf[j - 1].key > e.key {
+            if self.buf[j - 1].key() > e.key() {
                 self.buf[j] = self.buf[j - 1];
                 j -= 1;
             } else {
@@ -164,9 +175,10 @@ impl Presorter {
         self.state == PresortState::Sorting && self.busy == 0 && self.inserted == self.sub_len
     }
 
-    /// Starts sorting sub-block `sub` of `len` elements.
-    pub fn start(&mut self, sub: u64, len: u32) {
+    /// Starts sorting sub-block `sub` of `len` elements, in partial-sort block `block`.
+    pub fn start(&mut self, sub: u64, len: u32, block: u64) {
         self.sub = sub;
+        self.block = block;
         self.sub_len = len;
         self.inserted = 0;
         self.buf.clear();
@@ -180,17 +192,14 @@ mod tests {
     use geom::Aabb;
 
     fn elem(k: u128) -> Elem {
-        Elem {
-            key: k,
-            aabb: Aabb::EMPTY,
-        }
+        Elem::new(k as u64, 0, Aabb::EMPTY)
     }
 
     #[test]
     fn insertion_sort_cost_counts_compares_plus_one() {
         // b = 4, a sub-block of 4: deliver 3 1 2 0.
         let mut p = Presorter::new(2, 4, 0);
-        p.start(0, 4);
+        p.start(0, 4, 0);
         let s = p.alloc_slot().unwrap();
         for (i, k) in [3u128, 1, 2, 0].into_iter().enumerate() {
             p.ring[s as usize * 4 + i] = elem(k);
@@ -205,7 +214,7 @@ mod tests {
         // 3: 0 compares (1 cycle); 1: 1 compare, swap to front (2); 2: 2 compares (3);
         // 0: 3 compares to the front (4). Total 10.
         assert_eq!(cycles, 10);
-        let keys: Vec<u128> = p.buf.iter().map(|e| e.key).collect();
+        let keys: Vec<u64> = p.buf.iter().map(|e| e.code).collect();
         assert_eq!(keys, vec![0, 1, 2, 3]);
         assert_eq!(p.busy_cycles, 10);
     }
@@ -213,7 +222,7 @@ mod tests {
     #[test]
     fn ring_is_consumed_in_request_order() {
         let mut p = Presorter::new(2, 2, 0);
-        p.start(0, 4);
+        p.start(0, 4, 0);
         let a = p.alloc_slot().unwrap();
         let b = p.alloc_slot().unwrap();
         assert!(p.alloc_slot().is_none());
@@ -231,7 +240,7 @@ mod tests {
         while !p.sorted() {
             p.tick_sort(2);
         }
-        assert_eq!(p.buf[0].key, 5);
+        assert_eq!(p.buf[0].code, 5);
         assert_eq!(p.used, 0);
     }
 }

@@ -122,6 +122,9 @@ pub struct MergeTreeReport {
     pub toplevel_sweeps: u64,
     /// Cycles of the toplevel SAH unit.
     pub toplevel_cycles: u64,
+    /// Cycles the simulator skipped because every unit waited for memory (a simulator
+    /// statistic; the results are the same without skipping).
+    pub fast_forward_cycles: u64,
     /// DRAM addresses of the regions.
     pub layout: MemoryLayout,
     /// The memory's own statistics.

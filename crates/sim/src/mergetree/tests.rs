@@ -190,6 +190,26 @@ fn timing_bounds() {
 }
 
 #[test]
+fn fast_forward_is_exact() {
+    let a = random_boxes(6000, 13);
+    for gbps in [3, 13, 43] {
+        let mut cfg = small(512, 8, 3);
+        let fast = simulate(&a, &cfg, port(gbps)).unwrap();
+        cfg.fast_forward = false;
+        let slow = simulate(&a, &cfg, port(gbps)).unwrap();
+        assert_eq!(fast.cycles, slow.cycles);
+        assert_eq!(fast.stalls, slow.stalls);
+        assert_eq!(fast.phases, slow.phases);
+        assert_eq!(fast.trace, slow.trace);
+        assert_eq!(fast.memory, slow.memory);
+        assert_eq!(slow.fast_forward_cycles, 0);
+        if gbps == 3 {
+            assert!(fast.fast_forward_cycles > fast.cycles / 10);
+        }
+    }
+}
+
+#[test]
 fn reports_render() {
     let a = random_boxes(5000, 11);
     let r = simulate(&a, &small(1024, 8, 4), port(13)).unwrap();

@@ -1,0 +1,58 @@
+//! Speed of the MergeTree model: simulated cycles per second on one core.
+//!
+//! `cargo run --release -p sim --example mergetree_speed -- [SCENE] [DRAM]`
+//! (default: `proc:cloth?n=1000000`, about 1M triangles, on each of the three \[P2\] memory
+//! systems). Reports cycles per second of thread CPU time (from
+//! `/proc/thread-self/schedstat`, so other load on the machine does not count) and of wall
+//! time. The simulation runs on the calling thread only.
+
+use std::time::Instant;
+
+use scene::LoadOptions;
+use sim::mergetree::{simulate, MergeTreeConfig};
+
+/// CPU time of this thread in nanoseconds (Linux), if available.
+fn thread_cpu_ns() -> Option<u64> {
+    let s = std::fs::read_to_string("/proc/thread-self/schedstat").ok()?;
+    s.split_whitespace().next()?.parse().ok()
+}
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let spec = args
+        .first()
+        .cloned()
+        .unwrap_or_else(|| "proc:cloth?n=1000000".to_string());
+    let drams: Vec<String> = match args.get(1) {
+        Some(d) => vec![d.clone()],
+        None => ["lpddr3-1600-1x64", "lpddr3-1600-2x64", "lpddr3-1333-4x64"]
+            .map(String::from)
+            .to_vec(),
+    };
+    let scene = scene::open(&spec, &LoadOptions::default())?;
+    let mesh = scene.mesh_at(0.0)?;
+    let aabbs = bvh::indexed_triangle_aabbs(&mesh.positions, &mesh.triangles)?;
+    let cfg = MergeTreeConfig::p2();
+    println!("scene {spec}: {} triangles, preset p2", aabbs.len());
+    println!("dram                cycles       cpu_s   wall_s   Mcycles/cpu_s  Mcycles/wall_s");
+    for d in &drams {
+        let port = sim::dram::open(d, cfg.period_fs())?;
+        let cpu0 = thread_cpu_ns();
+        let t0 = Instant::now();
+        let r = simulate(&aabbs, &cfg, port)?;
+        let wall = t0.elapsed().as_secs_f64();
+        let cpu = match (cpu0, thread_cpu_ns()) {
+            (Some(a), Some(b)) => (b - a) as f64 * 1e-9,
+            _ => wall,
+        };
+        println!(
+            "{d:<18} {:>10} {:>9.3} {:>8.3} {:>14.1} {:>15.1}",
+            r.cycles,
+            cpu,
+            wall,
+            r.cycles as f64 / cpu / 1e6,
+            r.cycles as f64 / wall / 1e6
+        );
+    }
+    Ok(())
+}
