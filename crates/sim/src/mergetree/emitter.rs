@@ -36,6 +36,7 @@ pub(super) struct EmitUnit {
     pub consumed: u64,
     prev_code: u64,
     run: u32,
+    chunk: u32,
     combine: bool,
     max_leaf: u32,
     /// Emitted nodes in emission order.
@@ -61,6 +62,7 @@ impl EmitUnit {
             consumed: 0,
             prev_code: 0,
             run: 0,
+            chunk: 0,
             combine,
             max_leaf,
             nodes: Vec::with_capacity(total.saturating_sub(1) as usize),
@@ -110,14 +112,20 @@ impl EmitUnit {
             };
             debug_assert!(!e.is_pad(), "padding before the end of the scene");
             let code = e.code;
-            self.run = if self.consumed > 0 && code == self.prev_code {
-                self.run + 1
+            // Tie counter: chunk index of `max_leaf` inside a run of identical codes.
+            if self.consumed > 0 && code == self.prev_code {
+                self.run += 1;
+                if self.run == self.max_leaf {
+                    self.run = 0;
+                    self.chunk += 1;
+                }
             } else {
-                0
-            };
+                self.run = 0;
+                self.chunk = 0;
+            }
             self.prev_code = code;
             let tie = if self.combine {
-                self.run / self.max_leaf
+                self.chunk
             } else {
                 self.consumed as u32
             };

@@ -1,0 +1,120 @@
+//! Integration tests of `arbor sim mergetree`: JSON fields, the node-for-node check, two
+//! merge passes with a small scratchpad, trace files, and bad arguments.
+
+mod common;
+
+use common::arbor;
+use serde_json::Value;
+
+const CLOTH: &str = "proc:cloth?n=20000";
+
+/// Runs `arbor sim mergetree --json --quiet ARGS` and parses its output.
+fn sim_json(args: &[&str]) -> Value {
+    let mut a = vec!["sim", "mergetree", "--json", "--quiet"];
+    a.extend_from_slice(args);
+    let out = arbor(&a);
+    assert!(
+        out.status.success(),
+        "arbor {a:?} failed: {}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    serde_json::from_slice(&out.stdout).expect("valid JSON")
+}
+
+/// Runs `arbor sim mergetree ARGS` expecting failure; returns stderr.
+fn sim_error(args: &[&str]) -> String {
+    let mut a = vec!["sim", "mergetree"];
+    a.extend_from_slice(args);
+    let out = arbor(&a);
+    assert!(!out.status.success(), "arbor {a:?} should fail");
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert_eq!(err.trim_end().lines().count(), 1, "one line: {err}");
+    err
+}
+
+#[test]
+fn json_has_the_documented_fields() {
+    let j = sim_json(&[CLOTH]);
+    assert_eq!(j["schema"], "arbor.sim.mergetree.v1");
+    let n = j["triangles"].as_u64().unwrap();
+    assert!((20000..20100).contains(&n), "{n}");
+    assert_eq!(j["tree_matches_software"], true);
+    assert_eq!(j["merge_passes"], 1);
+    let cycles = j["cycles"].as_u64().unwrap();
+    assert!(cycles > 2 * 2 * n);
+    assert!((j["ms"].as_f64().unwrap() - cycles as f64 / 1e6).abs() < 1e-9);
+    let util = j["bus_utilization"].as_f64().unwrap();
+    assert!(util > 0.0 && util <= 1.0);
+    let read = j["bytes_read"].as_u64().unwrap();
+    let written = j["bytes_written"].as_u64().unwrap();
+    assert!(read >= 2 * n * 32 && written >= n * 32);
+    let phases = j["phases"].as_array().unwrap();
+    let sum: u64 = phases
+        .iter()
+        .map(|p| p["bytes_read"].as_u64().unwrap() + p["bytes_written"].as_u64().unwrap())
+        .sum();
+    assert_eq!(sum, read + written);
+    assert!(j["stalls"]["merge"]["queue_dry_cycles"].is_u64());
+    assert_eq!(j["config"]["m"], 8192);
+}
+
+#[test]
+fn small_scratchpad_needs_two_passes_and_still_matches() {
+    let j = sim_json(&[
+        CLOTH,
+        "--preset",
+        "p1",
+        "--set",
+        "m=256",
+        "--set",
+        "b=8",
+        "--dram",
+        "lpddr3-1333-4x64",
+    ]);
+    assert_eq!(j["merge_passes"], 2);
+    assert_eq!(j["tree_matches_software"], true);
+    assert_eq!(j["config"]["presorters"], 4);
+}
+
+#[test]
+fn faster_memory_is_faster() {
+    let slow = sim_json(&[CLOTH, "--dram", "lpddr3-1600-1x64", "--no-check"]);
+    let fast = sim_json(&[CLOTH, "--dram", "lpddr3-1333-4x64", "--no-check"]);
+    assert!(slow["tree_matches_software"].is_null());
+    assert!(slow["cycles"].as_u64() > fast["cycles"].as_u64());
+    assert_eq!(slow["bytes_read"], fast["bytes_read"]);
+}
+
+#[test]
+fn trace_csv_svg_and_config_file() {
+    let dir = tempfile::tempdir().unwrap();
+    let csv = dir.path().join("util.csv");
+    let svg = dir.path().join("util.svg");
+    let cfg = dir.path().join("mt.toml");
+    std::fs::write(&cfg, "preset = \"p1\"\ntrace_window_cycles = 5000\n").unwrap();
+    let j = sim_json(&[
+        CLOTH,
+        "--config",
+        cfg.to_str().unwrap(),
+        "--trace",
+        csv.to_str().unwrap(),
+        "--svg",
+        svg.to_str().unwrap(),
+    ]);
+    assert_eq!(j["config"]["m"], 4096);
+    let text = std::fs::read_to_string(&csv).unwrap();
+    let rows = text.lines().count() as u64 - 1;
+    assert_eq!(rows, j["cycles"].as_u64().unwrap().div_ceil(5000));
+    assert!(text.starts_with("cycle_start,cycles,phase,bus_utilization"));
+    assert!(std::fs::read_to_string(&svg).unwrap().contains("<polyline"));
+}
+
+#[test]
+fn bad_arguments_are_one_line_errors() {
+    assert!(sim_error(&[CLOTH, "--preset", "p9"]).contains("p9"));
+    assert!(sim_error(&[CLOTH, "--set", "bogus=1"]).contains("bogus"));
+    assert!(sim_error(&[CLOTH, "--set", "m=x"]).contains("'m'"));
+    assert!(sim_error(&[CLOTH, "--set", "m=1000"]).contains("multiple of 2B"));
+    assert!(sim_error(&[CLOTH, "--dram", "ddr9"]).contains("ddr9"));
+    assert!(sim_error(&["/nonexistent.ply"]).contains("nonexistent"));
+}
