@@ -1,6 +1,8 @@
 //! Integration tests of `arbor sim mergetree`: JSON fields, the node-for-node check, two
 //! merge passes with a small scratchpad, trace files, and bad arguments.
 
+// This file runs `arbor sim mergetree` itself (the `--json` flag follows the model name).
+#[allow(dead_code)]
 mod common;
 
 use common::arbor;

@@ -3,7 +3,9 @@
 //! step here. Results also go to an output folder (`summary.json`, `frames.csv`).
 //!
 //! Steps: (1) walk the animation; (2) build a BVH with every available builder at frame 0
-//! and a few later frames, validated, with SAH relative to the sweep SAH build.
+//! and a few later frames, validated, with SAH relative to the sweep SAH build; (3) refit
+//! against rebuild; (4) simulate the MergeTree hardware builder (preset p2) at frame 0 on
+//! the three memory systems of \[P2\] §6.2, with a utilization plot per system.
 
 use super::{info::gather, ms, open_scene, thousands, SceneArgs};
 use crate::progress::{Ui, Unit};
@@ -54,6 +56,25 @@ struct Summary {
     frames: Vec<FrameRow>,
     builds: Vec<BuildRow>,
     refits: Vec<RefitRow>,
+    mergetree: Vec<MergeTreeRow>,
+}
+
+/// The memory systems of \[P2\] §6.2 (slow, medium, fast) the demo simulates MergeTree on.
+const MERGETREE_DRAMS: [&str; 3] = ["lpddr3-1600-1x64", "lpddr3-1600-2x64", "lpddr3-1333-4x64"];
+
+/// One MergeTree simulation of the demo (`mergetree` in `summary.json`).
+#[derive(Serialize)]
+struct MergeTreeRow {
+    dram: String,
+    triangles: u64,
+    cycles: u64,
+    ms: f64,
+    bytes_read: u64,
+    bytes_written: u64,
+    bus_utilization: f64,
+    merge_passes: u32,
+    tree_matches_software: bool,
+    svg: String,
 }
 
 /// One build of the demo's build step (`builds` in `summary.json`).
@@ -166,6 +187,9 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
         Vec::new()
     };
 
+    // Step 4: the MergeTree hardware model on the three memory systems.
+    let mergetree = mergetree_step(ui, scene.as_ref(), &args.out)?;
+
     let summary = Summary {
         schema: "arbor.demo.v1",
         info,
@@ -176,9 +200,16 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
         frames: rows,
         builds,
         refits,
+        mergetree,
     };
     write_outputs(&args.out, &summary)?;
     println!("  outputs    {}", args.out.display());
+    if let Some(bad) = summary.mergetree.iter().find(|m| !m.tree_matches_software) {
+        anyhow::bail!(
+            "the MergeTree model's tree differs from the software HLBVH tree on {}",
+            bad.dram
+        );
+    }
     if let Some(bad) = summary.builds.iter().find(|b| !b.valid) {
         anyhow::bail!(
             "builder {} produced an invalid tree at frame {} (see {})",
@@ -295,6 +326,59 @@ fn refit_step(ui: &Ui, scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<R
             if row.rebuild_advised { "yes" } else { "no" }
         );
         rows.push(row);
+    }
+    Ok(rows)
+}
+
+/// Simulates MergeTree (preset p2) over frame 0 on each memory system of \[P2\] §6.2,
+/// checks its tree against the software builder, writes a utilization plot per system
+/// into `out`, prints a table and returns its rows.
+fn mergetree_step(
+    ui: &Ui,
+    scene: &dyn scene::Scene,
+    out: &std::path::Path,
+) -> anyhow::Result<Vec<MergeTreeRow>> {
+    use super::build::mesh_aabbs;
+    let mesh = scene
+        .mesh_at(scene.info().timeline.time_of_frame(0))
+        .context("cannot sample frame 0")?;
+    let (aabbs, _) = mesh_aabbs(&mesh)?;
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    // A window of 250 cycles gives a readable plot of a small scene's few 10k cycles.
+    let cfg = sim::mergetree::MergeTreeConfig {
+        trace_window_cycles: 250,
+        ..sim::mergetree::MergeTreeConfig::p2()
+    };
+    println!("  mergetree  memory             cycles        ms   read MB  written MB  bus util  same tree");
+    let mut rows = Vec::new();
+    for dram in MERGETREE_DRAMS {
+        let (r, _) = super::sim_mergetree::simulate(ui, &aabbs, &cfg, dram)?;
+        let same = sim::mergetree::tree_matches_software(&r, &aabbs)?;
+        let svg = out.join(format!("mergetree-{dram}.svg"));
+        let title = format!("MergeTree p2, {dram}: frame 0, {} triangles", r.triangles);
+        std::fs::write(&svg, r.trace_svg(&title))
+            .with_context(|| format!("cannot write {}", svg.display()))?;
+        println!(
+            "             {dram:<17} {:>10} {:>9.4} {:>9.3} {:>11.3} {:>8.1}%  {}",
+            thousands(r.cycles),
+            r.ms,
+            r.bytes_read as f64 / 1e6,
+            r.bytes_written as f64 / 1e6,
+            r.bus_utilization * 100.0,
+            if same { "yes" } else { "NO" }
+        );
+        rows.push(MergeTreeRow {
+            dram: dram.to_string(),
+            triangles: r.triangles,
+            cycles: r.cycles,
+            ms: r.ms,
+            bytes_read: r.bytes_read,
+            bytes_written: r.bytes_written,
+            bus_utilization: r.bus_utilization,
+            merge_passes: r.merge_passes,
+            tree_matches_software: same,
+            svg: svg.display().to_string(),
+        });
     }
     Ok(rows)
 }

@@ -151,10 +151,7 @@ fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
             .with_context(|| format!("cannot write {}", p.display()))?;
     }
     if let Some(p) = &a.svg {
-        let title = format!(
-            "MergeTree {} on {}: {}",
-            cfg.preset, a.dram, a.scene.scene
-        );
+        let title = format!("MergeTree {} on {}: {}", cfg.preset, a.dram, a.scene.scene);
         std::fs::write(p, report.trace_svg(&title))
             .with_context(|| format!("cannot write {}", p.display()))?;
     }
@@ -185,7 +182,13 @@ fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
 fn print_text(a: &MergetreeArgs, r: &MergeTreeReport, matches: Option<bool>, wall_ms: f64) {
     println!(
         "MergeTree {} (M={}, B={}, {} presorters, {} MHz) on {} [{}]",
-        r.config.preset, r.config.m, r.config.b, r.config.presorters, r.config.clock_mhz, a.dram, r.dram
+        r.config.preset,
+        r.config.m,
+        r.config.b,
+        r.config.presorters,
+        r.config.clock_mhz,
+        a.dram,
+        r.dram
     );
     println!(
         "scene {}: {} triangles, {} partial-sort blocks, {} merge pass(es)",

@@ -253,6 +253,10 @@ pub(super) struct Machine<'a> {
     snap_after: Vec<u64>,
     /// The previous cycle was idle: snapshot this one to fast-forward if it is too.
     probe: bool,
+    /// Presorters busy in the current cycle.
+    presort_busy_now: u64,
+    /// Earliest end of a presorter's insertion in progress (`u64::MAX`: none).
+    wake_at: u64,
     /// Cycles skipped by fast-forwarding.
     pub skipped_cycles: u64,
     progress_hook: Option<&'a mut dyn FnMut(u64, u64)>,
@@ -368,9 +372,11 @@ impl<'a> Machine<'a> {
             trace: Vec::new(),
             win: TraceRow::default(),
             idle: 0,
-            snap_before: vec![0; 7 + 2 * cfg.presorters as usize],
-            snap_after: vec![0; 7 + 2 * cfg.presorters as usize],
+            snap_before: vec![0; 7 + 3 * cfg.presorters as usize],
+            snap_after: vec![0; 7 + 3 * cfg.presorters as usize],
             probe: false,
+            wake_at: u64::MAX,
+            presort_busy_now: 0,
             skipped_cycles: 0,
             progress_hook,
         }
@@ -416,6 +422,7 @@ impl<'a> Machine<'a> {
                 self.snap_before = snap;
             }
             let mut progress = false;
+            self.wake_at = u64::MAX;
             while let Some(r) = self.port.pop_response() {
                 progress = true;
                 self.on_response(r.tag);
@@ -449,6 +456,7 @@ impl<'a> Machine<'a> {
             progress |= self.merger.tick(self.cycle, out, &mut self.refill);
             self.win.merge_outputs += self.merger.outputs - before;
             progress |= self.presort_tick();
+            self.win.presort_busy += self.presort_busy_now;
             progress |= self.issue();
             let idle = !progress && self.cycle >= self.merger.next_op;
             if !idle {
@@ -499,26 +507,31 @@ impl<'a> Machine<'a> {
             self.port_refusals,
         ]);
         for (i, p) in self.presorters.iter().enumerate() {
-            out[7 + 2 * i] = p.starved_cycles;
-            out[8 + 2 * i] = p.wait_scratchpad_cycles;
+            out[7 + 3 * i] = p.starved_cycles;
+            out[8 + 3 * i] = p.wait_scratchpad_cycles;
+            out[9 + 3 * i] = p.busy_cycles;
         }
     }
 
     /// After an idle probe cycle: no unit can change state until a memory response
-    /// arrives (no unit is counting down, nothing was issued, the merge slot is open), so
-    /// every cycle until then repeats the probe cycle exactly. Skip them, adding the probe
-    /// cycle's stall counts once per skipped cycle.
+    /// arrives or a presorter's insertion ends (`wake_at`): nothing was issued, the merge
+    /// slot is open, the other units wait. Every cycle until then repeats the probe cycle
+    /// exactly; skip them, adding the probe cycle's counts once per skipped cycle.
     fn fast_forward(&mut self) {
         let mut after = std::mem::take(&mut self.snap_after);
         self.snapshot(&mut after);
         for (a, b) in after.iter_mut().zip(&self.snap_before) {
             *a -= b;
         }
+        let win_busy = self.presort_busy_now;
+        let deadline = self.wake_at;
         let mut k = 0u64;
         while self.port.completed_waiting() == 0
-            && self.port.outstanding() > 0
+            && (self.port.outstanding() > 0 || deadline != u64::MAX)
+            && self.cycle < deadline
             && self.idle + k < MEMORY_TIMEOUT_CYCLES
         {
+            self.win.presort_busy += win_busy;
             self.advance();
             k += 1;
         }
@@ -533,8 +546,9 @@ impl<'a> Machine<'a> {
             self.reader_blocked_cycles += k * after[5];
             self.port_refusals += k * after[6];
             for (i, p) in self.presorters.iter_mut().enumerate() {
-                p.starved_cycles += k * after[7 + 2 * i];
-                p.wait_scratchpad_cycles += k * after[8 + 2 * i];
+                p.starved_cycles += k * after[7 + 3 * i];
+                p.wait_scratchpad_cycles += k * after[8 + 3 * i];
+                p.busy_cycles += k * after[9 + 3 * i];
             }
             self.idle += k;
             self.skipped_cycles += k;
@@ -714,6 +728,7 @@ impl<'a> Machine<'a> {
 
     /// One cycle of the presorters and of the scratchpad write port.
     fn presort_tick(&mut self) -> bool {
+        self.presort_busy_now = 0;
         if self.phase != Phase::PartialSort {
             return false;
         }
@@ -723,16 +738,19 @@ impl<'a> Machine<'a> {
         let mut progress = false;
         let mut port_free = true;
         let p_count = self.presorters.len() as u64;
+        let cycle = self.cycle;
         for ps in self.presorters.iter_mut() {
             match ps.state {
                 PresortState::Finished => {}
                 PresortState::Sorting => {
-                    if ps.sorted() {
+                    if ps.sorted(cycle) {
                         ps.state = PresortState::Draining { pos: 0 };
                     } else {
-                        let worked = ps.tick_sort(self.cfg.b);
-                        progress |= worked;
-                        self.win.presort_busy += worked as u64;
+                        progress |= ps.tick_sort(cycle, self.cfg.b);
+                        if ps.busy_at(cycle) {
+                            self.presort_busy_now += 1;
+                            self.wake_at = self.wake_at.min(ps.busy_until);
+                        }
                         continue;
                     }
                 }
@@ -750,13 +768,17 @@ impl<'a> Machine<'a> {
                 let slot = (ps.sub % subs_per_block) * 2 * b;
                 self.merger.scratch[(slot + pos as u64) as usize] = ps.buf[pos as usize];
                 ps.busy_cycles += 1;
-                self.win.presort_busy += 1;
+                self.presort_busy_now += 1;
                 progress = true;
                 if pos + 1 == ps.sub_len {
                     self.sub_ready += 1;
                     let next = ps.sub + p_count;
                     if next < total_subs {
-                        ps.start(next, Self::sub_len(self.npad, b, next), next / subs_per_block);
+                        ps.start(
+                            next,
+                            Self::sub_len(self.npad, b, next),
+                            next / subs_per_block,
+                        );
                     } else {
                         ps.state = PresortState::Finished;
                     }

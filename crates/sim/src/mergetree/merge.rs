@@ -194,17 +194,23 @@ impl Merger {
 
     /// One cycle. Elements leave into `out`; refills of consumed buffer halves are queued
     /// to `refill`. Returns true when an operation was performed.
+    #[inline]
     pub fn tick(&mut self, cycle: u64, out: &mut Fifo<Elem>, refill: &mut VecDeque<u32>) -> bool {
-        if cycle < self.next_op {
+        if cycle < self.next_op || matches!(self.state, MergeState::Idle | MergeState::Done) {
             return false;
         }
+        self.operate(cycle, out, refill)
+    }
+
+    /// The operation slot at `cycle`, once it is open.
+    fn operate(&mut self, cycle: u64, out: &mut Fifo<Elem>, refill: &mut VecDeque<u32>) -> bool {
         match self.state {
             MergeState::Idle | MergeState::Done => false,
             MergeState::Init => {
                 let nq = self.queues.len() as u32;
                 if self.init_q == nq {
                     self.state = MergeState::Merge;
-                    return self.tick(cycle, out, refill);
+                    return self.operate(cycle, out, refill);
                 }
                 let q = &self.queues[self.init_q as usize];
                 if q.run_len == 0 {

@@ -57,8 +57,8 @@ pub(super) struct Presorter {
     pub inserted: u32,
     /// The sort buffer (sorted prefix of `inserted` elements).
     pub buf: Vec<Elem>,
-    /// Remaining cycles of the insertion in progress.
-    pub busy: u32,
+    /// First cycle after the insertion in progress.
+    pub busy_until: u64,
     /// State.
     pub state: PresortState,
     /// Cycles spent inserting or copying.
@@ -85,7 +85,7 @@ impl Presorter {
             sub_len: 0,
             inserted: 0,
             buf: Vec::with_capacity(2 * b as usize),
-            busy: 0,
+            busy_until: 0,
             state: PresortState::Sorting,
             busy_cycles: 0,
             starved_cycles: 0,
@@ -134,16 +134,23 @@ impl Presorter {
         Some(e)
     }
 
-    /// One cycle of sorting. Returns true when the presorter did work.
-    pub fn tick_sort(&mut self, b: u32) -> bool {
-        if self.busy > 0 {
-            self.busy -= 1;
+    /// Cycle `cycle` of sorting. Returns true when an insertion started (a change of
+    /// state); a cycle inside an insertion counts as busy but changes nothing until
+    /// `busy_until`, so the machine may skip it.
+    #[inline]
+    pub fn tick_sort(&mut self, cycle: u64, b: u32) -> bool {
+        if cycle < self.busy_until {
             self.busy_cycles += 1;
-            return true;
+            return false;
         }
         if self.inserted == self.sub_len {
             return false;
         }
+        self.insert_next(cycle, b)
+    }
+
+    /// Starts inserting the next element, if it has arrived.
+    fn insert_next(&mut self, cycle: u64, b: u32) -> bool {
         let Some(e) = self.take(b) else {
             self.starved_cycles += 1;
             return false;
@@ -165,14 +172,21 @@ impl Presorter {
         self.buf[j] = e;
         self.inserted += 1;
         // This cycle is the first of the `compares + 1`.
-        self.busy = compares;
+        self.busy_until = cycle + compares as u64 + 1;
         self.busy_cycles += 1;
         true
     }
 
-    /// True when the sub-block is sorted and ready to copy.
-    pub fn sorted(&self) -> bool {
-        self.state == PresortState::Sorting && self.busy == 0 && self.inserted == self.sub_len
+    /// True while an insertion is in progress at `cycle`.
+    pub fn busy_at(&self, cycle: u64) -> bool {
+        cycle < self.busy_until
+    }
+
+    /// True when the sub-block is sorted and ready to copy at `cycle`.
+    pub fn sorted(&self, cycle: u64) -> bool {
+        self.state == PresortState::Sorting
+            && cycle >= self.busy_until
+            && self.inserted == self.sub_len
     }
 
     /// Starts sorting sub-block `sub` of `len` elements, in partial-sort block `block`.
@@ -207,8 +221,8 @@ mod tests {
         p.slot_count[s as usize] = 4;
         p.slot_valid[s as usize] = true;
         let mut cycles = 0;
-        while !p.sorted() {
-            p.tick_sort(4);
+        while !p.sorted(cycles) {
+            p.tick_sort(cycles, 4);
             cycles += 1;
         }
         // 3: 0 compares (1 cycle); 1: 1 compare, swap to front (2); 2: 2 compares (3);
@@ -231,14 +245,16 @@ mod tests {
         p.ring[b as usize * 2 + 1] = elem(8);
         p.slot_count[b as usize] = 2;
         p.slot_valid[b as usize] = true;
-        assert!(!p.tick_sort(2));
+        assert!(!p.tick_sort(0, 2));
         assert_eq!(p.starved_cycles, 1);
         p.ring[a as usize * 2] = elem(5);
         p.ring[a as usize * 2 + 1] = elem(6);
         p.slot_count[a as usize] = 2;
         p.slot_valid[a as usize] = true;
-        while !p.sorted() {
-            p.tick_sort(2);
+        let mut c = 1;
+        while !p.sorted(c) {
+            p.tick_sort(c, 2);
+            c += 1;
         }
         assert_eq!(p.buf[0].code, 5);
         assert_eq!(p.used, 0);

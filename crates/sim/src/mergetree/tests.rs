@@ -223,7 +223,11 @@ fn reports_render() {
     let svg = r.trace_svg("test");
     assert!(svg.starts_with("<svg") && svg.trim_end().ends_with("</svg>"));
     assert_eq!(svg.matches("<polyline").count(), 5);
-    let phase_bytes: u64 = r.phases.iter().map(|p| p.bytes_read + p.bytes_written).sum();
+    let phase_bytes: u64 = r
+        .phases
+        .iter()
+        .map(|p| p.bytes_read + p.bytes_written)
+        .sum();
     assert_eq!(phase_bytes, r.bytes_read + r.bytes_written);
     let json = serde_json::to_value(&r).unwrap();
     assert_eq!(json["triangles"], 5000);
@@ -269,11 +273,13 @@ impl MemoryPort for BlackHole {
 #[test]
 fn a_stuck_memory_is_a_deadlock_error_not_a_hang() {
     let a = random_boxes(100, 1);
-    let err = simulate(&a, &MergeTreeConfig::p2(), Box::new(BlackHole(0, 0)))
-        .err()
-        .expect("deadlock");
+    let err =
+        simulate(&a, &MergeTreeConfig::p2(), Box::new(BlackHole(0, 0))).expect_err("deadlock");
     let msg = err.to_string();
-    assert!(msg.contains("deadlock") && msg.contains("merge->emitter"), "{msg}");
+    assert!(
+        msg.contains("deadlock") && msg.contains("merge->emitter"),
+        "{msg}"
+    );
 }
 
 proptest! {
@@ -291,7 +297,7 @@ proptest! {
     ) {
         let a = if clustered { clustered_boxes(n, 1 + seed as usize % 9) } else { random_boxes(n, seed) };
         let b = 1 << b_log;
-        let mut c = small(2 * b << fan_log, b, presorters);
+        let mut c = small((2 * b) << fan_log, b, presorters);
         c.combine_identical = combine;
         c.emit_fifo = 1 + (seed % 8) as u32;
         let r = simulate(&a, &c, port(gbps)).unwrap();
