@@ -299,4 +299,13 @@ fn demo_runs_and_writes_its_outputs() {
     assert_eq!(refits[0]["ratio_to_build"], 1.0);
     let csv = std::fs::read_to_string(out_dir.join("frames.csv")).unwrap();
     assert_eq!(csv.lines().count(), 6);
+    // The MergeTree step: three memory systems, the software tree, slower on slower memory.
+    let mt = summary["mergetree"].as_array().unwrap();
+    assert_eq!(mt.len(), 3);
+    for row in mt {
+        assert_eq!(row["tree_matches_software"], true);
+        assert_eq!(row["triangles"], 4672);
+        assert!(std::path::Path::new(row["svg"].as_str().unwrap()).exists());
+    }
+    assert!(mt[0]["cycles"].as_u64() > mt[2]["cycles"].as_u64());
 }

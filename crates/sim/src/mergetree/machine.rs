@@ -212,7 +212,13 @@ pub(super) struct Machine<'a> {
     in_p: u32,
     in_second_half: bool,
     fill_block: u64,
+    /// Sub-blocks of `fill_block`.
+    fill_subs: u64,
     sub_ready: u64,
+    /// Sub-blocks per partial-sort block: M / (2B).
+    subs_per_block: u64,
+    /// Sub-blocks in the scene.
+    total_subs: u64,
     // Merge.
     merger: Merger,
     refill: VecDeque<u32>,
@@ -320,7 +326,10 @@ impl<'a> Machine<'a> {
             in_p: 0,
             in_second_half: false,
             fill_block: 0,
+            fill_subs: (npad.min(m)).div_ceil(2 * b),
             sub_ready: 0,
+            subs_per_block: m / (2 * b),
+            total_subs: subs,
             merger: Merger::new(cfg.m, cfg.b),
             refill: VecDeque::with_capacity(2 * fan as usize),
             emit_fifo: Fifo::new("merge->emitter", cfg.emit_fifo as usize),
@@ -386,8 +395,10 @@ impl<'a> Machine<'a> {
         (npad - sub * 2 * b).min(2 * b) as u32
     }
 
-    fn block_len(&self, k: u64) -> u64 {
-        (self.npad - k * self.cfg.m as u64).min(self.cfg.m as u64)
+    /// Sub-blocks (presorted queues) of partial-sort block `k`.
+    fn subs_of_block(&self, k: u64) -> u64 {
+        let len = (self.npad - k * self.cfg.m as u64).min(self.cfg.m as u64);
+        len.div_ceil(2 * self.cfg.b as u64)
     }
 
     /// The element for input primitive `i` (padding past the end), with its Morton code
@@ -604,9 +615,9 @@ impl<'a> Machine<'a> {
     fn control(&mut self) -> bool {
         match self.phase {
             Phase::PartialSort => {
-                let k = self.fill_block;
-                let nsub = self.block_len(k).div_ceil(2 * self.cfg.b as u64);
-                if self.merger.state == MergeState::Idle && self.sub_ready == nsub {
+                if self.merger.state == MergeState::Idle && self.sub_ready == self.fill_subs {
+                    let k = self.fill_block;
+                    let nsub = self.fill_subs;
                     let first = k * self.cfg.m as u64 / (2 * self.cfg.b as u64);
                     let (npad, b) = (self.npad, self.cfg.b as u64);
                     self.merger.setup_partial(
@@ -620,6 +631,9 @@ impl<'a> Machine<'a> {
                     self.merger.state = MergeState::Idle;
                     self.fill_block += 1;
                     self.sub_ready = 0;
+                    if self.fill_block < self.blocks {
+                        self.fill_subs = self.subs_of_block(self.fill_block);
+                    }
                     self.run_flush = true;
                     if self.fill_block == self.blocks {
                         if self.passes_total == 0 {
@@ -733,8 +747,8 @@ impl<'a> Machine<'a> {
             return false;
         }
         let b = self.cfg.b as u64;
-        let subs_per_block = self.cfg.m as u64 / (2 * b);
-        let total_subs = self.npad.div_ceil(2 * b);
+        let subs_per_block = self.subs_per_block;
+        let total_subs = self.total_subs;
         let mut progress = false;
         let mut port_free = true;
         let p_count = self.presorters.len() as u64;
