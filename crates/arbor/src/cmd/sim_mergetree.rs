@@ -24,7 +24,7 @@ pub struct SimArgs {
 /// The hardware models `arbor sim` runs.
 #[derive(clap::Subcommand, Debug)]
 pub enum SimCommand {
-    /// Simulate the MergeTree HLBVH builder ([P2]) over a scene.
+    /// Simulate the MergeTree HLBVH builder (thesis P2) over a scene.
     Mergetree(MergetreeArgs),
 }
 
@@ -33,7 +33,7 @@ pub enum SimCommand {
 pub struct MergetreeArgs {
     #[command(flatten)]
     scene: SceneArgs,
-    /// Architecture preset: p1 ([P1]: M=4096, B=8) or p2 ([P2]: M=8192, B=16).
+    /// Architecture preset: p1 (thesis P1: M=4096, B=8) or p2 (thesis P2: M=8192, B=16).
     #[arg(long, default_value = "p2")]
     preset: String,
     /// Memory system: lpddr3-1600-1x64 (slow), lpddr3-1600-2x64 (medium),
