@@ -3,13 +3,17 @@
 //! `cargo run --release -p sim --example mergetree_speed -- [SCENE] [DRAM]`
 //! (default: `proc:cloth?n=1000000`, about 1M triangles, on each of the three \[P2\] memory
 //! systems). Reports cycles per second of thread CPU time (from
-//! `/proc/thread-self/schedstat`, so other load on the machine does not count) and of wall
-//! time. The simulation runs on the calling thread only.
+//! `/proc/thread-self/schedstat`, so time the thread waits for a core does not count) and
+//! of wall time, the best of `REPEATS` runs each (the machine may be shared). The
+//! simulation runs on the calling thread only.
 
 use std::time::Instant;
 
 use scene::LoadOptions;
 use sim::mergetree::{simulate, MergeTreeConfig};
+
+/// Runs per memory system; the fastest is reported.
+const REPEATS: usize = 3;
 
 /// CPU time of this thread in nanoseconds (Linux), if available.
 fn thread_cpu_ns() -> Option<u64> {
@@ -36,22 +40,28 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     println!("scene {spec}: {} triangles, preset p2", aabbs.len());
     println!("dram                cycles       cpu_s   wall_s   Mcycles/cpu_s  Mcycles/wall_s");
     for d in &drams {
-        let port = sim::dram::open(d, cfg.period_fs())?;
-        let cpu0 = thread_cpu_ns();
-        let t0 = Instant::now();
-        let r = simulate(&aabbs, &cfg, port)?;
-        let wall = t0.elapsed().as_secs_f64();
-        let cpu = match (cpu0, thread_cpu_ns()) {
-            (Some(a), Some(b)) => (b - a) as f64 * 1e-9,
-            _ => wall,
-        };
+        let (mut best_cpu, mut best_wall, mut cycles) = (f64::MAX, f64::MAX, 0);
+        for _ in 0..REPEATS {
+            let port = sim::dram::open(d, cfg.period_fs())?;
+            let cpu0 = thread_cpu_ns();
+            let t0 = Instant::now();
+            let r = simulate(&aabbs, &cfg, port)?;
+            let wall = t0.elapsed().as_secs_f64();
+            let cpu = match (cpu0, thread_cpu_ns()) {
+                (Some(a), Some(b)) => (b - a) as f64 * 1e-9,
+                _ => wall,
+            };
+            best_cpu = best_cpu.min(cpu);
+            best_wall = best_wall.min(wall);
+            cycles = r.cycles;
+        }
         println!(
             "{d:<18} {:>10} {:>9.3} {:>8.3} {:>14.1} {:>15.1}",
-            r.cycles,
-            cpu,
-            wall,
-            r.cycles as f64 / cpu / 1e6,
-            r.cycles as f64 / wall / 1e6
+            cycles,
+            best_cpu,
+            best_wall,
+            cycles as f64 / best_cpu / 1e6,
+            cycles as f64 / best_wall / 1e6
         );
     }
     Ok(())

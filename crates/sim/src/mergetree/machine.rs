@@ -261,6 +261,14 @@ pub(super) struct Machine<'a> {
     probe: bool,
     /// Presorters busy in the current cycle.
     presort_busy_now: u64,
+    /// An event may have changed a presorter's situation since its last full tick.
+    presort_dirty: bool,
+    /// Earliest end of an insertion at the last full tick.
+    presort_wake: u64,
+    /// Busy, starved and waiting presorters at the last full tick (counts of a frozen cycle).
+    frozen: [u64; 3],
+    /// Busy, starved and waiting presorter-cycles added by frozen cycles.
+    frozen_totals: [u64; 3],
     /// Earliest end of a presorter's insertion in progress (`u64::MAX`: none).
     wake_at: u64,
     /// Cycles skipped by fast-forwarding.
@@ -381,11 +389,15 @@ impl<'a> Machine<'a> {
             trace: Vec::new(),
             win: TraceRow::default(),
             idle: 0,
-            snap_before: vec![0; 7 + 3 * cfg.presorters as usize],
-            snap_after: vec![0; 7 + 3 * cfg.presorters as usize],
+            snap_before: vec![0; 10 + 3 * cfg.presorters as usize],
+            snap_after: vec![0; 10 + 3 * cfg.presorters as usize],
             probe: false,
             wake_at: u64::MAX,
             presort_busy_now: 0,
+            presort_dirty: true,
+            presort_wake: 0,
+            frozen: [0; 3],
+            frozen_totals: [0; 3],
             skipped_cycles: 0,
             progress_hook,
         }
@@ -438,7 +450,10 @@ impl<'a> Machine<'a> {
                 progress = true;
                 self.on_response(r.tag);
             }
-            progress |= self.control();
+            if self.control() {
+                progress = true;
+                self.presort_dirty = true;
+            }
             if self.phase == Phase::Done {
                 break;
             }
@@ -517,10 +532,11 @@ impl<'a> Machine<'a> {
             self.reader_blocked_cycles,
             self.port_refusals,
         ]);
+        out[7..10].copy_from_slice(&self.frozen_totals);
         for (i, p) in self.presorters.iter().enumerate() {
-            out[7 + 3 * i] = p.starved_cycles;
-            out[8 + 3 * i] = p.wait_scratchpad_cycles;
-            out[9 + 3 * i] = p.busy_cycles;
+            out[10 + 3 * i] = p.starved_cycles;
+            out[11 + 3 * i] = p.wait_scratchpad_cycles;
+            out[12 + 3 * i] = p.busy_cycles;
         }
     }
 
@@ -556,10 +572,13 @@ impl<'a> Machine<'a> {
             e.write_full_cycles += k * after[4];
             self.reader_blocked_cycles += k * after[5];
             self.port_refusals += k * after[6];
+            for (t, d) in self.frozen_totals.iter_mut().zip(&after[7..10]) {
+                *t += k * d;
+            }
             for (i, p) in self.presorters.iter_mut().enumerate() {
-                p.starved_cycles += k * after[7 + 3 * i];
-                p.wait_scratchpad_cycles += k * after[8 + 3 * i];
-                p.busy_cycles += k * after[9 + 3 * i];
+                p.starved_cycles += k * after[10 + 3 * i];
+                p.wait_scratchpad_cycles += k * after[11 + 3 * i];
+                p.busy_cycles += k * after[12 + 3 * i];
             }
             self.idle += k;
             self.skipped_cycles += k;
@@ -741,11 +760,27 @@ impl<'a> Machine<'a> {
     }
 
     /// One cycle of the presorters and of the scratchpad write port.
+    ///
+    /// After a cycle in which no presorter changed state, they stay frozen (each counting
+    /// the same busy, starved or waiting cycle) until an insertion ends (`presort_wake`)
+    /// or an event reaches them (`presort_dirty`: data for a ring, a control-state
+    /// change); such cycles only add the frozen counts.
     fn presort_tick(&mut self) -> bool {
         self.presort_busy_now = 0;
         if self.phase != Phase::PartialSort {
             return false;
         }
+        if !self.presort_dirty && self.cycle < self.presort_wake {
+            let f = self.frozen;
+            self.presort_busy_now = f[0];
+            self.frozen_totals[0] += f[0];
+            self.frozen_totals[1] += f[1];
+            self.frozen_totals[2] += f[2];
+            self.wake_at = self.wake_at.min(self.presort_wake);
+            return false;
+        }
+        let (mut n_starved, mut n_wait) = (0u64, 0u64);
+        let mut wake = u64::MAX;
         let b = self.cfg.b as u64;
         let subs_per_block = self.subs_per_block;
         let total_subs = self.total_subs;
@@ -760,10 +795,12 @@ impl<'a> Machine<'a> {
                     if ps.sorted(cycle) {
                         ps.state = PresortState::Draining { pos: 0 };
                     } else {
+                        let starved = ps.starved_cycles;
                         progress |= ps.tick_sort(cycle, self.cfg.b);
+                        n_starved += ps.starved_cycles - starved;
                         if ps.busy_at(cycle) {
                             self.presort_busy_now += 1;
-                            self.wake_at = self.wake_at.min(ps.busy_until);
+                            wake = wake.min(ps.busy_until);
                         }
                         continue;
                     }
@@ -776,6 +813,7 @@ impl<'a> Machine<'a> {
                     && self.merger.state == MergeState::Idle;
                 if !can {
                     ps.wait_scratchpad_cycles += 1;
+                    n_wait += 1;
                     continue;
                 }
                 port_free = false;
@@ -801,6 +839,10 @@ impl<'a> Machine<'a> {
                 }
             }
         }
+        self.wake_at = self.wake_at.min(wake);
+        self.presort_wake = wake;
+        self.frozen = [self.presort_busy_now, n_starved, n_wait];
+        self.presort_dirty = progress;
         progress
     }
 
@@ -1010,6 +1052,7 @@ impl<'a> Machine<'a> {
                 let ps = &mut self.presorters[p as usize];
                 ps.slot_count[slot as usize] = d.count;
                 ps.slot_valid[slot as usize] = true;
+                self.presort_dirty = true;
             }
             ReadDest::Merge { buf } => {
                 let src = &self.region[1 - self.dst];
@@ -1066,9 +1109,12 @@ impl<'a> Machine<'a> {
     pub fn stall_report(&self) -> StallReport {
         let p = &self.presorters;
         StallReport {
-            presort_busy_cycles: p.iter().map(|x| x.busy_cycles).sum(),
-            presort_starved_cycles: p.iter().map(|x| x.starved_cycles).sum(),
-            presort_wait_scratchpad_cycles: p.iter().map(|x| x.wait_scratchpad_cycles).sum(),
+            presort_busy_cycles: p.iter().map(|x| x.busy_cycles).sum::<u64>()
+                + self.frozen_totals[0],
+            presort_starved_cycles: p.iter().map(|x| x.starved_cycles).sum::<u64>()
+                + self.frozen_totals[1],
+            presort_wait_scratchpad_cycles: p.iter().map(|x| x.wait_scratchpad_cycles).sum::<u64>()
+                + self.frozen_totals[2],
             merge: self.merger.stalls,
             merge_outputs: self.merger.outputs,
             heap_ops: self.merger.ops,
