@@ -261,6 +261,8 @@ pub(super) struct Machine<'a> {
     probe: bool,
     /// Presorters busy in the current cycle.
     presort_busy_now: u64,
+    /// The presorters were frozen (or not in use) in the current cycle.
+    presort_frozen_now: bool,
     /// An event may have changed a presorter's situation since its last full tick.
     presort_dirty: bool,
     /// Earliest end of an insertion at the last full tick.
@@ -389,12 +391,13 @@ impl<'a> Machine<'a> {
             trace: Vec::new(),
             win: TraceRow::default(),
             idle: 0,
-            snap_before: vec![0; 10 + 3 * cfg.presorters as usize],
-            snap_after: vec![0; 10 + 3 * cfg.presorters as usize],
+            snap_before: vec![0; 10],
+            snap_after: vec![0; 10],
             probe: false,
             wake_at: u64::MAX,
             presort_busy_now: 0,
             presort_dirty: true,
+            presort_frozen_now: true,
             presort_wake: 0,
             frozen: [0; 3],
             frozen_totals: [0; 3],
@@ -519,7 +522,8 @@ impl<'a> Machine<'a> {
         }
     }
 
-    /// The stall counters that an idle cycle increments, into `out`.
+    /// The stall counters that an idle cycle with frozen presorters increments, into
+    /// `out`.
     fn snapshot(&self, out: &mut [u64]) {
         let m = &self.merger.stalls;
         let e = &self.emit.stalls;
@@ -533,11 +537,6 @@ impl<'a> Machine<'a> {
             self.port_refusals,
         ]);
         out[7..10].copy_from_slice(&self.frozen_totals);
-        for (i, p) in self.presorters.iter().enumerate() {
-            out[10 + 3 * i] = p.starved_cycles;
-            out[11 + 3 * i] = p.wait_scratchpad_cycles;
-            out[12 + 3 * i] = p.busy_cycles;
-        }
     }
 
     /// After an idle probe cycle: no unit can change state until a memory response
@@ -545,6 +544,11 @@ impl<'a> Machine<'a> {
     /// slot is open, the other units wait. Every cycle until then repeats the probe cycle
     /// exactly; skip them, adding the probe cycle's counts once per skipped cycle.
     fn fast_forward(&mut self) {
+        // The presorters' own counters are not in the snapshot: skip only after a probe
+        // cycle in which they were frozen (or idle outside the partial sorts).
+        if !self.presort_frozen_now {
+            return;
+        }
         let mut after = std::mem::take(&mut self.snap_after);
         self.snapshot(&mut after);
         for (a, b) in after.iter_mut().zip(&self.snap_before) {
@@ -575,11 +579,7 @@ impl<'a> Machine<'a> {
             for (t, d) in self.frozen_totals.iter_mut().zip(&after[7..10]) {
                 *t += k * d;
             }
-            for (i, p) in self.presorters.iter_mut().enumerate() {
-                p.starved_cycles += k * after[10 + 3 * i];
-                p.wait_scratchpad_cycles += k * after[11 + 3 * i];
-                p.busy_cycles += k * after[12 + 3 * i];
-            }
+
             self.idle += k;
             self.skipped_cycles += k;
         }
@@ -767,6 +767,7 @@ impl<'a> Machine<'a> {
     /// change); such cycles only add the frozen counts.
     fn presort_tick(&mut self) -> bool {
         self.presort_busy_now = 0;
+        self.presort_frozen_now = true;
         if self.phase != Phase::PartialSort {
             return false;
         }
@@ -779,6 +780,7 @@ impl<'a> Machine<'a> {
             self.wake_at = self.wake_at.min(self.presort_wake);
             return false;
         }
+        self.presort_frozen_now = false;
         let (mut n_starved, mut n_wait) = (0u64, 0u64);
         let mut wake = u64::MAX;
         let b = self.cfg.b as u64;
