@@ -328,9 +328,35 @@ impl MergeTreeConfig {
         self.apply_text(&text, &path.display().to_string())
     }
 
-    /// Checks that the parameters fit together.
+    /// Checks that the parameters fit together and stay within what the model can
+    /// allocate (the limits are far above any real design).
     pub fn validate(&self) -> Result<(), ConfigError> {
         let err = |s: String| Err(ConfigError::Inconsistent(s));
+        let limits: [(&str, u64, u64); 9] = [
+            ("clock_mhz", self.clock_mhz as u64, 100_000),
+            ("m", self.m as u64, 1 << 24),
+            ("presorters", self.presorters as u64, 4096),
+            ("presort_slots", self.presort_slots as u64, 1024),
+            ("emit_fifo", self.emit_fifo as u64, 1 << 20),
+            ("run_write_fifo", self.run_write_fifo as u64, 1 << 20),
+            ("node_buffer_bytes", self.node_buffer_bytes as u64, 1 << 30),
+            ("leaf_buffer_bytes", self.leaf_buffer_bytes as u64, 1 << 30),
+            ("write_chunk_bytes", self.write_chunk_bytes as u64, 1 << 20),
+        ];
+        for (name, value, max) in limits {
+            if value > max {
+                return err(format!(
+                    "{name} ({value}) exceeds the model's limit of {max}"
+                ));
+            }
+        }
+        let ring = self.presorters as u64 * self.presort_slots as u64 * self.b as u64;
+        if ring > 1 << 24 {
+            return err(format!(
+                "presorters x presort_slots x B ({ring}) exceeds the model's limit of {}",
+                1 << 24
+            ));
+        }
         if !(self.m as u64).is_multiple_of(2 * self.b as u64) || self.fan_in() < 2 {
             return err(format!(
                 "M ({}) must be a multiple of 2B ({}) with at least two queues",
@@ -413,6 +439,17 @@ mod tests {
         assert!(c.set_pair("m").is_err());
         c.set("m", "1002").unwrap();
         assert!(c.validate().is_err());
+        let mut big = MergeTreeConfig::p2();
+        big.set("clock_mhz", "4000000000").unwrap();
+        assert!(big
+            .validate()
+            .unwrap_err()
+            .to_string()
+            .contains("clock_mhz"));
+        let mut big = MergeTreeConfig::p2();
+        big.set("m", "4294967296").unwrap_err();
+        big.set("m", "2147483648").unwrap();
+        assert!(big.validate().is_err());
     }
 
     #[test]
