@@ -29,6 +29,8 @@ enum Command {
     Demo(cmd::demo::DemoArgs),
     /// Build a BVH over a scene with a named builder, validate it, report SAH and timings.
     Build(cmd::build::BuildArgs),
+    /// Run a hardware model (memory systems; `arbor sim dram --help`).
+    Sim(cmd::sim_dram::SimArgs),
 }
 
 fn main() -> ExitCode {
@@ -38,6 +40,7 @@ fn main() -> ExitCode {
         Command::Info(a) => cmd::info::run(&a, &ui),
         Command::Demo(a) => cmd::demo::run(&a, &ui),
         Command::Build(a) => cmd::build::run(&a, &ui),
+        Command::Sim(a) => cmd::sim_dram::run(&a, &ui),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -3,6 +3,7 @@
 pub mod build;
 pub mod demo;
 pub mod info;
+pub mod sim_dram;
 
 use crate::progress::{Ui, Unit};
 use anyhow::Context;
