@@ -14,6 +14,12 @@
 //! acts on every die of a rank at once (two x32 dies behind a 64-bit channel), so each
 //! count is multiplied by the dies per rank. The DRAMsim3 backend supplies the counts and
 //! the exact active/precharged cycle split per rank (DRAMsim3 counts both every cycle).
+//!
+//! Approximation: the LPDDR3-1333 system uses the LPDDR3-1600 memspec (the only LPDDR3
+//! memspec in the reference). Its per-command energies are kept as they are (they are
+//! fixed currents over fixed times in ns), and background power is integrated over the
+//! actual 1.5 ns clock. A real 1333 part draws somewhat less IDD4R/W per burst but for
+//! longer, so read/write energy per bit is about the same.
 
 use super::DramEnergy;
 

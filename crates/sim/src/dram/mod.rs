@@ -421,3 +421,82 @@ mod tests {
         assert_eq!(bursts_of(0, 256, 32), 8);
     }
 }
+
+#[cfg(test)]
+mod contract_tests {
+    //! The [`MemoryPort`] contract, on random request sequences, for both backends.
+    use super::*;
+    use proptest::prelude::*;
+
+    fn requests() -> impl Strategy<Value = Vec<(u64, u32, bool, u8)>> {
+        // (address, bytes, is_write, idle cycles before the next send)
+        prop::collection::vec((0u64..1 << 26, 1u32..300, any::<bool>(), 0u8..4), 1..60)
+    }
+
+    fn check(
+        port: &mut dyn MemoryPort,
+        work: &[(u64, u32, bool, u8)],
+    ) -> Result<(), TestCaseError> {
+        let burst = port.burst_bytes();
+        let mut accepted = Vec::new();
+        for (i, &(addr, bytes, write, idle)) in work.iter().enumerate() {
+            let kind = if write {
+                AccessKind::Write
+            } else {
+                AccessKind::Read
+            };
+            let mut r = MemRequest {
+                tag: i as u64,
+                addr,
+                bytes,
+                kind,
+            };
+            loop {
+                match port.send(r) {
+                    Ok(()) => break,
+                    Err(back) => {
+                        prop_assert_eq!(back, r);
+                        r = back;
+                        port.tick();
+                    }
+                }
+            }
+            accepted.push((i as u64, port.cycle(), bursts_of(addr, bytes, burst), write));
+            port.tick_many(idle as u64);
+        }
+        port.drain();
+        let mut seen: Vec<MemResponse> = std::iter::from_fn(|| port.pop_response()).collect();
+        prop_assert_eq!(port.outstanding(), 0);
+        seen.sort_by_key(|r| r.tag);
+        prop_assert_eq!(seen.len(), work.len());
+        let (mut rb, mut wb) = (0, 0);
+        for (r, &(tag, at, bursts, write)) in seen.iter().zip(&accepted) {
+            prop_assert_eq!(r.tag, tag);
+            prop_assert_eq!(r.accepted_cycle, at);
+            prop_assert!(r.completed_cycle > r.accepted_cycle);
+            prop_assert!(r.completed_cycle <= port.cycle());
+            prop_assert_eq!(r.kind == AccessKind::Write, write);
+            if write {
+                wb += bursts;
+            } else {
+                rb += bursts;
+            }
+        }
+        let s = port.stats();
+        prop_assert_eq!((s.read_bursts, s.write_bursts), (rb, wb));
+        prop_assert_eq!(s.bytes_read + s.bytes_written, (rb + wb) * burst as u64);
+        prop_assert_eq!(s.unit_cycles, port.cycle());
+        Ok(())
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(24))]
+
+        #[test]
+        fn every_request_completes_once_and_is_counted(work in requests(), system in 0usize..5) {
+            let name = all_systems().nth(system).unwrap().0;
+            check(open(name, 1_000_000).unwrap().as_mut(), &work)?;
+            check(open(&format!("simple:{name}"), 1_000_000).unwrap().as_mut(), &work)?;
+        }
+    }
+}
