@@ -217,6 +217,9 @@ impl Dramsim3Port {
     }
 
     /// Opens a system from its configuration.
+    ///
+    /// DRAMsim3 ends the process on a configuration it cannot use; the shipped ones are
+    /// tested, so build others by editing a copy of one of them.
     pub fn with_config(
         config: &'static SystemConfig,
         unit_period_fs: PeriodFs,
@@ -695,6 +698,7 @@ mod tests {
         // JEDEC sum. The clock crossing adds up to one unit cycle (1 ns) at each end.
         let slack_ns = 3.0 * tck + 2.0;
         let within = |got: u64, want: f64, what: &str| {
+            println!("{what}: {got} ns (JEDEC sum {want} ns)");
             assert!(
                 got as f64 >= want && got as f64 <= want + slack_ns,
                 "{what}: {got} ns, expected {want} .. {}",
@@ -726,6 +730,7 @@ mod tests {
             "row hit",
         );
         let s = port.stats();
+        println!("latency: closed {closed_ns} ns, conflict {conflict_ns} ns, hit {data_ns} ns expected; {s:?}");
         assert_eq!(s.row_hits, 1, "{s:?}");
         assert_eq!(s.row_misses, 42, "{s:?}");
     }
@@ -760,6 +765,9 @@ mod tests {
         let low = trfc as f64 / trefi as f64;
         let reopen = (cfg.int("tRP").unwrap() + cfg.int("tRCD").unwrap() + 8) as f64;
         let high = (trfc as f64 + reopen) / trefi as f64;
+        println!(
+            "refresh: {t_with} vs {t_without} unit cycles, loss {loss:.4} ({low:.4} .. {high:.4})"
+        );
         assert!(
             loss >= 0.8 * low && loss <= high,
             "loss {loss:.4}, expected {low:.4} .. {high:.4}"
