@@ -285,7 +285,7 @@ impl Dramsim3Port {
         let dram_period_fs = period_fs_from_ns(tck_ns);
         // Two transfers per clock on each channel.
         let peak_bytes_per_ns = channels as f64 * bus_bits as f64 / 8.0 * 2.0 / tck_ns;
-        let mut port = Self {
+        Ok(Self {
             sys,
             sink,
             dir,
@@ -305,9 +305,7 @@ impl Dramsim3Port {
             done: VecDeque::new(),
             stats: MemStats::default(),
             snapshot: RefCell::new(Snapshot::default()),
-        };
-        port.stats.energy_pj = None;
-        Ok(port)
+        })
     }
 
     /// The configuration this port runs.
