@@ -444,6 +444,12 @@ impl Dramsim3Port {
     }
 }
 
+// SAFETY: the port owns its DRAMsim3 instance exclusively (nothing else holds `sys`), the
+// callback's pointer targets the boxed sink, whose heap address does not change when the
+// port moves, and DRAMsim3 keeps no thread-local state. Moving the port to another thread
+// is therefore sound; sharing it is not offered (it is not Sync).
+unsafe impl Send for Dramsim3Port {}
+
 impl Drop for Dramsim3Port {
     fn drop(&mut self) {
         // SAFETY: `sys` is live and dropped exactly once, before `sink` and `dir`.
@@ -925,6 +931,24 @@ mod tests {
         let rb: Vec<_> = std::iter::from_fn(|| b.pop_response()).collect();
         assert_eq!(ra, rb);
         assert_eq!(a.stats(), b.stats());
+    }
+
+    #[test]
+    fn a_port_can_move_to_another_thread() {
+        let work = mixed_workload(200, 9);
+        let mut here = Dramsim3Port::open("lpddr3-1600-2x64", GHZ).unwrap();
+        let there = std::thread::spawn({
+            let work = work.clone();
+            move || {
+                let mut p = Dramsim3Port::open("lpddr3-1600-2x64", GHZ).unwrap();
+                let r = run(&mut p, &work);
+                (p, r)
+            }
+        });
+        let mine = run(&mut here, &work);
+        let (port, theirs) = there.join().unwrap();
+        assert_eq!(mine, theirs);
+        assert_eq!(here.stats(), port.stats());
     }
 
     #[test]
