@@ -326,7 +326,9 @@ pub trait MemoryPort {
     /// Requests accepted but not yet returned by [`Self::pop_response`].
     fn outstanding(&self) -> usize;
 
-    /// Counts so far.
+    /// Counts so far. May be expensive: the DRAMsim3 backend has DRAMsim3 write and then
+    /// parses its statistics file (about 3 ms a call, measured), so call it at the end of a
+    /// run or rarely, not every cycle.
     fn stats(&self) -> MemStats;
 
     /// Advances `cycles` unit cycles. Backends may override this with a faster skip when
