@@ -27,7 +27,7 @@ use crate::clock::PeriodFs;
 use simple::{SimpleDram, SimpleDramConfig};
 
 /// The named memory systems of the thesis, with their peak bandwidths in bytes per second:
-/// [P2] 6.2 "slow", "medium" and "fast", and the 2x32-bit system of [P3] 5.3 and [P4] 3.2.
+/// \[P2\] 6.2 "slow", "medium" and "fast", and the 2x32-bit system of \[P3\] 5.3 and \[P4\] 3.2.
 pub const MEMORY_SYSTEMS: &[(&str, u64, &str)] = &[
     (
         "lpddr3-1600-1x64",
