@@ -29,8 +29,8 @@ enum Command {
     Demo(cmd::demo::DemoArgs),
     /// Build a BVH over a scene with a named builder, validate it, report SAH and timings.
     Build(cmd::build::BuildArgs),
-    /// Run a cycle-level hardware model (mergetree).
-    Sim(cmd::sim_mergetree::SimArgs),
+    /// Run a cycle-level hardware model (`arbor sim mergetree`, `arbor sim dram`).
+    Sim(cmd::sim::SimArgs),
 }
 
 fn main() -> ExitCode {
@@ -40,7 +40,7 @@ fn main() -> ExitCode {
         Command::Info(a) => cmd::info::run(&a, &ui),
         Command::Demo(a) => cmd::demo::run(&a, &ui),
         Command::Build(a) => cmd::build::run(&a, &ui),
-        Command::Sim(a) => cmd::sim_mergetree::run(&a, &ui),
+        Command::Sim(a) => cmd::sim::run(&a, &ui),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -7,9 +7,11 @@
 //! - [`clock`]: exact crossing between two clock domains of any periods.
 //! - [`fifo`]: the bounded FIFO that connects units, with occupancy statistics.
 //! - [`dram`]: the memory-port interface and its backends.
+//! - [`analytic`]: analytic models of the builders MergeTree is compared with.
 //! - [`mergetree`]: the MergeTree HLBVH builder of \[P1\] and \[P2\].
 #![warn(missing_docs)]
 
+pub mod analytic;
 pub mod clock;
 pub mod dram;
 pub mod fifo;

@@ -3,6 +3,8 @@
 pub mod build;
 pub mod demo;
 pub mod info;
+pub mod sim;
+pub mod sim_dram;
 pub mod sim_mergetree;
 
 use crate::progress::{Ui, Unit};

@@ -1,4 +1,4 @@
-//! `arbor sim`: cycle-level hardware models. `arbor sim mergetree` runs the MergeTree
+//! `arbor sim mergetree` runs the MergeTree
 //! builder model (`sim::mergetree`, \[P1\], \[P2\] §4-6) over a scene, checks that its tree
 //! equals the software HLBVH builder's node for node, and reports cycles, time, traffic per
 //! phase, bus utilization, stall causes and a utilization trace (CSV and SVG, \[P2\] Fig. 6
@@ -13,20 +13,6 @@ use serde::Serialize;
 use sim::mergetree::{self, MergeTreeConfig, MergeTreeReport};
 use std::path::PathBuf;
 use std::time::Instant;
-
-/// Arguments of `arbor sim`.
-#[derive(clap::Args, Debug)]
-pub struct SimArgs {
-    #[command(subcommand)]
-    pub model: SimCommand,
-}
-
-/// The hardware models `arbor sim` runs.
-#[derive(clap::Subcommand, Debug)]
-pub enum SimCommand {
-    /// Simulate the MergeTree HLBVH builder (thesis P2) over a scene.
-    Mergetree(MergetreeArgs),
-}
 
 /// Arguments of `arbor sim mergetree`.
 #[derive(clap::Args, Debug)]
@@ -81,13 +67,6 @@ struct Output<'a> {
     sim_cycles_per_s: f64,
 }
 
-/// Runs `arbor sim ...`.
-pub fn run(args: &SimArgs, ui: &Ui) -> anyhow::Result<()> {
-    match &args.model {
-        SimCommand::Mergetree(a) => run_mergetree(a, ui),
-    }
-}
-
 /// Builds the configuration from the preset, the file and the overrides.
 pub fn config_from(
     preset: &str,
@@ -128,7 +107,7 @@ pub fn simulate(
     Ok((r, ms(start.elapsed())))
 }
 
-fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
+pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
     let cfg = config_from(&a.preset, a.config.as_deref(), &a.set)?;
     // Fail on a bad memory name before loading the scene.
     sim::dram::open(&a.dram, cfg.period_fs())?;

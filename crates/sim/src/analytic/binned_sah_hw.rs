@@ -1,0 +1,376 @@
+//! The binned SAH hardware builder of Doyle et al. \[DFM13\], as \[P2\] §6.1 models it:
+//! DRAM traffic from large sweeps and BVH output, and floating-point operations.
+//!
+//! \[P2\] §6.1 instruments a software binned SAH builder and charges traffic for the BVH
+//! output and for *large sweeps*, whose primitives do not fit the unit's on-chip buffers
+//! (8,192 AABBs in the instance of \[DFM13\]). Each sweep over a node partitions its
+//! primitives by the node's split while it bins them for the two children's splits, so a
+//! sweep "simultaneously produces input data for two child sweeps". This module runs the
+//! same accounting over a tree built by [`bvh::BinnedSahBuilder`] (the tree is the record
+//! of the build: each inner node is one sweep over its subtree's primitives):
+//! - a node's primitives live in DRAM when it is the root (the input), when they exceed the
+//!   buffer, or when the two children of its parent each fit but not together; then only
+//!   the smaller child goes to DRAM (\[P2\] §6.1, the "smaller-child rule"; a leaf child
+//!   needs no sweep and is never counted);
+//! - a sweep over a node in DRAM reads its primitives (`n * aabb_bytes`); the root is read
+//!   twice, because its bins must be filled by a pass of their own before the first
+//!   partitioning pass (every other node is binned while its parent is partitioned);
+//! - a child placed in DRAM is written once by its parent's sweep (`n * aabb_bytes`);
+//! - the BVH output is \[P2\]'s format, which \[P2\] §4 adopts to match \[DFM13\]: 64-B nodes
+//!   and a 4-B leaf-table entry per primitive.
+//!
+//! Floating-point operations follow Wald's binned SAH \[P2\] ref. 51 (see [`SweepFlops`]
+//! for the count of each step).
+//!
+//! Validation (tests below, scenes from `shared/scenes`): \[P2\] Table II prints the traffic
+//! of \[DFM13\] and \[P2\]'s estimate for four scenes, and Table VI the estimate for 14;
+//! Bunny, Crytek, Conference and Dragon are available here (Toasters and Fairy are not).
+//! The ordering \[P2\] states holds on all four: the smaller-child rule lies between fixed
+//! thresholds of 8,192 and 4,096. The magnitudes do NOT match: with a 16-bin SAH tree from
+//! [`bvh::BinnedSahBuilder`] (leaves of up to 8) the model gives 19.8 / 143.9 / 193.5 /
+//! 464.2 MB against the printed 18 / 116 / 125 / 379 MB (1.10x, 1.24x, 1.55x, 1.22x; \[DFM13\]
+//! itself reported 120 MB for Conference and 380 MB for Dragon). The
+//! sizes of the sweeps, and so the traffic, are set by the software builder's split choices
+//! (SAH peels small groups off large nodes, which keeps many levels in DRAM; every
+//! primitive that stays in DRAM one level deeper costs 64 B), and \[P2\] does not describe
+//! its builder further; leaves of one primitive or 8/32 bins change the figures by under
+//! 10 %, and leaving out the root's binning pass by 6 % (Dragon). \[P2\] gives no record
+//! size for \[DFM13\]; with 24-B records (bounds only, references kept elsewhere) the
+//! ratios would be 0.86 / 0.95 / 1.18 / 0.94, but nothing in the sources supports that
+//! choice, so the model keeps \[P2\]'s 32-B AABB records and we report the disagreement
+//! rather than adjust the record size or rule to hide it.
+
+use bvh::{Bvh2, ChildRef};
+
+/// Parameters of the modelled unit and formats.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BinnedSahHwParams {
+    /// Primitive AABBs the on-chip buffers hold (\[P2\] §6.1: 8,192 in \[DFM13\]).
+    pub buffer_prims: u64,
+    /// Bytes of one primitive AABB record in DRAM (\[P2\] §4.2: 32 B).
+    pub aabb_bytes: u64,
+    /// Bytes of one BVH node (\[P2\] §4.1: 64 B).
+    pub node_bytes: u64,
+    /// Bytes of one leaf-table entry (\[P2\] §4.2: 4 B).
+    pub leaf_entry_bytes: u64,
+    /// Bins per axis, for the FLOP count (16, the software builder's default).
+    pub bins: u64,
+    /// Which children go to DRAM.
+    pub rule: LargeSweepRule,
+}
+
+/// Which nodes' primitives are kept in DRAM ("large sweeps").
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LargeSweepRule {
+    /// \[P2\] §6.1: children larger than the buffer, and the smaller of two children that
+    /// fit one by one but not together.
+    SmallerChild,
+    /// Every node of more than this many primitives, regardless of its sibling (the
+    /// fixed thresholds \[P2\] §6.1 compares with: 4,096 over-, 8,192 underestimates).
+    FixedThreshold(u64),
+}
+
+impl Default for BinnedSahHwParams {
+    fn default() -> Self {
+        Self {
+            buffer_prims: 8192,
+            aabb_bytes: 32,
+            node_bytes: 64,
+            leaf_entry_bytes: 4,
+            bins: 16,
+            rule: LargeSweepRule::SmallerChild,
+        }
+    }
+}
+
+/// The model's counts for one build.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BinnedSahHwTraffic {
+    /// Sweeps whose primitives are read from DRAM (the root counted once).
+    pub large_sweeps: u64,
+    /// Bytes read by large sweeps (including the root's binning pass).
+    pub sweep_read_bytes: u64,
+    /// Bytes of child primitive lists written to DRAM.
+    pub sweep_write_bytes: u64,
+    /// Bytes of BVH nodes and leaf table written.
+    pub bvh_bytes: u64,
+    /// Floating-point operations of all sweeps.
+    pub flops: u64,
+}
+
+impl BinnedSahHwTraffic {
+    /// All DRAM traffic in bytes.
+    pub fn total_bytes(&self) -> u64 {
+        self.sweep_read_bytes + self.sweep_write_bytes + self.bvh_bytes
+    }
+}
+
+/// Floating-point operations of Wald's binned SAH, per primitive and per sweep.
+///
+/// Per primitive in a sweep: its centroid (3 adds, 3 multiplies), its bin on each axis
+/// (3 subtracts, 3 multiplies), growing that bin's box and count (6 min/max), and the
+/// partition test against the parent's plane (1 compare) with the child's centroid bounds
+/// (6 min/max): 25. Per sweep: the bin scale per axis (3 subtracts, 3 divides), then per
+/// axis and candidate plane (`bins - 1` of them) the left and right box sweeps (2 x 6
+/// min/max), their half areas (2 x 8: 3 subtracts, 3 multiplies, 2 adds), the cost
+/// `nL aL + nR aR` (3) and the comparison with the best (1).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct SweepFlops;
+
+impl SweepFlops {
+    /// Operations per primitive per sweep.
+    pub const PER_PRIM: u64 = 6 + 6 + 6 + 1 + 6;
+
+    /// Operations per sweep independent of its size, for `bins` bins per axis.
+    pub fn per_sweep(bins: u64) -> u64 {
+        6 + 3 * bins.saturating_sub(1) * (12 + 16 + 3 + 1)
+    }
+}
+
+/// Primitives under each node (index = node index). Nodes are in depth-first preorder, so
+/// children come after parents and one reverse pass suffices.
+fn subtree_prims(bvh: &Bvh2) -> Vec<u64> {
+    let mut n = vec![0u64; bvh.nodes.len()];
+    for i in (0..bvh.nodes.len()).rev() {
+        n[i] = bvh.nodes[i]
+            .children
+            .iter()
+            .map(|c| child_prims(c, &n))
+            .sum();
+    }
+    n
+}
+
+fn child_prims(c: &ChildRef, n: &[u64]) -> u64 {
+    if c.is_leaf() {
+        c.count as u64
+    } else if c.is_inner() {
+        n.get(c.index as usize).copied().unwrap_or(0)
+    } else {
+        0
+    }
+}
+
+/// Runs \[P2\] §6.1's model over the tree `bvh` (see the module documentation).
+pub fn model(bvh: &Bvh2, p: &BinnedSahHwParams) -> BinnedSahHwTraffic {
+    let prims = subtree_prims(bvh);
+    let mut t = BinnedSahHwTraffic {
+        bvh_bytes: bvh.nodes.len() as u64 * p.node_bytes
+            + bvh.prim_count() as u64 * p.leaf_entry_bytes,
+        ..Default::default()
+    };
+    if bvh.nodes.is_empty() || prims[0] == 0 {
+        return t;
+    }
+    // Whether each inner node's primitives are in DRAM when its sweep starts.
+    let mut in_dram = vec![false; bvh.nodes.len()];
+    in_dram[0] = true;
+    // The root's own binning pass.
+    t.sweep_read_bytes += prims[0] * p.aabb_bytes;
+    for i in 0..bvh.nodes.len() {
+        let n = prims[i];
+        t.flops += n * SweepFlops::PER_PRIM + SweepFlops::per_sweep(p.bins);
+        if in_dram[i] {
+            t.large_sweeps += 1;
+            t.sweep_read_bytes += n * p.aabb_bytes;
+        }
+        let kids = bvh.nodes[i].children;
+        let sizes = kids.map(|c| child_prims(&c, &prims));
+        let threshold = match p.rule {
+            LargeSweepRule::SmallerChild => p.buffer_prims,
+            LargeSweepRule::FixedThreshold(t) => t,
+        };
+        let mut to_dram = [false; 2];
+        for k in 0..2 {
+            to_dram[k] = kids[k].is_inner() && sizes[k] > threshold;
+        }
+        if p.rule == LargeSweepRule::SmallerChild
+            && !to_dram[0]
+            && !to_dram[1]
+            && sizes[0] + sizes[1] > p.buffer_prims
+        {
+            // Each fits, both do not: the smaller goes to DRAM (child 1 on a tie).
+            let smaller = if sizes[0] < sizes[1] { 0 } else { 1 };
+            to_dram[smaller] = kids[smaller].is_inner();
+        }
+        for k in 0..2 {
+            if to_dram[k] {
+                in_dram[kids[k].index as usize] = true;
+                t.sweep_write_bytes += sizes[k] * p.aabb_bytes;
+            }
+        }
+    }
+    t
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use bvh::{BinnedSahBuilder, Node};
+    use geom::{Aabb, Vec3};
+
+    fn leaf(first: u32, count: u32) -> ChildRef {
+        ChildRef::leaf(first, count)
+    }
+
+    /// A hand-made tree: root -> (A: 10 prims in two leaves of 5, B: 7 prims as one leaf
+    /// and inner C of 2 leaves 1 + 1).
+    fn small_tree() -> Bvh2 {
+        let b = Aabb::new(Vec3::ZERO, Vec3::ONE);
+        let nodes = vec![
+            Node::new(&b, ChildRef::inner(1), &b, ChildRef::inner(2)),
+            Node::new(&b, leaf(0, 5), &b, leaf(5, 5)),
+            Node::new(&b, leaf(10, 5), &b, ChildRef::inner(3)),
+            Node::new(&b, leaf(15, 1), &b, leaf(16, 1)),
+        ];
+        Bvh2 {
+            nodes,
+            prim_indices: (0..17).collect(),
+            bounds: b,
+        }
+    }
+
+    #[test]
+    fn subtree_counts() {
+        assert_eq!(subtree_prims(&small_tree()), vec![17, 10, 7, 2]);
+    }
+
+    #[test]
+    fn accounting_on_a_hand_made_tree() {
+        let bvh = small_tree();
+        let p = |buffer_prims| BinnedSahHwParams {
+            buffer_prims,
+            aabb_bytes: 32,
+            node_bytes: 64,
+            leaf_entry_bytes: 4,
+            bins: 4,
+            rule: LargeSweepRule::SmallerChild,
+        };
+        let bvh_bytes = 4 * 64 + 17 * 4;
+        // Everything fits: only the root is in DRAM (read twice).
+        let t = model(&bvh, &p(100));
+        assert_eq!(
+            (t.large_sweeps, t.sweep_read_bytes, t.sweep_write_bytes),
+            (1, 2 * 17 * 32, 0)
+        );
+        assert_eq!(t.bvh_bytes, bvh_bytes);
+        // Buffer of 12: the children (10 + 7) each fit but not together; the smaller (B, 7)
+        // goes to DRAM and is written once and read once.
+        let t = model(&bvh, &p(12));
+        assert_eq!(t.large_sweeps, 2);
+        assert_eq!(t.sweep_write_bytes, 7 * 32);
+        assert_eq!(t.sweep_read_bytes, (2 * 17 + 7) * 32);
+        // Buffer of 6: A (10) and B (7) are too large; within B the leaf of 5 and C (2)
+        // together are too large, but the smaller is C, an inner node: it goes too. A's
+        // children are leaves and need no sweep.
+        let t = model(&bvh, &p(6));
+        assert_eq!(t.large_sweeps, 4);
+        assert_eq!(t.sweep_write_bytes, (10 + 7 + 2) * 32);
+        assert_eq!(t.sweep_read_bytes, (2 * 17 + 10 + 7 + 2) * 32);
+        assert_eq!(
+            t.total_bytes(),
+            t.sweep_read_bytes + t.sweep_write_bytes + bvh_bytes
+        );
+        // FLOPs: 4 sweeps over 17 + 10 + 7 + 2 primitives.
+        assert_eq!(
+            t.flops,
+            36 * SweepFlops::PER_PRIM + 4 * SweepFlops::per_sweep(4)
+        );
+    }
+
+    #[test]
+    fn flop_constants() {
+        assert_eq!(SweepFlops::PER_PRIM, 25);
+        // 16 bins: 6 + 3 axes x 15 planes x 32.
+        assert_eq!(SweepFlops::per_sweep(16), 1446);
+    }
+
+    /// Builds the scene's binned SAH tree and runs the model with the \[P2\] rule and with
+    /// the two fixed thresholds; `None` when the shared scenes are absent.
+    fn scene_traffic(file: &str) -> Option<[BinnedSahHwTraffic; 3]> {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../../shared/scenes")
+            .join(file);
+        if !path.is_file() {
+            println!("skipping: {} not found", path.display());
+            return None;
+        }
+        let s = scene::open(path.to_str()?, &Default::default()).expect("scene");
+        let m = s.mesh_at(0.0).expect("mesh");
+        let boxes = bvh::indexed_triangle_aabbs(&m.positions, &m.triangles).expect("boxes");
+        let tree = BinnedSahBuilder::default().build(&boxes).expect("build");
+        let with = |rule| {
+            model(
+                &tree,
+                &BinnedSahHwParams {
+                    rule,
+                    ..Default::default()
+                },
+            )
+        };
+        Some([
+            with(LargeSweepRule::SmallerChild),
+            with(LargeSweepRule::FixedThreshold(8192)),
+            with(LargeSweepRule::FixedThreshold(4096)),
+        ])
+    }
+
+    /// Checks one scene against \[P2\]'s printed traffic (MB).
+    ///
+    /// What must hold exactly is \[P2\] §6.1's ordering: the smaller-child rule lies
+    /// between a fixed 8,192 threshold (too low) and a fixed 4,096 threshold (too high).
+    /// The magnitude does not reproduce \[P2\]'s figures: on these scenes the model gives
+    /// 1.10x (Bunny), 1.24x (Crytek), 1.55x (Conference; 1.61x \[DFM13\]'s own 120 MB) and
+    /// 1.22x (Dragon) the printed figures, always above them. The sweep sizes come from our binned SAH tree, and SAH
+    /// trees peel small groups off large nodes, so the number of levels that stay in DRAM
+    /// depends on the builder's split choices (Conference, with large flat walls among
+    /// small furniture, is the most unbalanced); \[P2\] does not describe its software
+    /// builder beyond "binned SAH". The bound below (0.9x to 1.65x) is not a validation: it
+    /// records today's disagreement so that a change that moves the model further away
+    /// fails.
+    fn check(file: &str, printed_mb: &[f64]) {
+        let Some([rule, fixed_8k, fixed_4k]) = scene_traffic(file) else {
+            return;
+        };
+        let mb = rule.total_bytes() as f64 / 1e6;
+        println!(
+            "{file}: {mb:.1} MB (printed {printed_mb:?}; fixed 8192 {:.1}, fixed 4096 {:.1}), {} large sweeps, {:.2} GFLOP",
+            fixed_8k.total_bytes() as f64 / 1e6,
+            fixed_4k.total_bytes() as f64 / 1e6,
+            rule.large_sweeps,
+            rule.flops as f64 / 1e9
+        );
+        assert!(fixed_8k.total_bytes() <= rule.total_bytes());
+        assert!(rule.total_bytes() <= fixed_4k.total_bytes());
+        assert!(fixed_8k.total_bytes() < fixed_4k.total_bytes());
+        for &want in printed_mb {
+            let ratio = mb / want;
+            assert!(
+                (0.9..=1.65).contains(&ratio),
+                "{file}: {mb:.1} MB vs printed {want} MB"
+            );
+        }
+    }
+
+    #[test]
+    fn p2_table_vi_bunny() {
+        check("bunny.ply", &[18.0]);
+    }
+
+    #[test]
+    fn p2_table_vi_crytek() {
+        check("crytek-sponza.ply", &[116.0]);
+    }
+
+    #[test]
+    fn p2_tables_ii_and_vi_conference() {
+        // Table II: [DFM13] reported 120 MB, [P2]'s model 125 MB (Table VI: 125).
+        check("conference.ply", &[125.0, 120.0]);
+    }
+
+    #[test]
+    fn p2_tables_ii_and_vi_dragon() {
+        // Table II: [DFM13] reported 380 MB, [P2]'s model 379 MB (Table VI: 379).
+        check("dragon.ply", &[379.0, 380.0]);
+    }
+}
