@@ -3,13 +3,8 @@
 //! Fig. 4 and the hardware-oriented modulo encode of Fig. 5.
 //!
 //! A child box `p..q` inside a node with context `(e, u)` covers the grid cells
-//! `r = floor((p - u) / 2^e)` to `s = ceil((q - u) / 2^e)` (at least one cell), with
-//! `0 <= r < s <= 2^N`. Eq. 1 and Fig. 5 use `floor(..) + 1` for `s`, which differs only
-//! when `q` lies exactly on a grid line, where it adds a cell. We round up instead because
-//! Algorithm 1's backtracking re-encodes *decoded* boxes, whose upper bounds always lie on
-//! grid lines: with `floor + 1` every backtracking step would grow a box by one cell, and a
-//! child touching its parent's upper bound would then no longer fit the `2^N` cells.
-//! With `ceil`, re-encoding a decoded box under the same context is the identity. Relative coordinates store `(r, s - 1)`; modulo coordinates store
+//! `r = floor((p - u) / 2^e)` to `s = floor((q - u) / 2^e) + 1` (Eq. 1), with
+//! `0 <= r < s <= 2^N`. Relative coordinates store `(r, s - 1)`; modulo coordinates store
 //! the absolute grid indices modulo `2^N`: `(k mod 2^N, l mod 2^N)` with `k = u/2^e + r`,
 //! `l = u/2^e + s` (Eq. 8). Modulo coordinates do not depend on `u`, only on `e`, which is
 //! why they survive a change of the parent's lower bound (\[P3\] Fig. 3).
@@ -22,30 +17,31 @@
 //! Such children occur (a parent's box can span exactly `2^N` cells); see the test
 //! `fig4_literal_wraps_a_child_on_the_parent_upper_bound`.
 
-use crate::grid::{ceil_cells, floor_cells, pow2, AxisCtx, Params};
+use crate::grid::{floor_cells, pow2, AxisCtx, Params};
 use crate::Coords;
 
-/// Grid cells `r..s` covered by the original interval `p..q` in a node's grid (Eq. 1).
+/// Grid cells `r..s` covered by the interval `p..q` in a node's grid (Eq. 1:
+/// `r = floor((p - u) / 2^e)`, `s = floor((q - u) / 2^e) + 1`), kept inside the node's
+/// decoded box.
+///
+/// The cells are intersected with the node's decoded box (`0..top`, `top <= 2^N`). An
+/// original child always lies strictly below its node's upper bound (Eq. 1's `+ 1` makes
+/// every decoded upper bound exceed the original), so this only acts when a backtracking
+/// step re-encodes a *decoded* child box: its upper bound lies on a grid line, Eq. 1 adds
+/// a cell, and that cell can fall outside the parent's new box. The intersection still
+/// encloses the original child, which lies inside both. It gives the invariant that every
+/// node's child cells lie inside its own decoded box, which modulo coordinates rely on
+/// (see [`crate::codec::Ctx::invalidates`]).
 #[inline]
 pub fn quantize(p: f32, q: f32, ctx: &AxisCtx, prm: &Params) -> (i64, i64) {
     let n = prm.cells();
-    let mut r = floor_cells(p, ctx.lo, ctx.e);
-    let mut s = ceil_cells(q, ctx.lo, ctx.e);
-    if s <= r {
-        // A degenerate interval on a grid line: give it one cell, inside the node.
-        if r < n {
-            s = r + 1;
-        } else {
-            r = s - 1;
-        }
-    }
-    // Cells outside 0..2^N are clamped, i.e. the interval is intersected with the node's
-    // grid box. An original child always lies inside its node; only a backtracking step can
-    // hit this, when it re-encodes a decoded child box whose upper bound was rounded one
-    // f32 step beyond the node's new (coarser) box. The intersection still encloses the
-    // original child, which lies inside both.
-    let r = r.clamp(0, n - 1);
-    (r, s.clamp(r + 1, n))
+    // The node's decoded box in cells: its bounds are multiples of 2^e, their difference
+    // is exact in f64.
+    let top = ((ctx.hi as f64 - ctx.lo as f64) * pow2(-ctx.e)).floor() as i64;
+    let top = top.clamp(1, n);
+    let r = floor_cells(p, ctx.lo, ctx.e).clamp(0, top - 1);
+    let s = floor_cells(q, ctx.lo, ctx.e).saturating_add(1);
+    (r, s.clamp(r + 1, top))
 }
 
 /// The two stored `N`-bit fields for cells `r..s`.

@@ -175,12 +175,6 @@ pub fn floor_cells(x: f32, base: f32, e: i32) -> i64 {
     fl as i64
 }
 
-/// `ceil((x - base) / 2^e)`, exact (saturating to the `i64` range).
-#[inline]
-pub fn ceil_cells(x: f32, base: f32, e: i32) -> i64 {
-    0i64.saturating_sub(floor_cells(-x, -base, e))
-}
-
 /// `ceil(log2(w))` of a positive finite `w`.
 #[inline]
 fn ceil_log2(w: f64) -> i32 {
@@ -269,21 +263,17 @@ impl AxisCtx {
 }
 
 /// Zero-aligned grid box around `p..q` at scale `e`: `floor(p / 2^e) 2^e` and
-/// `ceil(q / 2^e) 2^e` (at least one cell wide), rounded outward to `f32`.
+/// `(floor(q / 2^e) + 1) 2^e` (Eq. 1), rounded outward to `f32`.
 #[inline]
 fn aligned(p: f32, q: f32, e: i32) -> (f32, f32) {
     let c = pow2(e);
     // p * 2^-e is exact in f64 and so is its floor (no i64 range limit here).
     let kp = (p as f64 * pow2(-e)).floor();
-    let kq = (q as f64 * pow2(-e)).ceil();
+    let kq = (q as f64 * pow2(-e)).floor();
     // k * 2^e is exact in f64 (it has no more significant bits than p or q), so only the
-    // conversion to f32 rounds; the one-cell minimum is added exactly by the two-sum
-    // (`kp + 1` itself can round away in f64 far from the origin).
-    let hi = if kq > kp {
-        add_up(kq * c, 0.0)
-    } else {
-        add_up(kp * c, c)
-    };
+    // conversion to f32 rounds; Eq. 1's extra cell is added exactly by the two-sum (`kq + 1`
+    // itself can round away in f64 far from the origin).
+    let hi = add_up(kq * c, c);
     (add_down(kp * c, 0.0), hi)
 }
 
@@ -336,7 +326,7 @@ mod tests {
             (-1.0, -1.0),
         ] {
             let c = AxisCtx::estimate(p, q, &prm);
-            assert!(c.lo <= p && c.hi >= q && c.hi > c.lo, "{p} {q} {c:?}");
+            assert!(c.lo <= p && c.hi > q, "{p} {q} {c:?}");
             assert!(c.hi as f64 - c.lo as f64 <= pow2(c.e + 6));
             if c.e > prm.min_scale_exp {
                 let (lo, hi) = aligned(p, q, c.e - 1);

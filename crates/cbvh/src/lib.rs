@@ -25,6 +25,7 @@ mod error;
 pub mod format;
 pub mod grid;
 pub mod refit;
+pub mod study;
 pub mod topdown;
 pub mod traffic;
 pub mod tree;
