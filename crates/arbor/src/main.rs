@@ -29,6 +29,11 @@ enum Command {
     Demo(cmd::demo::DemoArgs),
     /// Build a BVH over a scene with a named builder, validate it, report SAH and timings.
     Build(cmd::build::BuildArgs),
+    /// Compress a scene's LBVH into a CBVH (or refit one) and report backtracking, traffic
+    /// and quality ([P3]).
+    Cbvh(cmd::cbvh::CbvhArgs),
+    /// Regenerate a table or figure of the thesis (CSV, Markdown, SVG).
+    Report(cmd::report::ReportArgs),
 }
 
 fn main() -> ExitCode {
@@ -38,6 +43,8 @@ fn main() -> ExitCode {
         Command::Info(a) => cmd::info::run(&a, &ui),
         Command::Demo(a) => cmd::demo::run(&a, &ui),
         Command::Build(a) => cmd::build::run(&a, &ui),
+        Command::Cbvh(a) => cmd::cbvh::run(&a, &ui),
+        Command::Report(a) => cmd::report::run(&a, &ui),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

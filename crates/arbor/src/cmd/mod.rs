@@ -1,8 +1,11 @@
 //! Subcommands, one file each.
 
 pub mod build;
+pub mod cbvh;
 pub mod demo;
 pub mod info;
+pub mod report;
+pub mod report_cbvh;
 
 use crate::progress::{Ui, Unit};
 use anyhow::Context;
