@@ -12,10 +12,24 @@ fn cbvh_json_has_the_documented_fields_and_encloses() {
     ] {
         let v = json(
             "cbvh",
-            &["proc:soup?n=3000", "--encoder", enc, "--coords", coords, "--treelet", treelet],
+            &[
+                "proc:soup?n=3000",
+                "--encoder",
+                enc,
+                "--coords",
+                coords,
+                "--treelet",
+                treelet,
+            ],
         );
         assert_eq!(v["schema"], "arbor.cbvh.v1");
-        for k in ["nodes", "backtrack_steps", "traffic_bytes", "decoded_encloses_original", "sah_vs_uncompressed"] {
+        for k in [
+            "nodes",
+            "backtrack_steps",
+            "traffic_bytes",
+            "decoded_encloses_original",
+            "sah_vs_uncompressed",
+        ] {
             assert!(!v[k].is_null(), "{k} missing for {enc}");
         }
         assert_eq!(v["decoded_encloses_original"], true);
@@ -34,7 +48,15 @@ fn cbvh_json_has_the_documented_fields_and_encloses() {
 fn cbvh_refit_from_an_earlier_time() {
     let v = json(
         "cbvh",
-        &["proc:cloth?n=2000&duration=1&fps=10", "--time", "0.5", "--refit-from", "0", "--coords", "modulo"],
+        &[
+            "proc:cloth?n=2000&duration=1&fps=10",
+            "--time",
+            "0.5",
+            "--refit-from",
+            "0",
+            "--coords",
+            "modulo",
+        ],
     );
     assert_eq!(v["refit_from_s"], 0.0);
     assert_eq!(v["decoded_encloses_original"], true);
@@ -46,7 +68,14 @@ fn cbvh_bad_arguments_fail_with_one_line() {
     for args in [
         vec!["cbvh", "proc:soup?n=100", "--treelet", "0"],
         vec!["cbvh", "proc:soup?n=100", "--bits", "9"],
-        vec!["cbvh", "proc:soup?n=100", "--encoder", "topdown", "--treelet", "2"],
+        vec![
+            "cbvh",
+            "proc:soup?n=100",
+            "--encoder",
+            "topdown",
+            "--treelet",
+            "2",
+        ],
         vec!["cbvh", "/no/such/scene.ply"],
     ] {
         let out = arbor(&args);
@@ -66,14 +95,27 @@ fn report_cbvh_writes_its_files() {
         "report",
         "cbvh",
         "--scenes",
-        "proc:cloth?n=2000,proc:soup?n=3000",
+        "cloth,proc:soup?n=3000",
         "--out",
         out.to_str().unwrap(),
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    for f in ["report.md", "table1.csv", "table1.svg", "table3.csv", "quality.csv", "fig7.csv", "fig7.svg", "fig10.csv", "fig10.svg"] {
+    for f in [
+        "report.md",
+        "table1.csv",
+        "table1.svg",
+        "table3.csv",
+        "quality.csv",
+        "fig7.csv",
+        "fig7.svg",
+        "fig10.csv",
+        "fig10.svg",
+    ] {
         let p = out.join(f);
-        assert!(p.exists() && std::fs::metadata(&p).unwrap().len() > 0, "{f}");
+        assert!(
+            p.exists() && std::fs::metadata(&p).unwrap().len() > 0,
+            "{f}"
+        );
     }
     let t1 = std::fs::read_to_string(out.join("table1.csv")).unwrap();
     // 9 metric rows x 9 variants, plus the header.

@@ -18,9 +18,10 @@
 //! 5. pushes the subtree on the context stack.
 //!
 //! A mismatch is a scale change, and for relative coordinates also a lower-bound change
-//! (\[P3\] §4.2: modulo coordinates only depend on the scale). Because backtracking
-//! re-encodes decoded (already enlarged) boxes, the result can be slightly looser than
-//! top-down compression; it always encloses it (see the tests).
+//! (\[P3\] §4.2: modulo coordinates only depend on the scale). Backtracking re-encodes
+//! decoded (already enlarged) boxes; rounding their upper bounds up rather than with Eq. 1's
+//! `floor + 1` (see [`crate::coords::quantize`]) makes that exact, so the result encloses
+//! top-down compression's boxes and in practice equals them (the report measures it).
 //!
 //! Treelets (§4.3): the top `treelet_depth - 1` levels of every subtree on the stack are
 //! kept unwritten (on chip); each new node re-encodes its treelet top-down from its own
@@ -33,7 +34,9 @@
 //! node-pair writes, and per backtracking step one 64-byte read and one 64-byte write of
 //! the line holding the pair), to be drained with [`StreamEncoder::drain_ops`].
 
-use crate::codec::{check_box, decode_slot, encode_pair, slot_ptr, ChildPtr, Ctx};
+use crate::codec::{
+    check_box, decode_slot, encode_pair, encode_pair_with, slot_ptr, ChildPtr, Ctx,
+};
 use crate::error::CbvhError;
 use crate::format::{pair_bytes, NodePair, LEAF_END, MAX_PTR};
 use crate::grid::Params;
@@ -414,7 +417,7 @@ impl StreamEncoder {
         let olds = [0, 1].map(|c| decode_slot(&pair.slots[c], &old, p));
         let boxes = olds.map(|o| o.map_or(Aabb::EMPTY, |c| c.aabb()));
         let ptrs = [0, 1].map(|c| slot_ptr(&pair.slots[c]));
-        let (fresh, kids) = encode_pair(&boxes, ptrs, &new, p);
+        let (fresh, kids) = encode_pair_with(&boxes, ptrs, &new, p, true);
         self.pairs[addr as usize] = fresh;
         for c in 0..2 {
             if let (ChildPtr::Inner(k), Some(o)) = (ptrs[c], olds[c]) {

@@ -101,15 +101,28 @@ pub fn check_box(b: &Aabb, index: usize) -> Result<(), CbvhError> {
     }
 }
 
-/// `Encode` of Algorithm 1: quantizes the two child boxes `boxes` (original, or decoded
-/// ones when backtracking) in context `ctx` and returns the pair and each child's decoded
-/// context (the empty child gets a copy of `ctx`).
+/// `Encode` of Algorithm 1: quantizes the two original child boxes `boxes` in context
+/// `ctx` and returns the pair and each child's decoded context (the empty child gets a copy
+/// of `ctx`).
 #[inline]
 pub fn encode_pair(
     boxes: &[Aabb; 2],
     ptrs: [ChildPtr; 2],
     ctx: &Ctx,
     p: &Params,
+) -> (NodePair, [Ctx; 2]) {
+    encode_pair_with(boxes, ptrs, ctx, p, false)
+}
+
+/// [`encode_pair`] for boxes that are themselves decoded boxes (`decoded = true`: the
+/// re-encoding of a backtracking step, see [`crate::coords::quantize`]).
+#[inline]
+pub fn encode_pair_with(
+    boxes: &[Aabb; 2],
+    ptrs: [ChildPtr; 2],
+    ctx: &Ctx,
+    p: &Params,
+    decoded: bool,
 ) -> (NodePair, [Ctx; 2]) {
     let mut pair = NodePair::default();
     let mut out = [*ctx; 2];
@@ -128,7 +141,7 @@ pub fn encode_pair(
             ..Slot::default()
         };
         for (i, a) in ctx.axes.iter().enumerate() {
-            let (r, s) = quantize(boxes[c].min[i], boxes[c].max[i], a, p);
+            let (r, s) = quantize(boxes[c].min[i], boxes[c].max[i], a, p, decoded);
             let (lo, hi) = store(r, s, a, p);
             slot.lo[i] = lo;
             slot.hi[i] = hi;
@@ -241,9 +254,18 @@ pub(crate) mod tests {
                 }
                 // Re-encoding the decoded box (backtracking) encloses it and stays inside
                 // the node (Eq. 1's extra cell is clipped at the node's upper bound).
-                let (_, again) = encode_pair(&[kids[c].aabb(), kids[c].aabb()], [ChildPtr::Leaf(0); 2], &ctx, &p);
-                prop_assert!(again[0].aabb().contains(&kids[c].aabb()));
-                prop_assert!(ctx.aabb().contains(&again[0].aabb()));
+                let (_, again) = encode_pair_with(&[kids[c].aabb(), kids[c].aabb()], [ChildPtr::Leaf(0); 2], &ctx, &p, true);
+                prop_assert_eq!(again[0], kids[c]);
+                // Under the coarser context of a doubled parent box, re-encoding the
+                // decoded box gives what encoding the original gives.
+                let mut wide = ctx;
+                for a in &mut wide.axes {
+                    let w = a.hi as f64 - a.lo as f64;
+                    *a = crate::grid::AxisCtx::from_decoded(a.lo, crate::grid::add_up(a.hi as f64, w), &p);
+                }
+                let (_, direct) = encode_pair(&boxes, [ChildPtr::Leaf(0); 2], &wide, &p);
+                let (_, via) = encode_pair_with(&[kids[0].aabb(), kids[1].aabb()], [ChildPtr::Leaf(0); 2], &wide, &p, true);
+                prop_assert_eq!(direct[c].aabb(), via[c].aabb());
             }
         }
 

@@ -32,15 +32,27 @@ use crate::Coords;
 /// encloses the original child, which lies inside both. It gives the invariant that every
 /// node's child cells lie inside its own decoded box, which modulo coordinates rely on
 /// (see [`crate::codec::Ctx::invalidates`]).
+///
+/// `decoded`: the interval is a decoded box (backtracking re-encodes those). Its upper
+/// bound is then rounded up (`ceil`) instead of `floor + 1`: a decoded upper bound `v` is
+/// already the smallest point of a finer grid strictly above the original `q`, so the
+/// smallest point of the new, coarser (or equal) grid at or above `v` is exactly the one
+/// `floor + 1` gives for `q`, and likewise for the lower bound. Re-encoding a decoded box
+/// then gives the box top-down compression gives the original, instead of growing it by
+/// one cell per backtracking step.
 #[inline]
-pub fn quantize(p: f32, q: f32, ctx: &AxisCtx, prm: &Params) -> (i64, i64) {
+pub fn quantize(p: f32, q: f32, ctx: &AxisCtx, prm: &Params, decoded: bool) -> (i64, i64) {
     let n = prm.cells();
     // The node's decoded box in cells: its bounds are multiples of 2^e, their difference
     // is exact in f64.
     let top = ((ctx.hi as f64 - ctx.lo as f64) * pow2(-ctx.e)).floor() as i64;
     let top = top.clamp(1, n);
     let r = floor_cells(p, ctx.lo, ctx.e).clamp(0, top - 1);
-    let s = floor_cells(q, ctx.lo, ctx.e).saturating_add(1);
+    let s = if decoded {
+        0i64.saturating_sub(floor_cells(-q, -ctx.lo, ctx.e))
+    } else {
+        floor_cells(q, ctx.lo, ctx.e).saturating_add(1)
+    };
     (r, s.clamp(r + 1, top))
 }
 
@@ -227,7 +239,7 @@ mod tests {
         // An original interval strictly inside cells r..s.
         let lb = (ctx.lo as f64 + (r as f64 + 0.25) * c) as f32;
         let ub = (ctx.lo as f64 + (s as f64 - 0.5) * c) as f32;
-        assert_eq!(quantize(lb, ub, ctx, p), (r, s));
+        assert_eq!(quantize(lb, ub, ctx, p, false), (r, s));
         let (a, b) = store(r, s, ctx, p);
         assert_eq!(load(a, b, ctx, p), (r, s));
         let (clo, chi) = ctx.child_bounds(r, s);

@@ -373,3 +373,37 @@ mod tests {
         assert!(sweep[2].sah >= sweep[0].sah - 1e-9);
     }
 }
+
+#[cfg(test)]
+mod min_scale_tests {
+    use super::*;
+    use crate::bottomup::tests::soup;
+
+    /// \[P3\] §4.4: large subtrees with a degenerate axis, joined with geometry that is not
+    /// flat, backtrack down towards the minimum scale; a coarser minimum scale cuts that.
+    #[test]
+    fn flat_geometry_backtracks_down_to_the_minimum_scale() {
+        // A sheet exactly at z = 0 (where f32 spacing does not limit the scale, \[P3\]
+        // §4.4) with some non-flat geometry around it.
+        let mut prims: Vec<Aabb> = soup(6000, 3, true)
+            .into_iter()
+            .map(|b| {
+                Aabb::new(
+                    b.min * geom::Vec3::new(1.0, 1.0, 0.0),
+                    b.max * geom::Vec3::new(1.0, 1.0, 0.0),
+                )
+            })
+            .collect();
+        prims.extend(soup(300, 4, false));
+        let pts = min_scale_sweep(&prims, &Params::default(), &[-126, -30, -10]).unwrap();
+        assert!(
+            pts[0].backtrack_per_prim > 1.5 * pts[1].backtrack_per_prim
+                && pts[0].backtrack_per_prim_m4 > 4.0 * pts[1].backtrack_per_prim_m4,
+            "{pts:?}"
+        );
+        assert!(
+            pts[1].backtrack_per_prim >= pts[2].backtrack_per_prim,
+            "{pts:?}"
+        );
+    }
+}
