@@ -82,3 +82,83 @@ pub fn compress_topdown(bvh: &Bvh2, params: &Params) -> Result<(Cbvh, EncodeStat
         stats,
     ))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::tree::{enclosure_violations, interval_encloses};
+    use geom::Vec3;
+
+    #[test]
+    fn decoded_tree_keeps_the_topology_and_encloses() {
+        let prims = crate::bottomup::tests::soup(2000, 8, false);
+        let bvh = bvh::BinnedSahBuilder::default().build(&prims).unwrap();
+        let (c, st) = compress_topdown(&bvh, &Params::default()).unwrap();
+        assert_eq!(st.nodes_written as usize, bvh.nodes.len());
+        let d = c.decode_to_bvh2().unwrap();
+        assert_eq!(d.nodes.len(), bvh.nodes.len());
+        assert_eq!(d.prim_indices, bvh.prim_indices);
+        for (a, b) in d.nodes.iter().zip(&bvh.nodes) {
+            assert_eq!(a.children, b.children);
+            for k in 0..2 {
+                assert!(a.child_aabb(k).contains(&b.child_aabb(k)));
+            }
+        }
+        assert_eq!(enclosure_violations(&d, &prims).unwrap(), 0);
+        assert_eq!(bvh::validate(&d, &prims, 8), Ok(()));
+        // The watertightness criterion of [P3] §5.5 on rays through every node.
+        for (a, b) in d.nodes.iter().zip(&bvh.nodes).take(200) {
+            let o = Vec3::new(-60.0, 13.0, 200.0);
+            let target = b.child_aabb(0).center();
+            assert!(interval_encloses(
+                o,
+                target - o,
+                0.0,
+                f32::INFINITY,
+                &b.child_aabb(0),
+                &a.child_aabb(0)
+            ));
+        }
+        // A box strictly inside the original does not enclose its interval.
+        let bx = geom::Aabb::new(Vec3::ZERO, Vec3::ONE);
+        let small = geom::Aabb::new(Vec3::splat(0.25), Vec3::splat(0.75));
+        assert!(!interval_encloses(
+            Vec3::new(0.5, 0.5, -1.0),
+            Vec3::Z,
+            0.0,
+            10.0,
+            &bx,
+            &small
+        ));
+        assert!(interval_encloses(
+            Vec3::new(0.5, 0.5, -1.0),
+            Vec3::Z,
+            0.0,
+            10.0,
+            &small,
+            &bx
+        ));
+    }
+
+    #[test]
+    fn packed_bytes_round_trip() {
+        let prims = crate::bottomup::tests::soup(500, 2, false);
+        let bvh = bvh::LbvhBuilder::default().build(&prims).unwrap();
+        for bits in 3..=8 {
+            let p = Params {
+                bits,
+                ..Params::default()
+            };
+            let (c, _) = compress_topdown(&bvh, &p).unwrap();
+            let bytes = c.to_bytes().unwrap();
+            assert_eq!(bytes.len() as u64, c.node_bytes());
+            let n = crate::format::pair_bytes(bits);
+            for (i, pair) in c.pairs.iter().enumerate() {
+                assert_eq!(
+                    &crate::format::NodePair::unpack(bits, &bytes[i * n..]).unwrap(),
+                    pair
+                );
+            }
+        }
+    }
+}
