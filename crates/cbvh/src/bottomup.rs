@@ -324,6 +324,8 @@ impl StreamEncoder {
 
     /// Encodes subtree `r` in context `ctx` at treelet depth `depth`; writes it when
     /// `depth >= limit`, and checks (backtracks) written nodes below written ones.
+    // The loops walk the two child slots of parallel arrays (children, contexts, pointers).
+    #[allow(clippy::needless_range_loop)]
     fn visit(&mut self, r: &mut PRef, ctx: &Ctx, depth: u32, limit: u32) -> Result<(), CbvhError> {
         let written = match r {
             PRef::Leaf(_) | PRef::Empty => return Ok(()),
@@ -432,6 +434,7 @@ impl StreamEncoder {
 
 /// Compresses the streaming emitter's output (`bvh::HlbvhBuilder::build_highlevel`
 /// without a threshold: one root) bottom-up, in emission order.
+#[allow(clippy::needless_range_loop)] // two child slots of parallel arrays
 pub fn compress_hlbvh(
     hl: &Highlevel,
     cfg: &StreamConfig,

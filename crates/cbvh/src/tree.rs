@@ -103,6 +103,7 @@ impl Cbvh {
     }
 
     /// Appends the subtree of pair `idx` in preorder; returns its node index.
+    #[allow(clippy::needless_range_loop)] // two child slots of parallel arrays
     fn decode_into(&self, idx: u32, ctx: &Ctx, nodes: &mut Vec<Node>) -> Result<u32, CbvhError> {
         if nodes.len() >= self.pairs.len() {
             return Err(CbvhError::Corrupt("pointer cycle".into()));
