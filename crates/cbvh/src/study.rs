@@ -302,6 +302,53 @@ pub fn min_scale_sweep(
     Ok(out)
 }
 
+/// One point of the coordinate-bits study.
+#[derive(Clone, Debug, Serialize)]
+pub struct BitsPoint {
+    /// Bits per coordinate `N`.
+    pub bits: u32,
+    /// Bytes of a packed node pair.
+    pub pair_bytes: usize,
+    /// SAH of the decoded (top-down) tree over the uncompressed tree.
+    pub sah_vs_uncompressed: f64,
+    /// Backtracking steps of plain bottom-up (relative, no treelets) per primitive.
+    pub backtrack_per_prim: f64,
+    /// Backtracking steps of modulo bottom-up with treelet depth 4, per primitive.
+    pub backtrack_per_prim_m4: f64,
+}
+
+/// Tree quality and backtracking against the number of coordinate bits.
+pub fn bits_sweep(
+    prims: &[Aabb],
+    base: &Params,
+    bits: &[u32],
+) -> Result<Vec<BitsPoint>, CbvhError> {
+    let (hl, bvh) = build_lbvh(prims)?;
+    let sah_unc = bvh::sah_cost(&bvh);
+    let n = prims.len().max(1) as f64;
+    let mut out = Vec::new();
+    for &b in bits {
+        let p = Params { bits: b, ..*base };
+        let run = |coords, m| -> Result<u64, CbvhError> {
+            let cfg = StreamConfig {
+                params: Params { coords, ..p },
+                treelet_depth: m,
+                ..StreamConfig::default()
+            };
+            Ok(compress_hlbvh(&hl, &cfg)?.1.backtrack_steps)
+        };
+        let (td, _) = compress_topdown(&bvh, &p)?;
+        out.push(BitsPoint {
+            bits: b,
+            pair_bytes: crate::format::pair_bytes(b),
+            sah_vs_uncompressed: ratio(bvh::sah_cost(&td.decode_to_bvh2()?), sah_unc),
+            backtrack_per_prim: run(Coords::Relative, 1)? as f64 / n,
+            backtrack_per_prim_m4: run(Coords::Modulo, 4)? as f64 / n,
+        });
+    }
+    Ok(out)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -367,6 +414,11 @@ mod tests {
                 assert!(v.refit_traffic.total_bytes() < td.refit_traffic.total_bytes());
             }
         }
+        let bits = bits_sweep(&prims, &Params::default(), &[3, 6, 8]).unwrap();
+        // More bits, tighter boxes.
+        assert!(bits[0].sah_vs_uncompressed > bits[1].sah_vs_uncompressed);
+        assert!(bits[1].sah_vs_uncompressed >= bits[2].sah_vs_uncompressed);
+        assert_eq!(bits[1].pair_bytes, 16);
         let sweep = min_scale_sweep(&prims, &Params::default(), &[-60, -30, -10]).unwrap();
         assert_eq!(sweep.len(), 3);
         // A coarser minimum scale never makes the tree tighter.

@@ -9,12 +9,15 @@
 //! - `fig7.csv`: backtracking depth histogram, relative vs modulo (\[P3\] Fig. 7);
 //! - `fig10.csv`: backtracking and SAH against the minimum scale, cloth vs the others
 //!   (\[P3\] Fig. 10);
+//! - `bits.csv`: quality and backtracking against the coordinate bits `N = 3..=8`;
 //! - `report.md` with all tables, and `table1.svg`, `fig7.svg`, `fig10.svg`.
 
 use super::build::mesh_aabbs;
 use crate::progress::{Ui, Unit};
 use anyhow::Context;
-use cbvh::study::{min_scale_sweep, study_scene, MinScalePoint, SceneStudy, Variant};
+use cbvh::study::{
+    bits_sweep, min_scale_sweep, study_scene, BitsPoint, MinScalePoint, SceneStudy, Variant,
+};
 use cbvh::Params;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
@@ -218,7 +221,11 @@ struct SceneRun {
     name: String,
     study: SceneStudy,
     sweep: Option<Vec<MinScalePoint>>,
+    bits: Option<Vec<BitsPoint>>,
 }
+
+/// Coordinate bits of the bits study.
+const BITS: [u32; 6] = [3, 4, 5, 6, 7, 8];
 
 /// Short name of a scene spec (file stem, or procedural name).
 fn short_name(spec: &str) -> String {
@@ -293,11 +300,21 @@ pub fn run(a: &ReportCbvhArgs, ui: &Ui) -> anyhow::Result<()> {
         } else {
             Some(min_scale_sweep(&prims, &params, &SWEEP_EXPS)?)
         };
+        let bits = if a.no_sweep || SWEEP_SKIP.contains(&name.as_str()) {
+            None
+        } else {
+            Some(bits_sweep(&prims, &params, &BITS)?)
+        };
         if !a.no_sweep {
             done += 1;
             bar.update(done, total);
         }
-        runs.push(SceneRun { name, study, sweep });
+        runs.push(SceneRun {
+            name,
+            study,
+            sweep,
+            bits,
+        });
     }
     bar.finish();
     std::fs::create_dir_all(&a.out)
@@ -318,6 +335,7 @@ pub fn run(a: &ReportCbvhArgs, ui: &Ui) -> anyhow::Result<()> {
     write_fig7(&a.out, &mut md, &runs)?;
     if !a.no_sweep {
         write_fig10(&a.out, &mut md, &runs)?;
+        write_bits(&a.out, &mut md, &runs)?;
     }
     let path = a.out.join("report.md");
     std::fs::write(&path, &md).with_context(|| format!("cannot write {}", path.display()))?;
@@ -669,6 +687,48 @@ fn write_fig10(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Result
         ),
     )?;
     Ok(())
+}
+
+fn write_bits(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Result<()> {
+    let mut csv = String::from(
+        "scene,bits,pair_bytes,sah_vs_uncompressed,backtrack_per_prim,backtrack_per_prim_m4\n",
+    );
+    writeln!(md, "## Coordinate bits\n")?;
+    writeln!(
+        md,
+        "SAH of the decoded (top-down) CBVH over the uncompressed LBVH, and backtracking steps per triangle \
+         (plain relative / modulo with depth-4 treelets), against the bits per coordinate. [P3] uses 6 bits.\n"
+    )?;
+    writeln!(
+        md,
+        "| scene | {} |",
+        BITS.map(|b| format!("N = {b} ({} B)", cbvh::format::pair_bytes(b)))
+            .join(" | ")
+    )?;
+    writeln!(md, "|---|{}", "---|".repeat(BITS.len()))?;
+    for r in runs {
+        let Some(pts) = &r.bits else { continue };
+        let mut cells = Vec::new();
+        for p in pts {
+            writeln!(
+                csv,
+                "{},{},{},{:.6},{:.6},{:.6}",
+                r.name,
+                p.bits,
+                p.pair_bytes,
+                p.sah_vs_uncompressed,
+                p.backtrack_per_prim,
+                p.backtrack_per_prim_m4
+            )?;
+            cells.push(format!(
+                "{:.3}, {:.2} / {:.3}",
+                p.sah_vs_uncompressed, p.backtrack_per_prim, p.backtrack_per_prim_m4
+            ));
+        }
+        writeln!(md, "| {} | {} |", r.name, cells.join(" | "))?;
+    }
+    writeln!(md)?;
+    write(out, "bits.csv", &csv)
 }
 
 fn write(dir: &Path, name: &str, text: &str) -> anyhow::Result<()> {
