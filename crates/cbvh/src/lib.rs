@@ -38,7 +38,7 @@ pub use format::{NodePair, Slot};
 pub use grid::{Coords, Params};
 pub use refit::refit_streaming;
 pub use topdown::compress_topdown;
-pub use tree::{enclosure_violations, interval_encloses, Cbvh};
+pub use tree::{enclosure_violations, interval_encloses, node_intervals_enclose, Cbvh};
 
 use serde::Serialize;
 

@@ -86,7 +86,7 @@ pub fn compress_topdown(bvh: &Bvh2, params: &Params) -> Result<(Cbvh, EncodeStat
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::tree::{enclosure_violations, interval_encloses};
+    use crate::tree::{enclosure_violations, interval_encloses, node_intervals_enclose};
     use geom::Vec3;
 
     #[test]
@@ -118,6 +118,11 @@ mod tests {
                 &b.child_aabb(0),
                 &a.child_aabb(0)
             ));
+            let t1 = b.child_aabb(1).center();
+            assert_eq!(
+                node_intervals_enclose(o, t1 - o, 0.0, f32::INFINITY, b, a),
+                [true; 2]
+            );
         }
         // A box strictly inside the original does not enclose its interval.
         let bx = geom::Aabb::new(Vec3::ZERO, Vec3::ONE);

@@ -256,3 +256,27 @@ pub fn interval_encloses(
         },
     }
 }
+
+/// [`interval_encloses`] for both child boxes of a node: `original` is a node of the
+/// uncompressed tree, `decoded` the same node of [`Cbvh::decode_to_bvh2`] (same preorder
+/// index when the CBVH was compressed from that tree). For a tracer that visits both trees
+/// in lockstep (\[P3\] §5.5).
+pub fn node_intervals_enclose(
+    origin: Vec3,
+    dir: Vec3,
+    t_min: f32,
+    t_max: f32,
+    original: &Node,
+    decoded: &Node,
+) -> [bool; 2] {
+    [0, 1].map(|c| {
+        interval_encloses(
+            origin,
+            dir,
+            t_min,
+            t_max,
+            &original.child_aabb(c),
+            &decoded.child_aabb(c),
+        )
+    })
+}
