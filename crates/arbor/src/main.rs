@@ -31,6 +31,11 @@ enum Command {
     Build(cmd::build::BuildArgs),
     /// Run a cycle-level hardware model (`arbor sim mergetree`, `arbor sim dram`).
     Sim(cmd::sim::SimArgs),
+    /// Compress a scene's LBVH into a CBVH (or refit one) and report backtracking, traffic
+    /// and quality ([P3]).
+    Cbvh(cmd::cbvh::CbvhArgs),
+    /// Regenerate a table or figure of the thesis (CSV, Markdown, SVG).
+    Report(cmd::report::ReportArgs),
 }
 
 fn main() -> ExitCode {
@@ -41,6 +46,8 @@ fn main() -> ExitCode {
         Command::Demo(a) => cmd::demo::run(&a, &ui),
         Command::Build(a) => cmd::build::run(&a, &ui),
         Command::Sim(a) => cmd::sim::run(&a, &ui),
+        Command::Cbvh(a) => cmd::cbvh::run(&a, &ui),
+        Command::Report(a) => cmd::report::run(&a, &ui),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -5,7 +5,10 @@
 //! Steps: (1) walk the animation; (2) build a BVH with every available builder at frame 0
 //! and a few later frames, validated, with SAH relative to the sweep SAH build; (3) refit
 //! against rebuild; (4) simulate the MergeTree hardware builder (preset p2) at frame 0 on
-//! the three memory systems of \[P2\] §6.2, with a utilization plot per system.
+//! the three memory systems of \[P2\] §6.2, with a utilization plot per system; (5)
+//! compressed BVHs (\[P3\]): LBVH memory traffic with top-down vs
+//! streaming bottom-up compression at a few frames, and a CBVH built at frame 0 refitted in
+//! a stream to those frames.
 
 use super::{info::gather, ms, open_scene, thousands, SceneArgs};
 use crate::progress::{Ui, Unit};
@@ -57,6 +60,7 @@ struct Summary {
     builds: Vec<BuildRow>,
     refits: Vec<RefitRow>,
     mergetree: Vec<MergeTreeRow>,
+    cbvh: Vec<CbvhRow>,
 }
 
 /// The memory systems of \[P2\] §6.2 (slow, medium, fast) the demo simulates MergeTree on.
@@ -75,6 +79,30 @@ struct MergeTreeRow {
     merge_passes: u32,
     tree_matches_software: bool,
     svg: String,
+}
+
+/// One frame of the demo's CBVH step (`cbvh` in `summary.json`).
+#[derive(Serialize)]
+struct CbvhRow {
+    frame: u32,
+    time_s: f32,
+    triangles: usize,
+    node_pairs: u64,
+    /// LBVH with top-down compression, bytes (\[P3\] §5.2 model).
+    lbvh_topdown_bytes: u64,
+    /// LBVH with streaming bottom-up compression (modulo, treelet depth 4), bytes.
+    lbvh_bottomup_bytes: u64,
+    lbvh_backtrack_steps: u64,
+    /// Plain bottom-up (relative, no treelets) for comparison.
+    lbvh_bottomup_plain_bytes: u64,
+    lbvh_plain_backtrack_steps: u64,
+    /// Refit of the frame-0 CBVH to this frame: full-precision refit + top-down, bytes.
+    refit_topdown_bytes: Option<u64>,
+    /// Streaming CBVH refit (modulo, treelet depth 4), bytes.
+    refit_bottomup_bytes: Option<u64>,
+    refit_backtrack_steps: Option<u64>,
+    /// Every decoded box encloses its geometry (built and refitted trees).
+    encloses: bool,
 }
 
 /// One build of the demo's build step (`builds` in `summary.json`).
@@ -189,6 +217,8 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
 
     // Step 4: the MergeTree hardware model on the three memory systems.
     let mergetree = mergetree_step(ui, scene.as_ref(), &args.out)?;
+    // Step 5: compressed BVHs, top-down vs streaming bottom-up.
+    let cbvh = cbvh_step(scene.as_ref(), n)?;
 
     let summary = Summary {
         schema: "arbor.demo.v1",
@@ -201,6 +231,7 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
         builds,
         refits,
         mergetree,
+        cbvh,
     };
     write_outputs(&args.out, &summary)?;
     println!("  outputs    {}", args.out.display());
@@ -379,6 +410,100 @@ fn mergetree_step(
             tree_matches_software: same,
             svg: svg.display().to_string(),
         });
+    }
+    Ok(rows)
+}
+
+/// \[P3\] on the demo scene: at a few frames, LBVH traffic with top-down compression
+/// against streaming bottom-up compression, and the frame-0 CBVH refitted in a stream.
+fn cbvh_step(scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<CbvhRow>> {
+    use super::build::mesh_aabbs;
+    use cbvh::bottomup::{compress_hlbvh, StreamConfig};
+    use cbvh::traffic::{self, Counts};
+    let timeline = scene.info().timeline;
+    let mut frames: Vec<u32> = (0..=BUILD_STEP_EXTRA_FRAMES)
+        .map(|k| (n - 1) * k / BUILD_STEP_EXTRA_FRAMES)
+        .collect();
+    frames.dedup();
+    let proposed = StreamConfig {
+        params: cbvh::Params {
+            coords: cbvh::Coords::Modulo,
+            ..Default::default()
+        },
+        treelet_depth: 4,
+        ..StreamConfig::default()
+    };
+    let plain = StreamConfig::default();
+    let stable = scene.info().stable_topology;
+    let mut base: Option<cbvh::Cbvh> = None;
+    let mut rows = Vec::new();
+    println!("  cbvh       frame  LBVH MB: top-down  bottom-up (plain)  backtracks (plain)  refit MB: top-down  bottom-up");
+    for &f in &frames {
+        let t = timeline.time_of_frame(f);
+        let mesh = scene.mesh_at(t).with_context(|| format!("frame {f}"))?;
+        let (prims, _) = mesh_aabbs(&mesh)?;
+        drop(mesh);
+        let (hl, _) = cbvh::study::build_lbvh(&prims)?;
+        let (tree, st) = compress_hlbvh(&hl, &proposed)?;
+        let (_, st_plain) = compress_hlbvh(&hl, &plain)?;
+        let mut encloses = cbvh::enclosure_violations(&tree.decode_to_bvh2()?, &prims)? == 0;
+        let counts = |steps| Counts {
+            prims: prims.len() as u64,
+            node_pairs: tree.pairs.len() as u64,
+            backtrack_steps: steps,
+        };
+        let (mut rtd, mut rbu, mut rsteps) = (None, None, None);
+        if stable {
+            if let Some(b) = &base {
+                if b.prim_ids.len() == prims.len() {
+                    let (refit, rst) = cbvh::refit_streaming(b, &prims, &proposed)?;
+                    encloses &= cbvh::enclosure_violations(&refit.decode_to_bvh2()?, &prims)? == 0;
+                    let c = Counts {
+                        node_pairs: b.pairs.len() as u64,
+                        ..counts(rst.backtrack_steps)
+                    };
+                    rtd = Some(traffic::refit_topdown(&c).total_bytes());
+                    rbu = Some(traffic::refit_bottomup(&c).total_bytes());
+                    rsteps = Some(rst.backtrack_steps);
+                }
+            }
+        }
+        let row = CbvhRow {
+            frame: f,
+            time_s: t,
+            triangles: prims.len(),
+            node_pairs: tree.pairs.len() as u64,
+            lbvh_topdown_bytes: traffic::lbvh_topdown(&counts(0)).total_bytes(),
+            lbvh_bottomup_bytes: traffic::lbvh_bottomup(&counts(st.backtrack_steps)).total_bytes(),
+            lbvh_backtrack_steps: st.backtrack_steps,
+            lbvh_bottomup_plain_bytes: traffic::lbvh_bottomup(&counts(st_plain.backtrack_steps))
+                .total_bytes(),
+            lbvh_plain_backtrack_steps: st_plain.backtrack_steps,
+            refit_topdown_bytes: rtd,
+            refit_bottomup_bytes: rbu,
+            refit_backtrack_steps: rsteps,
+            encloses,
+        };
+        let mb = |b: u64| b as f64 / 1e6;
+        let opt = |b: Option<u64>| b.map_or("-".to_string(), |b| format!("{:.3}", mb(b)));
+        println!(
+            "             {f:>5}  {:>17.3}  {:>8.3} ({:.3})  {:>8} ({})  {:>18}  {:>9}",
+            mb(row.lbvh_topdown_bytes),
+            mb(row.lbvh_bottomup_bytes),
+            mb(row.lbvh_bottomup_plain_bytes),
+            row.lbvh_backtrack_steps,
+            row.lbvh_plain_backtrack_steps,
+            opt(rtd),
+            opt(rbu)
+        );
+        anyhow::ensure!(
+            encloses,
+            "frame {f}: a decoded CBVH box does not enclose its geometry"
+        );
+        if base.is_none() {
+            base = Some(tree);
+        }
+        rows.push(row);
     }
     Ok(rows)
 }

@@ -1,8 +1,11 @@
 //! Subcommands, one file each.
 
 pub mod build;
+pub mod cbvh;
 pub mod demo;
 pub mod info;
+pub mod report;
+pub mod report_cbvh;
 pub mod sim;
 pub mod sim_dram;
 pub mod sim_mergetree;

@@ -1,0 +1,124 @@
+//! Integration tests of `arbor cbvh` and `arbor report cbvh`.
+
+mod common;
+use common::{arbor, json};
+
+#[test]
+fn cbvh_json_has_the_documented_fields_and_encloses() {
+    for (enc, coords, treelet) in [
+        ("topdown", "relative", "1"),
+        ("bottomup", "relative", "1"),
+        ("bottomup", "modulo", "3"),
+    ] {
+        let v = json(
+            "cbvh",
+            &[
+                "proc:soup?n=3000",
+                "--encoder",
+                enc,
+                "--coords",
+                coords,
+                "--treelet",
+                treelet,
+            ],
+        );
+        assert_eq!(v["schema"], "arbor.cbvh.v1");
+        for k in [
+            "nodes",
+            "backtrack_steps",
+            "traffic_bytes",
+            "decoded_encloses_original",
+            "sah_vs_uncompressed",
+        ] {
+            assert!(!v[k].is_null(), "{k} missing for {enc}");
+        }
+        assert_eq!(v["decoded_encloses_original"], true);
+        assert!(v["sah_vs_uncompressed"].as_f64().unwrap() >= 1.0);
+        let ratio = v["traffic_vs_topdown"].as_f64().unwrap();
+        if enc == "topdown" {
+            assert_eq!(v["backtrack_steps"], 0);
+            assert_eq!(ratio, 1.0);
+        } else {
+            assert!(ratio < 1.0, "{ratio}");
+        }
+    }
+}
+
+#[test]
+fn cbvh_refit_from_an_earlier_time() {
+    let v = json(
+        "cbvh",
+        &[
+            "proc:cloth?n=2000&duration=1&fps=10",
+            "--time",
+            "0.5",
+            "--refit-from",
+            "0",
+            "--coords",
+            "modulo",
+        ],
+    );
+    assert_eq!(v["refit_from_s"], 0.0);
+    assert_eq!(v["decoded_encloses_original"], true);
+    assert!(v["traffic_vs_topdown"].as_f64().unwrap() < 1.0);
+}
+
+#[test]
+fn cbvh_bad_arguments_fail_with_one_line() {
+    for args in [
+        vec!["cbvh", "proc:soup?n=100", "--treelet", "0"],
+        vec!["cbvh", "proc:soup?n=100", "--bits", "9"],
+        vec![
+            "cbvh",
+            "proc:soup?n=100",
+            "--encoder",
+            "topdown",
+            "--treelet",
+            "2",
+        ],
+        vec!["cbvh", "/no/such/scene.ply"],
+    ] {
+        let out = arbor(&args);
+        assert!(!out.status.success(), "{args:?}");
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(err.trim().lines().count(), 1, "{err}");
+        assert!(err.starts_with("arbor: error:"), "{err}");
+    }
+}
+
+#[test]
+fn report_cbvh_writes_its_files() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("r");
+    let o = arbor(&[
+        "--quiet",
+        "report",
+        "cbvh",
+        "--scenes",
+        "cloth,proc:soup?n=3000",
+        "--out",
+        out.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    for f in [
+        "report.md",
+        "table1.csv",
+        "table1.svg",
+        "table3.csv",
+        "quality.csv",
+        "fig7.csv",
+        "fig7.svg",
+        "fig10.csv",
+        "fig10.svg",
+    ] {
+        let p = out.join(f);
+        assert!(
+            p.exists() && std::fs::metadata(&p).unwrap().len() > 0,
+            "{f}"
+        );
+    }
+    let t1 = std::fs::read_to_string(out.join("table1.csv")).unwrap();
+    // 9 metric rows x 9 variants, plus the header.
+    assert_eq!(t1.lines().count(), 82);
+    assert!(t1.contains("traffic_lbvh,avg,M4,"));
+}

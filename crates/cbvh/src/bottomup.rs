@@ -1,0 +1,805 @@
+//! Streaming bottom-up compression: \[P3\] Algorithm 1 (§4.1) and treelet-based compression
+//! (§4.3), as one step machine fed one BVH node at a time.
+//!
+//! Nodes arrive in depth-first bottom-up order (every node after both of its children, the
+//! second child's subtree last), as the streaming hierarchy emitter of `bvh::Emitter`
+//! outputs them. For each node the encoder
+//! 1. pops the subtrees of its inner children from the context stack (child 1 first),
+//! 2. estimates its context from its own box (`EstimateContext`: the finest grid that
+//!    can hold it; its real context, known only once its parent is encoded, is never finer),
+//! 3. encodes the treelet of not-yet-written nodes below it top-down from that estimate
+//!    and writes the nodes that are `treelet_depth` levels down (with `treelet_depth = 1`,
+//!    the node itself: plain Algorithm 1),
+//! 4. compares, for each written node whose parent was just written, the context the
+//!    parent's encoding gives it with the one it was encoded in, and on a mismatch
+//!    **backtracks**: reads the node back, decodes its children with the old context,
+//!    re-encodes those decoded boxes with the new one, writes it, and recurses into the
+//!    children whose contexts changed (`Backtrack` of Algorithm 1),
+//! 5. pushes the subtree on the context stack.
+//!
+//! A mismatch is a scale change, and for relative coordinates also a lower-bound change
+//! (\[P3\] §4.2: modulo coordinates only depend on the scale). Backtracking re-encodes
+//! decoded (already enlarged) boxes; rounding their upper bounds up rather than with Eq. 1's
+//! `floor + 1` (see [`crate::coords::quantize`]) makes that exact, so the result encloses
+//! top-down compression's boxes and in practice equals them (the report measures it).
+//!
+//! Treelets (§4.3): the top `treelet_depth - 1` levels of every subtree on the stack are
+//! kept unwritten (on chip); each new node re-encodes its treelet top-down from its own
+//! estimate and writes the level `treelet_depth` below it. A wrong estimate is then
+//! repaired for free while its effect stays within the treelet, which removes the short
+//! backtracks that dominate (\[P3\] Fig. 7).
+//!
+//! Hooks for a cycle model: [`StreamEncoder::push`] consumes one emitted node; with
+//! [`StreamConfig::record_ops`] every DRAM access it makes is appended as a [`MemOp`] (the
+//! node-pair writes, and per backtracking step one 64-byte read and one 64-byte write of
+//! the line holding the pair), to be drained with [`StreamEncoder::drain_ops`].
+
+use crate::codec::{
+    check_box, decode_slot, encode_pair, encode_pair_with, slot_ptr, ChildPtr, Ctx,
+};
+use crate::error::CbvhError;
+use crate::format::{pair_bytes, NodePair, LEAF_END, MAX_PTR};
+use crate::grid::Params;
+use crate::tree::{prim_ids_of, Cbvh};
+use crate::EncodeStats;
+use bvh::{Bvh2, EmitRef, Highlevel};
+use geom::Aabb;
+
+/// \[P3\] §5.2: "a DRAM interface with a 64B access granularity".
+pub const DRAM_LINE_BYTES: u64 = 64;
+
+/// Configuration of the streaming encoder.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct StreamConfig {
+    /// Quantization parameters.
+    pub params: Params,
+    /// Treelet depth `M` (\[P3\] §4.3): 1 = plain Algorithm 1; 2, 3, 4 keep `M - 1` levels
+    /// on chip.
+    pub treelet_depth: u32,
+    /// Record every DRAM access as a [`MemOp`].
+    pub record_ops: bool,
+    /// Byte address of node pair 0 (for the recorded accesses).
+    pub base_addr_bytes: u64,
+}
+
+impl Default for StreamConfig {
+    fn default() -> Self {
+        Self {
+            params: Params::default(),
+            treelet_depth: 1,
+            record_ops: false,
+            base_addr_bytes: 0,
+        }
+    }
+}
+
+/// Largest treelet depth accepted (the on-chip treelet has up to `2^M - 1` nodes).
+pub const MAX_TREELET_DEPTH: u32 = 8;
+
+/// A child of an input node.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum InChild {
+    /// A leaf whose primitive ids start at index `first` of the primitive-id array.
+    Leaf {
+        /// First primitive-id index.
+        first: u32,
+    },
+    /// An inner node: the subtree on top of the context stack.
+    Node,
+    /// No child.
+    Empty,
+}
+
+/// One node of the bottom-up input stream.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InputNode {
+    /// Original (full-precision) boxes of child 0 and child 1.
+    pub boxes: [Aabb; 2],
+    /// Child 0 and child 1.
+    pub children: [InChild; 2],
+    /// Node-pair address to write to (refit: the existing one); `None` appends.
+    pub addr: Option<u32>,
+}
+
+/// A DRAM access made by the encoder.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MemOp {
+    /// A node pair written for the first time (streaming output).
+    WritePair {
+        /// Node-pair index.
+        pair: u32,
+        /// Byte address.
+        addr_bytes: u64,
+        /// Bytes written.
+        bytes: u32,
+    },
+    /// A backtracking read of the line holding a node pair.
+    BacktrackRead {
+        /// Node-pair index.
+        pair: u32,
+        /// Byte address of the line.
+        addr_bytes: u64,
+        /// Bytes read.
+        bytes: u32,
+    },
+    /// A backtracking write of the line holding a node pair.
+    BacktrackWrite {
+        /// Node-pair index.
+        pair: u32,
+        /// Byte address of the line.
+        addr_bytes: u64,
+        /// Bytes written.
+        bytes: u32,
+    },
+}
+
+/// A subtree as the encoder holds it.
+#[derive(Debug)]
+enum PRef {
+    Leaf(u32),
+    Empty,
+    /// Not yet written (part of an on-chip treelet).
+    Pending(Box<Pending>),
+    /// Written at `addr`, encoded in context `ctx`.
+    Written {
+        addr: u32,
+        ctx: Ctx,
+    },
+}
+
+#[derive(Debug)]
+struct Pending {
+    boxes: [Aabb; 2],
+    children: [PRef; 2],
+    addr: Option<u32>,
+}
+
+/// The streaming bottom-up encoder (see the module doc).
+#[derive(Debug)]
+pub struct StreamEncoder {
+    cfg: StreamConfig,
+    pairs: Vec<NodePair>,
+    next_addr: u32,
+    stack: Vec<(PRef, Aabb)>,
+    stats: EncodeStats,
+    ops: Vec<MemOp>,
+    pushed: u64,
+    /// The root's address and context once the stream has ended.
+    root: Option<(u32, Ctx)>,
+}
+
+impl StreamEncoder {
+    /// An encoder that appends node pairs (construction).
+    pub fn new(cfg: StreamConfig) -> Result<Self, CbvhError> {
+        cfg.params.check()?;
+        if !(1..=MAX_TREELET_DEPTH).contains(&cfg.treelet_depth) {
+            return Err(CbvhError::InvalidParams(format!(
+                "treelet depth must be 1..={MAX_TREELET_DEPTH}, got {}",
+                cfg.treelet_depth
+            )));
+        }
+        Ok(Self {
+            cfg,
+            pairs: Vec::new(),
+            next_addr: 0,
+            stack: Vec::new(),
+            stats: EncodeStats::default(),
+            ops: Vec::new(),
+            pushed: 0,
+            root: None,
+        })
+    }
+
+    /// An encoder that overwrites an existing array of `pairs` node pairs in place
+    /// (refit: every input node names its address).
+    pub fn in_place(cfg: StreamConfig, pairs: usize) -> Result<Self, CbvhError> {
+        let mut e = Self::new(cfg)?;
+        e.pairs = vec![NodePair::default(); pairs];
+        e.next_addr = pairs as u32;
+        Ok(e)
+    }
+
+    /// Counts so far.
+    pub fn stats(&self) -> &EncodeStats {
+        &self.stats
+    }
+
+    /// The DRAM accesses recorded since the last call (empty unless `record_ops`).
+    pub fn drain_ops(&mut self) -> Vec<MemOp> {
+        std::mem::take(&mut self.ops)
+    }
+
+    /// Bytes of one packed node pair.
+    fn pair_bytes(&self) -> u64 {
+        pair_bytes(self.cfg.params.bits) as u64
+    }
+
+    /// `BUCompressNode` of Algorithm 1 (with treelets): consumes the next node.
+    pub fn push(&mut self, node: InputNode) -> Result<(), CbvhError> {
+        if self.root.is_some() {
+            return Err(CbvhError::BadOrder(
+                "a node after the end of the stream".into(),
+            ));
+        }
+        let index = self.pushed as usize;
+        self.pushed += 1;
+        for (c, b) in node.boxes.iter().enumerate() {
+            check_box(b, 2 * index + c)?;
+        }
+        let mut children = [PRef::Empty, PRef::Empty];
+        for c in (0..2).rev() {
+            children[c] = match node.children[c] {
+                InChild::Leaf { first } => {
+                    if first > MAX_PTR {
+                        return Err(CbvhError::TooLarge {
+                            what: "primitive-id index",
+                            count: first as usize,
+                        });
+                    }
+                    PRef::Leaf(first)
+                }
+                InChild::Empty => PRef::Empty,
+                InChild::Node => {
+                    self.stack
+                        .pop()
+                        .ok_or_else(|| {
+                            CbvhError::BadOrder(format!(
+                                "node {index} has an inner child but the context stack is empty"
+                            ))
+                        })?
+                        .0
+                }
+            };
+        }
+        let bx = node.boxes[0].union(node.boxes[1]);
+        let mut r = PRef::Pending(Box::new(Pending {
+            boxes: node.boxes,
+            children,
+            addr: node.addr,
+        }));
+        let ctx = Ctx::estimate(&bx, &self.cfg.params);
+        self.visit(&mut r, &ctx, 1, self.cfg.treelet_depth)?;
+        self.stack.push((r, bx));
+        self.stats.max_stack = self.stats.max_stack.max(self.stack.len());
+        Ok(())
+    }
+
+    /// Ends the stream: writes the remaining treelet top-down from the root's estimated
+    /// context (the accesses it makes are recorded, so a cycle model calls this, drains the
+    /// ops, then calls [`StreamEncoder::finish`]). Calling it again does nothing.
+    pub fn end_stream(&mut self) -> Result<(), CbvhError> {
+        if self.root.is_some() {
+            return Ok(());
+        }
+        if self.stack.len() != 1 {
+            return Err(CbvhError::BadOrder(format!(
+                "{} subtrees left at the end of the stream (expected one root)",
+                self.stack.len()
+            )));
+        }
+        let (mut root, bx) = self.stack.pop().expect("one entry");
+        let root_ctx = Ctx::estimate(&bx, &self.cfg.params);
+        self.visit(&mut root, &root_ctx, 1, 1)?;
+        let PRef::Written { addr, .. } = root else {
+            unreachable!("the final visit writes the root")
+        };
+        self.root = Some((addr, root_ctx));
+        Ok(())
+    }
+
+    /// Ends the stream (see [`StreamEncoder::end_stream`]) and returns the tree over the
+    /// primitive-id array `prim_ids`, with the counts.
+    pub fn finish(mut self, prim_ids: Vec<u32>) -> Result<(Cbvh, EncodeStats), CbvhError> {
+        self.end_stream()?;
+        let (addr, root_ctx) = self.root.expect("end_stream sets the root");
+        if self.next_addr as usize != self.pairs.len() {
+            return Err(CbvhError::Corrupt(
+                "node addresses do not cover the node-pair array".into(),
+            ));
+        }
+        Ok((
+            Cbvh {
+                params: self.cfg.params,
+                pairs: self.pairs,
+                root: addr,
+                root_ctx,
+                prim_ids,
+            },
+            self.stats,
+        ))
+    }
+
+    /// Writes a fresh pair at `addr` (or the next free address) and returns the address.
+    fn write(&mut self, addr: Option<u32>, pair: NodePair) -> Result<u32, CbvhError> {
+        let a = match addr {
+            Some(a) => {
+                if a as usize >= self.pairs.len() {
+                    return Err(CbvhError::Corrupt(format!("node address {a} out of range")));
+                }
+                a
+            }
+            None => {
+                if self.next_addr > MAX_PTR {
+                    return Err(CbvhError::TooLarge {
+                        what: "node pair",
+                        count: self.next_addr as usize,
+                    });
+                }
+                self.pairs.push(NodePair::default());
+                self.next_addr += 1;
+                self.next_addr - 1
+            }
+        };
+        self.pairs[a as usize] = pair;
+        self.stats.nodes_written += 1;
+        if self.cfg.record_ops {
+            let bytes = self.pair_bytes();
+            self.ops.push(MemOp::WritePair {
+                pair: a,
+                addr_bytes: self.cfg.base_addr_bytes + a as u64 * bytes,
+                bytes: bytes as u32,
+            });
+        }
+        Ok(a)
+    }
+
+    /// Encodes subtree `r` in context `ctx` at treelet depth `depth`; writes it when
+    /// `depth >= limit`, and checks (backtracks) written nodes below written ones.
+    // The loops walk the two child slots of parallel arrays (children, contexts, pointers).
+    #[allow(clippy::needless_range_loop)]
+    fn visit(&mut self, r: &mut PRef, ctx: &Ctx, depth: u32, limit: u32) -> Result<(), CbvhError> {
+        let written = match r {
+            PRef::Leaf(_) | PRef::Empty => return Ok(()),
+            PRef::Written { addr, ctx: stored } => {
+                if stored.invalidates(ctx, &self.cfg.params) {
+                    self.backtrack(*addr, *stored, *ctx, 1)?;
+                }
+                *stored = *ctx;
+                return Ok(());
+            }
+            PRef::Pending(p) => {
+                let ptrs = p.children.each_ref().map(|c| match c {
+                    PRef::Leaf(f) => ChildPtr::Leaf(*f),
+                    PRef::Empty => ChildPtr::Empty,
+                    PRef::Written { addr, .. } => ChildPtr::Inner(*addr),
+                    PRef::Pending(_) => ChildPtr::Inner(0),
+                });
+                let (mut pair, kids) = encode_pair(&p.boxes, ptrs, ctx, &self.cfg.params);
+                if depth < limit {
+                    // Still on chip: place the treelet's lower levels.
+                    for c in 0..2 {
+                        if matches!(p.children[c], PRef::Pending(_)) {
+                            self.visit(&mut p.children[c], &kids[c], depth + 1, limit)?;
+                        }
+                    }
+                    return Ok(());
+                }
+                // Write this node: unwritten children first (only at the end of the
+                // stream), so that every pointer is known.
+                let was_written = p
+                    .children
+                    .each_ref()
+                    .map(|c| matches!(c, PRef::Written { .. }));
+                for c in 0..2 {
+                    if matches!(p.children[c], PRef::Pending(_)) {
+                        self.visit(&mut p.children[c], &kids[c], depth + 1, limit)?;
+                        if let PRef::Written { addr, .. } = p.children[c] {
+                            pair.slots[c].ptr = addr;
+                        }
+                    }
+                }
+                let addr = self.write(p.addr, pair)?;
+                // Children written earlier: did this encoding invalidate them?
+                for c in 0..2 {
+                    if was_written[c] {
+                        self.visit(&mut p.children[c], &kids[c], depth + 1, limit)?;
+                    }
+                }
+                addr
+            }
+        };
+        *r = PRef::Written {
+            addr: written,
+            ctx: *ctx,
+        };
+        Ok(())
+    }
+
+    /// `Backtrack` of Algorithm 1: re-encodes the written pair `addr` from context `old`
+    /// to context `new`, recursing into children whose contexts change.
+    fn backtrack(&mut self, addr: u32, old: Ctx, new: Ctx, depth: usize) -> Result<(), CbvhError> {
+        self.stats.record_backtrack(depth);
+        if self.cfg.record_ops {
+            let line = (self.cfg.base_addr_bytes + addr as u64 * self.pair_bytes())
+                & !(DRAM_LINE_BYTES - 1);
+            let op = |read: bool| {
+                let (pair, addr_bytes, bytes) = (addr, line, DRAM_LINE_BYTES as u32);
+                if read {
+                    MemOp::BacktrackRead {
+                        pair,
+                        addr_bytes,
+                        bytes,
+                    }
+                } else {
+                    MemOp::BacktrackWrite {
+                        pair,
+                        addr_bytes,
+                        bytes,
+                    }
+                }
+            };
+            self.ops.push(op(true));
+            self.ops.push(op(false));
+        }
+        let p = self.cfg.params;
+        let p = &p;
+        let pair = *self
+            .pairs
+            .get(addr as usize)
+            .ok_or_else(|| CbvhError::Corrupt(format!("pointer {addr} outside the tree")))?;
+        let olds = [0, 1].map(|c| decode_slot(&pair.slots[c], &old, p));
+        let boxes = olds.map(|o| o.map_or(Aabb::EMPTY, |c| c.aabb()));
+        let ptrs = [0, 1].map(|c| slot_ptr(&pair.slots[c]));
+        let (fresh, kids) = encode_pair_with(&boxes, ptrs, &new, p, true);
+        self.pairs[addr as usize] = fresh;
+        for c in 0..2 {
+            if let (ChildPtr::Inner(k), Some(o)) = (ptrs[c], olds[c]) {
+                if o.invalidates(&kids[c], p) {
+                    self.backtrack(k, o, kids[c], depth + 1)?;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// Compresses the streaming emitter's output (`bvh::HlbvhBuilder::build_highlevel`
+/// without a threshold: one root) bottom-up, in emission order.
+#[allow(clippy::needless_range_loop)] // two child slots of parallel arrays
+pub fn compress_hlbvh(
+    hl: &Highlevel,
+    cfg: &StreamConfig,
+) -> Result<(Cbvh, EncodeStats), CbvhError> {
+    if hl.roots.len() > 1 {
+        return Err(CbvhError::BadOrder(format!(
+            "{} high-level roots: build without a high-level threshold",
+            hl.roots.len()
+        )));
+    }
+    if hl.order.len() >= LEAF_END as usize {
+        return Err(CbvhError::TooLarge {
+            what: "primitive",
+            count: hl.order.len(),
+        });
+    }
+    let mut ids = hl.order.clone();
+    let mut flag = |first: u32, count: u32| -> Result<InChild, CbvhError> {
+        let last = (first + count - 1) as usize;
+        let id = ids
+            .get_mut(last)
+            .ok_or_else(|| CbvhError::Corrupt("leaf outside the primitive order".into()))?;
+        *id |= LEAF_END;
+        Ok(InChild::Leaf { first })
+    };
+    let mut enc = StreamEncoder::new(*cfg)?;
+    match hl.roots.first() {
+        None => enc.push(InputNode {
+            boxes: [Aabb::EMPTY; 2],
+            children: [InChild::Empty; 2],
+            addr: None,
+        })?,
+        Some(root) => {
+            if let EmitRef::Leaf { first, count } = root.root {
+                enc.push(InputNode {
+                    boxes: [root.aabb, Aabb::EMPTY],
+                    children: [flag(first, count)?, InChild::Empty],
+                    addr: None,
+                })?;
+            }
+            for n in &hl.nodes {
+                let mut children = [InChild::Node; 2];
+                for c in 0..2 {
+                    if let EmitRef::Leaf { first, count } = n.children[c] {
+                        children[c] = flag(first, count)?;
+                    }
+                }
+                enc.push(InputNode {
+                    boxes: n.aabbs,
+                    children,
+                    addr: None,
+                })?;
+            }
+        }
+    }
+    enc.finish(ids)
+}
+
+/// Streams a finished [`Bvh2`] through the bottom-up encoder in depth-first postorder
+/// (child 0's subtree, child 1's subtree, the node), as an emitter would have output it.
+pub fn compress_bottomup(bvh: &Bvh2, cfg: &StreamConfig) -> Result<(Cbvh, EncodeStats), CbvhError> {
+    let prim_ids = prim_ids_of(bvh)?;
+    let mut enc = StreamEncoder::new(*cfg)?;
+    let mut stack = vec![(0u32, false)];
+    let mut steps = 0usize;
+    while let Some((i, expanded)) = stack.pop() {
+        steps += 1;
+        if steps > 2 * bvh.nodes.len() {
+            return Err(CbvhError::Corrupt("cycle in the BVH".into()));
+        }
+        let n = bvh
+            .nodes
+            .get(i as usize)
+            .ok_or_else(|| CbvhError::Corrupt(format!("node {i} outside the tree")))?;
+        if expanded {
+            let children = n.children.map(|c| {
+                if c.is_leaf() {
+                    InChild::Leaf { first: c.index }
+                } else if c.is_empty() {
+                    InChild::Empty
+                } else {
+                    InChild::Node
+                }
+            });
+            enc.push(InputNode {
+                boxes: [n.child_aabb(0), n.child_aabb(1)],
+                children,
+                addr: None,
+            })?;
+        } else {
+            stack.push((i, true));
+            for c in (0..2).rev() {
+                if n.children[c].is_inner() {
+                    stack.push((n.children[c].index, false));
+                }
+            }
+        }
+    }
+    enc.finish(prim_ids)
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use crate::topdown::compress_topdown;
+    use crate::tree::{boxes_not_enclosing, enclosure_violations};
+    use crate::Coords;
+    use bvh::{HlbvhBuilder, LbvhBuilder};
+    use geom::Vec3;
+    use proptest::prelude::*;
+
+    pub(crate) fn soup(n: usize, seed: u64, flat: bool) -> Vec<Aabb> {
+        let mut s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
+        let mut f = move || {
+            s ^= s >> 12;
+            s ^= s << 25;
+            s ^= s >> 27;
+            ((s.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 40) as f32) / (1u64 << 24) as f32
+        };
+        (0..n)
+            .map(|_| {
+                let a = Vec3::new(
+                    f() * 100.0 - 50.0,
+                    f() * 100.0 - 50.0,
+                    if flat { -0.4 } else { f() * 100.0 },
+                );
+                let d = Vec3::new(f(), f(), if flat { 0.0 } else { f() }) * 2.0;
+                Aabb::new(a, a + d)
+            })
+            .collect()
+    }
+
+    fn cfg(coords: Coords, bits: u32, m: u32) -> StreamConfig {
+        StreamConfig {
+            params: Params {
+                bits,
+                coords,
+                ..Params::default()
+            },
+            treelet_depth: m,
+            ..StreamConfig::default()
+        }
+    }
+
+    /// The checks every bottom-up result must pass against the top-down one.
+    fn check_against_topdown(bvh: &Bvh2, prims: &[Aabb], c: &StreamConfig) -> EncodeStats {
+        let (td, _) = compress_topdown(bvh, &c.params).unwrap();
+        let (bu, st) = compress_bottomup(bvh, c).unwrap();
+        let dtd = td.decode_to_bvh2().unwrap();
+        let dbu = bu.decode_to_bvh2().unwrap();
+        assert_eq!(dbu.nodes.len(), bvh.nodes.len());
+        assert_eq!(enclosure_violations(&dtd, prims).unwrap(), 0);
+        assert_eq!(enclosure_violations(&dbu, prims).unwrap(), 0);
+        // Same topology as the input, boxes at least as large as top-down's.
+        assert_eq!(boxes_not_enclosing(&dbu, &dtd).unwrap(), 0);
+        assert_eq!(st.nodes_written as usize, bvh.nodes.len());
+        st
+    }
+
+    #[test]
+    fn hlbvh_stream_matches_bvh2_stream() {
+        let prims = soup(3000, 5, false);
+        let b = HlbvhBuilder {
+            max_leaf_size: 64,
+            ..HlbvhBuilder::default()
+        };
+        let hl = b.build_highlevel(&prims).unwrap();
+        let bvh = hl.to_bvh2();
+        for coords in [Coords::Relative, Coords::Modulo] {
+            for m in 1..=4 {
+                let c = cfg(coords, 6, m);
+                let (a, sa) = compress_hlbvh(&hl, &c).unwrap();
+                let (b, sb) = compress_bottomup(&bvh, &c).unwrap();
+                assert_eq!(sa, sb);
+                assert_eq!(a.decode_to_bvh2().unwrap(), b.decode_to_bvh2().unwrap());
+                check_against_topdown(&bvh, &prims, &c);
+            }
+        }
+    }
+
+    #[test]
+    fn modulo_and_treelets_reduce_backtracking() {
+        let prims = soup(20000, 9, false);
+        let bvh = LbvhBuilder::default().build(&prims).unwrap();
+        let steps =
+            |coords, m| check_against_topdown(&bvh, &prims, &cfg(coords, 6, m)).backtrack_steps;
+        let rel: Vec<u64> = (1..=4).map(|m| steps(Coords::Relative, m)).collect();
+        let modu: Vec<u64> = (1..=4).map(|m| steps(Coords::Modulo, m)).collect();
+        assert!(rel[0] > 0);
+        assert!(modu[0] < rel[0], "{modu:?} {rel:?}");
+        for w in rel.windows(2).chain(modu.windows(2)) {
+            assert!(w[1] <= w[0], "{rel:?} {modu:?}");
+        }
+        assert!(rel[3] < rel[0] / 4, "{rel:?}");
+    }
+
+    #[test]
+    fn recorded_ops_match_the_counts() {
+        // The emitter's stream fed by hand, one node at a time, as a cycle model would.
+        let prims = soup(2000, 3, false);
+        let mut c = cfg(Coords::Relative, 6, 1);
+        c.record_ops = true;
+        c.base_addr_bytes = 4096;
+        let hl = HlbvhBuilder {
+            combine_identical: false,
+            ..HlbvhBuilder::default()
+        }
+        .build_highlevel(&prims)
+        .unwrap();
+        let mut enc = StreamEncoder::new(c).unwrap();
+        let mut writes = 0u64;
+        let mut reads = 0u64;
+        let mut bt_writes = 0u64;
+        for n in &hl.nodes {
+            let children = n.children.map(|r| match r {
+                EmitRef::Leaf { first, .. } => InChild::Leaf { first },
+                EmitRef::Node(_) => InChild::Node,
+            });
+            enc.push(InputNode {
+                boxes: n.aabbs,
+                children,
+                addr: None,
+            })
+            .unwrap();
+            for op in enc.drain_ops() {
+                match op {
+                    MemOp::WritePair {
+                        addr_bytes,
+                        bytes,
+                        pair,
+                    } => {
+                        assert_eq!(bytes, 16);
+                        assert_eq!(addr_bytes, 4096 + 16 * pair as u64);
+                        writes += 1;
+                    }
+                    MemOp::BacktrackRead {
+                        addr_bytes, bytes, ..
+                    } => {
+                        assert_eq!((addr_bytes % 64, bytes), (0, 64));
+                        reads += 1;
+                    }
+                    MemOp::BacktrackWrite { .. } => bt_writes += 1,
+                }
+            }
+        }
+        enc.end_stream().unwrap();
+        for op in enc.drain_ops() {
+            match op {
+                MemOp::WritePair { .. } => writes += 1,
+                MemOp::BacktrackRead { .. } => reads += 1,
+                MemOp::BacktrackWrite { .. } => bt_writes += 1,
+            }
+        }
+        let steps = enc.stats().backtrack_steps;
+        assert_eq!(writes, hl.nodes.len() as u64);
+        assert_eq!((reads, bt_writes), (steps, steps));
+        assert!(steps > 0);
+    }
+
+    #[test]
+    fn degenerate_and_tiny_trees() {
+        for prims in [
+            vec![],
+            vec![Aabb::new(Vec3::ONE, Vec3::ONE)],
+            soup(2, 1, true),
+            soup(50, 2, true),
+        ] {
+            let bvh = LbvhBuilder::default().build(&prims).unwrap();
+            for coords in [Coords::Relative, Coords::Modulo] {
+                for m in [1, 3] {
+                    check_against_topdown(&bvh, &prims, &cfg(coords, 6, m));
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn bad_order_is_an_error() {
+        let mut enc = StreamEncoder::new(StreamConfig::default()).unwrap();
+        let r = enc.push(InputNode {
+            boxes: [Aabb::new(Vec3::ZERO, Vec3::ONE); 2],
+            children: [InChild::Node, InChild::Leaf { first: 0 }],
+            addr: None,
+        });
+        assert!(matches!(r, Err(CbvhError::BadOrder(_))));
+        let mut enc = StreamEncoder::new(StreamConfig::default()).unwrap();
+        let leaf = InputNode {
+            boxes: [Aabb::new(Vec3::ZERO, Vec3::ONE); 2],
+            children: [InChild::Leaf { first: 0 }, InChild::Leaf { first: 1 }],
+            addr: None,
+        };
+        enc.push(leaf).unwrap();
+        enc.push(leaf).unwrap();
+        assert!(matches!(enc.finish(vec![]), Err(CbvhError::BadOrder(_))));
+        let mut bad = leaf;
+        bad.boxes[0].min.x = f32::NAN;
+        let mut enc = StreamEncoder::new(StreamConfig::default()).unwrap();
+        assert!(matches!(enc.push(bad), Err(CbvhError::BadBox { .. })));
+    }
+
+    fn any_prims() -> impl Strategy<Value = Vec<Aabb>> {
+        proptest::collection::vec(crate::codec::tests::any_box(), 1..120)
+    }
+
+    /// Boxes on a coarse dyadic grid with many degenerate axes: architectural geometry,
+    /// where bounds fall exactly on grid lines (the hard case for modulo coordinates).
+    fn grid_prims() -> impl Strategy<Value = Vec<Aabb>> {
+        let b = (
+            proptest::array::uniform3(-64i32..64),
+            proptest::array::uniform3(0i32..3),
+            0i32..12,
+        )
+            .prop_map(|(a, w, sh)| {
+                let k = (1u64 << sh) as f32;
+                let lo = Vec3::new(a[0] as f32, a[1] as f32, a[2] as f32) / k;
+                let hi = lo + Vec3::new(w[0] as f32, w[1] as f32, w[2] as f32) / k;
+                Aabb::new(lo, hi)
+            });
+        proptest::collection::vec(b, 1..400)
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(48))]
+        #[test]
+        fn every_encoder_encloses_grid_geometry(prims in grid_prims(), bits in 3u32..=8, m in 1u32..=3, modulo in any::<bool>()) {
+            let coords = if modulo { Coords::Modulo } else { Coords::Relative };
+            let bvh = LbvhBuilder::default().build(&prims).unwrap();
+            check_against_topdown(&bvh, &prims, &cfg(coords, bits, m));
+            let hl = crate::study::paper_lbvh().build_highlevel(&prims).unwrap();
+            let (t, _) = compress_hlbvh(&hl, &cfg(coords, bits, m)).unwrap();
+            prop_assert_eq!(enclosure_violations(&t.decode_to_bvh2().unwrap(), &prims).unwrap(), 0);
+        }
+
+        /// Every encoder, on random boxes of every magnitude, gives trees whose decoded
+        /// boxes enclose the originals, and the bottom-up ones enclose top-down's.
+        #[test]
+        fn every_encoder_encloses(prims in any_prims(), bits in 3u32..=8, m in 1u32..=4, modulo in any::<bool>(), min_e in prop_oneof![Just(-30i32), Just(-126), Just(-8)]) {
+            let coords = if modulo { Coords::Modulo } else { Coords::Relative };
+            let mut c = cfg(coords, bits, m);
+            c.params.min_scale_exp = min_e;
+            let bvh = LbvhBuilder::default().build(&prims).unwrap();
+            check_against_topdown(&bvh, &prims, &c);
+            let bvh = bvh::BinnedSahBuilder { max_leaf_size: 3, ..Default::default() }.build(&prims).unwrap();
+            check_against_topdown(&bvh, &prims, &c);
+        }
+    }
+}

@@ -1,0 +1,295 @@
+//! Traversal contexts and the encode/decode of one node pair, shared by every encoder and
+//! by the decoder (\[P3\] §3 and Algorithm 1's `Encode` and `Decode`).
+//!
+//! A traversal context (\[P3\] §3) is what is needed to encode or decode the children of a
+//! node: per axis the node's scale `e` and its decoded lower bound `u` (and, for modulo
+//! coordinates, `u / 2^e mod 2^N`, derived from them). We also keep the node's decoded
+//! upper bound, so that a context is the node's decoded box plus its grid: Algorithm 1's
+//! backtracking re-encodes `oldChildContexts[i].aabb`.
+
+use crate::coords::{load, quantize, store};
+use crate::error::CbvhError;
+use crate::format::{NodePair, Slot, EMPTY_PTR};
+use crate::grid::{AxisCtx, Params, MAX_ABS_COORD};
+use crate::Coords;
+use geom::{Aabb, Vec3};
+
+/// A traversal context: per axis the node's grid scale and decoded bounds.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Ctx {
+    /// Axes x, y, z.
+    pub axes: [AxisCtx; 3],
+}
+
+impl Ctx {
+    /// `EstimateContext` (\[P3\] Algorithm 1 line 16) of a node with original box `b`.
+    pub fn estimate(b: &Aabb, p: &Params) -> Self {
+        if b.is_empty() {
+            return Self::from_decoded(&Aabb::new(Vec3::ZERO, Vec3::ZERO), p);
+        }
+        Self {
+            axes: [0, 1, 2].map(|i| AxisCtx::estimate(b.min[i], b.max[i], p)),
+        }
+    }
+
+    /// The context of a node whose decoded box is `b` (scales by Eq. 2).
+    pub fn from_decoded(b: &Aabb, p: &Params) -> Self {
+        Self {
+            axes: [0, 1, 2].map(|i| AxisCtx::from_decoded(b.min[i], b.max[i], p)),
+        }
+    }
+
+    /// The node's decoded box.
+    pub fn aabb(&self) -> Aabb {
+        Aabb::new(
+            Vec3::new(self.axes[0].lo, self.axes[1].lo, self.axes[2].lo),
+            Vec3::new(self.axes[0].hi, self.axes[1].hi, self.axes[2].hi),
+        )
+    }
+
+    /// The per-axis scale exponents.
+    pub fn scales(&self) -> [i32; 3] {
+        self.axes.map(|a| a.e)
+    }
+
+    /// Algorithm 1's invalidation test: true when a node encoded in context `self` (its
+    /// old context) must be re-encoded because its context is now `new`.
+    ///
+    /// Relative coordinates depend on the scale and the lower bound (\[P3\] Fig. 3).
+    /// Modulo coordinates depend on the scale only (\[P3\] §4.2), provided the node's child
+    /// cells stay within the `2^N`-cell window of the new lower bound: encoding keeps them
+    /// inside the node's decoded box (see [`crate::coords::quantize`]), so a node whose new
+    /// box encloses its old box keeps that invariant and decodes to the same children.
+    /// A same-scale change that does not enclose the old box (rare: a degenerate axis on a
+    /// grid line) is also treated as invalidating, where Algorithm 1 tests the scale alone.
+    #[inline]
+    pub fn invalidates(&self, new: &Ctx, p: &Params) -> bool {
+        self.axes.iter().zip(&new.axes).any(|(a, b)| {
+            a.e != b.e
+                || match p.coords {
+                    Coords::Relative => a.lo.to_bits() != b.lo.to_bits(),
+                    Coords::Modulo => a.lo < b.lo || a.hi > b.hi,
+                }
+        })
+    }
+}
+
+/// A child reference as an encoder hands it to [`encode_pair`].
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ChildPtr {
+    /// An inner child at node pair `0`.
+    Inner(u32),
+    /// A leaf starting at primitive-id index `0`.
+    Leaf(u32),
+    /// No child.
+    Empty,
+}
+
+/// Checks that a box is usable by the grids (no NaN, magnitudes up to 2^120).
+#[inline]
+pub fn check_box(b: &Aabb, index: usize) -> Result<(), CbvhError> {
+    if b.is_empty() {
+        return Ok(());
+    }
+    let ok = (0..3).all(|i| {
+        b.min[i].abs() <= MAX_ABS_COORD && b.max[i].abs() <= MAX_ABS_COORD && b.min[i] <= b.max[i]
+    });
+    if ok {
+        Ok(())
+    } else {
+        Err(CbvhError::BadBox { index })
+    }
+}
+
+/// `Encode` of Algorithm 1: quantizes the two original child boxes `boxes` in context
+/// `ctx` and returns the pair and each child's decoded context (the empty child gets a copy
+/// of `ctx`).
+#[inline]
+pub fn encode_pair(
+    boxes: &[Aabb; 2],
+    ptrs: [ChildPtr; 2],
+    ctx: &Ctx,
+    p: &Params,
+) -> (NodePair, [Ctx; 2]) {
+    encode_pair_with(boxes, ptrs, ctx, p, false)
+}
+
+/// [`encode_pair`] for boxes that are themselves decoded boxes (`decoded = true`: the
+/// re-encoding of a backtracking step, see [`crate::coords::quantize`]).
+#[inline]
+pub fn encode_pair_with(
+    boxes: &[Aabb; 2],
+    ptrs: [ChildPtr; 2],
+    ctx: &Ctx,
+    p: &Params,
+    decoded: bool,
+) -> (NodePair, [Ctx; 2]) {
+    let mut pair = NodePair::default();
+    let mut out = [*ctx; 2];
+    for c in 0..2 {
+        let (leaf, ptr) = match ptrs[c] {
+            ChildPtr::Empty => {
+                pair.slots[c] = Slot::EMPTY;
+                continue;
+            }
+            ChildPtr::Inner(i) => (false, i),
+            ChildPtr::Leaf(i) => (true, i),
+        };
+        let mut slot = Slot {
+            leaf,
+            ptr,
+            ..Slot::default()
+        };
+        for (i, a) in ctx.axes.iter().enumerate() {
+            let (r, s) = quantize(boxes[c].min[i], boxes[c].max[i], a, p, decoded);
+            let (lo, hi) = store(r, s, a, p);
+            slot.lo[i] = lo;
+            slot.hi[i] = hi;
+            let (clo, chi) = a.child_bounds(r, s);
+            out[c].axes[i] = AxisCtx::from_decoded(clo, chi, p);
+        }
+        pair.slots[c] = slot;
+    }
+    (pair, out)
+}
+
+/// `Decode` of Algorithm 1 for one slot: the child's decoded context (`None` for the
+/// absent child).
+#[inline]
+pub fn decode_slot(slot: &Slot, ctx: &Ctx, p: &Params) -> Option<Ctx> {
+    if slot.is_empty() {
+        return None;
+    }
+    let mut out = *ctx;
+    for (i, a) in ctx.axes.iter().enumerate() {
+        let (r, s) = load(slot.lo[i], slot.hi[i], a, p);
+        let (clo, chi) = a.child_bounds(r, s);
+        out.axes[i] = AxisCtx::from_decoded(clo, chi, p);
+    }
+    Some(out)
+}
+
+/// The pointer of a slot as a [`ChildPtr`].
+#[inline]
+pub fn slot_ptr(s: &Slot) -> ChildPtr {
+    if s.leaf {
+        if s.ptr == EMPTY_PTR {
+            ChildPtr::Empty
+        } else {
+            ChildPtr::Leaf(s.ptr)
+        }
+    } else {
+        ChildPtr::Inner(s.ptr)
+    }
+}
+
+#[cfg(test)]
+pub(crate) mod tests {
+    use super::*;
+    use proptest::prelude::*;
+
+    /// A finite box of mixed magnitudes: tiny, huge, degenerate, far from the origin.
+    pub(crate) fn any_box() -> impl Strategy<Value = Aabb> {
+        let f = prop_oneof![
+            -10.0f32..10.0,
+            -1e-6f32..1e-6,
+            (-1e30f32..1e30),
+            Just(0.0f32),
+            Just(MAX_ABS_COORD),
+            Just(-MAX_ABS_COORD),
+            proptest::num::f32::SUBNORMAL,
+        ];
+        (
+            proptest::array::uniform3(f),
+            proptest::array::uniform3(0u8..4),
+            proptest::array::uniform3(-1e3f32..1e3),
+        )
+            .prop_map(|(a, kind, w)| {
+                let mut lo = Vec3::from(a);
+                let mut hi = lo;
+                for i in 0..3 {
+                    match kind[i] {
+                        0 => {} // degenerate
+                        1 => hi[i] = (lo[i] + w[i].abs()).min(MAX_ABS_COORD),
+                        2 => {
+                            hi[i] =
+                                (lo[i] + w[i].abs() * 1e-9 * (1.0 + lo[i].abs())).min(MAX_ABS_COORD)
+                        }
+                        _ => hi[i] = grid_next(lo[i]),
+                    }
+                    if hi[i] < lo[i] {
+                        std::mem::swap(&mut lo[i], &mut hi[i]);
+                    }
+                }
+                Aabb::new(lo, hi)
+            })
+    }
+
+    fn grid_next(x: f32) -> f32 {
+        if x >= MAX_ABS_COORD {
+            x
+        } else {
+            crate::grid::next_up(x)
+        }
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(400))]
+        /// Encoding two boxes in the context estimated for their union and decoding them
+        /// gives boxes that enclose them, in both encodings and for every N; decoding
+        /// gives the same contexts the encoder reported.
+        #[test]
+        fn decoded_children_enclose_originals(a in any_box(), b in any_box(), bits in 3u32..=8, modulo in any::<bool>(), min_e in prop_oneof![Just(-30i32), Just(-126), Just(-10), Just(0)]) {
+            let p = Params { bits, min_scale_exp: min_e, coords: if modulo { Coords::Modulo } else { Coords::Relative } };
+            let boxes = [a, b];
+            let ctx = Ctx::estimate(&a.union(b), &p);
+            prop_assert!(ctx.aabb().contains(&a.union(b)));
+            let (pair, kids) = encode_pair(&boxes, [ChildPtr::Inner(1), ChildPtr::Leaf(2)], &ctx, &p);
+            for c in 0..2 {
+                prop_assert!(kids[c].aabb().contains(&boxes[c]), "{:?} {:?}", kids[c], boxes[c]);
+                prop_assert_eq!(decode_slot(&pair.slots[c], &ctx, &p), Some(kids[c]));
+                // The child fits its own grid: grandchildren can be encoded under it.
+                for ax in kids[c].axes {
+                    prop_assert!(ax.hi as f64 - ax.lo as f64 <= crate::grid::pow2(ax.e + bits as i32));
+                }
+                // Re-encoding the decoded box (backtracking) encloses it and stays inside
+                // the node (Eq. 1's extra cell is clipped at the node's upper bound).
+                let (_, again) = encode_pair_with(&[kids[c].aabb(), kids[c].aabb()], [ChildPtr::Leaf(0); 2], &ctx, &p, true);
+                prop_assert_eq!(again[0], kids[c]);
+                // Under the coarser context of a doubled parent box, re-encoding the
+                // decoded box gives what encoding the original gives.
+                let mut wide = ctx;
+                for a in &mut wide.axes {
+                    let w = a.hi as f64 - a.lo as f64;
+                    *a = crate::grid::AxisCtx::from_decoded(a.lo, crate::grid::add_up(a.hi as f64, w), &p);
+                }
+                let (_, direct) = encode_pair(&boxes, [ChildPtr::Leaf(0); 2], &wide, &p);
+                let (_, via) = encode_pair_with(&[kids[0].aabb(), kids[1].aabb()], [ChildPtr::Leaf(0); 2], &wide, &p, true);
+                prop_assert_eq!(direct[c].aabb(), via[c].aabb());
+            }
+        }
+
+        /// Modulo coordinates survive a change of the node's lower bound at the same
+        /// scale (\[P3\] §4.2); relative ones are then invalidated.
+        #[test]
+        fn modulo_is_robust_to_parent_shift(lo in -1000i32..1000, shift in 1i32..4, bits in 3u32..=8) {
+            let p = Params { bits, min_scale_exp: -30, coords: Coords::Modulo };
+            let n = 1i32 << bits;
+            // A node spanning cells lo..lo+n-shift at scale 0, then the box grown down by
+            // `shift` cells (same scale, encloses the old one): \[P3\] Fig. 3.
+            let b = |l: i32, h: i32| Aabb::new(Vec3::splat(l as f32), Vec3::splat(h as f32));
+            let old = Ctx::from_decoded(&b(lo, lo + n - shift), &p);
+            let new = Ctx::from_decoded(&b(lo - shift, lo + n - shift), &p);
+            prop_assert_eq!(old.scales(), new.scales());
+            let child = Aabb::new(Vec3::splat(lo as f32 + 0.5), Vec3::splat((lo + n - shift) as f32 - 0.5));
+            let (pair, kids) = encode_pair(&[child, child], [ChildPtr::Leaf(0); 2], &old, &p);
+            prop_assert!(!old.invalidates(&new, &p));
+            let rel = Params { coords: Coords::Relative, ..p };
+            prop_assert!(old.invalidates(&new, &rel));
+            // A same-scale box that does not enclose the old one invalidates.
+            let moved = Ctx::from_decoded(&b(lo + 1, lo + n - shift + 1), &p);
+            prop_assert!(old.invalidates(&moved, &p));
+            prop_assert_eq!(decode_slot(&pair.slots[0], &new, &p), Some(kids[0]));
+        }
+    }
+}
