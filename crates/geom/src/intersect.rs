@@ -42,8 +42,17 @@ pub struct TriangleHit {
     pub bary: [f32; 3],
 }
 
-/// `1 + 2 gamma(3)` with `gamma(n) = n eps / (1 - n eps)`, `eps = 2^-24` (Ize 2013).
-const FAR_SCALE: f32 = 1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
+/// Relative widening of the division-free range pre-test of the triangle test: the divided
+/// distance `t_scaled * (1 / det)` differs from `t_scaled / |det|` by at most two roundings,
+/// and `t_max * |det|` adds one, so 4 ulps (`4 eps`) covers them with margin (plus the
+/// smallest normal float, for products that underflow).
+const RANGE_SLACK: f32 = 4.0 * f32::EPSILON;
+
+/// `1 + 2 gamma(3)` with `gamma(n) = n eps / (1 - n eps)`, `eps = 2^-24` (Ize 2013): the
+/// factor by which a slab test scales its far distance so that rounding never culls a box
+/// that the exact test would hit.
+pub const SLAB_FAR_SCALE: f32 =
+    1.0 + 2.0 * (3.0 * f32::EPSILON * 0.5) / (1.0 - 3.0 * f32::EPSILON * 0.5);
 
 impl RayPrecomp {
     /// Precomputes the values for `ray`.
@@ -89,16 +98,28 @@ fn safe_recip(x: f32) -> f32 {
 
 /// Slab test: the entry distance of the ray into `b` when the ray overlaps it within
 /// `[t_min, t_max]`, else `None`.
+///
+/// Per axis, the near plane is chosen by the sign of the reciprocal direction (the box
+/// minimum for a positive direction, the maximum for a negative one) instead of taking the
+/// minimum and maximum of both plane distances. For real boxes the two are the same; for
+/// the empty box (`min = +inf`, `max = -inf`) the chosen near plane is at `+inf`, so an
+/// empty child slot is never hit, which tree formats rely on.
 #[inline]
 pub fn ray_aabb(r: &RayPrecomp, b: &Aabb, t_min: f32, t_max: f32) -> Option<f32> {
-    let t0 = (b.min - r.origin) * r.inv_dir;
-    let t1 = (b.max - r.origin) * r.inv_dir;
-    let near =
-        t0.x.min(t1.x)
-            .max(t0.y.min(t1.y))
-            .max(t0.z.min(t1.z))
-            .max(t_min);
-    let far = t0.x.max(t1.x).min(t0.y.max(t1.y)).min(t0.z.max(t1.z)) * FAR_SCALE;
+    let d = r.inv_dir;
+    let sel = |pos: bool, lo: f32, hi: f32| if pos { (lo, hi) } else { (hi, lo) };
+    let (nx, fx) = sel(d.x >= 0.0, b.min.x, b.max.x);
+    let (ny, fy) = sel(d.y >= 0.0, b.min.y, b.max.y);
+    let (nz, fz) = sel(d.z >= 0.0, b.min.z, b.max.z);
+    let o = r.origin;
+    let near = ((nx - o.x) * d.x)
+        .max((ny - o.y) * d.y)
+        .max((nz - o.z) * d.z)
+        .max(t_min);
+    let far = ((fx - o.x) * d.x)
+        .min((fy - o.y) * d.y)
+        .min((fz - o.z) * d.z)
+        * SLAB_FAR_SCALE;
     let far = far.min(t_max);
     (near <= far).then_some(near)
 }
@@ -146,16 +167,30 @@ pub fn intersect_triangle_watertight(
     let bz = s.z * b[kz];
     let cz = s.z * c[kz];
     let t_scaled = u * az + v * bz + w * cz;
-    // Compare t = t_scaled / det against the range without dividing: flip signs by det's.
+    // Reject most out-of-range hits before dividing: compare t_scaled (sign-flipped by
+    // det's) against the range scaled by |det|, widened by RANGE_SLACK so that rounding
+    // never rejects a hit whose divided distance is in range. The final test is on the
+    // divided `t` itself, so a hit is reported exactly when the returned `t` lies in
+    // `[t_min, t_max]` (traversal relies on this: a hit at exactly the current closest
+    // distance is still found, so ties can be broken by primitive id).
     let sign = det.to_bits() & 0x8000_0000;
     let ts = f32::from_bits(t_scaled.to_bits() ^ sign);
     let det_abs = det.abs();
-    if ts < t_min * det_abs || ts > t_max * det_abs || ts.is_nan() {
+    let lo = t_min * det_abs;
+    let hi = t_max * det_abs;
+    if ts < lo - lo.abs() * RANGE_SLACK - f32::MIN_POSITIVE
+        || ts > hi + hi.abs() * RANGE_SLACK + f32::MIN_POSITIVE
+        || ts.is_nan()
+    {
         return None;
     }
     let inv = 1.0 / det;
+    let t = t_scaled * inv;
+    if !(t >= t_min && t <= t_max) {
+        return None;
+    }
     Some(TriangleHit {
-        t: t_scaled * inv,
+        t,
         bary: [u * inv, v * inv, w * inv],
     })
 }
@@ -323,6 +358,23 @@ mod tests {
             f32::INFINITY
         )
         .is_some());
+        // The empty box is never hit, from any direction (zero components included) and
+        // from any origin, even one at infinity-adjacent coordinates.
+        for d in [
+            Vec3::X,
+            -Vec3::Y,
+            Vec3::new(0.3, -0.2, 0.9),
+            Vec3::new(-1.0, 0.0, -0.0),
+            Vec3::new(0.0, 0.0, 1.0),
+        ] {
+            for o in [Vec3::ZERO, Vec3::splat(-1e30), Vec3::new(5.0, -3.0, 1e-30)] {
+                assert_eq!(
+                    ray_aabb(&pre(o, d), &Aabb::EMPTY, 0.0, f32::INFINITY),
+                    None,
+                    "{o} {d}"
+                );
+            }
+        }
     }
 
     proptest! {
@@ -348,6 +400,27 @@ mod tests {
             prop_assert!((q - p).length() < 1e-2 * (1.0 + p.length()));
         }
 
+        /// A hit is reported exactly when its returned distance lies in the range: the
+        /// same ray limited to `[t, t]` still hits at `t`, and limited to just below `t`
+        /// (or just above) it misses.
+        #[test]
+        fn range_test_is_exact_on_the_returned_distance(
+            a in v3(10.0), b in v3(10.0), c in v3(10.0), o in v3(50.0), d in v3(1.0),
+        ) {
+            prop_assume!(d.length() > 1e-3);
+            let tri = Triangle::new(a, b, c);
+            let pre = RayPrecomp::new(&Ray::new(o, d));
+            if let Some(h) = intersect_triangle_watertight(&pre, &tri, 0.0, f32::INFINITY) {
+                prop_assume!(h.t > 0.0);
+                let same = intersect_triangle_watertight(&pre, &tri, h.t, h.t);
+                prop_assert_eq!(same.map(|s| s.t), Some(h.t));
+                let below = f32::from_bits(h.t.to_bits() - 1);
+                let above = f32::from_bits(h.t.to_bits() + 1);
+                prop_assert!(intersect_triangle_watertight(&pre, &tri, 0.0, below).is_none());
+                prop_assert!(intersect_triangle_watertight(&pre, &tri, above, f32::INFINITY).is_none());
+            }
+        }
+
         #[test]
         fn hit_implies_box_hit(a in v3(10.0), b in v3(10.0), c in v3(10.0), o in v3(50.0), d in v3(1.0)) {
             prop_assume!(d.length() > 1e-3);
@@ -356,7 +429,7 @@ mod tests {
             if let Some(h) = intersect_triangle_watertight(&pre, &tri, 0.0, f32::INFINITY) {
                 let e = ray_aabb(&pre, &tri.aabb(), 0.0, f32::INFINITY);
                 prop_assert!(e.is_some());
-                prop_assert!(e.unwrap() <= h.t * FAR_SCALE);
+                prop_assert!(e.unwrap() <= h.t * SLAB_FAR_SCALE);
             }
         }
     }

@@ -13,7 +13,9 @@ mod triangle;
 
 pub use aabb::Aabb;
 pub use glam::{Mat4, Quat, Vec3, Vec4};
-pub use intersect::{intersect_triangle_watertight, ray_aabb, RayPrecomp, TriangleHit};
+pub use intersect::{
+    intersect_triangle_watertight, ray_aabb, RayPrecomp, TriangleHit, SLAB_FAR_SCALE,
+};
 pub use morton::{morton30, morton63, MortonQuantizer};
 pub use ray::Ray;
 pub use triangle::Triangle;

@@ -1,0 +1,290 @@
+//! What every traversal kernel shares: the hit record and its tie-break rule, the reusable
+//! traversal stack, the per-ray slab-test setup, leaf intersection and the pop step.
+//!
+//! # Which hit is "the closest"
+//!
+//! A kernel returns the hit of smallest distance `t`; among hits at exactly the same `t`
+//! (a ray through an edge shared by two triangles) the one with the smallest primitive id
+//! wins. The triangle test reports a hit exactly when its returned `t` lies in the ray's
+//! range ([`geom::intersect_triangle_watertight`]), and box culling is conservative (see
+//! [`cull_distance`]), so the result is a function of the ray and the triangles alone:
+//! every tree, of either width, and brute force give the same hit, bit for bit.
+
+use crate::observer::{Observer, Query};
+use crate::stats::RayStats;
+use bvh::ChildRef;
+use geom::{intersect_triangle_watertight, Ray, RayPrecomp, Triangle, SLAB_FAR_SCALE};
+
+/// A ray/triangle hit found by traversal.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hit {
+    /// Distance along the ray, in units of the ray direction.
+    pub t: f32,
+    /// The primitive (triangle) id: its index in the triangle list the tree was built over.
+    pub prim: u32,
+    /// The leaf-table entry through which it was found (an index into the tree's
+    /// `prim_indices`, which holds `prim` there).
+    pub leaf_entry: u32,
+    /// Barycentric weights of the triangle's three vertices at the hit.
+    pub bary: [f32; 3],
+}
+
+impl Hit {
+    /// True when this hit should replace `best` under the closest-hit rule: smaller `t`, or
+    /// the same `t` and a smaller primitive id.
+    #[inline(always)]
+    pub fn beats(&self, best: Option<&Hit>) -> bool {
+        match best {
+            None => true,
+            Some(b) => self.t < b.t || (self.t == b.t && self.prim < b.prim),
+        }
+    }
+}
+
+/// Relative slack of box culling against the closest hit so far: a box (or a stack entry)
+/// is skipped only when its entry distance exceeds `best_t * CULL_SLACK`. The slab test's
+/// entry distance carries about `gamma(3) = 1.8e-7` relative rounding error and the
+/// triangle distance a few ulps; `2^-16 = 1.5e-5` covers both many times over, so a box
+/// holding a hit tied with the closest one is never culled. Culling later only ever costs
+/// work, never a result.
+pub const CULL_SLACK: f32 = 1.0 + 1.0 / 65536.0;
+
+/// The distance up to which boxes are still entered when the closest hit so far is at
+/// `best_t` (infinite stays infinite).
+#[inline(always)]
+pub fn cull_distance(best_t: f32) -> f32 {
+    best_t * CULL_SLACK
+}
+
+/// One traversal stack entry: a child to visit later and its entry distance.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct StackEntry {
+    pub child: ChildRef,
+    pub dist: f32,
+}
+
+/// A traversal stack, reused across rays so that tracing does not allocate per ray.
+/// It grows as deep as a tree needs (no fixed limit that a deep tree could overflow).
+#[derive(Clone, Debug, Default)]
+pub struct TraversalStack {
+    pub(crate) entries: Vec<StackEntry>,
+}
+
+impl TraversalStack {
+    /// An empty stack with room for 64 entries ([P4] §3: a 64-entry stack rendered all of
+    /// its scenes; the deepest used 28).
+    pub fn new() -> Self {
+        Self {
+            entries: Vec::with_capacity(64),
+        }
+    }
+
+    /// Pushes `child`, counting the push and the depth.
+    #[inline(always)]
+    pub(crate) fn push<O: Observer>(
+        &mut self,
+        child: ChildRef,
+        dist: f32,
+        stats: &mut RayStats,
+        obs: &mut O,
+    ) {
+        self.entries.push(StackEntry { child, dist });
+        stats.pushes += 1;
+        stats.max_stack_depth = stats.max_stack_depth.max(self.entries.len() as u64);
+        obs.push(child);
+    }
+
+    /// Pops the next entry to traverse. With `distance_culling`, entries whose entry
+    /// distance lies beyond `cull_distance(best_t)` are popped and skipped.
+    #[inline(always)]
+    pub(crate) fn pop<O: Observer>(
+        &mut self,
+        distance_culling: bool,
+        best_t: f32,
+        stats: &mut RayStats,
+        obs: &mut O,
+    ) -> Option<ChildRef> {
+        while let Some(e) = self.entries.pop() {
+            if distance_culling && e.dist > cull_distance(best_t) {
+                stats.culled_pops += 1;
+                obs.pop(true);
+                continue;
+            }
+            stats.pops += 1;
+            obs.pop(false);
+            return Some(e.child);
+        }
+        None
+    }
+}
+
+/// Per-ray values of the slab test: for each axis, which box plane the ray enters and
+/// leaves through, chosen by the sign of the direction. Plane numbers index the six
+/// values `[min.x, min.y, min.z, max.x, max.y, max.z]`. A box whose near plane is at
+/// `+inf` (the empty box of an unused child slot) is never hit.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Slab {
+    pub origin: [f32; 3],
+    pub inv_dir: [f32; 3],
+    pub near: [usize; 3],
+    pub far: [usize; 3],
+    pub t_min: f32,
+}
+
+impl Slab {
+    #[inline(always)]
+    pub fn new(pre: &RayPrecomp, t_min: f32) -> Self {
+        let inv = pre.inv_dir.to_array();
+        let near = std::array::from_fn(|a| if inv[a] >= 0.0 { a } else { a + 3 });
+        let far = std::array::from_fn(|a| if inv[a] >= 0.0 { a + 3 } else { a });
+        Slab {
+            origin: pre.origin.to_array(),
+            inv_dir: inv,
+            near,
+            far,
+            t_min,
+        }
+    }
+
+    /// Entry distance into the box of six planes `b` when the ray overlaps it within
+    /// `[t_min, t_max]`.
+    #[inline(always)]
+    pub fn test(&self, b: &[f32; 6], t_max: f32) -> Option<f32> {
+        let o = &self.origin;
+        let d = &self.inv_dir;
+        let n = |a: usize| (b[self.near[a]] - o[a]) * d[a];
+        let f = |a: usize| (b[self.far[a]] - o[a]) * d[a];
+        let near = fmax(fmax(n(0), n(1)), fmax(n(2), self.t_min));
+        let far = fmin(fmin(f(0), f(1)), f(2)) * SLAB_FAR_SCALE;
+        (near <= fmin(far, t_max)).then_some(near)
+    }
+}
+
+/// `max` as a compare and select, which maps to one SIMD max instruction. Slab values are
+/// never NaN (finite origin, finite non-zero reciprocal, planes finite or infinite).
+#[inline(always)]
+pub(crate) fn fmax(a: f32, b: f32) -> f32 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `min` as a compare and select (see [`fmax`]).
+#[inline(always)]
+pub(crate) fn fmin(a: f32, b: f32) -> f32 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// Triangles stored in leaf-table order, so a leaf's triangles are contiguous in memory,
+/// with the primitive id of each.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct LeafTriangles {
+    pub tris: Vec<Triangle>,
+    pub prims: Vec<u32>,
+}
+
+impl LeafTriangles {
+    /// Triangles of `prim_indices` in order; `None` names the first entry out of range.
+    pub fn new(prim_indices: &[u32], triangles: &[Triangle]) -> Result<Self, (usize, u32)> {
+        let mut tris = Vec::with_capacity(prim_indices.len());
+        for (k, &p) in prim_indices.iter().enumerate() {
+            tris.push(*triangles.get(p as usize).ok_or((k, p))?);
+        }
+        Ok(Self {
+            tris,
+            prims: prim_indices.to_vec(),
+        })
+    }
+
+    /// Tests the leaf of entries `first .. first + count`; updates `best` and `best_t`.
+    /// Returns true when an any-hit query has found its hit and traversal should stop.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    pub fn intersect<O: Observer>(
+        &self,
+        first: u32,
+        count: u32,
+        pre: &RayPrecomp,
+        t_min: f32,
+        query: Query,
+        best: &mut Option<Hit>,
+        best_t: &mut f32,
+        stats: &mut RayStats,
+        obs: &mut O,
+    ) -> bool {
+        stats.leaf_visits += 1;
+        obs.leaf(first, count);
+        let start = first as usize;
+        let end = start + count as usize;
+        // A malformed tree (entries beyond the table) tests what exists; trees from this
+        // crate's constructors are validated, so this only guards against panics.
+        let end = end.min(self.tris.len());
+        for k in start..end {
+            stats.tri_tests += 1;
+            if let Some(h) = intersect_triangle_watertight(pre, &self.tris[k], t_min, *best_t) {
+                let hit = Hit {
+                    t: h.t,
+                    prim: self.prims[k],
+                    leaf_entry: k as u32,
+                    bary: h.bary,
+                };
+                if hit.beats(best.as_ref()) {
+                    *best_t = hit.t;
+                    *best = Some(hit);
+                    if query == Query::Any {
+                        return true;
+                    }
+                }
+            }
+        }
+        false
+    }
+}
+
+/// A tree that rays can be traced through.
+pub trait Traverse: Send + Sync {
+    /// Traces `ray` for `query`, reporting events to `obs` and adding the ray's counters
+    /// to `stats`. Returns the closest hit (`Query::Closest`) or the first hit found
+    /// (`Query::Any`).
+    fn trace_observed<O: Observer>(
+        &self,
+        ray: &Ray,
+        query: Query,
+        stack: &mut TraversalStack,
+        stats: &mut RayStats,
+        obs: &mut O,
+    ) -> Option<Hit>;
+
+    /// The closest hit along `ray`.
+    #[inline]
+    fn closest_hit(
+        &self,
+        ray: &Ray,
+        stack: &mut TraversalStack,
+        stats: &mut RayStats,
+    ) -> Option<Hit> {
+        self.trace_observed(ray, Query::Closest, stack, stats, &mut ())
+    }
+
+    /// True when anything lies along `ray` within its range (occlusion).
+    #[inline]
+    fn occluded(&self, ray: &Ray, stack: &mut TraversalStack, stats: &mut RayStats) -> bool {
+        self.trace_observed(ray, Query::Any, stack, stats, &mut ())
+            .is_some()
+    }
+
+    /// Bytes of one node in this tree's format (64 for `Bvh2`, 128 for `Mbvh4`).
+    fn node_bytes(&self) -> u32;
+
+    /// Child slots per node (2 or 4).
+    fn width(&self) -> u32;
+
+    /// Number of inner nodes.
+    fn node_count(&self) -> usize;
+}
