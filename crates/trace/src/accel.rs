@@ -187,6 +187,8 @@ pub(crate) fn fmin(a: f32, b: f32) -> f32 {
 pub(crate) struct LeafTriangles {
     pub tris: Vec<Triangle>,
     pub prims: Vec<u32>,
+    /// Length of the triangle list the tree was built over.
+    pub source_len: usize,
 }
 
 impl LeafTriangles {
@@ -199,6 +201,7 @@ impl LeafTriangles {
         Ok(Self {
             tris,
             prims: prim_indices.to_vec(),
+            source_len: triangles.len(),
         })
     }
 
@@ -287,4 +290,10 @@ pub trait Traverse: Send + Sync {
 
     /// Number of inner nodes.
     fn node_count(&self) -> usize;
+
+    /// Length of the triangle list the tree was built over (hit primitive ids are below it).
+    fn source_triangles(&self) -> usize;
+
+    /// Leaf-table entries.
+    fn leaf_entries(&self) -> usize;
 }

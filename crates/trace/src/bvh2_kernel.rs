@@ -163,6 +163,14 @@ impl Traverse for Bvh2Accel {
     fn node_count(&self) -> usize {
         self.bvh.nodes.len()
     }
+
+    fn source_triangles(&self) -> usize {
+        self.leaf.source_len
+    }
+
+    fn leaf_entries(&self) -> usize {
+        self.leaf.prims.len()
+    }
 }
 
 /// Checks that every child link stays inside the tree: inner children name an existing

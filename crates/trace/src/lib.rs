@@ -29,19 +29,28 @@
 mod accel;
 mod brute;
 mod bvh2_kernel;
+pub mod camera;
+pub mod image;
+pub mod log;
 mod mbvh4_kernel;
 mod observer;
+pub mod render;
+pub mod sampling;
 mod stats;
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_render;
 #[cfg(test)]
 mod testutil;
 
 pub use accel::{cull_distance, Hit, TraversalStack, Traverse, CULL_SLACK};
 pub use brute::brute_force;
 pub use bvh2_kernel::Bvh2Accel;
+pub use camera::PinholeCamera;
 pub use mbvh4_kernel::{sort4, Mbvh4Accel};
 pub use observer::{Observer, Query};
+pub use render::{render, RayKind, Render, RenderSettings, RenderStats, Shading};
 pub use stats::RayStats;
 
 use thiserror::Error;

@@ -212,6 +212,14 @@ impl Traverse for Mbvh4Accel {
     fn node_count(&self) -> usize {
         self.bvh.nodes.len()
     }
+
+    fn source_triangles(&self) -> usize {
+        self.leaf.source_len
+    }
+
+    fn leaf_entries(&self) -> usize {
+        self.leaf.prims.len()
+    }
 }
 
 #[cfg(test)]
