@@ -87,6 +87,11 @@ impl EmbreeDevice {
         }
         Ok(Self { raw })
     }
+
+    /// The raw device handle, for the other Embree adapters of this crate.
+    pub(crate) fn raw(&self) -> RtcDevice {
+        self.raw
+    }
 }
 
 impl Drop for EmbreeDevice {

@@ -13,7 +13,7 @@
 use crate::observer::{Observer, Query};
 use crate::stats::RayStats;
 use bvh::ChildRef;
-use geom::{intersect_triangle_watertight, Ray, RayPrecomp, Triangle, SLAB_FAR_SCALE};
+use geom::{intersect_triangle_watertight, Ray, RayPrecomp, Triangle};
 
 /// A ray/triangle hit found by traversal.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -145,19 +145,47 @@ impl Slab {
             t_min,
         }
     }
+}
 
-    /// Entry distance into the box of six planes `b` when the ray overlaps it within
-    /// `[t_min, t_max]`.
-    #[inline(always)]
-    pub fn test(&self, b: &[f32; 6], t_max: f32) -> Option<f32> {
-        let o = &self.origin;
-        let d = &self.inv_dir;
-        let n = |a: usize| (b[self.near[a]] - o[a]) * d[a];
-        let f = |a: usize| (b[self.far[a]] - o[a]) * d[a];
-        let near = fmax(fmax(n(0), n(1)), fmax(n(2), self.t_min));
-        let far = fmin(fmin(f(0), f(1)), f(2)) * SLAB_FAR_SCALE;
-        (near <= fmin(far, t_max)).then_some(near)
+/// A vector of capacity `n` whose memory the kernel is asked to back with transparent huge
+/// pages (Linux, `madvise(MADV_HUGEPAGE)`), before anything is written to it. Traversal
+/// touches a tree's nodes and triangles at random; with 4 KiB pages a tree of tens of
+/// megabytes misses the TLB on most node fetches, with 2 MiB pages it does not. Elsewhere,
+/// or when the advice is refused, it is a plain vector.
+pub(crate) fn huge_page_vec<T>(n: usize) -> Vec<T> {
+    let v: Vec<T> = Vec::with_capacity(n);
+    #[cfg(target_os = "linux")]
+    {
+        const HUGE: usize = 2 << 20;
+        let bytes = n * std::mem::size_of::<T>();
+        if bytes >= 2 * HUGE {
+            let start = v.as_ptr() as usize;
+            let lo = start.div_ceil(HUGE) * HUGE;
+            let hi = (start + bytes) / HUGE * HUGE;
+            if hi > lo {
+                // SAFETY: the range lies inside the vector's own allocation; the advice
+                // changes how pages are backed, never their contents or validity.
+                unsafe {
+                    libc::madvise(lo as *mut libc::c_void, hi - lo, libc::MADV_HUGEPAGE);
+                }
+            }
+        }
     }
+    v
+}
+
+/// Hints the CPU to start loading the cache line at `p` (a no-op off x86-64). Kernels
+/// prefetch the children they push, so that their fetch overlaps the traversal of the
+/// nearer subtree.
+#[inline(always)]
+pub(crate) fn prefetch<T>(p: *const T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: prefetching is a hint; it never faults, whatever the address.
+    unsafe {
+        std::arch::x86_64::_mm_prefetch(p as *const i8, std::arch::x86_64::_MM_HINT_T0)
+    };
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = p;
 }
 
 /// `max` as a compare and select, which maps to one SIMD max instruction. Slab values are
@@ -194,7 +222,7 @@ pub(crate) struct LeafTriangles {
 impl LeafTriangles {
     /// Triangles of `prim_indices` in order; `None` names the first entry out of range.
     pub fn new(prim_indices: &[u32], triangles: &[Triangle]) -> Result<Self, (usize, u32)> {
-        let mut tris = Vec::with_capacity(prim_indices.len());
+        let mut tris = huge_page_vec(prim_indices.len());
         for (k, &p) in prim_indices.iter().enumerate() {
             tris.push(*triangles.get(p as usize).ok_or((k, p))?);
         }
@@ -203,6 +231,12 @@ impl LeafTriangles {
             prims: prim_indices.to_vec(),
             source_len: triangles.len(),
         })
+    }
+
+    /// Prefetches the first triangle of the leaf starting at entry `first`.
+    #[inline(always)]
+    pub fn prefetch(&self, first: u32) {
+        prefetch(self.tris.as_ptr().wrapping_add(first as usize));
     }
 
     /// Tests the leaf of entries `first .. first + count`; updates `best` and `best_t`.

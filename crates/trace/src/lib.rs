@@ -27,6 +27,7 @@
 #![warn(missing_docs)]
 
 mod accel;
+mod any;
 mod brute;
 mod bvh2_kernel;
 pub mod camera;
@@ -45,6 +46,7 @@ mod tests_render;
 mod testutil;
 
 pub use accel::{cull_distance, Hit, TraversalStack, Traverse, CULL_SLACK};
+pub use any::Accel;
 pub use brute::brute_force;
 pub use bvh2_kernel::Bvh2Accel;
 pub use camera::PinholeCamera;

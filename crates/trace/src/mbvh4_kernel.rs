@@ -9,7 +9,10 @@
 //! pushed is dropped when popped, without fetching its node; [P4] measured about 10% for
 //! MBVH. [`KernelOptions::distance_stack`] switches it off to measure that effect.
 
-use crate::accel::{cull_distance, fmax, fmin, Hit, LeafTriangles, Slab, TraversalStack, Traverse};
+use crate::accel::{
+    cull_distance, fmax, fmin, huge_page_vec, prefetch, Hit, LeafTriangles, Slab, TraversalStack,
+    Traverse,
+};
 use crate::bvh2_kernel::check_links;
 use crate::observer::{Observer, Query};
 use crate::stats::RayStats;
@@ -17,10 +20,17 @@ use crate::{KernelOptions, TraceError};
 use bvh::{ChildRef, Mbvh4, Node4};
 use geom::{Ray, RayPrecomp, Triangle, SLAB_FAR_SCALE};
 
-/// An `Mbvh4` with its triangles in leaf order, ready to trace.
+/// A node aligned to 64-byte cache lines (a `Vec<Node4>` is only 4-byte aligned, so
+/// most of its 128-byte nodes would touch three lines instead of two).
+#[repr(C, align(64))]
+#[derive(Clone, Copy, Debug)]
+struct AlignedNode4(Node4);
+
+/// An `Mbvh4` with its triangles in leaf order, ready to trace. The kernel works on an
+/// aligned copy of the nodes (node `i` of the copy is node `i` of the tree).
 #[derive(Clone, Debug)]
 pub struct Mbvh4Accel {
-    bvh: Mbvh4,
+    nodes: Vec<AlignedNode4>,
     leaf: LeafTriangles,
     options: KernelOptions,
 }
@@ -59,22 +69,42 @@ fn test4(slab: &Slab, n: &Node4, t_max: f32) -> ([f32; 4], u8) {
     (dist, mask)
 }
 
-/// Sorts four (distance, slot) pairs by distance with the five comparators of the optimal
-/// 4-input network ([P4] Fig. 4): (0,1) (2,3), then (0,2) (1,3), then (1,2).
+/// Sorts four keys with the five comparators of the optimal 4-input network ([P4]
+/// Fig. 4): (0,1) (2,3), then (0,2) (1,3), then (1,2). Each comparator is a branch-free
+/// min/max pair, as in hardware, so traversal order costs no branch mispredictions.
 #[inline(always)]
-pub fn sort4(keys: &mut [f32; 4], slots: &mut [u8; 4]) {
+pub fn sort4(k: &mut [u32; 4]) {
     #[inline(always)]
-    fn cmp(k: &mut [f32; 4], s: &mut [u8; 4], a: usize, b: usize) {
-        if k[b] < k[a] {
-            k.swap(a, b);
-            s.swap(a, b);
-        }
+    fn cmp(k: &mut [u32; 4], a: usize, b: usize) {
+        let (x, y) = (k[a], k[b]);
+        k[a] = x.min(y);
+        k[b] = x.max(y);
     }
-    cmp(keys, slots, 0, 1);
-    cmp(keys, slots, 2, 3);
-    cmp(keys, slots, 0, 2);
-    cmp(keys, slots, 1, 3);
-    cmp(keys, slots, 1, 2);
+    cmp(k, 0, 1);
+    cmp(k, 2, 3);
+    cmp(k, 0, 2);
+    cmp(k, 1, 3);
+    cmp(k, 1, 2);
+}
+
+/// Sort keys of the hit children: the entry distance mapped to an order-preserving
+/// unsigned integer with its two low bits replaced by the slot number (so a key names its
+/// slot, and distances within 4 ulps order by slot); `u32::MAX` for a missed slot.
+#[inline(always)]
+fn child_keys(dist: &[f32; 4], mask: u8) -> [u32; 4] {
+    std::array::from_fn(|i| {
+        let b = dist[i].to_bits();
+        let ordered = if b & 0x8000_0000 != 0 {
+            !b
+        } else {
+            b | 0x8000_0000
+        };
+        if mask >> i & 1 != 0 {
+            (ordered & !3) | i as u32
+        } else {
+            u32::MAX
+        }
+    })
 }
 
 impl Mbvh4Accel {
@@ -98,12 +128,13 @@ impl Mbvh4Accel {
             bvh.nodes.len(),
             bvh.prim_indices.len(),
         )?;
-        Ok(Self { bvh, leaf, options })
-    }
-
-    /// The tree.
-    pub fn bvh(&self) -> &Mbvh4 {
-        &self.bvh
+        let mut nodes = huge_page_vec(bvh.nodes.len());
+        nodes.extend(bvh.nodes.iter().map(|n| AlignedNode4(*n)));
+        Ok(Self {
+            nodes,
+            leaf,
+            options,
+        })
     }
 
     /// The kernel options.
@@ -116,12 +147,15 @@ impl Mbvh4Accel {
         ray: &Ray,
         query: Query,
         stack: &mut TraversalStack,
-        stats: &mut RayStats,
+        total: &mut RayStats,
         obs: &mut O,
     ) -> Option<Hit> {
+        // Counted in a local (kept in registers), added to `total` once at the end.
+        let mut ray_stats = RayStats::default();
+        let stats = &mut ray_stats;
         let pre = RayPrecomp::new(ray);
         let slab = Slab::new(&pre, ray.t_min);
-        let nodes = &self.bvh.nodes;
+        let nodes = &self.nodes;
         obs.begin(ray, query);
         stats.rays += 1;
         stack.entries.clear();
@@ -148,8 +182,8 @@ impl Mbvh4Accel {
                     break;
                 }
             } else {
-                let node = &nodes[c.index as usize];
-                let (mut dist, mask) = test4(&slab, node, cull_distance(best_t));
+                let node = &nodes[c.index as usize].0;
+                let (dist, mask) = test4(&slab, node, cull_distance(best_t));
                 let valid = node
                     .children
                     .iter()
@@ -165,13 +199,22 @@ impl Mbvh4Accel {
                         continue;
                     }
                     hits => {
-                        let mut slots = [0u8, 1, 2, 3];
-                        sort4(&mut dist, &mut slots);
+                        let mut keys = child_keys(&dist, mask);
+                        sort4(&mut keys);
                         // Push the far ones far-to-near so the nearest of them pops first.
                         for k in (1..hits as usize).rev() {
-                            stack.push(node.children[slots[k] as usize], dist[k], stats, obs);
+                            let slot = (keys[k] & 3) as usize;
+                            let child = node.children[slot];
+                            if child.is_leaf() {
+                                self.leaf.prefetch(child.index);
+                            } else {
+                                let p = nodes.as_ptr().wrapping_add(child.index as usize);
+                                prefetch(p);
+                                prefetch((p as *const u8).wrapping_add(64));
+                            }
+                            stack.push(child, dist[slot], stats, obs);
                         }
-                        cur = Some(node.children[slots[0] as usize]);
+                        cur = Some(node.children[(keys[0] & 3) as usize]);
                         continue;
                     }
                 }
@@ -179,6 +222,7 @@ impl Mbvh4Accel {
             cur = stack.pop(DIST, best_t, stats, obs);
         }
         stats.hits += best.is_some() as u64;
+        total.add(stats);
         obs.end(best.as_ref());
         best
     }
@@ -210,7 +254,7 @@ impl Traverse for Mbvh4Accel {
     }
 
     fn node_count(&self) -> usize {
-        self.bvh.nodes.len()
+        self.nodes.len()
     }
 
     fn source_triangles(&self) -> usize {
@@ -226,11 +270,11 @@ impl Traverse for Mbvh4Accel {
 mod tests {
     use super::*;
 
-    /// The five-comparator network sorts every ordering of four distinct keys, and keeps
-    /// the slots paired with their keys.
+    /// The five-comparator network sorts every ordering of four distinct keys, and the
+    /// child keys order hit slots by distance (misses last, ties by slot).
     #[test]
     fn sorting_network_sorts_all_permutations() {
-        let base = [1.0f32, 2.0, 3.0, f32::INFINITY];
+        let base = [3u32, 10, 11, u32::MAX];
         let mut count = 0;
         for a in 0..4 {
             for b in 0..4 {
@@ -243,17 +287,19 @@ mod tests {
                         }
                         count += 1;
                         let mut keys = p.map(|i| base[i]);
-                        let mut slots = [0u8, 1, 2, 3];
-                        let orig = keys;
-                        sort4(&mut keys, &mut slots);
+                        sort4(&mut keys);
                         assert_eq!(keys, base, "{p:?}");
-                        for k in 0..4 {
-                            assert_eq!(orig[slots[k] as usize], keys[k]);
-                        }
                     }
                 }
             }
         }
         assert_eq!(count, 24);
+        let mut k = child_keys(&[5.0, 1.0, 1.0, -2.0], 0b0111);
+        sort4(&mut k);
+        assert_eq!(k.map(|k| k & 3)[..3], [1, 2, 0]);
+        assert_eq!(k[3], u32::MAX);
+        let mut k = child_keys(&[-1.0, -3.0, 0.0, 2.0], 0b1111);
+        sort4(&mut k);
+        assert_eq!(k.map(|k| k & 3), [1, 0, 2, 3]);
     }
 }

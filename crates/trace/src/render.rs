@@ -24,7 +24,7 @@
 use crate::accel::{Hit, TraversalStack, Traverse};
 use crate::camera::PinholeCamera;
 use crate::log::{LogEncoder, LogWriter};
-use crate::observer::Query;
+use crate::observer::{Observer, Query};
 use crate::sampling::{cosine_hemisphere, offset_origin, Pcg32};
 use crate::stats::RayStats;
 use crate::TraceError;
@@ -143,8 +143,46 @@ pub fn sun_direction() -> Vec3 {
     Vec3::new(0.4, 1.0, 0.6).normalize()
 }
 
+/// An [`Observer`] that one tile's rays report to, told each ray's identity first. The
+/// renderer makes one per tile and hands them back in tile order.
+pub trait RayObserver: Observer + Send {
+    /// The next ray traced is bounce `bounce` (0 = primary) of pixel `pixel`'s path.
+    #[inline(always)]
+    fn set_ray(&mut self, pixel: u32, bounce: u8) {
+        let _ = (pixel, bounce);
+    }
+}
+
+impl RayObserver for () {}
+
+impl RayObserver for LogEncoder {
+    fn set_ray(&mut self, pixel: u32, bounce: u8) {
+        LogEncoder::set_ray(self, pixel, bounce)
+    }
+}
+
+/// A [`RayObserver`] that records every ray traced (the ray sets of benchmarks).
+#[derive(Clone, Debug, Default)]
+pub struct RayRecorder {
+    /// The rays, in order, with their bounce number and query.
+    pub rays: Vec<(Ray, u8, Query)>,
+    bounce: u8,
+}
+
+impl Observer for RayRecorder {
+    fn begin(&mut self, ray: &Ray, query: Query) {
+        self.rays.push((*ray, self.bounce, query));
+    }
+}
+
+impl RayObserver for RayRecorder {
+    fn set_ray(&mut self, _pixel: u32, bounce: u8) {
+        self.bounce = bounce;
+    }
+}
+
 /// Everything one tile produces.
-struct TileOut {
+struct TileOut<O> {
     x0: u32,
     y0: u32,
     w: u32,
@@ -155,7 +193,7 @@ struct TileOut {
     nodes: Vec<u32>,
     tris: Vec<u32>,
     per_bounce: Vec<RayStats>,
-    log: Option<(Vec<u8>, u32)>,
+    obs: O,
 }
 
 /// The geometric normal of a hit, facing against the ray direction `d`.
@@ -181,9 +219,9 @@ struct Tracer<'a, T: Traverse> {
 }
 
 impl<T: Traverse> Tracer<'_, T> {
-    /// Traces one ray, logging it when a log is being written.
+    /// Traces one ray, reporting it to `obs`.
     #[allow(clippy::too_many_arguments)]
-    fn trace(
+    fn trace<O: RayObserver>(
         &self,
         ray: &Ray,
         query: Query,
@@ -192,23 +230,18 @@ impl<T: Traverse> Tracer<'_, T> {
         stack: &mut TraversalStack,
         per_bounce: &mut [RayStats],
         counts: &mut (u32, u32),
-        log: &mut Option<LogEncoder>,
+        obs: &mut O,
     ) -> Option<Hit> {
         let s = &mut per_bounce[bounce];
         let (n0, t0) = (s.node_visits, s.tri_tests);
-        let hit = match log {
-            Some(enc) => {
-                enc.set_ray(pixel, bounce as u8);
-                self.accel.trace_observed(ray, query, stack, s, enc)
-            }
-            None => self.accel.trace_observed(ray, query, stack, s, &mut ()),
-        };
+        obs.set_ray(pixel, bounce as u8);
+        let hit = self.accel.trace_observed(ray, query, stack, s, obs);
         counts.0 = counts.0.saturating_add((s.node_visits - n0) as u32);
         counts.1 = counts.1.saturating_add((s.tri_tests - t0) as u32);
         hit
     }
 
-    fn tile(&self, tx: u32, ty: u32, logging: bool) -> TileOut {
+    fn tile<O: RayObserver>(&self, tx: u32, ty: u32, obs: O) -> TileOut<O> {
         let st = self.settings;
         let (x0, y0) = (tx * TILE, ty * TILE);
         let (w, h) = (TILE.min(st.width - x0), TILE.min(st.height - y0));
@@ -224,9 +257,8 @@ impl<T: Traverse> Tracer<'_, T> {
             nodes: Vec::with_capacity(n),
             tris: Vec::with_capacity(n),
             per_bounce: vec![RayStats::default(); 1 + bounce_slots(st) as usize],
-            log: None,
+            obs,
         };
-        let mut log = logging.then(LogEncoder::new);
         let mut stack = TraversalStack::new();
         for y in y0..y0 + h {
             for x in x0..x0 + w {
@@ -241,7 +273,7 @@ impl<T: Traverse> Tracer<'_, T> {
                     &mut stack,
                     &mut out.per_bounce,
                     &mut counts,
-                    &mut log,
+                    &mut out.obs,
                 );
                 out.depth.push(first.map_or(f32::INFINITY, |h| h.t));
                 out.prim.push(first.map_or(u32::MAX, |h| h.prim));
@@ -268,7 +300,7 @@ impl<T: Traverse> Tracer<'_, T> {
                                 &mut stack,
                                 &mut out.per_bounce,
                                 &mut counts,
-                                &mut log,
+                                &mut out.obs,
                             )
                             .is_none()
                         };
@@ -281,7 +313,7 @@ impl<T: Traverse> Tracer<'_, T> {
                         &mut stack,
                         &mut out.per_bounce,
                         &mut counts,
-                        &mut log,
+                        &mut out.obs,
                     ),
                 };
                 out.color.push(color.to_array());
@@ -289,7 +321,6 @@ impl<T: Traverse> Tracer<'_, T> {
                 out.tris.push(counts.1);
             }
         }
-        out.log = log.map(|mut e| e.take());
         out
     }
 
@@ -304,7 +335,7 @@ impl<T: Traverse> Tracer<'_, T> {
 
     /// A diffuse path after its primary hit `first`.
     #[allow(clippy::too_many_arguments)]
-    fn path(
+    fn path<O: RayObserver>(
         &self,
         mut ray: Ray,
         first: Hit,
@@ -312,7 +343,7 @@ impl<T: Traverse> Tracer<'_, T> {
         stack: &mut TraversalStack,
         per_bounce: &mut [RayStats],
         counts: &mut (u32, u32),
-        log: &mut Option<LogEncoder>,
+        obs: &mut O,
     ) -> Vec3 {
         let mut rng = Pcg32::new(self.settings.seed, pixel as u64);
         let mut throughput = Vec3::ONE;
@@ -334,7 +365,7 @@ impl<T: Traverse> Tracer<'_, T> {
                 stack,
                 per_bounce,
                 counts,
-                log,
+                obs,
             ) {
                 None => return throughput, // the sky, radiance 1
                 Some(h) => hit = h,
@@ -360,9 +391,41 @@ pub fn render<T: Traverse>(
     accel: &T,
     shading: Shading<'_>,
     settings: &RenderSettings,
-    mut log: Option<&mut LogWriter>,
+    log: Option<&mut LogWriter>,
     progress: Option<&(dyn Fn(u64, u64) + Sync)>,
 ) -> Result<Render, TraceError> {
+    match log {
+        Some(w) => render_observed(
+            accel,
+            shading,
+            settings,
+            LogEncoder::new,
+            |mut e| {
+                let (bytes, rays) = e.take();
+                w.write_chunk(&bytes, rays)
+            },
+            progress,
+        ),
+        None => render_observed(accel, shading, settings, || (), |_| Ok(()), progress),
+    }
+}
+
+/// [`render`] with an observer per tile: `make` creates each tile's observer, and `sink`
+/// receives them in tile order (row-major over tiles) after each batch.
+pub fn render_observed<T, O, M, S>(
+    accel: &T,
+    shading: Shading<'_>,
+    settings: &RenderSettings,
+    make: M,
+    mut sink: S,
+    progress: Option<&(dyn Fn(u64, u64) + Sync)>,
+) -> Result<Render, TraceError>
+where
+    T: Traverse,
+    O: RayObserver,
+    M: Fn() -> O + Sync,
+    S: FnMut(O) -> Result<(), TraceError>,
+{
     let camera = PinholeCamera::new(&settings.camera, settings.width, settings.height)?;
     if settings.bounces > MAX_BOUNCES {
         return Err(TraceError::Config(format!(
@@ -416,10 +479,9 @@ pub fn render<T: Traverse>(
     let start = Instant::now();
     let mut done = 0u64;
     for group in tiles.chunks(batch) {
-        let logging = log.is_some();
-        let outs: Vec<TileOut> = group
+        let outs: Vec<TileOut<O>> = group
             .par_iter()
-            .map(|&(tx, ty)| tracer.tile(tx, ty, logging))
+            .map(|&(tx, ty)| tracer.tile(tx, ty, make()))
             .collect();
         for t in outs {
             for row in 0..t.h {
@@ -435,9 +497,7 @@ pub fn render<T: Traverse>(
             for (a, b) in img.stats.per_bounce.iter_mut().zip(&t.per_bounce) {
                 a.add(b);
             }
-            if let (Some(w), Some((bytes, rays))) = (log.as_deref_mut(), &t.log) {
-                w.write_chunk(bytes, *rays)?;
-            }
+            sink(t.obs)?;
         }
         done += group.len() as u64;
         if let Some(p) = progress {

@@ -4,6 +4,8 @@ pub mod build;
 pub mod cbvh;
 pub mod demo;
 pub mod info;
+pub mod log_info;
+pub mod render;
 pub mod report;
 pub mod report_cbvh;
 pub mod sim;
