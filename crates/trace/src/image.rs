@@ -189,12 +189,26 @@ pub struct HeatScale {
     pub tri_tests: u32,
 }
 
+/// The fraction of pixels at or below the default heatmap scale: the hottest 0.5% of
+/// pixels saturate instead of washing out the rest of the image.
+pub const HEAT_PERCENTILE: f64 = 0.995;
+
 impl HeatScale {
-    /// The largest counts of the image (so the hottest pixel is at full intensity).
+    /// The default scale of an image: the [`HEAT_PERCENTILE`] quantile of each count over
+    /// its pixels (at least 1).
     pub fn of(r: &Render) -> Self {
+        let q = |v: &[u32]| -> u32 {
+            if v.is_empty() {
+                return 1;
+            }
+            let mut s = v.to_vec();
+            let k = ((HEAT_PERCENTILE * s.len() as f64).ceil() as usize).clamp(1, s.len()) - 1;
+            let (_, x, _) = s.select_nth_unstable(k);
+            (*x).max(1)
+        };
         Self {
-            node_visits: r.node_visits.iter().copied().max().unwrap_or(0).max(1),
-            tri_tests: r.tri_tests.iter().copied().max().unwrap_or(0).max(1),
+            node_visits: q(&r.node_visits),
+            tri_tests: q(&r.tri_tests),
         }
     }
 }
@@ -401,13 +415,15 @@ mod tests {
         assert_eq!((buf[1], buf[2]), (188, 255));
         let hp = dir.path().join("h.png");
         let scale = HeatScale::of(&r);
+        // 99.5% of the 600 pixels are at or below the scale (value 596 of 0..=599).
         assert_eq!(
             scale,
             HeatScale {
-                node_visits: 599,
-                tri_tests: 299
+                node_visits: 596,
+                tri_tests: 298
             }
         );
+
         write_heatmap(&hp, &r, scale).unwrap();
         let dec = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&hp).unwrap()));
         let mut rd = dec.read_info().unwrap();

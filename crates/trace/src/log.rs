@@ -47,6 +47,8 @@ const T_POP: u8 = 0x05;
 const T_POP_CULLED: u8 = 0x06;
 const T_LEAF: u8 = 0x07;
 const T_END: u8 = 0x08;
+/// A node record whose child slots are all valid (no mask byte follows).
+const T_NODE_FULL: u8 = 0x09;
 
 /// What kind of render produced a log.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -181,6 +183,8 @@ fn unzigzag(v: u64) -> i64 {
 #[derive(Clone, Debug, Default)]
 pub struct LogEncoder {
     buf: Vec<u8>,
+    /// The mask of all child slots of the tree's width (0b11 or 0b1111).
+    full: u8,
     rays: u32,
     pixel: u32,
     bounce: u8,
@@ -189,9 +193,12 @@ pub struct LogEncoder {
 }
 
 impl LogEncoder {
-    /// An empty encoder.
-    pub fn new() -> Self {
-        Self::default()
+    /// An empty encoder for a tree of `width` children per node (2 or 4).
+    pub fn new(width: u32) -> Self {
+        Self {
+            full: ((1u32 << width.min(8)) - 1) as u8,
+            ..Self::default()
+        }
     }
 
     /// The next ray traced is bounce `bounce` of the path of pixel `pixel` (row-major).
@@ -248,8 +255,12 @@ impl Observer for LogEncoder {
     }
 
     fn node(&mut self, node: u32, valid: u8, hit: u8) {
-        self.buf.push(T_NODE | (hit & 0x0F) << 4);
-        self.buf.push(valid);
+        if valid == self.full {
+            self.buf.push(T_NODE_FULL | (hit & 0x0F) << 4);
+        } else {
+            self.buf.push(T_NODE | (hit & 0x0F) << 4);
+            self.buf.push(valid);
+        }
         self.delta(node, self.last_node);
         self.last_node = node;
     }
@@ -627,11 +638,12 @@ impl LogReader {
         out.events.clear();
         out.hit = None;
         let (mut last_node, mut last_leaf) = (0u32, 0u32);
+        let full = ((1u32 << self.header.width) - 1) as u8;
         loop {
             let tag = self.byte()?;
             let ev = match tag & 0x0F {
-                T_NODE => {
-                    let valid = self.byte()?;
+                kind @ (T_NODE | T_NODE_FULL) => {
+                    let valid = if kind == T_NODE { self.byte()? } else { full };
                     let node = self.delta(last_node)?;
                     last_node = node;
                     LogEvent::Node {

@@ -399,7 +399,7 @@ pub fn render<T: Traverse>(
             accel,
             shading,
             settings,
-            LogEncoder::new,
+            || LogEncoder::new(accel.width()),
             |mut e| {
                 let (bytes, rays) = e.take();
                 w.write_chunk(&bytes, rays)
