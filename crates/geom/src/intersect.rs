@@ -134,10 +134,13 @@ pub fn intersect_triangle_watertight(
     t_min: f32,
     t_max: f32,
 ) -> Option<TriangleHit> {
-    let [kx, ky, kz] = r.k;
-    let a = tri.v[0] - r.origin;
-    let b = tri.v[1] - r.origin;
-    let c = tri.v[2] - r.origin;
+    // The axis permutation is chosen per ray. Indexing a `Vec3` by a run-time axis
+    // compiles to a chain of branches per access; indexing a 4-element array by an index
+    // masked to 0..4 is one load with no bounds check. Same values, same arithmetic.
+    let [kx, ky, kz] = r.k.map(|k| k & 3);
+    let a = (tri.v[0] - r.origin).extend(0.0).to_array();
+    let b = (tri.v[1] - r.origin).extend(0.0).to_array();
+    let c = (tri.v[2] - r.origin).extend(0.0).to_array();
     let s = r.shear;
     let ax = a[kx] - s.x * a[kz];
     let ay = a[ky] - s.y * a[kz];

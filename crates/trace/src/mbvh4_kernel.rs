@@ -38,19 +38,15 @@ pub struct Mbvh4Accel {
 /// Entry distances of the four children of a node; `+inf` for a missed or empty slot.
 #[inline(always)]
 fn test4(slab: &Slab, n: &Node4, t_max: f32) -> ([f32; 4], u8) {
-    let planes = [&n.min_x, &n.min_y, &n.min_z, &n.max_x, &n.max_y, &n.max_z];
+    // Padded to eight so that an index masked with 7 needs no bounds check.
+    let planes = [
+        &n.min_x, &n.min_y, &n.min_z, &n.max_x, &n.max_y, &n.max_z, &n.max_z, &n.max_z,
+    ];
     let o = slab.origin;
     let d = slab.inv_dir;
-    let (nx, ny, nz) = (
-        planes[slab.near[0]],
-        planes[slab.near[1]],
-        planes[slab.near[2]],
-    );
-    let (fx, fy, fz) = (
-        planes[slab.far[0]],
-        planes[slab.far[1]],
-        planes[slab.far[2]],
-    );
+    let row = |p: usize| planes[p & 7];
+    let (nx, ny, nz) = (row(slab.near[0]), row(slab.near[1]), row(slab.near[2]));
+    let (fx, fy, fz) = (row(slab.far[0]), row(slab.far[1]), row(slab.far[2]));
     let mut dist = [f32::INFINITY; 4];
     let mut mask = 0u8;
     for i in 0..4 {
