@@ -84,6 +84,21 @@ impl RayPrecomp {
     }
 }
 
+impl RayPrecomp {
+    /// The axis permutation of the watertight test: `[kx, ky, kz]`, with `kz` the axis of
+    /// the largest direction component.
+    #[inline]
+    pub fn axes(&self) -> [usize; 3] {
+        self.k
+    }
+
+    /// The shear constants `Sx, Sy, Sz` of the watertight test.
+    #[inline]
+    pub fn shear(&self) -> Vec3 {
+        self.shear
+    }
+}
+
 /// `1 / x`, or the largest finite value with the sign of `x` where that is infinite (zero
 /// or denormal `x`), so that the slab test never computes `0 * inf`.
 #[inline]
@@ -198,6 +213,140 @@ pub fn intersect_triangle_watertight(
     })
 }
 
+/// Four triangles in structure-of-arrays form, for [`intersect_triangles4_watertight`]:
+/// `v[vertex][axis][lane]`.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[repr(C, align(16))]
+pub struct Triangles4 {
+    /// Vertex coordinates: `v[k][a][i]` is axis `a` of vertex `k` of triangle (lane) `i`.
+    pub v: [[[f32; 4]; 3]; 3],
+}
+
+impl Triangles4 {
+    /// Packs up to four triangles; unused lanes repeat the last given triangle (callers
+    /// mask them out).
+    pub fn pack(tris: &[Triangle]) -> Self {
+        let mut v = [[[0f32; 4]; 3]; 3];
+        for i in 0..4 {
+            if let Some(t) = tris.get(i.min(tris.len().saturating_sub(1))) {
+                for (k, vk) in v.iter_mut().enumerate() {
+                    for (a, row) in vk.iter_mut().enumerate() {
+                        row[i] = t.v[k][a];
+                    }
+                }
+            }
+        }
+        Self { v }
+    }
+
+    /// Triangle `i` (0..4).
+    pub fn get(&self, i: usize) -> Triangle {
+        let p = |k: usize| Vec3::new(self.v[k][0][i], self.v[k][1][i], self.v[k][2][i]);
+        Triangle::new(p(0), p(1), p(2))
+    }
+}
+
+/// The hits of [`intersect_triangles4_watertight`]: lane `i` hit when bit `i` of `mask` is
+/// set, at `t[i]` with barycentrics `bary[0..3][i]`.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Hits4 {
+    /// Lanes that hit.
+    pub mask: u8,
+    /// Hit distances.
+    pub t: [f32; 4],
+    /// Barycentric weights of vertices 0, 1, 2 per lane.
+    pub bary: [[f32; 4]; 3],
+}
+
+/// [`intersect_triangle_watertight`] on the lanes of `tris` selected by `lanes` (bit `i` for
+/// lane `i`) at once. Every lane performs exactly the scalar test's operations in the same
+/// order (no fused or reassociated arithmetic), so each lane's result equals the scalar
+/// test's bit for bit, the double-precision fallback included (done per lane where an
+/// edge function is zero); the loops are written lane by lane so that they compile to
+/// 4-wide SIMD.
+#[inline]
+pub fn intersect_triangles4_watertight(
+    r: &RayPrecomp,
+    tris: &Triangles4,
+    lanes: u8,
+    t_min: f32,
+    t_max: f32,
+) -> Hits4 {
+    let [kx, ky, kz] = r.k.map(|k| k & 3);
+    let o = r.origin.extend(0.0).to_array();
+    let s = r.shear;
+    // Rows of one vertex, permuted into the ray's axes and translated to its origin.
+    let rows = |k: usize| {
+        let v = &tris.v[k];
+        let pad = [0f32; 4];
+        let axis = |a: usize| if a < 3 { &v[a] } else { &pad };
+        let sub = |a: usize| -> [f32; 4] {
+            let row = axis(a);
+            std::array::from_fn(|i| row[i] - o[a])
+        };
+        (sub(kx), sub(ky), sub(kz))
+    };
+    let (a_x, a_y, a_z) = rows(0);
+    let (b_x, b_y, b_z) = rows(1);
+    let (c_x, c_y, c_z) = rows(2);
+    let ax: [f32; 4] = std::array::from_fn(|i| a_x[i] - s.x * a_z[i]);
+    let ay: [f32; 4] = std::array::from_fn(|i| a_y[i] - s.y * a_z[i]);
+    let bx: [f32; 4] = std::array::from_fn(|i| b_x[i] - s.x * b_z[i]);
+    let by: [f32; 4] = std::array::from_fn(|i| b_y[i] - s.y * b_z[i]);
+    let cx: [f32; 4] = std::array::from_fn(|i| c_x[i] - s.x * c_z[i]);
+    let cy: [f32; 4] = std::array::from_fn(|i| c_y[i] - s.y * c_z[i]);
+    let mut u: [f32; 4] = std::array::from_fn(|i| cx[i] * by[i] - cy[i] * bx[i]);
+    let mut v: [f32; 4] = std::array::from_fn(|i| ax[i] * cy[i] - ay[i] * cx[i]);
+    let mut w: [f32; 4] = std::array::from_fn(|i| bx[i] * ay[i] - by[i] * ax[i]);
+    for i in 0..4 {
+        if u[i] == 0.0 || v[i] == 0.0 || w[i] == 0.0 {
+            let (ax, ay, bx, by, cx, cy) = (
+                ax[i] as f64,
+                ay[i] as f64,
+                bx[i] as f64,
+                by[i] as f64,
+                cx[i] as f64,
+                cy[i] as f64,
+            );
+            u[i] = (cx * by - cy * bx) as f32;
+            v[i] = (ax * cy - ay * cx) as f32;
+            w[i] = (bx * ay - by * ax) as f32;
+        }
+    }
+    let det: [f32; 4] = std::array::from_fn(|i| u[i] + v[i] + w[i]);
+    let az: [f32; 4] = std::array::from_fn(|i| s.z * a_z[i]);
+    let bz: [f32; 4] = std::array::from_fn(|i| s.z * b_z[i]);
+    let cz: [f32; 4] = std::array::from_fn(|i| s.z * c_z[i]);
+    let t_scaled: [f32; 4] = std::array::from_fn(|i| u[i] * az[i] + v[i] * bz[i] + w[i] * cz[i]);
+    let inv: [f32; 4] = std::array::from_fn(|i| 1.0 / det[i]);
+    let mut out = Hits4::default();
+    for i in 0..4 {
+        let (u, v, w, det) = (u[i], v[i], w[i], det[i]);
+        let outside = (u < 0.0 || v < 0.0 || w < 0.0) && (u > 0.0 || v > 0.0 || w > 0.0);
+        let sign = det.to_bits() & 0x8000_0000;
+        let ts = f32::from_bits(t_scaled[i].to_bits() ^ sign);
+        let det_abs = det.abs();
+        let lo = t_min * det_abs;
+        let hi = t_max * det_abs;
+        let pre_reject = ts < lo - lo.abs() * RANGE_SLACK - f32::MIN_POSITIVE
+            || ts > hi + hi.abs() * RANGE_SLACK + f32::MIN_POSITIVE
+            || ts.is_nan();
+        let t = t_scaled[i] * inv[i];
+        let hit = lanes >> i & 1 != 0
+            && !outside
+            && !(det == 0.0 || det.is_nan())
+            && !pre_reject
+            && t >= t_min
+            && t <= t_max;
+        out.mask |= (hit as u8) << i;
+        out.t[i] = t;
+        out.bary[0][i] = u * inv[i];
+        out.bary[1][i] = v * inv[i];
+        out.bary[2][i] = w * inv[i];
+    }
+    out
+}
+
 impl Triangle {
     /// Convenience wrapper of [`intersect_triangle_watertight`] for a single ray.
     pub fn intersect(&self, ray: &Ray) -> Option<TriangleHit> {
@@ -231,6 +380,28 @@ mod tests {
         assert!(t.intersect(&short).is_none());
         let behind = Ray::new(Vec3::new(0.25, 0.25, 1.0), Vec3::Z);
         assert!(t.intersect(&behind).is_none());
+    }
+
+    /// A ray exactly through a shared edge and a shared vertex (zero edge functions): both
+    /// triangles' tests agree, scalar and 4-wide, and at least one reports the hit.
+    #[test]
+    fn exact_edge_and_vertex_hits_agree_between_scalar_and_four_wide() {
+        let t0 = Triangle::new(Vec3::ZERO, Vec3::X, Vec3::Y);
+        let t1 = Triangle::new(Vec3::X, Vec3::new(1.0, 1.0, 0.0), Vec3::Y);
+        let pack = Triangles4::pack(&[t0, t1]);
+        for target in [Vec3::new(0.5, 0.5, 0.0), Vec3::X, Vec3::new(0.5, 0.0, 0.0)] {
+            let ray = Ray::new(target + Vec3::Z, -Vec3::Z);
+            let pre = RayPrecomp::new(&ray);
+            let h = intersect_triangles4_watertight(&pre, &pack, 0b11, 0.0, f32::INFINITY);
+            let s0 = intersect_triangle_watertight(&pre, &t0, 0.0, f32::INFINITY);
+            let s1 = intersect_triangle_watertight(&pre, &t1, 0.0, f32::INFINITY);
+            assert!(s0.is_some() || s1.is_some(), "{target}");
+            assert_eq!(h.mask & 1 != 0, s0.is_some());
+            assert_eq!(h.mask & 2 != 0, s1.is_some());
+            if let Some(s) = s0 {
+                assert_eq!(h.t[0], s.t);
+            }
+        }
     }
 
     #[test]
@@ -401,6 +572,55 @@ mod tests {
             prop_assert!((h.t - 1.0).abs() < 1e-3, "t = {}", h.t);
             let q = a * h.bary[0] + b * h.bary[1] + c * h.bary[2];
             prop_assert!((q - p).length() < 1e-2 * (1.0 + p.length()));
+        }
+
+        /// The 4-wide test equals the scalar test lane by lane, bit for bit: random
+        /// triangles, triangles on a unit grid hit through their edges and vertices by
+        /// axis-aligned rays (exactly zero edge functions: the double-precision fallback),
+        /// degenerate ones, and masked lanes.
+        #[test]
+        fn four_wide_test_equals_the_scalar_test(
+            tris in proptest::collection::vec((v3(10.0), v3(10.0), v3(10.0)), 4),
+            grid in proptest::collection::vec((0i32..3, 0i32..3, 0i32..3), 12),
+            o in v3(20.0), d in v3(1.0), lanes in 0u8..16, kind in 0u8..3,
+            range in (0.0f32..2.0, 0.5f32..100.0),
+        ) {
+            let tris: Vec<Triangle> = match kind {
+                0 => tris.iter().map(|&(a, b, c)| Triangle::new(a, b, c)).collect(),
+                1 => grid
+                    .chunks(3)
+                    .map(|g| {
+                        let p = |i: usize| Vec3::new(g[i].0 as f32, g[i].1 as f32, g[i].2 as f32);
+                        Triangle::new(p(0), p(1), p(2))
+                    })
+                    .collect(),
+                _ => tris.iter().map(|&(a, b, _)| Triangle::new(a, b, a.lerp(b, 0.5))).collect(),
+            };
+            let ray = if kind == 1 {
+                // Through a grid point or a grid edge midpoint, along an axis.
+                let g = grid[0];
+                let target = Vec3::new(g.0 as f32, g.1 as f32 + 0.5 * (g.2 % 2) as f32, 0.0);
+                Ray::new(target + Vec3::new(0.0, 0.0, 5.0), Vec3::new(0.0, 0.0, -1.0))
+            } else {
+                prop_assume!(d.length() > 1e-3);
+                Ray::new(o, d)
+            };
+            let pre = RayPrecomp::new(&ray);
+            let pack = Triangles4::pack(&tris);
+            for (t_min, t_max) in [(0.0, f32::INFINITY), range] {
+                let h4 = intersect_triangles4_watertight(&pre, &pack, lanes, t_min, t_max);
+                for (i, tri) in tris.iter().enumerate() {
+                    let h1 = intersect_triangle_watertight(&pre, tri, t_min, t_max);
+                    let on = lanes >> i & 1 != 0;
+                    prop_assert_eq!(h4.mask >> i & 1 != 0, on && h1.is_some(), "lane {}", i);
+                    if let (true, Some(h)) = (on, h1) {
+                        prop_assert_eq!(h4.t[i].to_bits(), h.t.to_bits());
+                        for k in 0..3 {
+                            prop_assert_eq!(h4.bary[k][i].to_bits(), h.bary[k].to_bits());
+                        }
+                    }
+                }
+            }
         }
 
         /// A hit is reported exactly when its returned distance lies in the range: the

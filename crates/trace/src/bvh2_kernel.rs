@@ -107,21 +107,20 @@ impl Bvh2Accel {
         triangles: &[Triangle],
         options: KernelOptions,
     ) -> Result<Self, TraceError> {
-        let leaf = LeafTriangles::new(&bvh.prim_indices, triangles).map_err(|(entry, prim)| {
-            TraceError::PrimitiveOutOfRange {
-                entry,
-                prim,
-                triangles: triangles.len(),
-            }
-        })?;
         check_links(
             bvh.nodes.iter().flat_map(|n| n.children.iter()),
             2,
             bvh.nodes.len(),
             bvh.prim_indices.len(),
         )?;
-        let mut nodes = huge_page_vec(bvh.nodes.len());
+        let mut nodes: Vec<SoaNode2> = huge_page_vec(bvh.nodes.len());
         nodes.extend(bvh.nodes.iter().map(SoaNode2::new));
+        let leaf = LeafTriangles::pack(
+            &bvh.prim_indices,
+            triangles,
+            nodes.iter_mut().flat_map(|n| n.children.iter_mut()),
+        )
+        .map_err(|e| e.into_trace_error(triangles.len()))?;
         Ok(Self {
             nodes,
             leaf,
@@ -198,7 +197,7 @@ impl Bvh2Accel {
                         } else {
                             prefetch(nodes.as_ptr().wrapping_add(far.index as usize));
                         }
-                        stack.push(far, far_d, stats, obs);
+                        stack.push(far, far_d, &self.leaf, stats, obs);
                         cur = Some(near);
                         continue;
                     }
@@ -256,7 +255,7 @@ impl Traverse for Bvh2Accel {
     }
 
     fn leaf_entries(&self) -> usize {
-        self.leaf.prims.len()
+        self.leaf.entry_count()
     }
 }
 

@@ -111,21 +111,20 @@ impl Mbvh4Accel {
         triangles: &[Triangle],
         options: KernelOptions,
     ) -> Result<Self, TraceError> {
-        let leaf = LeafTriangles::new(&bvh.prim_indices, triangles).map_err(|(entry, prim)| {
-            TraceError::PrimitiveOutOfRange {
-                entry,
-                prim,
-                triangles: triangles.len(),
-            }
-        })?;
         check_links(
             bvh.nodes.iter().flat_map(|n| n.children.iter()),
             4,
             bvh.nodes.len(),
             bvh.prim_indices.len(),
         )?;
-        let mut nodes = huge_page_vec(bvh.nodes.len());
+        let mut nodes: Vec<AlignedNode4> = huge_page_vec(bvh.nodes.len());
         nodes.extend(bvh.nodes.iter().map(|n| AlignedNode4(*n)));
+        let leaf = LeafTriangles::pack(
+            &bvh.prim_indices,
+            triangles,
+            nodes.iter_mut().flat_map(|n| n.0.children.iter_mut()),
+        )
+        .map_err(|e| e.into_trace_error(triangles.len()))?;
         Ok(Self {
             nodes,
             leaf,
@@ -208,7 +207,7 @@ impl Mbvh4Accel {
                                 prefetch(p);
                                 prefetch((p as *const u8).wrapping_add(64));
                             }
-                            stack.push(child, dist[slot], stats, obs);
+                            stack.push(child, dist[slot], &self.leaf, stats, obs);
                         }
                         cur = Some(node.children[(keys[0] & 3) as usize]);
                         continue;
@@ -258,7 +257,7 @@ impl Traverse for Mbvh4Accel {
     }
 
     fn leaf_entries(&self) -> usize {
-        self.leaf.prims.len()
+        self.leaf.entry_count()
     }
 }
 
