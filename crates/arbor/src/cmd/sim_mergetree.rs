@@ -186,11 +186,12 @@ fn print_text(a: &MergetreeArgs, r: &MergeTreeReport, matches: Option<bool>, wal
     );
     for p in &r.phases {
         println!(
-            "  {:<24} cycles {:>12}  read {:>9.2} MB  written {:>9.2} MB",
+            "  {:<24} cycles {:>12}  read {:>9.2} MB  written {:>9.2} MB  read latency {:>6.1} cycles",
             p.name,
             thousands(p.end_cycle - p.start_cycle),
             p.bytes_read as f64 / 1e6,
-            p.bytes_written as f64 / 1e6
+            p.bytes_written as f64 / 1e6,
+            p.read_latency_mean_cycles
         );
     }
     let s = &r.stalls;

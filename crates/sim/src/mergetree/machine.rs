@@ -250,6 +250,9 @@ pub(super) struct Machine<'a> {
     pub phases: Vec<PhaseReport>,
     phase_start: u64,
     phase_read: u64,
+    /// Reads completed in the phase and the sum of their latencies (accept to completion).
+    phase_reads: u64,
+    phase_read_latency: u64,
     phase_written: u64,
     pub trace: Vec<TraceRow>,
     win: TraceRow,
@@ -387,6 +390,8 @@ impl<'a> Machine<'a> {
             phases: Vec::new(),
             phase_start: 0,
             phase_read: 0,
+            phase_reads: 0,
+            phase_read_latency: 0,
             phase_written: 0,
             trace: Vec::new(),
             win: TraceRow::default(),
@@ -451,6 +456,10 @@ impl<'a> Machine<'a> {
             self.wake_at = u64::MAX;
             while let Some(r) = self.port.pop_response() {
                 progress = true;
+                if r.kind == AccessKind::Read {
+                    self.phase_reads += 1;
+                    self.phase_read_latency += r.completed_cycle - r.accepted_cycle;
+                }
                 self.on_response(r.tag);
             }
             if self.control() {
@@ -624,9 +633,17 @@ impl<'a> Machine<'a> {
             end_cycle: self.cycle,
             bytes_read: self.phase_read,
             bytes_written: self.phase_written,
+            reads: self.phase_reads,
+            read_latency_mean_cycles: if self.phase_reads == 0 {
+                0.0
+            } else {
+                self.phase_read_latency as f64 / self.phase_reads as f64
+            },
         });
         self.phase_start = self.cycle;
         self.phase_read = 0;
+        self.phase_reads = 0;
+        self.phase_read_latency = 0;
         self.phase_written = 0;
     }
 
