@@ -6,6 +6,7 @@ pub mod demo;
 pub mod info;
 pub mod report;
 pub mod report_cbvh;
+pub mod report_mergetree;
 pub mod sim;
 pub mod sim_dram;
 pub mod sim_mergetree;
