@@ -63,11 +63,20 @@ pub fn scene_prims(spec: &str, t: f32) -> anyhow::Result<Vec<geom::Aabb>> {
     Ok(super::build::mesh_aabbs(&mesh)?.0)
 }
 
-/// Writes `text` to `dir/name` atomically: a temporary file in `dir` is written, synced and
-/// renamed over the destination, so an existing file is never left half-written.
+/// Writes `text` to `dir/name` atomically (see [`write_atomic`]).
 pub fn write_file(dir: &Path, name: &str, text: &str) -> anyhow::Result<()> {
-    let path = dir.join(name);
+    write_atomic(&dir.join(name), text)
+}
+
+/// Writes `text` to `path` atomically: a temporary file in the same folder is written,
+/// synced and renamed over the destination, so an existing file is never left
+/// half-written.
+pub fn write_atomic(path: &Path, text: &str) -> anyhow::Result<()> {
     let fail = || format!("cannot write {}", path.display());
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
     let mut tb = tempfile::Builder::new();
     tb.prefix(".arbor-report-").suffix(".tmp");
     // Temporary files are private (0600); the result gets ordinary permissions.
@@ -79,7 +88,7 @@ pub fn write_file(dir: &Path, name: &str, text: &str) -> anyhow::Result<()> {
     let mut tmp = tb.tempfile_in(dir).with_context(fail)?;
     tmp.write_all(text.as_bytes()).with_context(fail)?;
     tmp.as_file().sync_all().with_context(fail)?;
-    tmp.persist(&path).map_err(|e| e.error).with_context(fail)?;
+    tmp.persist(path).map_err(|e| e.error).with_context(fail)?;
     Ok(())
 }
 
@@ -88,7 +97,13 @@ pub fn bar_svg(title: &str, labels: &[String], series: &[(String, Vec<Option<f64
     const COLORS: [&str; 6] = [
         "#1f77b4", "#aec7e8", "#d62728", "#ff9896", "#2ca02c", "#98df8a",
     ];
-    let (w, h, left, bottom, top) = (760.0, 360.0, 60.0, 40.0, 40.0);
+    // Wide enough for the labels (about 7 px per character) and the legend (150 px per
+    // series), and at least 760 px.
+    let longest = labels.iter().map(|l| l.chars().count()).max().unwrap_or(0);
+    let w = (80.0 + labels.len() as f64 * (7.0 * longest as f64 + 8.0))
+        .max(80.0 + 150.0 * series.len() as f64)
+        .max(760.0);
+    let (h, left, bottom, top) = (360.0, 60.0, 40.0, 40.0);
     let max = series
         .iter()
         .flat_map(|s| s.1.iter().flatten())
@@ -180,5 +195,7 @@ mod tests {
         // Only the file itself is left (no temporary files).
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
         assert!(write_file(&dir.path().join("missing"), "x.csv", "").is_err());
+        // A bare file name goes to the current folder's temporary file; a folder fails.
+        assert!(write_atomic(dir.path(), "x").is_err());
     }
 }

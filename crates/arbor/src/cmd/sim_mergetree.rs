@@ -126,13 +126,11 @@ pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
         Some(mergetree::tree_matches_software(&report, &aabbs)?)
     };
     if let Some(p) = &a.trace {
-        std::fs::write(p, report.trace_csv())
-            .with_context(|| format!("cannot write {}", p.display()))?;
+        super::report::write_atomic(p, &report.trace_csv())?;
     }
     if let Some(p) = &a.svg {
         let title = format!("MergeTree {} on {}: {}", cfg.preset, a.dram, a.scene.scene);
-        std::fs::write(p, report.trace_svg(&title))
-            .with_context(|| format!("cannot write {}", p.display()))?;
+        super::report::write_atomic(p, &report.trace_svg(&title))?;
     }
     let cps = report.cycles as f64 / (wall_ms / 1e3).max(1e-9);
     if a.json {
