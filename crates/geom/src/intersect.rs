@@ -332,12 +332,8 @@ pub fn intersect_triangles4_watertight(
             || ts > hi + hi.abs() * RANGE_SLACK + f32::MIN_POSITIVE
             || ts.is_nan();
         let t = t_scaled[i] * inv[i];
-        let hit = lanes >> i & 1 != 0
-            && !outside
-            && !(det == 0.0 || det.is_nan())
-            && !pre_reject
-            && t >= t_min
-            && t <= t_max;
+        let rejected = lanes >> i & 1 == 0 || outside || det == 0.0 || det.is_nan() || pre_reject;
+        let hit = !rejected && t >= t_min && t <= t_max;
         out.mask |= (hit as u8) << i;
         out.t[i] = t;
         out.bary[0][i] = u * inv[i];
