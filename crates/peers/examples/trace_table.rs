@@ -48,6 +48,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         .ok()
         .and_then(|r| r.parse().ok())
         .unwrap_or(5);
+    if std::env::var("TRACE_STATS").is_ok() {
+        peers::trace_bench::print_kernel_stats(&bench)?;
+    }
     let rows = peers::trace_bench::run(&bench, &threads, repeats, &|m| eprintln!("{m}"))?;
     println!("| scene | rays | tracer | threads | Mrays/s | vs Embree | agreement |");
     println!("|---|---|---|---:|---:|---:|---:|");
