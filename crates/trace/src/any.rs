@@ -5,7 +5,7 @@
 use crate::accel::{Hit, TraversalStack, Traverse};
 use crate::observer::{Observer, Query};
 use crate::stats::RayStats;
-use crate::{Bvh2Accel, Mbvh4Accel};
+use crate::{Bvh2Accel, Mbvh4Accel, Mbvh8Accel};
 use geom::Ray;
 
 /// A traceable tree of either width.
@@ -15,6 +15,8 @@ pub enum Accel {
     Bvh2(Bvh2Accel),
     /// A 4-wide tree.
     Mbvh4(Mbvh4Accel),
+    /// An 8-wide tree.
+    Mbvh8(Mbvh8Accel),
 }
 
 impl Accel {
@@ -23,6 +25,7 @@ impl Accel {
         match self {
             Accel::Bvh2(_) => "bvh2",
             Accel::Mbvh4(_) => "mbvh4",
+            Accel::Mbvh8(_) => "mbvh8",
         }
     }
 
@@ -31,6 +34,7 @@ impl Accel {
         match self {
             Accel::Bvh2(a) => a.options(),
             Accel::Mbvh4(a) => a.options(),
+            Accel::Mbvh8(a) => a.options(),
         }
     }
 
@@ -53,6 +57,7 @@ impl Traverse for Accel {
         match self {
             Accel::Bvh2(a) => a.trace_observed(ray, query, stack, stats, obs),
             Accel::Mbvh4(a) => a.trace_observed(ray, query, stack, stats, obs),
+            Accel::Mbvh8(a) => a.trace_observed(ray, query, stack, stats, obs),
         }
     }
 
@@ -60,6 +65,7 @@ impl Traverse for Accel {
         match self {
             Accel::Bvh2(a) => a.node_bytes(),
             Accel::Mbvh4(a) => a.node_bytes(),
+            Accel::Mbvh8(a) => a.node_bytes(),
         }
     }
 
@@ -67,6 +73,7 @@ impl Traverse for Accel {
         match self {
             Accel::Bvh2(a) => a.width(),
             Accel::Mbvh4(a) => a.width(),
+            Accel::Mbvh8(a) => a.width(),
         }
     }
 
@@ -74,6 +81,7 @@ impl Traverse for Accel {
         match self {
             Accel::Bvh2(a) => a.node_count(),
             Accel::Mbvh4(a) => a.node_count(),
+            Accel::Mbvh8(a) => a.node_count(),
         }
     }
 
@@ -81,6 +89,7 @@ impl Traverse for Accel {
         match self {
             Accel::Bvh2(a) => a.source_triangles(),
             Accel::Mbvh4(a) => a.source_triangles(),
+            Accel::Mbvh8(a) => a.source_triangles(),
         }
     }
 
@@ -88,6 +97,7 @@ impl Traverse for Accel {
         match self {
             Accel::Bvh2(a) => a.leaf_entries(),
             Accel::Mbvh4(a) => a.leaf_entries(),
+            Accel::Mbvh8(a) => a.leaf_entries(),
         }
     }
 }

@@ -54,6 +54,10 @@ fn agree_with_brute_force(tris: &[Triangle], rays: usize, seed: u64) {
         let s = check_against(name, a, &rays, &expected);
         assert_eq!(s.hits, hits as u64);
     }
+    for (name, a) in &all_mbvh8(tris) {
+        let s = check_against(name, a, &rays, &expected);
+        assert_eq!(s.hits, hits as u64);
+    }
 }
 
 /// 100K random rays on a random soup: every builder, both widths, both kernels, the
@@ -134,6 +138,12 @@ fn closed_meshes_are_watertight_under_traversal() {
             Default::default(),
         )
         .unwrap();
+        let b8 = crate::Mbvh8Accel::from_bvh2(
+            &bvh::BinnedSahBuilder::default().build(&prims).unwrap(),
+            &tris,
+            Default::default(),
+        )
+        .unwrap();
         let mut r = Rng::new(seed * 77);
         let mut stack = TraversalStack::new();
         let mut stats = RayStats::default();
@@ -171,10 +181,11 @@ fn closed_meshes_are_watertight_under_traversal() {
             };
             made += 1;
             let ray = Ray::new(o, target - o);
-            total += 2;
+            total += 3;
             let m2 = b2.closest_hit(&ray, &mut stack, &mut stats).is_none();
             let m4 = b4.closest_hit(&ray, &mut stack, &mut stats).is_none();
-            misses += m2 as usize + m4 as usize;
+            let m8 = b8.closest_hit(&ray, &mut stack, &mut stats).is_none();
+            misses += m2 as usize + m4 as usize + m8 as usize;
         }
     }
     assert!(total >= 1_000_000);

@@ -74,6 +74,10 @@ fn every_tree_renders_the_same_image() {
             let r = render(a, shading, &s, None, None).unwrap();
             assert!(same_image(&r, &reference), "{kind:?} {name}");
         }
+        for (name, a) in &all_mbvh8(&tris) {
+            let r = render(a, shading, &s, None, None).unwrap();
+            assert!(same_image(&r, &reference), "{kind:?} {name}");
+        }
         // Ray counts: one primary ray per pixel; diffuse adds bounces, shadow one per lit hit.
         let st = &reference.stats;
         assert_eq!(st.per_bounce[0].rays, (s.width * s.height) as u64);

@@ -213,3 +213,18 @@ pub fn all_accels(tris: &[Triangle]) -> (Named<Bvh2Accel>, Named<Mbvh4Accel>) {
     }
     (b2, b4)
 }
+
+/// The 8-wide collapse of every binary tree, with and without the distance stack.
+pub fn all_mbvh8(tris: &[Triangle]) -> Named<crate::Mbvh8Accel> {
+    let mut out = Vec::new();
+    for (name, t) in all_bvh2(tris) {
+        for d in [false, true] {
+            let o = KernelOptions { distance_stack: d };
+            out.push((
+                format!("{name}+collapse8/{o:?}"),
+                crate::Mbvh8Accel::from_bvh2(&t, tris, o).unwrap(),
+            ));
+        }
+    }
+    out
+}
