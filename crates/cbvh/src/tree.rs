@@ -349,6 +349,7 @@ mod tests {
     /// tree's, pair for pair (top-down keeps the numbering; bottom-up is matched through
     /// its decoded tree, which is in preorder like the builder's).
     #[test]
+    #[allow(clippy::needless_range_loop)] // two child slots of parallel arrays
     fn original_child_boxes_are_the_uncompressed_boxes() {
         let prims = crate::bottomup::tests::soup(3000, 5, false);
         let bvh = crate::study::paper_lbvh().build(&prims).unwrap();
