@@ -33,13 +33,20 @@ impl Ctx {
     }
 
     /// The context of a node whose decoded box is `b` (scales by Eq. 2).
+    #[inline]
     pub fn from_decoded(b: &Aabb, p: &Params) -> Self {
         Self {
-            axes: [0, 1, 2].map(|i| AxisCtx::from_decoded(b.min[i], b.max[i], p)),
+            // Written out: `[0, 1, 2].map(..)` is not inlined into a traversal kernel.
+            axes: [
+                AxisCtx::from_decoded(b.min.x, b.max.x, p),
+                AxisCtx::from_decoded(b.min.y, b.max.y, p),
+                AxisCtx::from_decoded(b.min.z, b.max.z, p),
+            ],
         }
     }
 
     /// The node's decoded box.
+    #[inline]
     pub fn aabb(&self) -> Aabb {
         Aabb::new(
             Vec3::new(self.axes[0].lo, self.axes[1].lo, self.axes[2].lo),
@@ -178,7 +185,11 @@ pub fn decode_boxes(pair: &NodePair, ctx: &Ctx, p: &Params) -> [Option<Aabb>; 2]
 fn lo_mods(ctx: &Ctx, p: &Params) -> [i64; 3] {
     match p.coords {
         Coords::Relative => [0; 3],
-        Coords::Modulo => ctx.axes.map(|a| a.lo_mod(p)),
+        Coords::Modulo => [
+            ctx.axes[0].lo_mod(p),
+            ctx.axes[1].lo_mod(p),
+            ctx.axes[2].lo_mod(p),
+        ],
     }
 }
 

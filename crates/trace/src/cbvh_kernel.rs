@@ -56,6 +56,9 @@ thread_local! {
     static CONTEXTS: RefCell<Vec<Ctx>> = RefCell::new(Vec::with_capacity(64));
 }
 
+/// Zero bytes after the last pair (a slot read loads 16 bytes from its first byte).
+const PAD_BYTES: usize = 16;
+
 /// A [`Cbvh`] with its triangles in leaf order, ready to trace. The node pairs are kept
 /// packed, as in memory ([`Cbvh::to_bytes`]).
 #[derive(Clone, Debug)]
@@ -108,8 +111,10 @@ impl CbvhAccel {
             }
         })?;
         let packed = cbvh.to_bytes().map_err(bad)?;
-        let mut bytes = huge_page_vec(packed.len());
+        // Padding, so that every slot is read with one 16-byte load.
+        let mut bytes = huge_page_vec(packed.len() + PAD_BYTES);
         bytes.extend_from_slice(&packed);
+        bytes.resize(packed.len() + PAD_BYTES, 0);
         Ok(Self {
             bytes,
             pair_bytes: pair_bytes(cbvh.params.bits),
@@ -190,12 +195,12 @@ impl CbvhAccel {
         match slot_ptr(s) {
             ChildPtr::Inner(k) => ChildRef::inner(k),
             ChildPtr::Leaf(first) => {
-                let start = first as usize;
-                let len = self.ids[start.min(self.ids.len())..]
-                    .iter()
-                    .position(|&id| id & LEAF_END != 0)
-                    .map_or(0, |p| p + 1);
-                ChildRef::leaf(first, len.max(1) as u32)
+                // Leaves were checked to end inside the array.
+                let mut end = first as usize;
+                while end + 1 < self.ids.len() && self.ids[end] & LEAF_END == 0 {
+                    end += 1;
+                }
+                ChildRef::leaf(first, (end + 1 - first as usize) as u32)
             }
             ChildPtr::Empty => ChildRef::EMPTY,
         }
