@@ -10,7 +10,11 @@
 //! - `fig10.csv`: backtracking and SAH against the minimum scale, cloth vs the others
 //!   (\[P3\] Fig. 10);
 //! - `bits.csv`: quality and backtracking against the coordinate bits `N = 3..=8`;
-//! - `report.md` with all tables, and `table1.svg`, `fig7.svg`, `fig10.svg`.
+//! - `trace_quality.csv`: box and triangle tests per ray, CBVH vs BVH, primary and diffuse
+//!   rays, beside \[P3\] §5.4's averages; `watertight.csv`: the \[P3\] §5.5 check over
+//!   every box test of those renders (see `report_cbvh_trace`);
+//! - `report.md` with all tables, and `table1.svg`, `fig7.svg`, `fig10.svg`,
+//!   `trace_quality.svg`.
 
 use super::build::mesh_aabbs;
 use crate::progress::{Ui, Unit};
@@ -38,6 +42,21 @@ pub struct ReportCbvhArgs {
     /// Skip the minimum-scale sweep (Fig. 10).
     #[arg(long)]
     no_sweep: bool,
+    /// Image size of the ray-traced quality and watertightness measurement (\[P3\] §5.4-5.5).
+    #[arg(long, value_name = "WxH", default_value = "640x360")]
+    trace_size: String,
+    /// Skip the ray-traced measurement.
+    #[arg(long)]
+    no_trace: bool,
+}
+
+/// Parses `WxH`.
+fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
+    let bad = || anyhow::anyhow!("--trace-size must be WIDTHxHEIGHT (1..=4096 each), got '{s}'");
+    let (w, h) = s.split_once(['x', 'X']).ok_or_else(bad)?;
+    let (w, h): (u32, u32) = (w.parse().map_err(|_| bad())?, h.parse().map_err(|_| bad())?);
+    anyhow::ensure!((1..=4096).contains(&w) && (1..=4096).contains(&h), bad());
+    Ok((w, h))
 }
 
 /// \[P3\] Table 1, in the column order of [`Variant::table1`] (TD, R, R2, R3, R4, M, M2,
@@ -201,11 +220,11 @@ const SWEEP_EXPS: [i32; 11] = [-126, -90, -60, -45, -35, -30, -25, -20, -15, -10
 /// same sheet waving at t = 1 s, 92K triangles in all: like \[P3\] Fig. 9, much geometry with
 /// a degenerate axis among geometry without. (A sheet flat everywhere never backtracks: all
 /// its nodes share the minimum scale on that axis.)
-const CLOTH: &str = "cloth";
+pub(super) const CLOTH: &str = "cloth";
 /// The procedural sheet the cloth scene is made of.
-const CLOTH_SHEET: &str = "proc:cloth?n=46000";
+pub(super) const CLOTH_SHEET: &str = "proc:cloth?n=46000";
 /// Time of the waving copy of the sheet.
-const CLOTH_WAVING_S: f32 = 1.0;
+pub(super) const CLOTH_WAVING_S: f32 = 1.0;
 /// Real scenes of the default list (files under `--scene-dir`).
 const REAL: [&str; 5] = [
     "bunny.ply",
@@ -228,7 +247,7 @@ struct SceneRun {
 const BITS: [u32; 6] = [3, 4, 5, 6, 7, 8];
 
 /// Short name of a scene spec (file stem, or procedural name).
-fn short_name(spec: &str) -> String {
+pub(super) fn short_name(spec: &str) -> String {
     if let Some(rest) = spec.strip_prefix("proc:") {
         return rest.split('?').next().unwrap_or(rest).to_string();
     }
@@ -273,6 +292,7 @@ pub fn run(a: &ReportCbvhArgs, ui: &Ui) -> anyhow::Result<()> {
         }
     };
     anyhow::ensure!(!specs.is_empty(), "no scenes to run on");
+    let trace_size = parse_size(&a.trace_size)?;
     let variants = Variant::table1();
     let params = Params::default();
     let sweeps = if a.no_sweep { 0 } else { specs.len() };
@@ -317,6 +337,11 @@ pub fn run(a: &ReportCbvhArgs, ui: &Ui) -> anyhow::Result<()> {
         });
     }
     bar.finish();
+    let traced = if a.no_trace {
+        None
+    } else {
+        Some(super::report_cbvh_trace::measure(&specs, trace_size, ui)?)
+    };
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("cannot create {}", a.out.display()))?;
     let t1 = table1(&runs, &variants);
@@ -332,6 +357,9 @@ pub fn run(a: &ReportCbvhArgs, ui: &Ui) -> anyhow::Result<()> {
     write_table1(&a.out, &mut md, &t1, &variants)?;
     write_table3(&a.out, &mut md, &runs)?;
     write_quality(&a.out, &mut md, &runs)?;
+    if let Some(rows) = &traced {
+        super::report_cbvh_trace::write_tables(&a.out, &mut md, rows, trace_size)?;
+    }
     write_fig7(&a.out, &mut md, &runs)?;
     if !a.no_sweep {
         write_fig10(&a.out, &mut md, &runs)?;
@@ -731,13 +759,17 @@ fn write_bits(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Result<
     write(out, "bits.csv", &csv)
 }
 
-fn write(dir: &Path, name: &str, text: &str) -> anyhow::Result<()> {
+pub(super) fn write(dir: &Path, name: &str, text: &str) -> anyhow::Result<()> {
     let p = dir.join(name);
     std::fs::write(&p, text).with_context(|| format!("cannot write {}", p.display()))
 }
 
 /// A grouped bar chart: one group per label, one bar per series (missing values skipped).
-fn bar_svg(title: &str, labels: &[String], series: &[(String, Vec<Option<f64>>)]) -> String {
+pub(super) fn bar_svg(
+    title: &str,
+    labels: &[String],
+    series: &[(String, Vec<Option<f64>>)],
+) -> String {
     const COLORS: [&str; 6] = [
         "#1f77b4", "#aec7e8", "#d62728", "#ff9896", "#2ca02c", "#98df8a",
     ];
@@ -824,5 +856,9 @@ mod tests {
         assert_eq!(short_name("proc:cloth?n=5"), "cloth");
         let svg = bar_svg("t<", &["a".into()], &[("s".into(), vec![Some(1.0)])]);
         assert!(svg.contains("t&lt;") && svg.ends_with("</svg>\n"));
+        assert_eq!(parse_size("640x360").unwrap(), (640, 360));
+        for bad in ["640", "0x10", "10x", "axb", "5000x10"] {
+            assert!(parse_size(bad).is_err(), "{bad}");
+        }
     }
 }
