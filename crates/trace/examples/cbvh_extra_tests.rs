@@ -12,8 +12,8 @@
 
 use cbvh::codec::{slot_ptr, ChildPtr};
 use cbvh::{compress_topdown, Params};
-use geom::{ray_aabb, Aabb, Ray, RayPrecomp, Vec3};
-use trace::render::{render_observed, RayRecorder};
+use geom::{ray_aabb, Aabb, RayPrecomp, Vec3};
+use trace::render::record_rays;
 use trace::{
     BoxObserver, Bvh2Accel, CbvhAccel, KernelOptions, RayKind, RayStats, RenderSettings, Shading,
     TraversalStack,
@@ -87,18 +87,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         triangles: &tris,
         material_ids: &[],
     };
-    let mut rays: Vec<(Ray, u8, trace::Query)> = Vec::new();
-    render_observed(
-        &b2,
-        sh,
-        &s,
-        RayRecorder::default,
-        |r| {
-            rays.extend(r.rays);
-            Ok(())
-        },
-        None,
-    )?;
+    let rays = record_rays(&b2, sh, &s)?;
     println!("{spec}: {} rays", rays.len());
     for (label, primary) in [("primary", true), ("bounces", false)] {
         let mut ex = Extra {

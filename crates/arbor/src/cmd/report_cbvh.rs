@@ -220,11 +220,11 @@ const SWEEP_EXPS: [i32; 11] = [-126, -90, -60, -45, -35, -30, -25, -20, -15, -10
 /// same sheet waving at t = 1 s, 92K triangles in all: like \[P3\] Fig. 9, much geometry with
 /// a degenerate axis among geometry without. (A sheet flat everywhere never backtracks: all
 /// its nodes share the minimum scale on that axis.)
-pub(super) const CLOTH: &str = "cloth";
+const CLOTH: &str = "cloth";
 /// The procedural sheet the cloth scene is made of.
-pub(super) const CLOTH_SHEET: &str = "proc:cloth?n=46000";
+const CLOTH_SHEET: &str = "proc:cloth?n=46000";
 /// Time of the waving copy of the sheet.
-pub(super) const CLOTH_WAVING_S: f32 = 1.0;
+const CLOTH_WAVING_S: f32 = 1.0;
 /// Real scenes of the default list (files under `--scene-dir`).
 const REAL: [&str; 5] = [
     "bunny.ply",
@@ -247,7 +247,7 @@ struct SceneRun {
 const BITS: [u32; 6] = [3, 4, 5, 6, 7, 8];
 
 /// Short name of a scene spec (file stem, or procedural name).
-pub(super) fn short_name(spec: &str) -> String {
+fn short_name(spec: &str) -> String {
     if let Some(rest) = spec.strip_prefix("proc:") {
         return rest.split('?').next().unwrap_or(rest).to_string();
     }
@@ -257,8 +257,11 @@ pub(super) fn short_name(spec: &str) -> String {
         .unwrap_or_else(|| spec.to_string())
 }
 
-/// The primitive boxes of a scene spec at t = 0 (or of the report's cloth).
-fn load(spec: &str) -> anyhow::Result<(String, Vec<geom::Aabb>)> {
+/// The triangles of a scene spec at t = 0 (or of the report's cloth: both sheets), by name,
+/// with the scene's camera.
+pub(super) fn load_triangles(
+    spec: &str,
+) -> anyhow::Result<(String, Vec<geom::Triangle>, scene::Camera)> {
     let (source, times) = if spec == CLOTH {
         (CLOTH_SHEET, vec![0.0, CLOTH_WAVING_S])
     } else {
@@ -266,14 +269,22 @@ fn load(spec: &str) -> anyhow::Result<(String, Vec<geom::Aabb>)> {
     };
     let scene = scene::open(source, &scene::LoadOptions::default())
         .with_context(|| format!("cannot open {source}"))?;
-    let mut prims = Vec::new();
+    let mut tris = Vec::new();
     for t in times {
         let mesh = scene
             .mesh_at(t)
             .with_context(|| format!("cannot sample {source}"))?;
-        prims.extend(mesh_aabbs(&mesh)?.0);
+        // Checks the indices (a bad mesh is an error, not a panic).
+        mesh_aabbs(&mesh)?;
+        tris.extend(mesh.triangles_iter());
     }
-    Ok((short_name(spec), prims))
+    Ok((short_name(spec), tris, scene.info().camera))
+}
+
+/// The primitive boxes of a scene spec (see [`load_triangles`]).
+fn load(spec: &str) -> anyhow::Result<(String, Vec<geom::Aabb>)> {
+    let (name, tris, _) = load_triangles(spec)?;
+    Ok((name, bvh::triangle_aabbs(&tris)))
 }
 
 /// Runs `arbor report cbvh`.

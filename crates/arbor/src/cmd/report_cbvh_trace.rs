@@ -15,9 +15,8 @@
 //! [`ARBITRATED`] such rays are traced by brute force, and the CBVH must agree with it (the
 //! uncompressed kernel is then the one that missed; the count is reported).
 
-use super::report_cbvh::{bar_svg, short_name, write, CLOTH, CLOTH_SHEET, CLOTH_WAVING_S};
+use super::report_cbvh::{bar_svg, load_triangles, write};
 use crate::progress::{Ui, Unit};
-use anyhow::Context;
 use cbvh::bottomup::{compress_hlbvh, StreamConfig};
 use cbvh::{compress_topdown, Coords, Params};
 use geom::{Triangle, Vec3};
@@ -26,7 +25,7 @@ use serde::Serialize;
 use std::fmt::Write as _;
 use std::path::Path;
 use std::time::Instant;
-use trace::render::{render_observed, RayRecorder};
+use trace::render::record_rays;
 use trace::{
     brute_force, Bvh2Accel, CbvhAccel, Hit, KernelOptions, Query, RayKind, RayStats,
     RenderSettings, Shading, TraversalStack, Traverse, WatertightCheck, WatertightStats,
@@ -111,24 +110,9 @@ impl QualityRow {
     }
 }
 
-/// Triangles and camera of a report scene spec (the report's cloth: both sheets).
+/// Triangles and camera of a report scene spec: the scene's camera, or the interior one.
 fn load_traced(spec: &str) -> anyhow::Result<(String, Vec<Triangle>, scene::Camera)> {
-    let (source, times) = if spec == CLOTH {
-        (CLOTH_SHEET, vec![0.0, CLOTH_WAVING_S])
-    } else {
-        (spec, vec![0.0])
-    };
-    let scene = scene::open(source, &scene::LoadOptions::default())
-        .with_context(|| format!("cannot open {source}"))?;
-    let mut tris = Vec::new();
-    for t in times {
-        let mesh = scene
-            .mesh_at(t)
-            .with_context(|| format!("cannot sample {source}"))?;
-        tris.extend(mesh.triangles_iter());
-    }
-    let name = short_name(spec);
-    let mut camera = scene.info().camera;
+    let (name, tris, mut camera) = load_triangles(spec)?;
     if let Some((_, eye, target, fov)) = INTERIOR.iter().find(|c| c.0 == name) {
         camera.eye = Vec3::from(*eye);
         camera.target = Vec3::from(*target);
@@ -200,18 +184,7 @@ pub fn measure(specs: &[String], size: (u32, u32), ui: &Ui) -> anyhow::Result<Ve
         for kind in [RayKind::Primary, RayKind::Diffuse] {
             let mut s = RenderSettings::new(camera);
             (s.width, s.height, s.rays, s.bounces) = (size.0, size.1, kind, BOUNCES);
-            let mut rays = Vec::new();
-            render_observed(
-                &b2,
-                shading,
-                &s,
-                RayRecorder::default,
-                |r| {
-                    rays.extend(r.rays);
-                    Ok(())
-                },
-                None,
-            )?;
+            let rays = record_rays(&b2, shading, &s)?;
             let check = WatertightCheck::new(&m4, &tris, options)?;
             let (bvh, bvh_hits, bvh_s) = trace_all(&b2, &rays);
             let (cbvh, td_hits, td_s) = trace_all(&c_td, &rays);
