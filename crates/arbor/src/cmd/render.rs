@@ -30,7 +30,8 @@ pub struct RenderArgs {
     #[arg(long, value_name = "NAME", default_value = "binned-sah")]
     builder: String,
     /// Tree format to trace: bvh2, mbvh4, or cbvh (the binary tree compressed into 16-byte
-    /// node pairs, \[P3\]; options below as for `arbor cbvh`).
+    /// node pairs of the thesis's P3; --encoder, --coords, --treelet, --bits and
+    /// --min-scale-exp as for `arbor cbvh`).
     #[arg(long, value_name = "FORMAT", default_value = "bvh2")]
     format: String,
     /// Compression of `--format cbvh`.
