@@ -13,7 +13,7 @@
 use crate::observer::{Observer, Query};
 use crate::stats::RayStats;
 use bvh::ChildRef;
-use geom::{intersect_triangle_watertight, Ray, RayPrecomp, Triangle};
+use geom::{intersect_triangles4_watertight, Ray, RayPrecomp, Triangle, Triangles4};
 
 /// A ray/triangle hit found by traversal.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -79,19 +79,21 @@ impl TraversalStack {
         }
     }
 
-    /// Pushes `child`, counting the push and the depth.
+    /// Pushes `child` (a packed reference, see [`LeafTriangles`]), counting the push and
+    /// the depth; the observer sees the tree's own reference.
     #[inline(always)]
     pub(crate) fn push<O: Observer>(
         &mut self,
         child: ChildRef,
         dist: f32,
+        leaf: &LeafTriangles,
         stats: &mut RayStats,
         obs: &mut O,
     ) {
         self.entries.push(StackEntry { child, dist });
         stats.pushes += 1;
         stats.max_stack_depth = stats.max_stack_depth.max(self.entries.len() as u64);
-        obs.push(child);
+        obs.push(leaf.original(child));
     }
 
     /// Pops the next entry to traverse. With `distance_culling`, entries whose entry
@@ -209,43 +211,138 @@ pub(crate) fn fmin(a: f32, b: f32) -> f32 {
     }
 }
 
-/// Triangles stored in leaf-table order, so a leaf's triangles are contiguous in memory,
-/// with the primitive id of each.
+/// A leaf's triangles packed for 4-wide tests.
+///
+/// Triangles live in blocks of four ([`Triangles4`], structure of arrays). Leaves are
+/// placed in tree order: a leaf of up to four triangles goes into the lanes left free in
+/// the current block if it fits there, otherwise it starts a new block; a larger leaf
+/// starts a new block and fills as many as it needs. A kernel's private copy of the nodes
+/// names a leaf by its *slot* `block * 4 + lane` (and keeps its count), so one leaf is
+/// tested with one 4-wide test per block it spans, and trees with one triangle per leaf
+/// (LBVH) still pack four to a block. Each slot remembers its leaf-table entry, so hits,
+/// counters and logs name the tree's own leaf-table entries.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct LeafTriangles {
-    pub tris: Vec<Triangle>,
-    pub prims: Vec<u32>,
+    blocks: Vec<Triangles4>,
+    /// Leaf-table entry of each lane of each block (`u32::MAX` for an unused lane).
+    entries: Vec<[u32; 4]>,
+    /// Primitive id of each leaf-table entry (the tree's `prim_indices`).
+    prims: Vec<u32>,
     /// Length of the triangle list the tree was built over.
     pub source_len: usize,
 }
 
+/// Why the triangles of a tree cannot be packed.
+pub(crate) enum PackError {
+    /// Leaf-table entry `.0` names triangle `.1`, which does not exist.
+    Missing(usize, u32),
+    /// More slots than a 32-bit slot index addresses.
+    TooLarge,
+}
+
+impl PackError {
+    /// As a [`TraceError`], for a tree over `triangles` triangles.
+    pub fn into_trace_error(self, triangles: usize) -> crate::TraceError {
+        match self {
+            PackError::Missing(entry, prim) => crate::TraceError::PrimitiveOutOfRange {
+                entry,
+                prim,
+                triangles,
+            },
+            PackError::TooLarge => {
+                crate::TraceError::BadTree("too many leaf triangles to address".into())
+            }
+        }
+    }
+}
+
 impl LeafTriangles {
-    /// Triangles of `prim_indices` in order; `None` names the first entry out of range.
-    pub fn new(prim_indices: &[u32], triangles: &[Triangle]) -> Result<Self, (usize, u32)> {
-        let mut tris = huge_page_vec(prim_indices.len());
-        for (k, &p) in prim_indices.iter().enumerate() {
-            tris.push(*triangles.get(p as usize).ok_or((k, p))?);
+    /// Packs the leaves named by the leaf children `leaves` (the kernel's private node
+    /// copy, in tree order), rewriting each to name its slot. Leaf ranges must lie inside
+    /// `prim_indices` (checked by `check_links` first).
+    pub fn pack<'a>(
+        prim_indices: &[u32],
+        triangles: &[Triangle],
+        leaves: impl Iterator<Item = &'a mut ChildRef>,
+    ) -> Result<Self, PackError> {
+        let mut blocks: Vec<Triangles4> = huge_page_vec(prim_indices.len().div_ceil(4) + 1);
+        let mut entries: Vec<[u32; 4]> = Vec::with_capacity(blocks.capacity());
+        let mut fill = 4usize; // lanes used in the last block (4: none free)
+        for c in leaves.filter(|c| c.is_leaf()) {
+            let count = c.count as usize;
+            if count > 4 || fill + count > 4 {
+                fill = 4;
+            }
+            let mut slot = None;
+            for k in 0..count {
+                let entry = c.index as usize + k;
+                let prim = prim_indices[entry];
+                let tri = triangles
+                    .get(prim as usize)
+                    .ok_or(PackError::Missing(entry, prim))?;
+                if fill == 4 {
+                    blocks.push(Triangles4::pack(&[*tri]));
+                    entries.push([u32::MAX; 4]);
+                    fill = 0;
+                }
+                let b = blocks.len() - 1;
+                for (v, vk) in blocks[b].v.iter_mut().enumerate() {
+                    for (a, row) in vk.iter_mut().enumerate() {
+                        row[fill] = tri.v[v][a];
+                    }
+                }
+                entries[b][fill] = entry as u32;
+                slot.get_or_insert(b * 4 + fill);
+                fill += 1;
+            }
+            c.index = u32::try_from(slot.unwrap_or(0)).map_err(|_| PackError::TooLarge)?;
         }
         Ok(Self {
-            tris,
+            blocks,
+            entries,
             prims: prim_indices.to_vec(),
             source_len: triangles.len(),
         })
     }
 
-    /// Prefetches the first triangle of the leaf starting at entry `first`.
-    #[inline(always)]
-    pub fn prefetch(&self, first: u32) {
-        prefetch(self.tris.as_ptr().wrapping_add(first as usize));
+    /// Leaf-table entries (the tree's `prim_indices.len()`).
+    pub fn entry_count(&self) -> usize {
+        self.prims.len()
     }
 
-    /// Tests the leaf of entries `first .. first + count`; updates `best` and `best_t`.
-    /// Returns true when an any-hit query has found its hit and traversal should stop.
+    /// The tree's own reference for a (packed) child: leaves name their first leaf-table
+    /// entry again, inner children are unchanged. (Panic-free, so that with the unit
+    /// observer, which ignores the result, it compiles away.)
+    #[inline(always)]
+    pub fn original(&self, c: ChildRef) -> ChildRef {
+        if c.is_leaf() {
+            let e = self
+                .entries
+                .get(c.index as usize / 4)
+                .map_or(u32::MAX, |b| b[c.index as usize % 4]);
+            ChildRef::leaf(e, c.count)
+        } else {
+            c
+        }
+    }
+
+    /// Prefetches the first block of the leaf at `slot`.
+    #[inline(always)]
+    pub fn prefetch(&self, slot: u32) {
+        prefetch(self.blocks.as_ptr().wrapping_add(slot as usize / 4));
+    }
+
+    /// Tests the leaf of `count` triangles at `slot`; updates `best` and `best_t`. Returns
+    /// true when an any-hit query has found its hit and traversal should stop.
+    ///
+    /// Counters follow the one-at-a-time semantics of the hardware IST unit and of the
+    /// log: every triangle of the leaf is one test, except that an any-hit ray stops at its
+    /// hit, so the lanes after it are not counted.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     pub fn intersect<O: Observer>(
         &self,
-        first: u32,
+        slot: u32,
         count: u32,
         pre: &RayPrecomp,
         t_min: f32,
@@ -256,29 +353,46 @@ impl LeafTriangles {
         obs: &mut O,
     ) -> bool {
         stats.leaf_visits += 1;
-        obs.leaf(first, count);
-        let start = first as usize;
-        let end = start + count as usize;
-        // A malformed tree (entries beyond the table) tests what exists; trees from this
-        // crate's constructors are validated, so this only guards against panics.
-        let end = end.min(self.tris.len());
-        for k in start..end {
-            stats.tri_tests += 1;
-            if let Some(h) = intersect_triangle_watertight(pre, &self.tris[k], t_min, *best_t) {
+        obs.leaf(self.original(ChildRef::leaf(slot, count)).index, count);
+        let mut block = slot as usize / 4;
+        let mut lane = slot as usize % 4;
+        let mut left = count as usize;
+        while left > 0 {
+            // A malformed tree cannot send us past the blocks (leaves were packed from
+            // checked ranges), but stay panic-free regardless.
+            let (Some(tris), Some(entries)) = (self.blocks.get(block), self.entries.get(block))
+            else {
+                break;
+            };
+            let n = left.min(4 - lane);
+            let lanes = (((1u32 << n) - 1) << lane) as u8;
+            let h = intersect_triangles4_watertight(pre, tris, lanes, t_min, *best_t);
+            let mut m = h.mask;
+            let mut tested = n as u64;
+            while m != 0 {
+                let i = m.trailing_zeros() as usize;
+                m &= m - 1;
+                let entry = entries[i];
                 let hit = Hit {
-                    t: h.t,
-                    prim: self.prims[k],
-                    leaf_entry: k as u32,
-                    bary: h.bary,
+                    t: h.t[i],
+                    prim: self.prims.get(entry as usize).copied().unwrap_or(u32::MAX),
+                    leaf_entry: entry,
+                    bary: [h.bary[0][i], h.bary[1][i], h.bary[2][i]],
                 };
                 if hit.beats(best.as_ref()) {
                     *best_t = hit.t;
                     *best = Some(hit);
                     if query == Query::Any {
+                        tested = (i - lane + 1) as u64;
+                        stats.tri_tests += tested;
                         return true;
                     }
                 }
             }
+            stats.tri_tests += tested;
+            left -= n;
+            lane = 0;
+            block += 1;
         }
         false
     }

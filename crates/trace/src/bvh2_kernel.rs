@@ -71,9 +71,11 @@ pub struct Bvh2Accel {
 
 /// Both child boxes of `n` against the ray: entry distances, and which were hit within
 /// `[t_min, t_max]`. Per axis the four plane distances are computed at once; the nearer
-/// and farther of each child's pair are its entry and exit on that axis.
+/// and farther of each child's pair are its entry and exit on that axis. (The portable
+/// form; x86-64 uses [`test2_sse`], which computes the same values.)
+#[cfg_attr(target_arch = "x86_64", allow(dead_code))]
 #[inline(always)]
-fn test2(
+fn test2_portable(
     n: &SoaNode2,
     o: &[f32; 3],
     inv: &[f32; 3],
@@ -99,6 +101,63 @@ fn test2(
     (near, hit)
 }
 
+/// [`test2_portable`] in SSE (part of every x86-64 CPU): per axis one subtract and one
+/// multiply for the four planes, a half swap, and `minps`/`maxps` (which, like `fmin` and
+/// `fmax`, return their second operand on ties), so the same bits.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn test2_sse(
+    n: &SoaNode2,
+    o: &[f32; 3],
+    inv: &[f32; 3],
+    t_min: f32,
+    t_max: f32,
+) -> ([f32; 2], [bool; 2]) {
+    use std::arch::x86_64::*;
+    // SAFETY: SSE is part of the x86-64 baseline; each load reads one [f32; 4] row.
+    unsafe {
+        let mut near = _mm_set1_ps(t_min);
+        let mut far = _mm_set1_ps(f32::INFINITY);
+        for a in 0..3 {
+            let t = _mm_mul_ps(
+                _mm_sub_ps(_mm_loadu_ps(n.rows[a].as_ptr()), _mm_set1_ps(o[a])),
+                _mm_set1_ps(inv[a]),
+            );
+            // [t2, t3, t0, t1]: each child's other plane on this axis.
+            let swapped = _mm_shuffle_ps::<0b01_00_11_10>(t, t);
+            near = _mm_max_ps(near, _mm_min_ps(t, swapped));
+            far = _mm_min_ps(far, _mm_max_ps(t, swapped));
+        }
+        let limit = _mm_min_ps(
+            _mm_mul_ps(far, _mm_set1_ps(SLAB_FAR_SCALE)),
+            _mm_set1_ps(t_max),
+        );
+        let mask = _mm_movemask_ps(_mm_cmple_ps(near, limit));
+        let mut d = [0f32; 4];
+        _mm_storeu_ps(d.as_mut_ptr(), near);
+        ([d[0], d[1]], [mask & 1 != 0, mask & 2 != 0])
+    }
+}
+
+/// The child-box test of the kernel.
+#[inline(always)]
+fn test2(
+    n: &SoaNode2,
+    o: &[f32; 3],
+    inv: &[f32; 3],
+    t_min: f32,
+    t_max: f32,
+) -> ([f32; 2], [bool; 2]) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        test2_sse(n, o, inv, t_min, t_max)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        test2_portable(n, o, inv, t_min, t_max)
+    }
+}
+
 impl Bvh2Accel {
     /// Prepares `bvh` (built over `triangles`) for tracing. Fails when a leaf-table entry
     /// names a triangle that does not exist, or a child link points outside the tree.
@@ -107,21 +166,20 @@ impl Bvh2Accel {
         triangles: &[Triangle],
         options: KernelOptions,
     ) -> Result<Self, TraceError> {
-        let leaf = LeafTriangles::new(&bvh.prim_indices, triangles).map_err(|(entry, prim)| {
-            TraceError::PrimitiveOutOfRange {
-                entry,
-                prim,
-                triangles: triangles.len(),
-            }
-        })?;
         check_links(
             bvh.nodes.iter().flat_map(|n| n.children.iter()),
             2,
             bvh.nodes.len(),
             bvh.prim_indices.len(),
         )?;
-        let mut nodes = huge_page_vec(bvh.nodes.len());
+        let mut nodes: Vec<SoaNode2> = huge_page_vec(bvh.nodes.len());
         nodes.extend(bvh.nodes.iter().map(SoaNode2::new));
+        let leaf = LeafTriangles::pack(
+            &bvh.prim_indices,
+            triangles,
+            nodes.iter_mut().flat_map(|n| n.children.iter_mut()),
+        )
+        .map_err(|e| e.into_trace_error(triangles.len()))?;
         Ok(Self {
             nodes,
             leaf,
@@ -198,7 +256,7 @@ impl Bvh2Accel {
                         } else {
                             prefetch(nodes.as_ptr().wrapping_add(far.index as usize));
                         }
-                        stack.push(far, far_d, stats, obs);
+                        stack.push(far, far_d, &self.leaf, stats, obs);
                         cur = Some(near);
                         continue;
                     }
@@ -256,7 +314,7 @@ impl Traverse for Bvh2Accel {
     }
 
     fn leaf_entries(&self) -> usize {
-        self.leaf.prims.len()
+        self.leaf.entry_count()
     }
 }
 
@@ -291,4 +349,46 @@ pub(crate) fn check_links<'a>(
         return Err(TraceError::BadTree("the tree has no root node".into()));
     }
     Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The SSE box test computes the portable test's values bit for bit.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn sse_box_test_equals_the_portable_one() {
+        let mut r = crate::testutil::Rng::new(7);
+        for _ in 0..20_000 {
+            let boxes = [0, 1].map(|_| {
+                let a = r.vec() * 3.0;
+                let b = a + (r.vec() + geom::Vec3::ONE) * if r.f32() < 0.2 { 0.0 } else { 1.0 };
+                geom::Aabb::new(a.min(b), a.max(b))
+            });
+            let c1 = if r.f32() < 0.1 {
+                ChildRef::EMPTY
+            } else {
+                ChildRef::leaf(0, 1)
+            };
+            let node = bvh::Node::new(&boxes[0], ChildRef::leaf(0, 1), &boxes[1], c1);
+            let n = SoaNode2::new(&node);
+            let mut d = r.vec();
+            if r.f32() < 0.2 {
+                d.y = 0.0;
+            }
+            let pre = RayPrecomp::new(&Ray::new(r.vec() * 5.0, d));
+            let (o, inv) = (pre.origin.to_array(), pre.inv_dir.to_array());
+            let t_min = r.f32() * 0.1;
+            let t_max = if r.f32() < 0.5 {
+                1.0 + r.f32() * 20.0
+            } else {
+                f32::INFINITY
+            };
+            let (a, ha) = test2_portable(&n, &o, &inv, t_min, t_max);
+            let (b, hb) = test2_sse(&n, &o, &inv, t_min, t_max);
+            assert_eq!(ha, hb);
+            assert_eq!(a.map(f32::to_bits), b.map(f32::to_bits));
+        }
+    }
 }

@@ -32,7 +32,7 @@ use crate::stats::RayStats;
 use crate::{KernelOptions, TraceError};
 use bvh::ChildRef;
 use cbvh::codec::{decode_boxes, slot_ptr, ChildPtr};
-use cbvh::format::{pair_bytes, NodePair, Slot, LEAF_END};
+use cbvh::format::{pair_bytes, NodePair, Slot};
 use cbvh::{Cbvh, Ctx, Params};
 use geom::{ray_aabb, Aabb, Ray, RayPrecomp, Triangle};
 use std::cell::RefCell;
@@ -70,8 +70,9 @@ pub struct CbvhAccel {
     params: Params,
     root: u32,
     root_ctx: Ctx,
-    /// The primitive-id array with its leaf-end flags (a leaf ends at the first flag).
-    ids: Vec<u32>,
+    /// Per primitive-id entry that starts a leaf: the leaf's slot in `leaf` and its length
+    /// (from the leaf-end flags of the primitive-id array).
+    leaf_of: Vec<[u32; 2]>,
     leaf: LeafTriangles,
     options: KernelOptions,
 }
@@ -101,15 +102,22 @@ impl CbvhAccel {
                 }
             }
         }
+        // The leaves in tree order (the decode is in preorder), packed for 4-wide tests;
+        // `leaf_of` maps a leaf pointer (its first primitive-id entry) to its slot.
+        let mut leaves: Vec<ChildRef> = decoded
+            .nodes
+            .iter()
+            .flat_map(|n| n.children)
+            .filter(|c| c.is_leaf())
+            .collect();
+        let firsts: Vec<u32> = leaves.iter().map(|c| c.index).collect();
+        let leaf = LeafTriangles::pack(&decoded.prim_indices, triangles, leaves.iter_mut())
+            .map_err(|e| e.into_trace_error(triangles.len()))?;
         drop(decoded);
-        let plain: Vec<u32> = cbvh.prim_ids.iter().map(|&i| i & !LEAF_END).collect();
-        let leaf = LeafTriangles::new(&plain, triangles).map_err(|(entry, prim)| {
-            TraceError::PrimitiveOutOfRange {
-                entry,
-                prim,
-                triangles: triangles.len(),
-            }
-        })?;
+        let mut leaf_of = vec![[u32::MAX, 0]; cbvh.prim_ids.len()];
+        for (first, packed) in firsts.iter().zip(&leaves) {
+            leaf_of[*first as usize] = [packed.index, packed.count];
+        }
         let packed = cbvh.to_bytes().map_err(bad)?;
         // Padding, so that every slot is read with one 16-byte load.
         let mut bytes = huge_page_vec(packed.len() + PAD_BYTES);
@@ -122,7 +130,7 @@ impl CbvhAccel {
             params: cbvh.params,
             root: cbvh.root,
             root_ctx: cbvh.root_ctx,
-            ids: cbvh.prim_ids.clone(),
+            leaf_of,
             leaf,
             options,
         })
@@ -188,19 +196,19 @@ impl CbvhAccel {
             })
     }
 
-    /// The child a slot names: an inner pair, or a leaf with its length found from the
-    /// leaf-end flags of the primitive-id array.
+    /// The child a slot names: an inner pair, or a leaf (its packed slot and length).
     #[inline(always)]
     fn child(&self, s: &Slot) -> ChildRef {
         match slot_ptr(s) {
             ChildPtr::Inner(k) => ChildRef::inner(k),
             ChildPtr::Leaf(first) => {
-                // Leaves were checked to end inside the array.
-                let mut end = first as usize;
-                while end + 1 < self.ids.len() && self.ids[end] & LEAF_END == 0 {
-                    end += 1;
-                }
-                ChildRef::leaf(first, (end + 1 - first as usize) as u32)
+                // Every leaf of the tree was packed at construction.
+                let [slot, count] = self
+                    .leaf_of
+                    .get(first as usize)
+                    .copied()
+                    .unwrap_or([u32::MAX, 1]);
+                ChildRef::leaf(slot, count.max(1))
             }
             ChildPtr::Empty => ChildRef::EMPTY,
         }
@@ -288,7 +296,7 @@ impl CbvhAccel {
                                     .wrapping_add(fc.index as usize * self.pair_bytes),
                             );
                         }
-                        stack.push(fc, far_d, stats, obs);
+                        stack.push(fc, far_d, &self.leaf, stats, obs);
                         ctxs.push(fctx);
                         cur = Some(enter(near));
                         continue;
@@ -349,6 +357,6 @@ impl Traverse for CbvhAccel {
     }
 
     fn leaf_entries(&self) -> usize {
-        self.leaf.prims.len()
+        self.leaf.entry_count()
     }
 }

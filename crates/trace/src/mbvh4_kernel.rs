@@ -36,21 +36,19 @@ pub struct Mbvh4Accel {
 }
 
 /// Entry distances of the four children of a node; `+inf` for a missed or empty slot.
+/// (The portable form; x86-64 uses [`test4_sse`], which computes the same values.)
+#[cfg_attr(target_arch = "x86_64", allow(dead_code))]
 #[inline(always)]
-fn test4(slab: &Slab, n: &Node4, t_max: f32) -> ([f32; 4], u8) {
-    let planes = [&n.min_x, &n.min_y, &n.min_z, &n.max_x, &n.max_y, &n.max_z];
+fn test4_portable(slab: &Slab, n: &Node4, t_max: f32) -> ([f32; 4], u8, u8) {
+    // Padded to eight so that an index masked with 7 needs no bounds check.
+    let planes = [
+        &n.min_x, &n.min_y, &n.min_z, &n.max_x, &n.max_y, &n.max_z, &n.max_z, &n.max_z,
+    ];
     let o = slab.origin;
     let d = slab.inv_dir;
-    let (nx, ny, nz) = (
-        planes[slab.near[0]],
-        planes[slab.near[1]],
-        planes[slab.near[2]],
-    );
-    let (fx, fy, fz) = (
-        planes[slab.far[0]],
-        planes[slab.far[1]],
-        planes[slab.far[2]],
-    );
+    let row = |p: usize| planes[p & 7];
+    let (nx, ny, nz) = (row(slab.near[0]), row(slab.near[1]), row(slab.near[2]));
+    let (fx, fy, fz) = (row(slab.far[0]), row(slab.far[1]), row(slab.far[2]));
     let mut dist = [f32::INFINITY; 4];
     let mut mask = 0u8;
     for i in 0..4 {
@@ -66,7 +64,66 @@ fn test4(slab: &Slab, n: &Node4, t_max: f32) -> ([f32; 4], u8) {
         dist[i] = if hit { near } else { f32::INFINITY };
         mask |= (hit as u8) << i;
     }
-    (dist, mask)
+    let valid = (0..4).fold(0u8, |v, i| v | ((n.min_x[i] < f32::INFINITY) as u8) << i);
+    (dist, mask, valid)
+}
+
+/// [`test4_portable`] in SSE (part of every x86-64 CPU): the same operations in the same
+/// order (`maxps`/`minps` return their second operand on NaN, as `fmax`/`fmin` do), so the
+/// same bits, but the hit mask comes from one `movmskps` and nothing goes through memory
+/// lane by lane.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn test4_sse(slab: &Slab, n: &Node4, t_max: f32) -> ([f32; 4], u8, u8) {
+    use std::arch::x86_64::*;
+    // SAFETY: SSE and SSE2 are part of the x86-64 baseline; the six plane rows of a Node4
+    // are [f32; 4] fields, so each load reads 16 bytes inside the node.
+    unsafe {
+        let base = n as *const Node4 as *const f32;
+        let row = |p: usize| _mm_loadu_ps(base.add((p % 6) * 4));
+        let o = slab.origin;
+        let d = slab.inv_dir;
+        let t = |p: usize, a: usize| {
+            _mm_mul_ps(_mm_sub_ps(row(p), _mm_set1_ps(o[a])), _mm_set1_ps(d[a]))
+        };
+        let near = _mm_max_ps(
+            _mm_max_ps(t(slab.near[0], 0), t(slab.near[1], 1)),
+            _mm_max_ps(t(slab.near[2], 2), _mm_set1_ps(slab.t_min)),
+        );
+        let far = _mm_mul_ps(
+            _mm_min_ps(
+                _mm_min_ps(t(slab.far[0], 0), t(slab.far[1], 1)),
+                t(slab.far[2], 2),
+            ),
+            _mm_set1_ps(SLAB_FAR_SCALE),
+        );
+        let hit = _mm_cmple_ps(near, _mm_min_ps(far, _mm_set1_ps(t_max)));
+        let dist = _mm_or_ps(
+            _mm_and_ps(hit, near),
+            _mm_andnot_ps(hit, _mm_set1_ps(f32::INFINITY)),
+        );
+        let mut out = [0f32; 4];
+        _mm_storeu_ps(out.as_mut_ptr(), dist);
+        let inf = _mm_set1_ps(f32::INFINITY);
+        let valid = _mm_movemask_ps(_mm_cmplt_ps(row(0), inf)) as u8;
+        (out, _mm_movemask_ps(hit) as u8, valid)
+    }
+}
+
+/// The child-box test of the kernel: entry distances, the hit mask, and the mask of
+/// non-empty slots (an empty slot is the only one whose box has `min_x = +inf`: trees over
+/// finite primitives have finite boxes), read off the loaded box rows instead of the four
+/// child references.
+#[inline(always)]
+fn test4(slab: &Slab, n: &Node4, t_max: f32) -> ([f32; 4], u8, u8) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        test4_sse(slab, n, t_max)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        test4_portable(slab, n, t_max)
+    }
 }
 
 /// Sorts four keys with the five comparators of the optimal 4-input network ([P4]
@@ -86,6 +143,9 @@ pub fn sort4(k: &mut [u32; 4]) {
     cmp(k, 1, 3);
     cmp(k, 1, 2);
 }
+
+/// Bits set in a 4-bit mask (a table: the target's baseline has no popcount instruction).
+const POPCOUNT4: [u8; 16] = [0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4];
 
 /// Sort keys of the hit children: the entry distance mapped to an order-preserving
 /// unsigned integer with its two low bits replaced by the slot number (so a key names its
@@ -115,21 +175,20 @@ impl Mbvh4Accel {
         triangles: &[Triangle],
         options: KernelOptions,
     ) -> Result<Self, TraceError> {
-        let leaf = LeafTriangles::new(&bvh.prim_indices, triangles).map_err(|(entry, prim)| {
-            TraceError::PrimitiveOutOfRange {
-                entry,
-                prim,
-                triangles: triangles.len(),
-            }
-        })?;
         check_links(
             bvh.nodes.iter().flat_map(|n| n.children.iter()),
             4,
             bvh.nodes.len(),
             bvh.prim_indices.len(),
         )?;
-        let mut nodes = huge_page_vec(bvh.nodes.len());
+        let mut nodes: Vec<AlignedNode4> = huge_page_vec(bvh.nodes.len());
         nodes.extend(bvh.nodes.iter().map(|n| AlignedNode4(*n)));
+        let leaf = LeafTriangles::pack(
+            &bvh.prim_indices,
+            triangles,
+            nodes.iter_mut().flat_map(|n| n.0.children.iter_mut()),
+        )
+        .map_err(|e| e.into_trace_error(triangles.len()))?;
         Ok(Self {
             nodes,
             leaf,
@@ -140,6 +199,18 @@ impl Mbvh4Accel {
     /// The kernel options.
     pub fn options(&self) -> KernelOptions {
         self.options
+    }
+
+    /// Starts loading a child that traversal will visit later (both cache lines of a node).
+    #[inline(always)]
+    fn prefetch_child(&self, child: ChildRef) {
+        if child.is_leaf() {
+            self.leaf.prefetch(child.index);
+        } else {
+            let p = self.nodes.as_ptr().wrapping_add(child.index as usize);
+            prefetch(p);
+            prefetch((p as *const u8).wrapping_add(64));
+        }
     }
 
     fn run<const DIST: bool, O: Observer>(
@@ -183,38 +254,39 @@ impl Mbvh4Accel {
                 }
             } else {
                 let node = &nodes[c.index as usize].0;
-                let (dist, mask) = test4(&slab, node, cull_distance(best_t));
-                let valid = node
-                    .children
-                    .iter()
-                    .enumerate()
-                    .fold(0u8, |m, (i, ch)| m | ((!ch.is_empty() as u8) << i));
+                let (dist, mask, valid) = test4(&slab, node, cull_distance(best_t));
+                let kids = &node.children;
                 stats.node_visits += 1;
-                stats.box_tests += valid.count_ones() as u64;
+                stats.box_tests += POPCOUNT4[valid as usize & 15] as u64;
                 obs.node(c.index, valid, mask);
-                match mask.count_ones() {
+                match POPCOUNT4[mask as usize & 15] {
                     0 => {}
                     1 => {
-                        cur = Some(node.children[mask.trailing_zeros() as usize]);
+                        cur = Some(kids[mask.trailing_zeros() as usize & 3]);
+                        continue;
+                    }
+                    2 => {
+                        // Two hits need one comparison, not the whole network.
+                        let a = mask.trailing_zeros() as usize & 3;
+                        let b = (7 - (mask.leading_zeros() as usize)) & 3;
+                        let (near, far) = if dist[b] < dist[a] { (b, a) } else { (a, b) };
+                        self.prefetch_child(kids[far]);
+                        stack.push(kids[far], dist[far], &self.leaf, stats, obs);
+                        cur = Some(kids[near]);
                         continue;
                     }
                     hits => {
+                        let hits = hits as usize;
                         let mut keys = child_keys(&dist, mask);
                         sort4(&mut keys);
                         // Push the far ones far-to-near so the nearest of them pops first.
-                        for k in (1..hits as usize).rev() {
+                        for k in (1..hits).rev() {
                             let slot = (keys[k] & 3) as usize;
-                            let child = node.children[slot];
-                            if child.is_leaf() {
-                                self.leaf.prefetch(child.index);
-                            } else {
-                                let p = nodes.as_ptr().wrapping_add(child.index as usize);
-                                prefetch(p);
-                                prefetch((p as *const u8).wrapping_add(64));
-                            }
-                            stack.push(child, dist[slot], stats, obs);
+                            let child = kids[slot];
+                            self.prefetch_child(child);
+                            stack.push(child, dist[slot], &self.leaf, stats, obs);
                         }
-                        cur = Some(node.children[(keys[0] & 3) as usize]);
+                        cur = Some(kids[(keys[0] & 3) as usize]);
                         continue;
                     }
                 }
@@ -262,13 +334,51 @@ impl Traverse for Mbvh4Accel {
     }
 
     fn leaf_entries(&self) -> usize {
-        self.leaf.prims.len()
+        self.leaf.entry_count()
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The SSE box test computes the portable test's values bit for bit.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn sse_box_test_equals_the_portable_one() {
+        let mut r = crate::testutil::Rng::new(5);
+        for _ in 0..20_000 {
+            let mut n = Node4::EMPTY;
+            for i in 0..(1 + (r.f32() * 4.0) as usize).min(4) {
+                let a = r.vec() * 3.0;
+                let b = a + (r.vec() + geom::Vec3::ONE) * if r.f32() < 0.2 { 0.0 } else { 1.0 };
+                n.set_child_aabb(i, &geom::Aabb::new(a.min(b), a.max(b)));
+            }
+            let mut d = r.vec();
+            if r.f32() < 0.2 {
+                d.x = 0.0;
+            }
+            let ray = Ray::with_range(r.vec() * 5.0, d, r.f32() * 0.1, 1.0 + r.f32() * 20.0);
+            let pre = RayPrecomp::new(&ray);
+            let slab = Slab::new(&pre, ray.t_min);
+            let t_max = if r.f32() < 0.5 {
+                ray.t_max
+            } else {
+                f32::INFINITY
+            };
+            let (a, ma, va) = test4_portable(&slab, &n, t_max);
+            let (b, mb, vb) = test4_sse(&slab, &n, t_max);
+            assert_eq!((ma, va), (mb, vb));
+            // The valid mask names exactly the slots that were given a box.
+            let given = n
+                .min_x
+                .iter()
+                .enumerate()
+                .fold(0u8, |v, (i, &x)| v | ((x != f32::INFINITY) as u8) << i);
+            assert_eq!(va, given);
+            assert_eq!(a.map(f32::to_bits), b.map(f32::to_bits));
+        }
+    }
 
     /// The five-comparator network sorts every ordering of four distinct keys, and the
     /// child keys order hit slots by distance (misses last, ties by slot).

@@ -88,7 +88,7 @@ struct RenderRow {
 }
 
 /// The memory systems of \[P2\] §6.2 (slow, medium, fast) the demo simulates MergeTree on.
-const MERGETREE_DRAMS: [&str; 3] = ["lpddr3-1600-1x64", "lpddr3-1600-2x64", "lpddr3-1333-4x64"];
+const MERGETREE_DRAMS: [&str; 3] = sim::thesis::P2_SYSTEMS;
 
 /// One MergeTree simulation of the demo (`mergetree` in `summary.json`).
 #[derive(Serialize)]
@@ -421,8 +421,7 @@ fn mergetree_step(
         let same = sim::mergetree::tree_matches_software(&r, &aabbs)?;
         let svg = out.join(format!("mergetree-{dram}.svg"));
         let title = format!("MergeTree p2, {dram}: frame 0, {} triangles", r.triangles);
-        std::fs::write(&svg, r.trace_svg(&title))
-            .with_context(|| format!("cannot write {}", svg.display()))?;
+        super::report::write_atomic(&svg, &r.trace_svg(&title))?;
         println!(
             "             {dram:<17} {:>10} {:>9.4} {:>9.3} {:>11.3} {:>8.1}%  {}",
             thousands(r.cycles),

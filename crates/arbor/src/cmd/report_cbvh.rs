@@ -17,6 +17,7 @@
 //!   `trace_quality.svg`.
 
 use super::build::mesh_aabbs;
+use super::report::{bar_svg, short_name, write_file as write, SHARED_SCENES};
 use crate::progress::{Ui, Unit};
 use anyhow::Context;
 use cbvh::study::{
@@ -37,7 +38,7 @@ pub struct ReportCbvhArgs {
     #[arg(long, value_name = "LIST", value_delimiter = ',')]
     scenes: Option<Vec<String>>,
     /// Folder of the shared real scenes.
-    #[arg(long, value_name = "DIR", default_value = "/work/shared/scenes")]
+    #[arg(long, value_name = "DIR", default_value = SHARED_SCENES)]
     scene_dir: PathBuf,
     /// Skip the minimum-scale sweep (Fig. 10).
     #[arg(long)]
@@ -246,17 +247,6 @@ struct SceneRun {
 /// Coordinate bits of the bits study.
 const BITS: [u32; 6] = [3, 4, 5, 6, 7, 8];
 
-/// Short name of a scene spec (file stem, or procedural name).
-fn short_name(spec: &str) -> String {
-    if let Some(rest) = spec.strip_prefix("proc:") {
-        return rest.split('?').next().unwrap_or(rest).to_string();
-    }
-    Path::new(spec)
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_else(|| spec.to_string())
-}
-
 /// The triangles of a scene spec at t = 0 (or of the report's cloth: both sheets), by name,
 /// with the scene's camera.
 pub(super) fn load_triangles(
@@ -376,8 +366,7 @@ pub fn run(a: &ReportCbvhArgs, ui: &Ui) -> anyhow::Result<()> {
         write_fig10(&a.out, &mut md, &runs)?;
         write_bits(&a.out, &mut md, &runs)?;
     }
-    let path = a.out.join("report.md");
-    std::fs::write(&path, &md).with_context(|| format!("cannot write {}", path.display()))?;
+    write(&a.out, "report.md", &md)?;
     println!("{md}");
     println!("wrote {}", a.out.display());
     Ok(())
@@ -770,103 +759,14 @@ fn write_bits(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Result<
     write(out, "bits.csv", &csv)
 }
 
-pub(super) fn write(dir: &Path, name: &str, text: &str) -> anyhow::Result<()> {
-    let p = dir.join(name);
-    std::fs::write(&p, text).with_context(|| format!("cannot write {}", p.display()))
-}
-
-/// A grouped bar chart: one group per label, one bar per series (missing values skipped).
-pub(super) fn bar_svg(
-    title: &str,
-    labels: &[String],
-    series: &[(String, Vec<Option<f64>>)],
-) -> String {
-    const COLORS: [&str; 6] = [
-        "#1f77b4", "#aec7e8", "#d62728", "#ff9896", "#2ca02c", "#98df8a",
-    ];
-    let (w, h, left, bottom, top) = (760.0, 360.0, 60.0, 40.0, 40.0);
-    let max = series
-        .iter()
-        .flat_map(|s| s.1.iter().flatten())
-        .cloned()
-        .fold(0.0f64, f64::max)
-        .max(1e-9);
-    let plot_h = h - bottom - top;
-    let group_w = (w - left - 20.0) / labels.len().max(1) as f64;
-    let bar_w = group_w * 0.8 / series.len().max(1) as f64;
-    let mut s = format!(
-        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\" font-family=\"sans-serif\" font-size=\"11\">\n\
-         <rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n<text x=\"{left}\" y=\"20\" font-size=\"13\">{}</text>\n",
-        xml(title)
-    );
-    for k in 0..=4 {
-        let v = max * k as f64 / 4.0;
-        let y = h - bottom - plot_h * k as f64 / 4.0;
-        let _ = writeln!(
-            s,
-            "<line x1=\"{left}\" y1=\"{y:.1}\" x2=\"{:.1}\" y2=\"{y:.1}\" stroke=\"#ddd\"/><text x=\"4\" y=\"{:.1}\">{v:.3}</text>",
-            w - 20.0,
-            y + 4.0
-        );
-    }
-    for (gi, l) in labels.iter().enumerate() {
-        let gx = left + gi as f64 * group_w + group_w * 0.1;
-        for (si, (_, vals)) in series.iter().enumerate() {
-            if let Some(Some(v)) = vals.get(gi) {
-                let bh = plot_h * v / max;
-                let _ = writeln!(
-                    s,
-                    "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"{:.1}\" height=\"{bh:.1}\" fill=\"{}\"><title>{}: {v:.4}</title></rect>",
-                    gx + si as f64 * bar_w,
-                    h - bottom - bh,
-                    bar_w.max(1.0),
-                    COLORS[si % COLORS.len()],
-                    xml(&series[si].0)
-                );
-            }
-        }
-        let _ = writeln!(
-            s,
-            "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{}</text>",
-            gx + group_w * 0.4,
-            h - bottom + 14.0,
-            xml(l)
-        );
-    }
-    for (si, (name, _)) in series.iter().enumerate() {
-        let x = left + si as f64 * 150.0;
-        let _ = writeln!(
-            s,
-            "<rect x=\"{x}\" y=\"{:.1}\" width=\"10\" height=\"10\" fill=\"{}\"/><text x=\"{:.1}\" y=\"{:.1}\">{}</text>",
-            h - 14.0,
-            COLORS[si % COLORS.len()],
-            x + 14.0,
-            h - 5.0,
-            xml(name)
-        );
-    }
-    s.push_str("</svg>\n");
-    s
-}
-
-fn xml(t: &str) -> String {
-    t.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
-    fn thesis_table_has_nine_columns_and_names() {
+    fn thesis_table_has_nine_columns() {
         assert_eq!(P3_TABLE1.len(), 9);
         assert_eq!(Variant::table1().len(), 9);
-        assert_eq!(short_name("/a/b/bunny.ply"), "bunny");
-        assert_eq!(short_name("proc:cloth?n=5"), "cloth");
-        let svg = bar_svg("t<", &["a".into()], &[("s".into(), vec![Some(1.0)])]);
-        assert!(svg.contains("t&lt;") && svg.ends_with("</svg>\n"));
         assert_eq!(parse_size("640x360").unwrap(), (640, 360));
         for bad in ["640", "0x10", "10x", "axb", "5000x10"] {
             assert!(parse_size(bad).is_err(), "{bad}");

@@ -15,7 +15,8 @@
 //! [`ARBITRATED`] such rays are traced by brute force, and the CBVH must agree with it (the
 //! uncompressed kernel is then the one that missed; the count is reported).
 
-use super::report_cbvh::{bar_svg, load_triangles, write};
+use super::report::{bar_svg, write_file as write};
+use super::report_cbvh::load_triangles;
 use crate::progress::{Ui, Unit};
 use cbvh::bottomup::{compress_hlbvh, StreamConfig};
 use cbvh::{compress_topdown, Coords, Params};
