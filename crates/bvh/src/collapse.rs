@@ -425,7 +425,12 @@ mod tests {
             }
         }
         assert_eq!(leaves, bvh.stats().leaves);
-        assert!(w8.nodes.len() * 3 < m4.nodes.len() * 2, "{} vs {}", w8.nodes.len(), m4.nodes.len());
+        assert!(
+            w8.nodes.len() * 3 < m4.nodes.len() * 2,
+            "{} vs {}",
+            w8.nodes.len(),
+            m4.nodes.len()
+        );
         let w4 = Collapse::default().collapse_wide::<4>(&bvh).unwrap();
         assert_eq!(w4.nodes.len(), m4.nodes.len());
         for (a, b) in w4.nodes.iter().zip(&m4.nodes) {

@@ -225,7 +225,12 @@ pub const ARBOR_KERNELS: [(&str, &str, bool, bool); 5] = [
     ("arbor bvh2 binned-sah +dist", "binned-sah", false, true),
     ("arbor mbvh4 collapse(binned-sah)", "binned-sah", true, true),
     ("arbor mbvh4 topdown", "mbvh4-topdown", true, true),
-    ("arbor mbvh8 collapse(binned-sah)", "binned-sah-8", true, true),
+    (
+        "arbor mbvh8 collapse(binned-sah)",
+        "binned-sah-8",
+        true,
+        true,
+    ),
 ];
 
 /// Prints the traversal counters per ray of every Arbor kernel on both ray sets (what a
@@ -337,7 +342,10 @@ pub fn run(
             ("binned-sah-8", _) => {
                 let t0 = Instant::now();
                 let a = trace::Mbvh8Accel::from_bvh2(&binned, &tris, o)?;
-                (Accel::Mbvh8(a), binned_ms + t0.elapsed().as_secs_f64() * 1e3)
+                (
+                    Accel::Mbvh8(a),
+                    binned_ms + t0.elapsed().as_secs_f64() * 1e3,
+                )
             }
             _ => (
                 Accel::Mbvh4(Mbvh4Accel::new(topdown.clone(), &tris, o)?),

@@ -94,7 +94,10 @@ fn test_half(slab: &Slab, n: &Node8, lo: usize, t_max: f32) -> ([f32; 4], u8, u8
             _mm_max_ps(t(slab.near[2], 2), _mm_set1_ps(slab.t_min)),
         );
         let far = _mm_mul_ps(
-            _mm_min_ps(_mm_min_ps(t(slab.far[0], 0), t(slab.far[1], 1)), t(slab.far[2], 2)),
+            _mm_min_ps(
+                _mm_min_ps(t(slab.far[0], 0), t(slab.far[1], 1)),
+                t(slab.far[2], 2),
+            ),
             _mm_set1_ps(SLAB_FAR_SCALE),
         );
         let hit = _mm_cmple_ps(near, _mm_min_ps(far, _mm_set1_ps(t_max)));
@@ -122,7 +125,10 @@ fn test_half(slab: &Slab, n: &Node8, lo: usize, t_max: f32) -> ([f32; 4], u8, u8
             fmax(v(slab.near[0], 0), v(slab.near[1], 1)),
             fmax(v(slab.near[2], 2), slab.t_min),
         );
-        let far = fmin(fmin(v(slab.far[0], 0), v(slab.far[1], 1)), v(slab.far[2], 2)) * SLAB_FAR_SCALE;
+        let far = fmin(
+            fmin(v(slab.far[0], 0), v(slab.far[1], 1)),
+            v(slab.far[2], 2),
+        ) * SLAB_FAR_SCALE;
         let hit = near <= fmin(far, t_max);
         dist[i] = if hit { near } else { f32::INFINITY };
         mask |= (hit as u8) << i;
