@@ -265,3 +265,77 @@ fn tiny_trees_and_bad_rays() {
     // A tree over triangles that are not there is refused.
     assert!(crate::Bvh2Accel::new(t, &none, Default::default()).is_err());
 }
+
+/// Rays that start on surfaces far from the world origin (the bounce rays of a path
+/// tracer): coplanar, overlapping and axis-aligned triangles at coordinates near 1000,
+/// origins on the triangles themselves (offset and not offset), every kernel equals brute
+/// force. Near the origin the triangle test's distance has an absolute error of about an
+/// ulp of the coordinates; without the own-box condition of a hit, the kernels and brute
+/// force disagree on such rays (as they did on Conference).
+#[test]
+fn rays_leaving_surfaces_far_from_the_origin_match_brute_force() {
+    let mut r = Rng::new(31);
+    let base = Vec3::new(1350.0, -1.5, -340.0);
+    let mut tris = Vec::new();
+    for i in 0..400 {
+        let p = base + r.vec() * Vec3::new(40.0, 2.0, 40.0);
+        let (a, b) = (r.vec() * 3.0, r.vec() * 3.0);
+        let t = match i % 4 {
+            // Flat in y (floors), often overlapping each other.
+            0 | 1 => Triangle::new(
+                p,
+                p + Vec3::new(a.x, 0.0, a.z),
+                p + Vec3::new(b.x, 0.0, b.z),
+            ),
+            // A coplanar duplicate, shifted within its plane.
+            2 => {
+                let q = tris
+                    .last()
+                    .copied()
+                    .unwrap_or(Triangle::new(p, p + a, p + b));
+                let s = Vec3::new(0.3, 0.0, -0.2);
+                Triangle::new(q.v[0] + s, q.v[1] + s, q.v[2] + s)
+            }
+            _ => Triangle::new(p, p + a, p + b),
+        };
+        tris.push(t);
+    }
+    let mut rays = Vec::new();
+    for k in 0..20_000 {
+        let t = &tris[k % tris.len()];
+        let (u, v) = (r.f32(), r.f32());
+        let (u, v) = if u + v > 1.0 {
+            (1.0 - u, 1.0 - v)
+        } else {
+            (u, v)
+        };
+        let p = t.v[0] * (1.0 - u - v) + t.v[1] * u + t.v[2] * v;
+        let n = t.normal().normalize_or_zero();
+        if n == Vec3::ZERO {
+            continue;
+        }
+        let n = if r.f32() < 0.5 { n } else { -n };
+        let d = crate::sampling::cosine_hemisphere(n, r.f32(), r.f32());
+        let o = if k % 2 == 0 {
+            p
+        } else {
+            crate::sampling::offset_origin(p, n)
+        };
+        rays.push(Ray::new(o, d));
+    }
+    let expected: Vec<Option<Hit>> = rays.iter().map(|ray| brute_force(ray, &tris)).collect();
+    assert!(expected.iter().filter(|h| h.is_some()).count() > rays.len() / 20);
+    let (b2, b4) = all_accels(&tris);
+    for (name, a) in &b2 {
+        check_against(name, a, &rays, &expected);
+    }
+    for (name, a) in &b4 {
+        check_against(name, a, &rays, &expected);
+    }
+    for (name, a) in &all_mbvh8(&tris) {
+        check_against(name, a, &rays, &expected);
+    }
+    for (name, a) in all_cbvh(&tris).iter().step_by(5) {
+        check_against(name, a, &rays, &expected);
+    }
+}
