@@ -126,6 +126,7 @@ fn log_totals_equal_the_tracer_counters() {
     };
     let (b2, b4) = all_accels(&tris);
     let cb = all_cbvh(&tris);
+    let b8 = all_mbvh8(&tris);
     let dir = tempfile::tempdir().unwrap();
     for kind in [RayKind::Diffuse, RayKind::Shadow] {
         let s = settings(kind);
@@ -133,6 +134,7 @@ fn log_totals_equal_the_tracer_counters() {
             (&b2[1].0, &b2[1].1 as &dyn TraverseDyn),
             (&b4[1].0, &b4[1].1 as &dyn TraverseDyn),
             (&cb[7].0, &cb[7].1 as &dyn TraverseDyn),
+            (&b8[1].0, &b8[1].1 as &dyn TraverseDyn),
         ] {
             let path = dir.path().join("t.bin");
             let header = LogHeader {

@@ -29,7 +29,8 @@ pub struct RenderArgs {
     /// natively, any other builder's tree is collapsed for `--format mbvh4`.
     #[arg(long, value_name = "NAME", default_value = "binned-sah")]
     builder: String,
-    /// Tree format to trace: bvh2, mbvh4, or cbvh (the binary tree compressed into 16-byte
+    /// Tree format to trace: bvh2, mbvh4, mbvh8 (8-wide, beyond the thesis), or cbvh (the
+    /// binary tree compressed into 16-byte
     /// node pairs of the thesis's P3; --encoder, --coords, --treelet, --bits and
     /// --min-scale-exp as for `arbor cbvh`).
     #[arg(long, value_name = "FORMAT", default_value = "bvh2")]
@@ -71,7 +72,8 @@ pub struct RenderArgs {
     /// Sampling seed (diffuse rays).
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Distance stack on or off (default: off for bvh2, on for mbvh4, as in [P4] §3).
+    /// Distance stack on or off (default: off for bvh2 and cbvh, on for mbvh4 and mbvh8, as
+    /// in [P4] §3).
     #[arg(long, value_name = "on|off")]
     distance_stack: Option<String>,
     /// Worker threads (default: all cores).
@@ -276,6 +278,8 @@ pub enum Format {
     Mbvh4,
     /// Compressed binary nodes (\[P3\]).
     Cbvh,
+    /// 8-wide nodes (beyond the thesis: the SAH-guided collapse to eight children).
+    Mbvh8,
 }
 
 /// Parses a format name.
@@ -284,7 +288,8 @@ pub fn parse_format(s: &str) -> anyhow::Result<Format> {
         "bvh2" => Ok(Format::Bvh2),
         "mbvh4" => Ok(Format::Mbvh4),
         "cbvh" => Ok(Format::Cbvh),
-        _ => bail!("unknown format '{s}'; valid: bvh2, mbvh4, cbvh"),
+        "mbvh8" => Ok(Format::Mbvh8),
+        _ => bail!("unknown format '{s}'; valid: bvh2, mbvh4, mbvh8, cbvh"),
     }
 }
 
@@ -364,6 +369,18 @@ pub fn build_accel_with(
             build_ms += ms(s.elapsed());
             (
                 Accel::Mbvh4(trace::Mbvh4Accel::new(m, triangles, options)?),
+                build_ms,
+                None,
+            )
+        }
+        Format::Mbvh8 => {
+            let s = Instant::now();
+            let wide = bvh::Collapse::default()
+                .collapse_wide::<{ trace::WIDTH8 }>(&tree)
+                .context("cannot collapse the tree to 8 wide")?;
+            build_ms += ms(s.elapsed());
+            (
+                Accel::Mbvh8(trace::Mbvh8Accel::new(wide, triangles, options)?),
                 build_ms,
                 None,
             )
@@ -452,7 +469,7 @@ pub fn run(a: &RenderArgs, ui: &Ui) -> anyhow::Result<()> {
     }
     let distance_stack = match &a.distance_stack {
         Some(s) => parse_on_off("--distance-stack", s)?,
-        None => format == Format::Mbvh4,
+        None => matches!(format, Format::Mbvh4 | Format::Mbvh8),
     };
     let heat_scale = match &a.heatmap_scale {
         None => None,
