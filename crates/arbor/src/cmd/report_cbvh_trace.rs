@@ -194,8 +194,16 @@ pub fn measure(specs: &[String], size: (u32, u32), ui: &Ui) -> anyhow::Result<Ve
                         let truth = key(brute_force(&rays[i].0, &tris));
                         format!(
                             "ray {i}: CBVH {}, BVH {}",
-                            if td_hits[i] == truth { "right" } else { "wrong" },
-                            if bvh_hits[i] == truth { "right" } else { "wrong" }
+                            if td_hits[i] == truth {
+                                "right"
+                            } else {
+                                "wrong"
+                            },
+                            if bvh_hits[i] == truth {
+                                "right"
+                            } else {
+                                "wrong"
+                            }
                         )
                     })
                     .collect();
