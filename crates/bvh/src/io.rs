@@ -119,7 +119,9 @@ pub enum IoError {
         version: u32,
     },
     /// The file holds the other kind of tree than the caller asked for.
-    #[error("the tree file holds a {found} tree, not a {expected} (read it with bvh::io::read_tree)")]
+    #[error(
+        "the tree file holds a {found} tree, not a {expected} (read it with bvh::io::read_tree)"
+    )]
     WrongKind {
         /// The kind asked for.
         expected: TreeKind,
@@ -263,7 +265,11 @@ impl FileNode for Node {
     const BYTES: usize = NODE_BYTES;
     fn encode(&self, out: &mut [u8]) {
         let o = put_words(out, 0, self.bounds.iter().flatten().map(|v| v.to_bits()));
-        put_words(out, o, self.children.iter().flat_map(|c| [c.index, c.count]));
+        put_words(
+            out,
+            o,
+            self.children.iter().flat_map(|c| [c.index, c.count]),
+        );
     }
     fn decode(b: &[u8]) -> Self {
         let mut bounds = [[0.0f32; 6]; 2];
@@ -290,7 +296,11 @@ impl FileNode for Node4 {
             &self.max_z,
         ];
         let o = put_words(out, 0, planes.iter().flat_map(|p| p.map(f32::to_bits)));
-        put_words(out, o, self.children.iter().flat_map(|c| [c.index, c.count]));
+        put_words(
+            out,
+            o,
+            self.children.iter().flat_map(|c| [c.index, c.count]),
+        );
     }
     fn decode(b: &[u8]) -> Self {
         let plane = |p: usize| [0, 1, 2, 3].map(|i| f32_at(b, 16 * p + 4 * i));
@@ -516,7 +526,12 @@ pub fn read_tree(r: impl Read) -> Result<(Tree, Header), IoError> {
             })
         }
         TreeKind::Mbvh4 => {
-            let nodes = r.records(node_count as usize, NODE4_BYTES, "node array", Node4::decode)?;
+            let nodes = r.records(
+                node_count as usize,
+                NODE4_BYTES,
+                "node array",
+                Node4::decode,
+            )?;
             let prim_indices = read_leaf_table(&mut r, leaf_table_len)?;
             Tree::Mbvh4(Mbvh4 {
                 nodes,
@@ -786,7 +801,10 @@ mod tests {
         let binned = BinnedSahBuilder::default().build(&prims).unwrap();
         let one = Mbvh4TopDownBuilder::default().build(&prims[..1]).unwrap();
         let trees = [
-            ("mbvh4-topdown", Mbvh4TopDownBuilder::default().build(&prims).unwrap()),
+            (
+                "mbvh4-topdown",
+                Mbvh4TopDownBuilder::default().build(&prims).unwrap(),
+            ),
             ("mbvh4-collapse", collapse(&binned).unwrap()),
             ("empty", Mbvh4::empty()),
             ("one", one),

@@ -230,11 +230,17 @@ mod tests {
         assert_eq!(tm.prim_count(), 3000);
         assert_eq!(tm.bounds(), m.bounds);
         // Refit to moved boxes keeps the tree valid over them.
-        let moved: Vec<Aabb> = prims.iter().map(|p| Aabb::new(p.min * 2.0, p.max * 2.0)).collect();
+        let moved: Vec<Aabb> = prims
+            .iter()
+            .map(|p| Aabb::new(p.min * 2.0, p.max * 2.0))
+            .collect();
         for mut t in [tb, tm] {
             t.refit(&moved).unwrap();
             assert_eq!(t.validate(&moved, 8), Ok(()));
-            assert_eq!(t.bounds(), moved.iter().fold(Aabb::EMPTY, |a, b| a.union(*b)));
+            assert_eq!(
+                t.bounds(),
+                moved.iter().fold(Aabb::EMPTY, |a, b| a.union(*b))
+            );
         }
         assert_eq!(TreeKind::Mbvh4.to_string(), "Mbvh4");
     }
