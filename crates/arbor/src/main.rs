@@ -3,8 +3,13 @@
 //! library crates; `--json` output is the stable interface for scripts (see
 //! `docs/cli-json.md`).
 
+mod alloc;
 mod cmd;
 mod progress;
+
+/// Counts live and peak bytes for `arbor bench build`'s memory column.
+#[global_allocator]
+static ALLOC: alloc::Counting = alloc::Counting;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -36,6 +41,8 @@ enum Command {
     Cbvh(cmd::cbvh::CbvhArgs),
     /// Regenerate a table or figure of the thesis (CSV, Markdown, SVG).
     Report(cmd::report::ReportArgs),
+    /// Benchmark Arbor against peer libraries in one run (`arbor bench build`).
+    Bench(cmd::bench::BenchArgs),
 }
 
 fn main() -> ExitCode {
@@ -48,6 +55,7 @@ fn main() -> ExitCode {
         Command::Sim(a) => cmd::sim::run(&a, &ui),
         Command::Cbvh(a) => cmd::cbvh::run(&a, &ui),
         Command::Report(a) => cmd::report::run(&a, &ui),
+        Command::Bench(a) => cmd::bench::run(&a, &ui),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,
