@@ -19,6 +19,7 @@ pub mod io;
 mod lbvh;
 mod mbvh4;
 mod mbvh4_topdown;
+mod morton_sort;
 mod node;
 mod refit;
 mod sah;
