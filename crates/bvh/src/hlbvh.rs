@@ -487,7 +487,7 @@ impl Ties {
             return (k as u32, true);
         }
         self.run = if same { self.run + 1 } else { 0 };
-        (self.run / self.max_leaf, self.run % self.max_leaf == 0)
+        (self.run / self.max_leaf, self.run.is_multiple_of(self.max_leaf))
     }
 }
 
