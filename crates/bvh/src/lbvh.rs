@@ -79,7 +79,8 @@ impl LbvhBuilder {
         let sorted = sort_by_morton(aabbs, self.bits);
         let splits = karras_splits(&sorted.codes);
         let n = aabbs.len();
-        let mut nodes = vec![Node::EMPTY; n - 1];
+        // Every node is written by `emit_node`.
+        let mut nodes = crate::node::zeroed_nodes(n - 1);
         let ctx = Emit {
             aabbs,
             order: &sorted.order,
