@@ -3,7 +3,8 @@
 //! PLOC, the `bvh` crate), on the same meshes, in one process and one run, as ratios.
 //!
 //! For every scene the triangle boxes at t = 0 are built by every builder on each thread
-//! count, `--runs` times; the fastest run is reported. Arbor's builders run in a rayon pool
+//! count, `--runs` rounds of one build per builder in turn (so that load from other
+//! processes falls on all builders alike); the fastest run is reported. Arbor's builders run in a rayon pool
 //! of that size (created outside the timing) through the same registry as `arbor build`;
 //! the peers through `crates/peers`, timed over the peer's build call alone (input copy
 //! and conversion to `Bvh2` excluded), Embree on a device of that many threads. Every tree
@@ -439,32 +440,58 @@ fn best_and_median(times: &mut [f64]) -> (f64, f64) {
     (times[0], times[times.len() / 2])
 }
 
-/// Measures `entry` on `aabbs`: `runs` builds, the last tree validated.
-fn measure(
-    e: Entry,
+/// What the runs of one builder measured.
+struct Measured {
+    /// Wall time of each run, milliseconds.
+    times: Vec<f64>,
+    /// Largest peak extra bytes over the runs.
+    peak: usize,
+    /// Tree width, SAH and bytes (of the first run's tree; every run builds the same).
+    width: usize,
+    sah: f64,
+    bytes: usize,
+}
+
+/// Measures every builder in `entries` on `aabbs`, `runs` rounds, each round one build per
+/// builder in turn, so that load from other processes, which comes and goes, falls on all
+/// builders alike rather than on whichever ran during it. Each builder's first tree is
+/// validated (untimed) and every tree is freed before the next build.
+fn measure_all(
+    entries: &[Entry],
     aabbs: &[Aabb],
     threads: usize,
     runs: usize,
     w: &Workers,
     tick: &mut dyn FnMut(),
-) -> anyhow::Result<(Tree, Vec<f64>, usize)> {
-    let mut times = Vec::with_capacity(runs);
-    let mut peak = 0usize;
-    let mut tree = None;
+) -> anyhow::Result<Vec<Measured>> {
+    let mut out: Vec<Option<Measured>> = entries.iter().map(|_| None).collect();
     for _ in 0..runs {
-        // The previous tree is freed first, so that runs see the same heap.
-        drop(tree.take());
-        let (t, d, p) =
-            build_once(e, aabbs, threads, w).with_context(|| format!("{} failed", e.label()))?;
-        times.push(d.as_secs_f64() * 1e3);
-        peak = peak.max(p);
-        tree = Some(t);
-        tick();
+        for (e, m) in entries.iter().zip(out.iter_mut()) {
+            let (t, d, p) = build_once(*e, aabbs, threads, w)
+                .with_context(|| format!("{} failed", e.label()))?;
+            let ms = d.as_secs_f64() * 1e3;
+            match m {
+                Some(m) => {
+                    m.times.push(ms);
+                    m.peak = m.peak.max(p);
+                }
+                None => {
+                    t.validate(aabbs, max_leaf(*e))
+                        .with_context(|| format!("{} built an invalid tree", e.label()))?;
+                    *m = Some(Measured {
+                        times: vec![ms],
+                        peak: p,
+                        width: t.kind().width(),
+                        sah: t.normalized_sah(),
+                        bytes: t.bytes(),
+                    });
+                }
+            }
+            drop(t);
+            tick();
+        }
     }
-    let tree = tree.context("no runs")?;
-    tree.validate(aabbs, max_leaf(e))
-        .with_context(|| format!("{} built an invalid tree", e.label()))?;
-    Ok((tree, times, peak))
+    out.into_iter().map(|m| m.context("no runs")).collect()
 }
 
 /// Checks the arguments that need no scene.
@@ -578,12 +605,10 @@ pub fn run(args: &BenchBuildArgs, ui: &Ui) -> anyhow::Result<()> {
         let mut scene_rows = Vec::new();
         for &threads in &args.threads {
             let workers = Workers::new(threads, &run)?;
-            for &e in &run {
-                let (tree, mut times, peak) =
-                    measure(e, &aabbs, threads, args.runs, &workers, &mut tick)?;
-                let (best_ms, median_ms) = best_and_median(&mut times);
+            let measured = measure_all(&run, &aabbs, threads, args.runs, &workers, &mut tick)?;
+            for (&e, mut m) in run.iter().zip(measured) {
+                let (best_ms, median_ms) = best_and_median(&mut m.times);
                 let input_bytes = n * INPUT_BYTES_PER_PRIM;
-                let output_bytes = tree.bytes();
                 scene_rows.push(Row {
                     scene: spec.clone(),
                     triangles: n,
@@ -593,7 +618,7 @@ pub fn run(args: &BenchBuildArgs, ui: &Ui) -> anyhow::Result<()> {
                         Entry::Arbor(_) => "arbor",
                         Entry::Peer(p) => p.library(),
                     },
-                    width: tree.kind().width(),
+                    width: m.width,
                     threads,
                     best_ms,
                     median_ms,
@@ -602,15 +627,15 @@ pub fn run(args: &BenchBuildArgs, ui: &Ui) -> anyhow::Result<()> {
                     } else {
                         0.0
                     },
-                    sah: tree.normalized_sah(),
+                    sah: m.sah,
                     sah_vs_sweep: None,
                     vs_embree_low: None,
                     vs_embree_medium: None,
-                    peak_bytes: peak,
+                    peak_bytes: m.peak,
                     input_bytes,
-                    output_bytes,
-                    memory_ratio: (input_bytes + peak) as f64
-                        / (input_bytes + output_bytes).max(1) as f64,
+                    output_bytes: m.bytes,
+                    memory_ratio: (input_bytes + m.peak) as f64
+                        / (input_bytes + m.bytes).max(1) as f64,
                 });
             }
         }
