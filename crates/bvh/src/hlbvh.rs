@@ -561,7 +561,7 @@ enum Slot {
 
 impl HlbvhBuilder {
     /// Checks the configuration.
-    fn check(&self) -> Result<(), BuildError> {
+    pub(crate) fn check(&self) -> Result<(), BuildError> {
         if self.max_leaf_size == 0 {
             return Err(BuildError::InvalidConfig(
                 "HLBVH max_leaf_size must be at least 1".into(),
@@ -584,33 +584,51 @@ impl HlbvhBuilder {
     ///
     /// Large inputs are emitted as cells of the top `PARALLEL_CELL_BITS` (9) code bits in
     /// parallel, joined by [`crate::toplevel::morton_top`]: the result is node for node the
-    /// single-stream tree (the tests check this), for any thread count.
-    ///
-    /// The emitted nodes go straight into the final [`Bvh2`]: each cell's node count (its
-    /// leaves, the distinct sort keys, less one) follows from the sorted codes, so the top
-    /// tree over the cells and every cell's place in the preorder layout are known before
-    /// emission, and each cell's emitter lays out its subtree into its own range of the
-    /// output from a small buffer that stays in cache. No emission-order array of the whole
-    /// tree is made (the [`HlbvhBuilder::build_highlevel`] output keeps one).
+    /// single-stream tree (the tests check this), for any thread count. The nodes go
+    /// straight into the final [`Bvh2`] (see [`HlbvhBuilder::build_cells`]).
     pub fn build(&self, aabbs: &[Aabb]) -> Result<Bvh2, BuildError> {
         check_input(aabbs)?;
         self.check()?;
-        in_pool(self.threads, || self.build_direct(aabbs))
+        let shift = if aabbs.len() >= 2 * PARALLEL_MIN_PRIMS {
+            self.bits.total_bits() - PARALLEL_CELL_BITS
+        } else {
+            u32::MAX
+        };
+        in_pool(self.threads, || {
+            self.build_cells(aabbs, shift, false, |hl| {
+                Ok(crate::toplevel::morton_top(hl))
+            })
+        })?
     }
 
-    /// [`HlbvhBuilder::build`] on checked input, in the current pool.
-    fn build_direct(&self, aabbs: &[Aabb]) -> Bvh2 {
+    /// Emits the cells of equal `code >> shift` (one cell when `shift >= 64`) and joins
+    /// them under the tree `top` builds over them: a valid tree over the cell roots' boxes
+    /// whose leaves hold one root each, like [`crate::toplevel::stitch`] takes. `top` gets
+    /// the cells as a [`Highlevel`] with `roots` only (each root's key and, when `boxes`,
+    /// its box; `root` is a placeholder) and no `nodes` or `order`. Input and configuration
+    /// are checked by the caller; runs in the current pool.
+    ///
+    /// The emitted nodes go straight into the final [`Bvh2`]: each cell's node count (its
+    /// leaves, the distinct sort keys, less one) and box follow from the sorted codes, so
+    /// the top tree over the cells and every cell's place in the preorder layout are known
+    /// before emission, and each cell's emitter lays its subtree out into its own range of
+    /// the output from a small buffer that stays in cache. No emission-order array of the
+    /// whole tree is made (the [`HlbvhBuilder::build_highlevel`] output keeps one). The
+    /// result is node for node `stitch(top, build_highlevel(..))` (tests check it); a top
+    /// tree with a leaf of several roots is stitched that way.
+    pub(crate) fn build_cells(
+        &self,
+        aabbs: &[Aabb],
+        shift: u32,
+        boxes: bool,
+        top: impl FnOnce(&Highlevel) -> Result<Bvh2, BuildError>,
+    ) -> Result<Bvh2, BuildError> {
         let (codes, order) = sorted_codes(aabbs, self.bits);
         let n = codes.len();
         if n == 0 {
-            return Bvh2::empty();
+            return Ok(Bvh2::empty());
         }
-        // Cells: runs of equal `code >> shift` (one cell below the parallel size).
-        let shift = if n >= 2 * PARALLEL_MIN_PRIMS {
-            self.bits.total_bits() - PARALLEL_CELL_BITS
-        } else {
-            64
-        };
+        // Cells: runs of equal `code >> shift`.
         let prefix = |c: u64| c.checked_shr(shift).unwrap_or(0);
         let mut cells: Vec<std::ops::Range<usize>> = Vec::new();
         let mut start = 0;
@@ -620,43 +638,74 @@ impl HlbvhBuilder {
             cells.push(start..end);
             start = end;
         }
-        // Inner nodes of each cell: its leaves (distinct keys) less one.
-        let inner: Vec<u32> = cells
+        // Per cell: inner nodes (its leaves, the distinct keys, less one), the key of its
+        // last primitive, and its box when the top tree needs it.
+        let plan: Vec<(u32, u32, Aabb)> = cells
             .par_iter()
             .map(|r| {
                 let mut t = Ties::new(self.combine_identical, self.max_leaf_size);
-                let leaves = r
-                    .clone()
-                    .filter(|&k| t.next(k, k > r.start && codes[k - 1] == codes[k]).1)
-                    .count();
-                leaves as u32 - 1
+                let (mut leaves, mut tie) = (0u32, 0u32);
+                for k in r.clone() {
+                    let (tk, starts) = t.next(k, k > r.start && codes[k - 1] == codes[k]);
+                    leaves += starts as u32;
+                    tie = tk;
+                }
+                let b = if boxes {
+                    order[r.clone()]
+                        .iter()
+                        .fold(Aabb::EMPTY, |b, &i| b.union(aabbs[i as usize]))
+                } else {
+                    Aabb::EMPTY
+                };
+                (leaves - 1, tie, b)
             })
             .collect();
         if cells.len() == 1 {
-            let mut nodes = crate::node::zeroed_nodes(inner[0] as usize);
+            let mut nodes = crate::node::zeroed_nodes(plan[0].0 as usize);
             let mut sc = CellScratch::default();
             let (root, bounds) =
                 self.emit_cell(0..n, &codes, &order, aabbs, 0, &mut nodes, &mut sc);
-            return Bvh2::from_root(root, bounds, nodes, order);
+            return Ok(Bvh2::from_root(root, bounds, nodes, order));
         }
-        // The top tree over the cells: the Morton-prefix tree of their keys (boxes later).
         let skeleton = Highlevel {
             nodes: Vec::new(),
             roots: cells
                 .iter()
-                .map(|r| HighlevelRoot {
-                    aabb: Aabb::EMPTY,
+                .zip(&plan)
+                .map(|(r, p)| HighlevelRoot {
+                    aabb: p.2,
                     root: EmitRef::Leaf { first: 0, count: 0 },
-                    key: (codes[r.end - 1], 0),
+                    key: (codes[r.end - 1], p.1),
                 })
                 .collect(),
             order: Vec::new(),
         };
-        let top = crate::toplevel::morton_top(&skeleton);
+        let top = top(&skeleton)?;
+        if boxes {
+            let b = crate::toplevel::root_boxes(&skeleton);
+            crate::validate::validate(&top, &b, u32::MAX).map_err(|e| {
+                BuildError::InvalidConfig(format!("top tree over the cell roots: {e}"))
+            })?;
+        }
+        let root = top.nodes[0];
+        let grouped = top
+            .nodes
+            .iter()
+            .any(|t| t.children.iter().any(|c| c.count > 1));
+        if grouped || root.children[1].is_empty() {
+            // A leaf of several roots: the general stitch over the whole emission.
+            let hl = HlbvhBuilder {
+                highlevel_threshold: Some(shift),
+                ..self.clone()
+            }
+            .emit_all(aabbs);
+            return crate::toplevel::stitch(&top, &hl);
+        }
         // Preorder places: each top node, then each cell's range, child 0 first.
         let cell_of = |c: ChildRef| top.prim_indices[c.index as usize] as usize;
         let mut top_at = vec![0u32; top.nodes.len()];
         let mut cell_at = vec![0u32; cells.len()];
+        let mut by_place = Vec::with_capacity(cells.len());
         let mut at = 0u32;
         let mut stack = vec![Slot::Top(0)];
         while let Some(slot) = stack.pop() {
@@ -674,31 +723,39 @@ impl HlbvhBuilder {
                 }
                 Slot::Cell(c) => {
                     cell_at[c] = at;
-                    at += inner[c];
+                    at += plan[c].0;
+                    by_place.push(c);
                 }
             }
         }
         // Zeroed pages, no fill pass: every node is written below.
         let mut nodes = crate::node::zeroed_nodes(at as usize);
-        // Each cell's range of the output (cells are laid out in Morton order).
+        // Each cell's range of the output, in the order of their places.
         let mut tasks: Vec<(usize, &mut [Node])> = Vec::with_capacity(cells.len());
         let mut rest = nodes.as_mut_slice();
         let mut taken = 0usize;
-        for c in 0..cells.len() {
+        for &c in &by_place {
             let from = cell_at[c] as usize;
-            debug_assert!(from >= taken, "cells out of order");
             let (_, tail) = std::mem::take(&mut rest).split_at_mut(from - taken);
-            let (mine, tail) = tail.split_at_mut(inner[c] as usize);
+            let (mine, tail) = tail.split_at_mut(plan[c].0 as usize);
             taken = from + mine.len();
             rest = tail;
             tasks.push((c, mine));
         }
-        let roots: Vec<(ChildRef, Aabb)> = tasks
+        let mut roots = vec![(ChildRef::EMPTY, Aabb::EMPTY); cells.len()];
+        let emitted: Vec<(usize, (ChildRef, Aabb))> = tasks
             .into_par_iter()
             .map_init(CellScratch::default, |sc, (c, out)| {
-                self.emit_cell(cells[c].clone(), &codes, &order, aabbs, cell_at[c], out, sc)
+                let r = cells[c].clone();
+                (
+                    c,
+                    self.emit_cell(r, &codes, &order, aabbs, cell_at[c], out, sc),
+                )
             })
             .collect();
+        for (c, r) in emitted {
+            roots[c] = r;
+        }
         // The top nodes, children (later in preorder) before parents.
         let mut top_box = vec![Aabb::EMPTY; top.nodes.len()];
         for t in (0..top.nodes.len()).rev() {
@@ -714,11 +771,11 @@ impl HlbvhBuilder {
             nodes[top_at[t] as usize] = Node::new(&k0.1, k0.0, &k1.1, k1.0);
             top_box[t] = k0.1.union(k1.1);
         }
-        Bvh2 {
+        Ok(Bvh2 {
             nodes,
             prim_indices: order,
             bounds: top_box[0],
-        }
+        })
     }
 
     /// Emits the cell of sorted positions `r` with one emitter and lays its subtree out in
