@@ -158,6 +158,23 @@ fn bad_arguments_are_one_line_errors() {
         assert!(err.contains(want), "{args:?}: {err}");
         assert!(out.stdout.is_empty());
     }
+    // --out naming a file, not a folder.
+    let f = tempfile::NamedTempFile::new().unwrap();
+    let out = bench(&[
+        SOUP,
+        "--runs",
+        "1",
+        "--builders",
+        "lbvh",
+        "--out",
+        f.path().to_str().unwrap(),
+    ]);
+    assert_eq!(out.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.lines().count() == 1 && err.contains("cannot create"),
+        "{err}"
+    );
     if !cfg!(feature = "embree") {
         let out = bench(&[SOUP, "--builders", "embree-low"]);
         assert_eq!(out.status.code(), Some(1));

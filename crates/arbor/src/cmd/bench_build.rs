@@ -92,6 +92,9 @@ pub struct BenchBuildArgs {
     /// Build the sweep SAH reference (and run sweep-sah) above 2M triangles too (slow).
     #[arg(long)]
     pub sah_reference: bool,
+    /// Also write every format to DIR (bench-build.txt, .md, .csv, .json), atomically.
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<std::path::PathBuf>,
 }
 
 /// A peer library's builder.
@@ -667,13 +670,50 @@ pub fn run(args: &BenchBuildArgs, ui: &Ui) -> anyhow::Result<()> {
         rows,
         goals,
     };
+    let json = serde_json::to_string_pretty(&doc)? + "\n";
+    if let Some(dir) = &args.out {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        for (name, body) in [
+            ("bench-build.txt", text(&doc)),
+            ("bench-build.md", markdown(&doc)),
+            ("bench-build.csv", csv(&doc)),
+            ("bench-build.json", json.clone()),
+        ] {
+            write_atomically(&dir.join(name), &body)?;
+        }
+    }
     match format {
-        Format::Json => println!("{}", serde_json::to_string_pretty(&doc)?),
+        Format::Json => print!("{json}"),
         Format::Csv => print!("{}", csv(&doc)),
         Format::Markdown => print!("{}", markdown(&doc)),
         Format::Text => print!("{}", text(&doc)),
     }
     Ok(())
+}
+
+/// Writes `body` to `path` through a temporary file in the same folder, renamed over it,
+/// so an interrupted run never leaves a partial file.
+fn write_atomically(path: &std::path::Path, body: &str) -> anyhow::Result<()> {
+    use std::io::Write;
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => std::path::Path::new("."),
+    };
+    let mut b = tempfile::Builder::new();
+    b.prefix(".arbor-bench-").suffix(".tmp");
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        b.permissions(std::fs::Permissions::from_mode(0o666));
+    }
+    let write = || -> std::io::Result<()> {
+        let mut tmp = b.tempfile_in(dir)?;
+        tmp.write_all(body.as_bytes())?;
+        tmp.as_file().sync_all()?;
+        tmp.persist(path).map_err(|e| e.error)?;
+        Ok(())
+    };
+    write().with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// Fills the SAH and throughput ratios of one scene's rows.
