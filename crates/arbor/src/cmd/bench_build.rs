@@ -505,6 +505,14 @@ fn check_args(a: &BenchBuildArgs) -> anyhow::Result<Vec<Entry>> {
         a.runs
     );
     anyhow::ensure!(!a.threads.is_empty(), "--threads needs at least one count");
+    if let Some(d) = &a.out {
+        // Fail before the measurements, not after.
+        anyhow::ensure!(
+            !d.exists() || d.is_dir(),
+            "cannot create {}: a file of that name exists",
+            d.display()
+        );
+    }
     for &t in &a.threads {
         anyhow::ensure!(
             (1..=MAX_THREADS).contains(&t),
