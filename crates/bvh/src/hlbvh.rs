@@ -799,7 +799,9 @@ impl HlbvhBuilder {
         sc.boxes
             .extend(order[r.clone()].iter().map(|&i| aabbs[i as usize]));
         sc.nodes.clear();
+        sc.nodes.reserve(out.len());
         sc.layout.clear();
+        sc.layout.reserve(2 * out.len());
         let mut em = Emitter::new(None);
         em.read = r.start as u32;
         let mut ties = Ties::new(self.combine_identical, self.max_leaf_size);
