@@ -585,7 +585,7 @@ impl HlbvhBuilder {
     /// Large inputs are emitted as cells of the top `PARALLEL_CELL_BITS` (9) code bits in
     /// parallel, joined by [`crate::toplevel::morton_top`]: the result is node for node the
     /// single-stream tree (the tests check this), for any thread count. The nodes go
-    /// straight into the final [`Bvh2`] (see [`HlbvhBuilder::build_cells`]).
+    /// straight into the final [`Bvh2`] (see `HlbvhBuilder::build_cells`).
     pub fn build(&self, aabbs: &[Aabb]) -> Result<Bvh2, BuildError> {
         check_input(aabbs)?;
         self.check()?;

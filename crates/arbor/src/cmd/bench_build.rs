@@ -9,7 +9,7 @@
 //! the peers through `crates/peers`, timed over the peer's build call alone (input copy
 //! and conversion to `Bvh2` excluded), Embree on a device of that many threads. Every tree
 //! is validated, and every SAH is Arbor's (the thesis weights, a 4-wide node costing
-//! `2 C_i`), relative to Arbor's full sweep SAH tree ([P2] §6.2 "SAH %").
+//! `2 C_i`), relative to Arbor's full sweep SAH tree (\[P2\] §6.2 "SAH %").
 //!
 //! Peak memory: the `arbor` binary's counting allocator ([`crate::alloc`]) gives the most
 //! bytes allocated at once during the build call, above what was allocated before it (the
