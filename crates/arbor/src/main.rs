@@ -39,6 +39,11 @@ enum Command {
     /// Compress a scene's LBVH into a CBVH (or refit one) and report backtracking, traffic
     /// and quality ([P3]).
     Cbvh(cmd::cbvh::CbvhArgs),
+    /// Trace an image through a BVH (primary, diffuse or shadow rays); write the image,
+    /// depth buffer, heatmap, statistics and traversal log.
+    Render(Box<cmd::render::RenderArgs>),
+    /// Check a traversal log and print its totals.
+    LogInfo(cmd::log_info::LogInfoArgs),
     /// Regenerate a table or figure of the thesis (CSV, Markdown, SVG).
     Report(cmd::report::ReportArgs),
     /// Benchmark Arbor against peer libraries in one run (`arbor bench build`).
@@ -55,6 +60,8 @@ fn main() -> ExitCode {
         Command::Sim(a) => cmd::sim::run(&a, &ui),
         Command::Cbvh(a) => cmd::cbvh::run(&a, &ui),
         Command::Report(a) => cmd::report::run(&a, &ui),
+        Command::Render(a) => cmd::render::run(&a, &ui),
+        Command::LogInfo(a) => cmd::log_info::run(&a, &ui),
         Command::Bench(a) => cmd::bench::run(&a, &ui),
     };
     match result {

@@ -13,7 +13,10 @@ mod triangle;
 
 pub use aabb::Aabb;
 pub use glam::{Mat4, Quat, Vec3, Vec4};
-pub use intersect::{intersect_triangle_watertight, ray_aabb, RayPrecomp, TriangleHit};
+pub use intersect::{
+    intersect_triangle_watertight, intersect_triangles4_watertight, ray_aabb, Hits4, RayPrecomp,
+    TriangleHit, Triangles4, SLAB_FAR_SCALE,
+};
 pub use morton::{morton30, morton63, MortonQuantizer};
 pub use ray::Ray;
 pub use triangle::Triangle;

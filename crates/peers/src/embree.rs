@@ -139,6 +139,11 @@ impl EmbreeDevice {
         // Only called between builds, when live is what it was at the reset (or lower).
         (self.memory.peak.load(Relaxed) - self.memory.live.load(Relaxed)).max(0) as usize
     }
+
+    /// The raw device handle, for the other Embree adapters of this crate.
+    pub(crate) fn raw(&self) -> RtcDevice {
+        self.raw
+    }
 }
 
 impl Drop for EmbreeDevice {

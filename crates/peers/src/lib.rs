@@ -22,14 +22,21 @@ mod convert;
 mod embree;
 #[cfg(feature = "embree")]
 mod embree_ffi;
+#[cfg(feature = "embree")]
+mod embree_rt;
 mod obvhs_peer;
+mod obvhs_rt;
 #[cfg(test)]
 mod testinputs;
+pub mod trace_bench;
 
 pub use bvh_crate::BvhCrateBuilder;
 #[cfg(feature = "embree")]
 pub use embree::{EmbreeBuilder, EmbreeDevice, EmbreeQuality};
+#[cfg(feature = "embree")]
+pub use embree_rt::{EmbreeScene, EmbreeSceneConfig};
 pub use obvhs_peer::{ObvhsBuilder, ObvhsPreset};
+pub use obvhs_rt::ObvhsTracer;
 
 use bvh::{BuildError, Bvh2, MAX_PRIMITIVES};
 use geom::Aabb;

@@ -9,6 +9,7 @@
 //! - [`dram`]: the memory-port interface and its backends.
 //! - [`analytic`]: analytic models of the builders MergeTree is compared with.
 //! - [`mergetree`]: the MergeTree HLBVH builder of \[P1\] and \[P2\].
+//! - [`thesis`]: the thesis's published figures the models are compared with.
 #![warn(missing_docs)]
 
 pub mod analytic;
@@ -16,3 +17,4 @@ pub mod clock;
 pub mod dram;
 pub mod fifo;
 pub mod mergetree;
+pub mod thesis;

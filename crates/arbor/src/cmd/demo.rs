@@ -8,7 +8,9 @@
 //! the three memory systems of \[P2\] §6.2, with a utilization plot per system; (5)
 //! compressed BVHs (\[P3\]): LBVH memory traffic with top-down vs
 //! streaming bottom-up compression at a few frames, and a CBVH built at frame 0 refitted in
-//! a stream to those frames.
+//! a stream to those frames; (6) ray tracing: frame 0 and the middle frame rendered with
+//! primary rays and with diffuse path tracing through a binary and a 4-wide tree (same
+//! image, different traversal cost), with the shaded image and the heatmap of frame 0.
 
 use super::{info::gather, ms, open_scene, thousands, SceneArgs};
 use crate::progress::{Ui, Unit};
@@ -61,10 +63,32 @@ struct Summary {
     refits: Vec<RefitRow>,
     mergetree: Vec<MergeTreeRow>,
     cbvh: Vec<CbvhRow>,
+    renders: Vec<RenderRow>,
+}
+
+/// One render of the demo's ray-tracing step (`renders` in `summary.json`).
+#[derive(Serialize)]
+struct RenderRow {
+    frame: u32,
+    time_s: f32,
+    format: &'static str,
+    rays: trace::RayKind,
+    width: u32,
+    height: u32,
+    ray_count: u64,
+    hits: u64,
+    node_visits_per_ray: f64,
+    box_tests_per_ray: f64,
+    tri_tests_per_ray: f64,
+    mrays_per_s: f64,
+    /// The image and depth buffer equal the binary tree's, bit for bit.
+    same_image_as_bvh2: bool,
+    image: Option<String>,
+    heatmap: Option<String>,
 }
 
 /// The memory systems of \[P2\] §6.2 (slow, medium, fast) the demo simulates MergeTree on.
-const MERGETREE_DRAMS: [&str; 3] = ["lpddr3-1600-1x64", "lpddr3-1600-2x64", "lpddr3-1333-4x64"];
+const MERGETREE_DRAMS: [&str; 3] = sim::thesis::P2_SYSTEMS;
 
 /// One MergeTree simulation of the demo (`mergetree` in `summary.json`).
 #[derive(Serialize)]
@@ -219,6 +243,8 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
     let mergetree = mergetree_step(ui, scene.as_ref(), &args.out)?;
     // Step 5: compressed BVHs, top-down vs streaming bottom-up.
     let cbvh = cbvh_step(scene.as_ref(), n)?;
+    // Step 6: ray tracing through both tree formats.
+    let renders = render_step(ui, scene.as_ref(), n, &args.out)?;
 
     let summary = Summary {
         schema: "arbor.demo.v1",
@@ -232,6 +258,7 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
         refits,
         mergetree,
         cbvh,
+        renders,
     };
     write_outputs(&args.out, &summary)?;
     println!("  outputs    {}", args.out.display());
@@ -239,6 +266,13 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
         anyhow::bail!(
             "the MergeTree model's tree differs from the software HLBVH tree on {}",
             bad.dram
+        );
+    }
+    if let Some(bad) = summary.renders.iter().find(|r| !r.same_image_as_bvh2) {
+        anyhow::bail!(
+            "the {} tree rendered a different image than the binary tree at frame {}",
+            bad.format,
+            bad.frame
         );
     }
     if let Some(bad) = summary.builds.iter().find(|b| !b.valid) {
@@ -388,8 +422,7 @@ fn mergetree_step(
         let same = sim::mergetree::tree_matches_software(&r, &aabbs)?;
         let svg = out.join(format!("mergetree-{dram}.svg"));
         let title = format!("MergeTree p2, {dram}: frame 0, {} triangles", r.triangles);
-        std::fs::write(&svg, r.trace_svg(&title))
-            .with_context(|| format!("cannot write {}", svg.display()))?;
+        super::report::write_atomic(&svg, &r.trace_svg(&title))?;
         println!(
             "             {dram:<17} {:>10} {:>9.4} {:>9.3} {:>11.3} {:>8.1}%  {}",
             thousands(r.cycles),
@@ -505,6 +538,122 @@ fn cbvh_step(scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<CbvhRow>> {
             base = Some(tree);
         }
         rows.push(row);
+    }
+    Ok(rows)
+}
+
+/// Image size of the demo's renders (a quarter of [P4]'s 1280x720, to stay quick).
+const DEMO_RENDER_SIZE: (u32, u32) = (640, 360);
+
+/// Renders frame 0 and the middle of the `n` walked frames with primary and diffuse rays
+/// (4 bounces, [P4] §3.2) through a binned SAH `Bvh2` and its `Mbvh4` collapse, checks
+/// that both trees give the same image, prints the traversal cost, and writes frame 0's
+/// shaded images and heatmap into `out`.
+fn render_step(
+    ui: &Ui,
+    scene: &dyn scene::Scene,
+    n: u32,
+    out: &std::path::Path,
+) -> anyhow::Result<Vec<RenderRow>> {
+    use super::render::{build_accel, Format};
+    use trace::{KernelOptions, RayKind, RenderSettings};
+    std::fs::create_dir_all(out).with_context(|| format!("cannot create {}", out.display()))?;
+    let timeline = scene.info().timeline;
+    let mut frames = vec![0];
+    if n > 2 {
+        frames.push(n / 2);
+    }
+    println!(
+        "  render     frame  rays     format  Mrays/s  nodes/ray  boxes/ray  tris/ray  same image"
+    );
+    let mut rows = Vec::new();
+    for &f in &frames {
+        let t = timeline.time_of_frame(f);
+        let mesh = scene.mesh_at(t).with_context(|| format!("frame {f}"))?;
+        let (aabbs, _) = super::build::mesh_aabbs(&mesh)?;
+        let tris: Vec<geom::Triangle> = mesh.triangles_iter().collect();
+        let shading = trace::Shading {
+            triangles: &tris,
+            material_ids: &mesh.material_ids,
+        };
+        let accels = [Format::Bvh2, Format::Mbvh4]
+            .into_iter()
+            .map(|fmt| {
+                let width = if fmt == Format::Bvh2 { 2 } else { 4 };
+                build_accel(
+                    ui,
+                    "binned-sah",
+                    fmt,
+                    &aabbs,
+                    &tris,
+                    KernelOptions::thesis(width),
+                )
+                .map(|a| a.0)
+            })
+            .collect::<anyhow::Result<Vec<_>>>()?;
+        for kind in [RayKind::Primary, RayKind::Diffuse] {
+            let mut settings = RenderSettings::new(scene.info().camera);
+            (settings.width, settings.height) = DEMO_RENDER_SIZE;
+            settings.rays = kind;
+            let mut reference: Option<trace::Render> = None;
+            for accel in &accels {
+                let img = trace::render(accel, shading, &settings, None, None)
+                    .context("rendering failed")?;
+                let same = reference.as_ref().is_none_or(|r| {
+                    r.depth
+                        .iter()
+                        .map(|d| d.to_bits())
+                        .eq(img.depth.iter().map(|d| d.to_bits()))
+                        && r.color == img.color
+                });
+                let (mut image, mut heatmap) = (None, None);
+                if f == 0 && accel.format_name() == "bvh2" {
+                    let name = match kind {
+                        RayKind::Diffuse => "render-diffuse",
+                        _ => "render-primary",
+                    };
+                    let p = out.join(format!("{name}.png"));
+                    trace::image::write_color_png(&p, &img)?;
+                    image = Some(p.display().to_string());
+                    if kind == RayKind::Primary {
+                        let h = out.join("heatmap-primary.png");
+                        trace::image::write_heatmap(&h, &img, trace::image::HeatScale::of(&img))?;
+                        heatmap = Some(h.display().to_string());
+                    }
+                }
+                let st = &img.stats.total;
+                println!(
+                    "             {f:>5}  {:<8} {:<6} {:>8.2} {:>10.2} {:>10.2} {:>9.2}  {}",
+                    format!("{kind:?}").to_lowercase(),
+                    accel.format_name(),
+                    img.stats.mrays_per_s,
+                    st.per_ray(st.node_visits),
+                    st.per_ray(st.box_tests),
+                    st.per_ray(st.tri_tests),
+                    if same { "yes" } else { "NO" }
+                );
+                rows.push(RenderRow {
+                    frame: f,
+                    time_s: t,
+                    format: accel.format_name(),
+                    rays: kind,
+                    width: settings.width,
+                    height: settings.height,
+                    ray_count: st.rays,
+                    hits: st.hits,
+                    node_visits_per_ray: st.per_ray(st.node_visits),
+                    box_tests_per_ray: st.per_ray(st.box_tests),
+                    tri_tests_per_ray: st.per_ray(st.tri_tests),
+                    mrays_per_s: img.stats.mrays_per_s,
+                    same_image_as_bvh2: same,
+                    image,
+                    heatmap,
+                });
+                if reference.is_none() {
+                    reference = Some(img);
+                }
+            }
+        }
     }
     Ok(rows)
 }

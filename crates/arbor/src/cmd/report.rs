@@ -1,7 +1,13 @@
 //! `arbor report <name>`: regenerates one of the thesis's tables or figures as CSV,
-//! Markdown and SVG in an output folder. Each report lives in its own file.
+//! Markdown and SVG in an output folder. Each report lives in its own file
+//! (`report_*.rs`); the helpers they share (scene names and loading, atomic file writes,
+//! bar charts) are here.
 
 use crate::progress::Ui;
+use anyhow::Context;
+use std::fmt::Write as _;
+use std::io::Write as _;
+use std::path::Path;
 
 /// Arguments of `arbor report`.
 #[derive(clap::Args, Debug)]
@@ -15,11 +21,181 @@ pub struct ReportArgs {
 enum ReportKind {
     /// \[P3\] §5: CBVH backtracking, traffic, quality and minimum-scale tables.
     Cbvh(super::report_cbvh::ReportCbvhArgs),
+    /// \[P2\] Tables III and VI: MergeTree build time, bus utilization and traffic on the
+    /// three memory systems, SAH of the HLBVH family and binned SAH, and the traffic of
+    /// the comparison models.
+    Mergetree(super::report_mergetree::ReportMergetreeArgs),
 }
 
 /// Runs `arbor report`.
 pub fn run(a: &ReportArgs, ui: &Ui) -> anyhow::Result<()> {
     match &a.kind {
         ReportKind::Cbvh(r) => super::report_cbvh::run(r, ui),
+        ReportKind::Mergetree(r) => super::report_mergetree::run(r, ui),
+    }
+}
+
+/// The folder of the shared real scenes, `../shared/scenes` beside the repository (the
+/// default of every report's `--scene-dir`).
+pub const SHARED_SCENES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/scenes");
+
+/// Short name of a scene spec (file stem, or procedural name).
+pub fn short_name(spec: &str) -> String {
+    if let Some(rest) = spec.strip_prefix("proc:") {
+        return rest.split('?').next().unwrap_or(rest).to_string();
+    }
+    Path::new(spec)
+        .file_stem()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_else(|| spec.to_string())
+}
+
+/// The primitive boxes of scene `spec` at time `t`, clamped to its timeline (the report
+/// scenes are sampled once).
+pub fn scene_prims(spec: &str, t: f32) -> anyhow::Result<Vec<geom::Aabb>> {
+    anyhow::ensure!(t.is_finite(), "the sampling time must be finite, got {t}");
+    let scene = scene::open(spec, &scene::LoadOptions::default())
+        .with_context(|| format!("cannot open {spec}"))?;
+    let t = scene.info().timeline.clamp(t);
+    let mesh = scene
+        .mesh_at(t)
+        .with_context(|| format!("cannot sample {spec}"))?;
+    Ok(super::build::mesh_aabbs(&mesh)?.0)
+}
+
+/// Writes `text` to `dir/name` atomically (see [`write_atomic`]).
+pub fn write_file(dir: &Path, name: &str, text: &str) -> anyhow::Result<()> {
+    write_atomic(&dir.join(name), text)
+}
+
+/// Writes `text` to `path` atomically: a temporary file in the same folder is written,
+/// synced and renamed over the destination, so an existing file is never left
+/// half-written.
+pub fn write_atomic(path: &Path, text: &str) -> anyhow::Result<()> {
+    let fail = || format!("cannot write {}", path.display());
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d,
+        _ => Path::new("."),
+    };
+    let mut tb = tempfile::Builder::new();
+    tb.prefix(".arbor-report-").suffix(".tmp");
+    // Temporary files are private (0600); the result gets ordinary permissions.
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        tb.permissions(std::fs::Permissions::from_mode(0o666));
+    }
+    let mut tmp = tb.tempfile_in(dir).with_context(fail)?;
+    tmp.write_all(text.as_bytes()).with_context(fail)?;
+    tmp.as_file().sync_all().with_context(fail)?;
+    tmp.persist(path).map_err(|e| e.error).with_context(fail)?;
+    Ok(())
+}
+
+/// A grouped bar chart: one group per label, one bar per series (missing values skipped).
+pub fn bar_svg(title: &str, labels: &[String], series: &[(String, Vec<Option<f64>>)]) -> String {
+    const COLORS: [&str; 6] = [
+        "#1f77b4", "#aec7e8", "#d62728", "#ff9896", "#2ca02c", "#98df8a",
+    ];
+    // Wide enough for the labels (about 7 px per character) and the legend (150 px per
+    // series), and at least 760 px.
+    let longest = labels.iter().map(|l| l.chars().count()).max().unwrap_or(0);
+    let w = (80.0 + labels.len() as f64 * (7.0 * longest as f64 + 8.0))
+        .max(80.0 + 150.0 * series.len() as f64)
+        .max(760.0);
+    let (h, left, bottom, top) = (360.0, 60.0, 40.0, 40.0);
+    let max = series
+        .iter()
+        .flat_map(|s| s.1.iter().flatten())
+        .cloned()
+        .fold(0.0f64, f64::max)
+        .max(1e-9);
+    let plot_h = h - bottom - top;
+    let group_w = (w - left - 20.0) / labels.len().max(1) as f64;
+    let bar_w = group_w * 0.8 / series.len().max(1) as f64;
+    let mut s = format!(
+        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\" font-family=\"sans-serif\" font-size=\"11\">\n\
+         <rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n<text x=\"{left}\" y=\"20\" font-size=\"13\">{}</text>\n",
+        xml(title)
+    );
+    for k in 0..=4 {
+        let v = max * k as f64 / 4.0;
+        let y = h - bottom - plot_h * k as f64 / 4.0;
+        let _ = writeln!(
+            s,
+            "<line x1=\"{left}\" y1=\"{y:.1}\" x2=\"{:.1}\" y2=\"{y:.1}\" stroke=\"#ddd\"/><text x=\"4\" y=\"{:.1}\">{v:.3}</text>",
+            w - 20.0,
+            y + 4.0
+        );
+    }
+    for (gi, l) in labels.iter().enumerate() {
+        let gx = left + gi as f64 * group_w + group_w * 0.1;
+        for (si, (_, vals)) in series.iter().enumerate() {
+            if let Some(Some(v)) = vals.get(gi) {
+                let bh = plot_h * v / max;
+                let _ = writeln!(
+                    s,
+                    "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"{:.1}\" height=\"{bh:.1}\" fill=\"{}\"><title>{}: {v:.4}</title></rect>",
+                    gx + si as f64 * bar_w,
+                    h - bottom - bh,
+                    bar_w.max(1.0),
+                    COLORS[si % COLORS.len()],
+                    xml(&series[si].0)
+                );
+            }
+        }
+        let _ = writeln!(
+            s,
+            "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{}</text>",
+            gx + group_w * 0.4,
+            h - bottom + 14.0,
+            xml(l)
+        );
+    }
+    for (si, (name, _)) in series.iter().enumerate() {
+        let x = left + si as f64 * 150.0;
+        let _ = writeln!(
+            s,
+            "<rect x=\"{x}\" y=\"{:.1}\" width=\"10\" height=\"10\" fill=\"{}\"/><text x=\"{:.1}\" y=\"{:.1}\">{}</text>",
+            h - 14.0,
+            COLORS[si % COLORS.len()],
+            x + 14.0,
+            h - 5.0,
+            xml(name)
+        );
+    }
+    s.push_str("</svg>\n");
+    s
+}
+
+/// `t` with the XML special characters escaped.
+pub fn xml(t: &str) -> String {
+    t.replace('&', "&amp;")
+        .replace('<', "&lt;")
+        .replace('>', "&gt;")
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn names_svg_and_atomic_writes() {
+        assert_eq!(short_name("/a/b/bunny.ply"), "bunny");
+        assert_eq!(short_name("proc:cloth?n=5"), "cloth");
+        let svg = bar_svg("t<", &["a".into()], &[("s".into(), vec![Some(1.0)])]);
+        assert!(svg.contains("t&lt;") && svg.ends_with("</svg>\n"));
+        let dir = tempfile::tempdir().unwrap();
+        write_file(dir.path(), "x.csv", "a\n").unwrap();
+        write_file(dir.path(), "x.csv", "b\n").unwrap();
+        assert_eq!(
+            std::fs::read_to_string(dir.path().join("x.csv")).unwrap(),
+            "b\n"
+        );
+        // Only the file itself is left (no temporary files).
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+        assert!(write_file(&dir.path().join("missing"), "x.csv", "").is_err());
+        // A bare file name goes to the current folder's temporary file; a folder fails.
+        assert!(write_atomic(dir.path(), "x").is_err());
     }
 }

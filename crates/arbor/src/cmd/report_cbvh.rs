@@ -10,9 +10,14 @@
 //! - `fig10.csv`: backtracking and SAH against the minimum scale, cloth vs the others
 //!   (\[P3\] Fig. 10);
 //! - `bits.csv`: quality and backtracking against the coordinate bits `N = 3..=8`;
-//! - `report.md` with all tables, and `table1.svg`, `fig7.svg`, `fig10.svg`.
+//! - `trace_quality.csv`: box and triangle tests per ray, CBVH vs BVH, primary and diffuse
+//!   rays, beside \[P3\] §5.4's averages; `watertight.csv`: the \[P3\] §5.5 check over
+//!   every box test of those renders (see `report_cbvh_trace`);
+//! - `report.md` with all tables, and `table1.svg`, `fig7.svg`, `fig10.svg`,
+//!   `trace_quality.svg`.
 
 use super::build::mesh_aabbs;
+use super::report::{bar_svg, short_name, write_file as write, SHARED_SCENES};
 use crate::progress::{Ui, Unit};
 use anyhow::Context;
 use cbvh::study::{
@@ -33,11 +38,26 @@ pub struct ReportCbvhArgs {
     #[arg(long, value_name = "LIST", value_delimiter = ',')]
     scenes: Option<Vec<String>>,
     /// Folder of the shared real scenes.
-    #[arg(long, value_name = "DIR", default_value = "/work/shared/scenes")]
+    #[arg(long, value_name = "DIR", default_value = SHARED_SCENES)]
     scene_dir: PathBuf,
     /// Skip the minimum-scale sweep (Fig. 10).
     #[arg(long)]
     no_sweep: bool,
+    /// Image size of the ray-traced quality and watertightness measurement (\[P3\] §5.4-5.5).
+    #[arg(long, value_name = "WxH", default_value = "640x360")]
+    trace_size: String,
+    /// Skip the ray-traced measurement.
+    #[arg(long)]
+    no_trace: bool,
+}
+
+/// Parses `WxH`.
+fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
+    let bad = || anyhow::anyhow!("--trace-size must be WIDTHxHEIGHT (1..=4096 each), got '{s}'");
+    let (w, h) = s.split_once(['x', 'X']).ok_or_else(bad)?;
+    let (w, h): (u32, u32) = (w.parse().map_err(|_| bad())?, h.parse().map_err(|_| bad())?);
+    anyhow::ensure!((1..=4096).contains(&w) && (1..=4096).contains(&h), bad());
+    Ok((w, h))
 }
 
 /// \[P3\] Table 1, in the column order of [`Variant::table1`] (TD, R, R2, R3, R4, M, M2,
@@ -227,19 +247,11 @@ struct SceneRun {
 /// Coordinate bits of the bits study.
 const BITS: [u32; 6] = [3, 4, 5, 6, 7, 8];
 
-/// Short name of a scene spec (file stem, or procedural name).
-fn short_name(spec: &str) -> String {
-    if let Some(rest) = spec.strip_prefix("proc:") {
-        return rest.split('?').next().unwrap_or(rest).to_string();
-    }
-    Path::new(spec)
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_else(|| spec.to_string())
-}
-
-/// The primitive boxes of a scene spec at t = 0 (or of the report's cloth).
-fn load(spec: &str) -> anyhow::Result<(String, Vec<geom::Aabb>)> {
+/// The triangles of a scene spec at t = 0 (or of the report's cloth: both sheets), by name,
+/// with the scene's camera.
+pub(super) fn load_triangles(
+    spec: &str,
+) -> anyhow::Result<(String, Vec<geom::Triangle>, scene::Camera)> {
     let (source, times) = if spec == CLOTH {
         (CLOTH_SHEET, vec![0.0, CLOTH_WAVING_S])
     } else {
@@ -247,14 +259,22 @@ fn load(spec: &str) -> anyhow::Result<(String, Vec<geom::Aabb>)> {
     };
     let scene = scene::open(source, &scene::LoadOptions::default())
         .with_context(|| format!("cannot open {source}"))?;
-    let mut prims = Vec::new();
+    let mut tris = Vec::new();
     for t in times {
         let mesh = scene
             .mesh_at(t)
             .with_context(|| format!("cannot sample {source}"))?;
-        prims.extend(mesh_aabbs(&mesh)?.0);
+        // Checks the indices (a bad mesh is an error, not a panic).
+        mesh_aabbs(&mesh)?;
+        tris.extend(mesh.triangles_iter());
     }
-    Ok((short_name(spec), prims))
+    Ok((short_name(spec), tris, scene.info().camera))
+}
+
+/// The primitive boxes of a scene spec (see [`load_triangles`]).
+fn load(spec: &str) -> anyhow::Result<(String, Vec<geom::Aabb>)> {
+    let (name, tris, _) = load_triangles(spec)?;
+    Ok((name, bvh::triangle_aabbs(&tris)))
 }
 
 /// Runs `arbor report cbvh`.
@@ -273,6 +293,7 @@ pub fn run(a: &ReportCbvhArgs, ui: &Ui) -> anyhow::Result<()> {
         }
     };
     anyhow::ensure!(!specs.is_empty(), "no scenes to run on");
+    let trace_size = parse_size(&a.trace_size)?;
     let variants = Variant::table1();
     let params = Params::default();
     let sweeps = if a.no_sweep { 0 } else { specs.len() };
@@ -317,6 +338,11 @@ pub fn run(a: &ReportCbvhArgs, ui: &Ui) -> anyhow::Result<()> {
         });
     }
     bar.finish();
+    let traced = if a.no_trace {
+        None
+    } else {
+        Some(super::report_cbvh_trace::measure(&specs, trace_size, ui)?)
+    };
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("cannot create {}", a.out.display()))?;
     let t1 = table1(&runs, &variants);
@@ -332,13 +358,15 @@ pub fn run(a: &ReportCbvhArgs, ui: &Ui) -> anyhow::Result<()> {
     write_table1(&a.out, &mut md, &t1, &variants)?;
     write_table3(&a.out, &mut md, &runs)?;
     write_quality(&a.out, &mut md, &runs)?;
+    if let Some(rows) = &traced {
+        super::report_cbvh_trace::write_tables(&a.out, &mut md, rows, trace_size)?;
+    }
     write_fig7(&a.out, &mut md, &runs)?;
     if !a.no_sweep {
         write_fig10(&a.out, &mut md, &runs)?;
         write_bits(&a.out, &mut md, &runs)?;
     }
-    let path = a.out.join("report.md");
-    std::fs::write(&path, &md).with_context(|| format!("cannot write {}", path.display()))?;
+    write(&a.out, "report.md", &md)?;
     println!("{md}");
     println!("wrote {}", a.out.display());
     Ok(())
@@ -731,98 +759,17 @@ fn write_bits(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Result<
     write(out, "bits.csv", &csv)
 }
 
-fn write(dir: &Path, name: &str, text: &str) -> anyhow::Result<()> {
-    let p = dir.join(name);
-    std::fs::write(&p, text).with_context(|| format!("cannot write {}", p.display()))
-}
-
-/// A grouped bar chart: one group per label, one bar per series (missing values skipped).
-fn bar_svg(title: &str, labels: &[String], series: &[(String, Vec<Option<f64>>)]) -> String {
-    const COLORS: [&str; 6] = [
-        "#1f77b4", "#aec7e8", "#d62728", "#ff9896", "#2ca02c", "#98df8a",
-    ];
-    let (w, h, left, bottom, top) = (760.0, 360.0, 60.0, 40.0, 40.0);
-    let max = series
-        .iter()
-        .flat_map(|s| s.1.iter().flatten())
-        .cloned()
-        .fold(0.0f64, f64::max)
-        .max(1e-9);
-    let plot_h = h - bottom - top;
-    let group_w = (w - left - 20.0) / labels.len().max(1) as f64;
-    let bar_w = group_w * 0.8 / series.len().max(1) as f64;
-    let mut s = format!(
-        "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{w}\" height=\"{h}\" font-family=\"sans-serif\" font-size=\"11\">\n\
-         <rect width=\"100%\" height=\"100%\" fill=\"white\"/>\n<text x=\"{left}\" y=\"20\" font-size=\"13\">{}</text>\n",
-        xml(title)
-    );
-    for k in 0..=4 {
-        let v = max * k as f64 / 4.0;
-        let y = h - bottom - plot_h * k as f64 / 4.0;
-        let _ = writeln!(
-            s,
-            "<line x1=\"{left}\" y1=\"{y:.1}\" x2=\"{:.1}\" y2=\"{y:.1}\" stroke=\"#ddd\"/><text x=\"4\" y=\"{:.1}\">{v:.3}</text>",
-            w - 20.0,
-            y + 4.0
-        );
-    }
-    for (gi, l) in labels.iter().enumerate() {
-        let gx = left + gi as f64 * group_w + group_w * 0.1;
-        for (si, (_, vals)) in series.iter().enumerate() {
-            if let Some(Some(v)) = vals.get(gi) {
-                let bh = plot_h * v / max;
-                let _ = writeln!(
-                    s,
-                    "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"{:.1}\" height=\"{bh:.1}\" fill=\"{}\"><title>{}: {v:.4}</title></rect>",
-                    gx + si as f64 * bar_w,
-                    h - bottom - bh,
-                    bar_w.max(1.0),
-                    COLORS[si % COLORS.len()],
-                    xml(&series[si].0)
-                );
-            }
-        }
-        let _ = writeln!(
-            s,
-            "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{}</text>",
-            gx + group_w * 0.4,
-            h - bottom + 14.0,
-            xml(l)
-        );
-    }
-    for (si, (name, _)) in series.iter().enumerate() {
-        let x = left + si as f64 * 150.0;
-        let _ = writeln!(
-            s,
-            "<rect x=\"{x}\" y=\"{:.1}\" width=\"10\" height=\"10\" fill=\"{}\"/><text x=\"{:.1}\" y=\"{:.1}\">{}</text>",
-            h - 14.0,
-            COLORS[si % COLORS.len()],
-            x + 14.0,
-            h - 5.0,
-            xml(name)
-        );
-    }
-    s.push_str("</svg>\n");
-    s
-}
-
-fn xml(t: &str) -> String {
-    t.replace('&', "&amp;")
-        .replace('<', "&lt;")
-        .replace('>', "&gt;")
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
 
     #[test]
-    fn thesis_table_has_nine_columns_and_names() {
+    fn thesis_table_has_nine_columns() {
         assert_eq!(P3_TABLE1.len(), 9);
         assert_eq!(Variant::table1().len(), 9);
-        assert_eq!(short_name("/a/b/bunny.ply"), "bunny");
-        assert_eq!(short_name("proc:cloth?n=5"), "cloth");
-        let svg = bar_svg("t<", &["a".into()], &[("s".into(), vec![Some(1.0)])]);
-        assert!(svg.contains("t&lt;") && svg.ends_with("</svg>\n"));
+        assert_eq!(parse_size("640x360").unwrap(), (640, 360));
+        for bad in ["640", "0x10", "10x", "axb", "5000x10"] {
+            assert!(parse_size(bad).is_err(), "{bad}");
+        }
     }
 }

@@ -126,13 +126,11 @@ pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
         Some(mergetree::tree_matches_software(&report, &aabbs)?)
     };
     if let Some(p) = &a.trace {
-        std::fs::write(p, report.trace_csv())
-            .with_context(|| format!("cannot write {}", p.display()))?;
+        super::report::write_atomic(p, &report.trace_csv())?;
     }
     if let Some(p) = &a.svg {
         let title = format!("MergeTree {} on {}: {}", cfg.preset, a.dram, a.scene.scene);
-        std::fs::write(p, report.trace_svg(&title))
-            .with_context(|| format!("cannot write {}", p.display()))?;
+        super::report::write_atomic(p, &report.trace_svg(&title))?;
     }
     let cps = report.cycles as f64 / (wall_ms / 1e3).max(1e-9);
     if a.json {
@@ -186,11 +184,12 @@ fn print_text(a: &MergetreeArgs, r: &MergeTreeReport, matches: Option<bool>, wal
     );
     for p in &r.phases {
         println!(
-            "  {:<24} cycles {:>12}  read {:>9.2} MB  written {:>9.2} MB",
+            "  {:<24} cycles {:>12}  read {:>9.2} MB  written {:>9.2} MB  read latency {:>6.1} cycles",
             p.name,
             thousands(p.end_cycle - p.start_cycle),
             p.bytes_read as f64 / 1e6,
-            p.bytes_written as f64 / 1e6
+            p.bytes_written as f64 / 1e6,
+            p.read_latency_mean_cycles
         );
     }
     let s = &r.stalls;

@@ -24,3 +24,20 @@ pub fn json(command: &str, args: &[&str]) -> Value {
     );
     serde_json::from_slice(&out.stdout).expect("valid JSON")
 }
+
+/// Runs `arbor ARGS` expecting exit status 1 with a one-line error on stderr and nothing on
+/// stdout; returns that line.
+#[allow(dead_code)]
+pub fn error(args: &[&str]) -> String {
+    let out = arbor(args);
+    assert_eq!(
+        out.status.code(),
+        Some(1),
+        "arbor {args:?} did not fail with 1"
+    );
+    let err = String::from_utf8_lossy(&out.stderr).to_string();
+    assert_eq!(err.lines().count(), 1, "expected one line, got: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(out.stdout.is_empty(), "printed a result on failure");
+    err
+}

@@ -56,13 +56,9 @@ mod tests {
     fn a_lower_bound_of_the_measured_gpu_traffic() {
         // [P2] Table VI, GPU HLBVH column (MB), for the scenes in shared/scenes, with
         // their triangle counts (shared/scenes/README.md).
-        let measured = [
-            ("Bunny", 69_451u64, 27.0),
-            ("Crytek", 262_205, 115.0),
-            ("Conference", 331_179, 125.0),
-            ("Dragon", 871_414, 413.0),
-        ];
-        for (scene, n, mb) in measured {
+        let counts = [69_451u64, 262_205, 331_179, 871_414];
+        for (s, n) in crate::thesis::P2_SCENES.iter().zip(counts) {
+            let (scene, mb) = (s.name, s.traffic_mb[2]);
             let model_mb = build_bytes(n) as f64 / 1e6;
             let ratio = mb / model_mb;
             println!("{scene}: model {model_mb:.1} MB, measured {mb} MB, ratio {ratio:.2}");
@@ -81,8 +77,9 @@ mod tests {
         // [P2] Table VI text: the GPU's radix sort alone ~ MergeTree's whole build
         // (Dragon: 124.8 MB).
         let dragon_sort_mb = sort_bytes(871_414) as f64 / 1e6;
+        let mergetree_mb = crate::thesis::p2_scene("dragon").unwrap().traffic_mb[0];
         assert!(
-            (dragon_sort_mb / 124.8 - 1.0).abs() < 0.4,
+            (dragon_sort_mb / mergetree_mb - 1.0).abs() < 0.4,
             "{dragon_sort_mb}"
         );
     }

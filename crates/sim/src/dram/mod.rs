@@ -351,6 +351,16 @@ pub trait MemoryPort {
 
     /// Completed responses not yet popped.
     fn completed_waiting(&self) -> usize;
+
+    /// Advances one unit clock cycle, as [`Self::tick`], and returns
+    /// [`Self::completed_waiting`]: a unit that calls this can skip [`Self::pop_response`]
+    /// in the cycles nothing completed (one call through a `dyn MemoryPort` instead of
+    /// two).
+    #[inline]
+    fn tick_and_count(&mut self) -> usize {
+        self.tick();
+        self.completed_waiting()
+    }
 }
 
 /// Number of bursts of `burst_bytes` that a request touches (bursts are aligned).

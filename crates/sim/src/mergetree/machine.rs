@@ -86,6 +86,23 @@ impl MemoryLayout {
     }
 }
 
+/// The sort element of primitive `i` of `aabbs` (padding past the end): its box,
+/// reference and the Morton code of its centroid on `quant`'s grid with `bits` bits.
+#[inline]
+fn elem_of(aabbs: &[Aabb], quant: &MortonQuantizer, bits: u32, i: u64) -> Elem {
+    let Some(&a) = aabbs.get(i as usize) else {
+        return Elem::pad(i);
+    };
+    // The same centroid expression as the software builder.
+    let c = a.min * 0.5 + a.max * 0.5;
+    let code = if bits == 30 {
+        quant.code30(c) as u64
+    } else {
+        quant.code63(c)
+    };
+    Elem::new(code, i as u32, a)
+}
+
 /// A write-combining buffer in front of the port: a unit adds bytes, the arbiter writes
 /// them out in chunks to consecutive addresses.
 #[derive(Clone, Debug)]
@@ -131,6 +148,7 @@ impl WriteBuffer {
     }
 
     /// The write request ready to go, if any.
+    #[inline]
     fn ready(&self) -> Option<(u64, u32)> {
         if self.pending >= self.chunk || (self.flush && self.pending > 0) {
             Some((self.next_addr, self.pending.min(self.chunk) as u32))
@@ -226,7 +244,13 @@ pub(super) struct Machine<'a> {
     run_fifo: Fifo<Elem>,
     to_emitter: bool,
     run_flush: bool,
-    region: [Vec<Elem>; 2],
+    /// Functional contents of the two run regions: the reference of the element at each
+    /// position (a padding element's is its position). An element read back is rebuilt
+    /// from its reference, its input box and the Morton code computed when it was read
+    /// in (`codes`), which gives exactly the element written.
+    region: [Vec<u32>; 2],
+    /// Morton code of each primitive, recorded by the input stage for the run regions.
+    codes: Vec<u64>,
     dst: usize,
     wr_pos: u64,
     pass_run_len: u64,
@@ -250,6 +274,9 @@ pub(super) struct Machine<'a> {
     pub phases: Vec<PhaseReport>,
     phase_start: u64,
     phase_read: u64,
+    /// Reads completed in the phase and the sum of their latencies (accept to completion).
+    phase_reads: u64,
+    phase_read_latency: u64,
     phase_written: u64,
     pub trace: Vec<TraceRow>,
     win: TraceRow,
@@ -269,12 +296,15 @@ pub(super) struct Machine<'a> {
     presort_wake: u64,
     /// Busy, starved and waiting presorters at the last full tick (counts of a frozen cycle).
     frozen: [u64; 3],
-    /// Busy, starved and waiting presorter-cycles added by frozen cycles.
-    frozen_totals: [u64; 3],
+    /// Starved and waiting presorter-cycles added by frozen cycles (busy ones are counted
+    /// when their insertion starts).
+    frozen_totals: [u64; 2],
     /// Earliest end of a presorter's insertion in progress (`u64::MAX`: none).
     wake_at: u64,
     /// Cycles skipped by fast-forwarding.
     pub skipped_cycles: u64,
+    /// Responses the port held after the last tick (popped at the next cycle's start).
+    waiting: usize,
     progress_hook: Option<&'a mut dyn FnMut(u64, u64)>,
 }
 
@@ -347,9 +377,10 @@ impl<'a> Machine<'a> {
             to_emitter: blocks == 1,
             run_flush: false,
             region: [
-                vec![Elem::PAD; region_len(passes_total > 0)],
-                vec![Elem::PAD; region_len(passes_total > 1)],
+                vec![0; region_len(passes_total > 0)],
+                vec![0; region_len(passes_total > 1)],
             ],
+            codes: vec![0; if passes_total > 0 { n as usize } else { 0 }],
             dst: 0,
             wr_pos: 0,
             pass_run_len: m,
@@ -387,12 +418,14 @@ impl<'a> Machine<'a> {
             phases: Vec::new(),
             phase_start: 0,
             phase_read: 0,
+            phase_reads: 0,
+            phase_read_latency: 0,
             phase_written: 0,
             trace: Vec::new(),
             win: TraceRow::default(),
             idle: 0,
-            snap_before: vec![0; 10],
-            snap_after: vec![0; 10],
+            snap_before: vec![0; 9],
+            snap_after: vec![0; 9],
             probe: false,
             wake_at: u64::MAX,
             presort_busy_now: 0,
@@ -400,8 +433,9 @@ impl<'a> Machine<'a> {
             presort_frozen_now: true,
             presort_wake: 0,
             frozen: [0; 3],
-            frozen_totals: [0; 3],
+            frozen_totals: [0; 2],
             skipped_cycles: 0,
+            waiting: 0,
             progress_hook,
         }
     }
@@ -419,18 +453,7 @@ impl<'a> Machine<'a> {
     /// The element for input primitive `i` (padding past the end), with its Morton code
     /// computed as it streams in (\[P2\] §5.1).
     fn input_elem(&self, i: u64) -> Elem {
-        if i >= self.n {
-            return Elem::pad(i);
-        }
-        let a = self.aabbs[i as usize];
-        // The same centroid expression as the software builder.
-        let c = a.min * 0.5 + a.max * 0.5;
-        let code = if self.cfg.morton_bits == 30 {
-            self.quant.code30(c) as u64
-        } else {
-            self.quant.code63(c)
-        };
-        Elem::new(code, i as u32, a)
+        elem_of(self.aabbs, &self.quant, self.cfg.morton_bits, i)
     }
 
     /// Runs to completion; returns the cycle count.
@@ -449,8 +472,16 @@ impl<'a> Machine<'a> {
             }
             let mut progress = false;
             self.wake_at = u64::MAX;
-            while let Some(r) = self.port.pop_response() {
+            while self.waiting > 0 {
+                let Some(r) = self.port.pop_response() else {
+                    break;
+                };
+                self.waiting -= 1;
                 progress = true;
+                if r.kind == AccessKind::Read {
+                    self.phase_reads += 1;
+                    self.phase_read_latency += r.completed_cycle - r.accepted_cycle;
+                }
                 self.on_response(r.tag);
             }
             if self.control() {
@@ -514,7 +545,7 @@ impl<'a> Machine<'a> {
     /// Ends the cycle: the memory and the trace advance.
     #[inline]
     fn advance(&mut self) {
-        self.port.tick();
+        self.waiting = self.port.tick_and_count();
         self.cycle += 1;
         self.win.cycles += 1;
         if self.win.cycles == self.cfg.trace_window_cycles {
@@ -536,7 +567,7 @@ impl<'a> Machine<'a> {
             self.reader_blocked_cycles,
             self.port_refusals,
         ]);
-        out[7..10].copy_from_slice(&self.frozen_totals);
+        out[7..9].copy_from_slice(&self.frozen_totals);
     }
 
     /// After an idle probe cycle: no unit can change state until a memory response
@@ -556,9 +587,11 @@ impl<'a> Machine<'a> {
         }
         let win_busy = self.presort_busy_now;
         let deadline = self.wake_at;
+        // Nothing is sent or popped while skipping, so the count outstanding stays fixed.
+        let outstanding = self.port.outstanding();
         let mut k = 0u64;
-        while self.port.completed_waiting() == 0
-            && (self.port.outstanding() > 0 || deadline != u64::MAX)
+        while self.waiting == 0
+            && (outstanding > 0 || deadline != u64::MAX)
             && self.cycle < deadline
             && self.idle + k < MEMORY_TIMEOUT_CYCLES
         {
@@ -576,7 +609,7 @@ impl<'a> Machine<'a> {
             e.write_full_cycles += k * after[4];
             self.reader_blocked_cycles += k * after[5];
             self.port_refusals += k * after[6];
-            for (t, d) in self.frozen_totals.iter_mut().zip(&after[7..10]) {
+            for (t, d) in self.frozen_totals.iter_mut().zip(&after[7..9]) {
                 *t += k * d;
             }
 
@@ -624,9 +657,17 @@ impl<'a> Machine<'a> {
             end_cycle: self.cycle,
             bytes_read: self.phase_read,
             bytes_written: self.phase_written,
+            reads: self.phase_reads,
+            read_latency_mean_cycles: if self.phase_reads == 0 {
+                0.0
+            } else {
+                self.phase_read_latency as f64 / self.phase_reads as f64
+            },
         });
         self.phase_start = self.cycle;
         self.phase_read = 0;
+        self.phase_reads = 0;
+        self.phase_read_latency = 0;
         self.phase_written = 0;
     }
 
@@ -773,10 +814,11 @@ impl<'a> Machine<'a> {
         }
         if !self.presort_dirty && self.cycle < self.presort_wake {
             let f = self.frozen;
+            // Busy presorters of a frozen cycle are inside insertions, whose cycles were
+            // counted when they started: only the trace adds them per cycle.
             self.presort_busy_now = f[0];
-            self.frozen_totals[0] += f[0];
-            self.frozen_totals[1] += f[1];
-            self.frozen_totals[2] += f[2];
+            self.frozen_totals[0] += f[1];
+            self.frozen_totals[1] += f[2];
             self.wake_at = self.wake_at.min(self.presort_wake);
             return false;
         }
@@ -794,6 +836,12 @@ impl<'a> Machine<'a> {
             match ps.state {
                 PresortState::Finished => {}
                 PresortState::Sorting => {
+                    if cycle < ps.busy_until {
+                        // Inside an insertion: nothing changes before it ends.
+                        self.presort_busy_now += 1;
+                        wake = wake.min(ps.busy_until);
+                        continue;
+                    }
                     if ps.sorted(cycle) {
                         ps.state = PresortState::Draining { pos: 0 };
                     } else {
@@ -896,10 +944,23 @@ impl<'a> Machine<'a> {
 
     /// The memory arbiter: issues at most one request. Returns true when it did.
     fn issue(&mut self) -> bool {
+        // Most cycles no requester is ready: find out with cheap checks before trying any.
+        let mask = self.ready_mask();
+        if mask == 0 {
+            self.count_reader_blocked();
+            return false;
+        }
         let mut who = self.rr;
         for _ in 0..REQUESTERS {
             if who == REQUESTERS {
                 who = 0;
+            }
+            if mask & (1 << who) == 0 {
+                if who == 4 {
+                    self.count_reader_blocked();
+                }
+                who += 1;
+                continue;
             }
             let ok = match who {
                 0 => self.try_run_write(),
@@ -941,6 +1002,39 @@ impl<'a> Machine<'a> {
             }
         }
         false
+    }
+
+    /// Bit `i` set when requester `i` of [`Self::issue`] has a request ready (the
+    /// conditions under which its `try_*` function returns `Some`).
+    #[inline]
+    fn ready_mask(&self) -> u32 {
+        let len = self.run_fifo.len() as u64;
+        let run = len > 0 && (len >= self.cfg.b as u64 || self.run_flush);
+        let read = if self.phase == Phase::PartialSort {
+            self.in_next < self.npad && {
+                let ps = &self.presorters[self.in_p as usize];
+                ps.used < ps.slots()
+            }
+        } else {
+            !self.refill.is_empty()
+        };
+        let mut mask = run as u32 | (read as u32) << 4;
+        // Only the emitter and the toplevel unit fill the write buffers: before emission
+        // starts they are empty.
+        if self.emit_active || self.top.is_some() {
+            mask |= (self.nodes_wb.ready().is_some() as u32) << 1
+                | (self.leaves_wb.ready().is_some() as u32) << 2
+                | (self.hl_wb.ready().is_some() as u32) << 3;
+        }
+        mask
+    }
+
+    /// The reader was visited by the arbiter with nothing to issue.
+    #[inline]
+    fn count_reader_blocked(&mut self) {
+        if self.phase == Phase::PartialSort && self.in_next < self.npad {
+            self.reader_blocked_cycles += 1;
+        }
     }
 
     /// Bytes as the port counts them (whole bursts).
@@ -1008,7 +1102,7 @@ impl<'a> Machine<'a> {
         }
         for _ in 0..count {
             let e = self.run_fifo.pop().expect("counted");
-            self.region[self.dst][self.wr_pos as usize] = e;
+            self.region[self.dst][self.wr_pos as usize] = e.index;
             self.wr_pos += 1;
         }
         self.outstanding_writes += 1;
@@ -1049,6 +1143,11 @@ impl<'a> Machine<'a> {
                 let b = self.cfg.b as usize;
                 for i in 0..d.count as usize {
                     let e = self.input_elem(d.src + i as u64);
+                    if let Some(c) = self.codes.get_mut(e.index as usize) {
+                        if !e.is_pad() {
+                            *c = e.code;
+                        }
+                    }
                     self.presorters[p as usize].ring[slot as usize * b + i] = e;
                 }
                 let ps = &mut self.presorters[p as usize];
@@ -1057,9 +1156,16 @@ impl<'a> Machine<'a> {
                 self.presort_dirty = true;
             }
             ReadDest::Merge { buf } => {
-                let src = &self.region[1 - self.dst];
                 let s = d.src as usize;
-                self.merger.fill(buf, &src[s..s + d.count as usize]);
+                let src = &self.region[1 - self.dst][s..s + d.count as usize];
+                let (aabbs, codes) = (self.aabbs, &self.codes);
+                self.merger.fill_with(buf, src.len(), |k| {
+                    let r = src[k];
+                    match aabbs.get(r as usize) {
+                        Some(&a) => Elem::new(codes[r as usize], r, a),
+                        None => Elem::pad(r as u64),
+                    }
+                });
             }
         }
     }
@@ -1111,12 +1217,11 @@ impl<'a> Machine<'a> {
     pub fn stall_report(&self) -> StallReport {
         let p = &self.presorters;
         StallReport {
-            presort_busy_cycles: p.iter().map(|x| x.busy_cycles).sum::<u64>()
-                + self.frozen_totals[0],
+            presort_busy_cycles: p.iter().map(|x| x.busy_cycles).sum::<u64>(),
             presort_starved_cycles: p.iter().map(|x| x.starved_cycles).sum::<u64>()
-                + self.frozen_totals[1],
+                + self.frozen_totals[0],
             presort_wait_scratchpad_cycles: p.iter().map(|x| x.wait_scratchpad_cycles).sum::<u64>()
-                + self.frozen_totals[2],
+                + self.frozen_totals[1],
             merge: self.merger.stalls,
             merge_outputs: self.merger.outputs,
             heap_ops: self.merger.ops,

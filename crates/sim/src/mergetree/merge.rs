@@ -182,13 +182,15 @@ impl Merger {
         self.queues[(buf / 2) as usize].fetched += count as u64;
     }
 
-    /// A read for buffer `buf` completed with `data`.
-    pub fn fill(&mut self, buf: u32, data: &[Elem]) {
+    /// A read for buffer `buf` completed with `count` elements, element `k` being `elem(k)`.
+    pub fn fill_with(&mut self, buf: u32, count: usize, mut elem: impl FnMut(usize) -> Elem) {
         let q = &mut self.queues[(buf / 2) as usize];
         let h = (buf % 2) as usize;
         let base = q.base[h] as usize;
-        self.scratch[base..base + data.len()].copy_from_slice(data);
-        q.count[h] = data.len() as u32;
+        for (k, slot) in self.scratch[base..base + count].iter_mut().enumerate() {
+            *slot = elem(k);
+        }
+        q.count[h] = count as u32;
         q.valid[h] = true;
     }
 

@@ -61,7 +61,7 @@ pub(super) struct Presorter {
     pub busy_until: u64,
     /// State.
     pub state: PresortState,
-    /// Cycles spent inserting or copying.
+    /// Cycles spent inserting (counted when an insertion starts) or copying.
     pub busy_cycles: u64,
     /// Cycles waiting for read data.
     pub starved_cycles: u64,
@@ -135,12 +135,11 @@ impl Presorter {
     }
 
     /// Cycle `cycle` of sorting. Returns true when an insertion started (a change of
-    /// state); a cycle inside an insertion counts as busy but changes nothing until
-    /// `busy_until`, so the machine may skip it.
+    /// state); a cycle inside an insertion changes nothing until `busy_until` (its busy
+    /// cycles were counted when it started), so the machine may skip it.
     #[inline]
     pub fn tick_sort(&mut self, cycle: u64, b: u32) -> bool {
         if cycle < self.busy_until {
-            self.busy_cycles += 1;
             return false;
         }
         if self.inserted == self.sub_len {
@@ -155,25 +154,20 @@ impl Presorter {
             self.starved_cycles += 1;
             return false;
         };
-        // Insertion: one compare-and-swap per cycle, plus one cycle for the inner loop.
+        // Insertion: one compare-and-swap per cycle, plus one cycle for the inner loop. The
+        // inner loop walks down from the end while the elements are greater than `e`, so
+        // it shifts every greater element and, unless it reaches the front, stops on one
+        // compare with an element not greater: found here by a binary search over the
+        // sorted prefix, with the same count.
         let i = self.buf.len();
-        self.buf.push(e);
-        let mut j = i;
-        let mut compares = 0u32;
-        while j > 0 {
-            compares += 1;
-            if self.buf[j - 1].key() > e.key() {
-                self.buf[j] = self.buf[j - 1];
-                j -= 1;
-            } else {
-                break;
-            }
-        }
-        self.buf[j] = e;
+        let key = e.key();
+        let pos = self.buf.partition_point(|x| x.key() <= key);
+        let compares = (i - pos) as u32 + (pos > 0) as u32;
+        self.buf.insert(pos, e);
         self.inserted += 1;
-        // This cycle is the first of the `compares + 1`.
+        // This cycle is the first of the `compares + 1`, all counted busy now.
         self.busy_until = cycle + compares as u64 + 1;
-        self.busy_cycles += 1;
+        self.busy_cycles += compares as u64 + 1;
         true
     }
 

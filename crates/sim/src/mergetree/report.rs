@@ -27,6 +27,11 @@ pub struct PhaseReport {
     pub bytes_read: u64,
     /// Bytes of the write requests issued in the phase (whole bursts).
     pub bytes_written: u64,
+    /// Read requests completed in the phase.
+    pub reads: u64,
+    /// Their mean latency in unit cycles, from the port accepting a request to its last
+    /// burst (queueing in the memory controller included).
+    pub read_latency_mean_cycles: f64,
 }
 
 /// Busy and stall counters of every unit.

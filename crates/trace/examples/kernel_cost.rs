@@ -1,0 +1,65 @@
+//! Traces a scene's diffuse bounce rays through the MBVH4 and BVH2 kernels many times, for
+//! profiling one kernel in isolation (e.g. under `valgrind --tool=callgrind
+//! --toggle-collect='*Mbvh4Accel*run*'`). `cargo run --release -p trace --example
+//! kernel_cost -- SCENE [REPEATS]`.
+
+use trace::{RayKind, RenderSettings, Shading, Traverse};
+
+fn main() -> Result<(), Box<dyn std::error::Error>> {
+    let args: Vec<String> = std::env::args().skip(1).collect();
+    let spec = args.first().ok_or("usage: kernel_cost SCENE [REPEATS]")?;
+    let repeats: usize = args.get(1).map(|r| r.parse()).transpose()?.unwrap_or(10);
+    let sc = scene::open(spec, &scene::LoadOptions::default())?;
+    let mesh = sc.mesh_at(0.0)?;
+    let tris: Vec<geom::Triangle> = mesh.triangles_iter().collect();
+    let aabbs = bvh::triangle_aabbs(&tris);
+    let binned = bvh::BinnedSahBuilder::default().build(&aabbs)?;
+    let b2 = trace::Bvh2Accel::new(binned.clone(), &tris, Default::default())?;
+    let b4 = trace::Mbvh4Accel::new(bvh::collapse(&binned)?, &tris, Default::default())?;
+    let b8 = trace::Mbvh8Accel::from_bvh2(&binned, &tris, Default::default())?;
+    let mut s = RenderSettings::new(sc.info().camera);
+    s.width = 320;
+    s.height = 180;
+    s.rays = RayKind::Diffuse;
+    let shading = Shading {
+        triangles: &tris,
+        material_ids: &[],
+    };
+    let mut rays = Vec::new();
+    trace::render::render_observed(
+        &b2,
+        shading,
+        &s,
+        trace::render::RayRecorder::default,
+        |r| {
+            rays.extend(r.rays.into_iter().filter(|r| r.1 > 0).map(|r| r.0));
+            Ok(())
+        },
+        None,
+    )?;
+    let mut stack = trace::TraversalStack::new();
+    for (name, t) in [
+        ("mbvh4", &trace::Accel::Mbvh4(b4)),
+        ("mbvh8", &trace::Accel::Mbvh8(b8)),
+        ("bvh2", &trace::Accel::Bvh2(b2)),
+    ] {
+        let mut st = trace::RayStats::default();
+        let start = std::time::Instant::now();
+        let mut hits = 0u64;
+        for _ in 0..repeats {
+            for r in &rays {
+                hits += t.closest_hit(r, &mut stack, &mut st).is_some() as u64;
+            }
+        }
+        let secs = start.elapsed().as_secs_f64();
+        println!(
+            "{name}: {} rays x {repeats}: {:.1} ns/ray, nodes/ray {:.2}, leaves/ray {:.2}, tris/ray {:.2}, hits {hits}",
+            rays.len(),
+            secs * 1e9 / (rays.len() * repeats) as f64,
+            st.per_ray(st.node_visits),
+            st.per_ray(st.leaf_visits),
+            st.per_ray(st.tri_tests)
+        );
+    }
+    Ok(())
+}

@@ -1,0 +1,468 @@
+//! What every traversal kernel shares: the hit record and its tie-break rule, the reusable
+//! traversal stack, the per-ray slab-test setup, leaf intersection and the pop step.
+//!
+//! # Which hit is "the closest"
+//!
+//! A kernel returns the hit of smallest distance `t`; among hits at exactly the same `t`
+//! (a ray through an edge shared by two triangles) the one with the smallest primitive id
+//! wins. The triangle test reports a hit exactly when its returned `t` lies in the ray's
+//! range ([`geom::intersect_triangle_watertight`]), and box culling is conservative (see
+//! [`cull_distance`]), so the result is a function of the ray and the triangles alone:
+//! every tree, of either width, and brute force give the same hit, bit for bit.
+//!
+//! One more condition makes this hold for rays that start on a surface (secondary rays):
+//! a triangle hit counts only when the ray also enters the triangle's own bounding box by
+//! then ([`enters_own_box`]). Near a ray's origin the triangle test's distance carries an
+//! absolute error of the order of an ulp of the coordinates, so it can report a hit at
+//! `t = -0.0` or a few ulps on the wrong side of a box entry, where the slab test (exact
+//! up to relative rounding) has already culled every box around the triangle. With the
+//! check, such a hit is refused the same way by brute force and by every kernel: if the
+//! ray enters a triangle's box in range, it enters every enclosing box too, since the slab
+//! test is monotone in the box and in its range.
+
+use crate::observer::{Observer, Query};
+use crate::stats::RayStats;
+use bvh::ChildRef;
+use geom::{intersect_triangles4_watertight, Ray, RayPrecomp, Triangle, Triangles4};
+
+/// A ray/triangle hit found by traversal.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Hit {
+    /// Distance along the ray, in units of the ray direction.
+    pub t: f32,
+    /// The primitive (triangle) id: its index in the triangle list the tree was built over.
+    pub prim: u32,
+    /// The leaf-table entry through which it was found (an index into the tree's
+    /// `prim_indices`, which holds `prim` there).
+    pub leaf_entry: u32,
+    /// Barycentric weights of the triangle's three vertices at the hit.
+    pub bary: [f32; 3],
+}
+
+impl Hit {
+    /// True when this hit should replace `best` under the closest-hit rule: smaller `t`, or
+    /// the same `t` and a smaller primitive id.
+    #[inline(always)]
+    pub fn beats(&self, best: Option<&Hit>) -> bool {
+        match best {
+            None => true,
+            Some(b) => self.t < b.t || (self.t == b.t && self.prim < b.prim),
+        }
+    }
+}
+
+/// Relative slack of box culling against the closest hit so far: a box (or a stack entry)
+/// is skipped only when its entry distance exceeds `best_t * CULL_SLACK`. The slab test's
+/// entry distance carries about `gamma(3) = 1.8e-7` relative rounding error and the
+/// triangle distance a few ulps; `2^-16 = 1.5e-5` covers both many times over, so a box
+/// holding a hit tied with the closest one is never culled. Culling later only ever costs
+/// work, never a result.
+pub const CULL_SLACK: f32 = 1.0 + 1.0 / 65536.0;
+
+/// The distance up to which boxes are still entered when the closest hit so far is at
+/// `best_t` (infinite stays infinite).
+#[inline(always)]
+pub fn cull_distance(best_t: f32) -> f32 {
+    best_t * CULL_SLACK
+}
+
+/// Whether the ray enters `tri`'s bounding box within `[t_min, cull_distance(t)]`: the
+/// second condition of a hit at `t` (see the module header). Only evaluated for triangles
+/// the watertight test reports as hit.
+#[inline(always)]
+pub fn enters_own_box(pre: &RayPrecomp, tri: &Triangle, t_min: f32, t: f32) -> bool {
+    geom::ray_aabb(pre, &tri.aabb(), t_min, cull_distance(t)).is_some()
+}
+
+/// One traversal stack entry: a child to visit later and its entry distance.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct StackEntry {
+    pub child: ChildRef,
+    pub dist: f32,
+}
+
+/// A traversal stack, reused across rays so that tracing does not allocate per ray.
+/// It grows as deep as a tree needs (no fixed limit that a deep tree could overflow).
+#[derive(Clone, Debug, Default)]
+pub struct TraversalStack {
+    pub(crate) entries: Vec<StackEntry>,
+}
+
+impl TraversalStack {
+    /// An empty stack with room for 64 entries ([P4] §3: a 64-entry stack rendered all of
+    /// its scenes; the deepest used 28).
+    pub fn new() -> Self {
+        Self {
+            entries: Vec::with_capacity(64),
+        }
+    }
+
+    /// Pushes `child` (a packed reference, see [`LeafTriangles`]), counting the push and
+    /// the depth; the observer sees the tree's own reference.
+    #[inline(always)]
+    pub(crate) fn push<O: Observer>(
+        &mut self,
+        child: ChildRef,
+        dist: f32,
+        leaf: &LeafTriangles,
+        stats: &mut RayStats,
+        obs: &mut O,
+    ) {
+        self.entries.push(StackEntry { child, dist });
+        stats.pushes += 1;
+        stats.max_stack_depth = stats.max_stack_depth.max(self.entries.len() as u64);
+        obs.push(leaf.original(child));
+    }
+
+    /// Pops the next entry to traverse. With `distance_culling`, entries whose entry
+    /// distance lies beyond `cull_distance(best_t)` are popped and skipped.
+    #[inline(always)]
+    pub(crate) fn pop<O: Observer>(
+        &mut self,
+        distance_culling: bool,
+        best_t: f32,
+        stats: &mut RayStats,
+        obs: &mut O,
+    ) -> Option<ChildRef> {
+        while let Some(e) = self.entries.pop() {
+            if distance_culling && e.dist > cull_distance(best_t) {
+                stats.culled_pops += 1;
+                obs.pop(true);
+                continue;
+            }
+            stats.pops += 1;
+            obs.pop(false);
+            return Some(e.child);
+        }
+        None
+    }
+}
+
+/// Per-ray values of the slab test: for each axis, which box plane the ray enters and
+/// leaves through, chosen by the sign of the direction. Plane numbers index the six
+/// values `[min.x, min.y, min.z, max.x, max.y, max.z]`. A box whose near plane is at
+/// `+inf` (the empty box of an unused child slot) is never hit.
+#[derive(Clone, Copy, Debug)]
+pub(crate) struct Slab {
+    pub origin: [f32; 3],
+    pub inv_dir: [f32; 3],
+    pub near: [usize; 3],
+    pub far: [usize; 3],
+    pub t_min: f32,
+}
+
+impl Slab {
+    #[inline(always)]
+    pub fn new(pre: &RayPrecomp, t_min: f32) -> Self {
+        let inv = pre.inv_dir.to_array();
+        let near = std::array::from_fn(|a| if inv[a] >= 0.0 { a } else { a + 3 });
+        let far = std::array::from_fn(|a| if inv[a] >= 0.0 { a + 3 } else { a });
+        Slab {
+            origin: pre.origin.to_array(),
+            inv_dir: inv,
+            near,
+            far,
+            t_min,
+        }
+    }
+}
+
+/// A vector of capacity `n` whose memory the kernel is asked to back with transparent huge
+/// pages (Linux, `madvise(MADV_HUGEPAGE)`), before anything is written to it. Traversal
+/// touches a tree's nodes and triangles at random; with 4 KiB pages a tree of tens of
+/// megabytes misses the TLB on most node fetches, with 2 MiB pages it does not. Elsewhere,
+/// or when the advice is refused, it is a plain vector.
+pub(crate) fn huge_page_vec<T>(n: usize) -> Vec<T> {
+    let v: Vec<T> = Vec::with_capacity(n);
+    #[cfg(target_os = "linux")]
+    {
+        const HUGE: usize = 2 << 20;
+        let bytes = n * std::mem::size_of::<T>();
+        if bytes >= 2 * HUGE {
+            let start = v.as_ptr() as usize;
+            let lo = start.div_ceil(HUGE) * HUGE;
+            let hi = (start + bytes) / HUGE * HUGE;
+            if hi > lo {
+                // SAFETY: the range lies inside the vector's own allocation; the advice
+                // changes how pages are backed, never their contents or validity.
+                unsafe {
+                    libc::madvise(lo as *mut libc::c_void, hi - lo, libc::MADV_HUGEPAGE);
+                }
+            }
+        }
+    }
+    v
+}
+
+/// Hints the CPU to start loading the cache line at `p` (a no-op off x86-64). Kernels
+/// prefetch the children they push, so that their fetch overlaps the traversal of the
+/// nearer subtree.
+#[inline(always)]
+pub(crate) fn prefetch<T>(p: *const T) {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: prefetching is a hint; it never faults, whatever the address.
+    unsafe {
+        std::arch::x86_64::_mm_prefetch(p as *const i8, std::arch::x86_64::_MM_HINT_T0)
+    };
+    #[cfg(not(target_arch = "x86_64"))]
+    let _ = p;
+}
+
+/// `max` as a compare and select, which maps to one SIMD max instruction. Slab values are
+/// never NaN (finite origin, finite non-zero reciprocal, planes finite or infinite).
+#[inline(always)]
+pub(crate) fn fmax(a: f32, b: f32) -> f32 {
+    if a > b {
+        a
+    } else {
+        b
+    }
+}
+
+/// `min` as a compare and select (see [`fmax`]).
+#[inline(always)]
+pub(crate) fn fmin(a: f32, b: f32) -> f32 {
+    if a < b {
+        a
+    } else {
+        b
+    }
+}
+
+/// A leaf's triangles packed for 4-wide tests.
+///
+/// Triangles live in blocks of four ([`Triangles4`], structure of arrays). Leaves are
+/// placed in tree order: a leaf of up to four triangles goes into the lanes left free in
+/// the current block if it fits there, otherwise it starts a new block; a larger leaf
+/// starts a new block and fills as many as it needs. A kernel's private copy of the nodes
+/// names a leaf by its *slot* `block * 4 + lane` (and keeps its count), so one leaf is
+/// tested with one 4-wide test per block it spans, and trees with one triangle per leaf
+/// (LBVH) still pack four to a block. Each slot remembers its leaf-table entry, so hits,
+/// counters and logs name the tree's own leaf-table entries.
+#[derive(Clone, Debug, Default)]
+pub(crate) struct LeafTriangles {
+    blocks: Vec<Triangles4>,
+    /// Leaf-table entry of each lane of each block (`u32::MAX` for an unused lane).
+    entries: Vec<[u32; 4]>,
+    /// Primitive id of each leaf-table entry (the tree's `prim_indices`).
+    prims: Vec<u32>,
+    /// Length of the triangle list the tree was built over.
+    pub source_len: usize,
+}
+
+/// Why the triangles of a tree cannot be packed.
+pub(crate) enum PackError {
+    /// Leaf-table entry `.0` names triangle `.1`, which does not exist.
+    Missing(usize, u32),
+    /// More slots than a 32-bit slot index addresses.
+    TooLarge,
+}
+
+impl PackError {
+    /// As a [`TraceError`], for a tree over `triangles` triangles.
+    pub fn into_trace_error(self, triangles: usize) -> crate::TraceError {
+        match self {
+            PackError::Missing(entry, prim) => crate::TraceError::PrimitiveOutOfRange {
+                entry,
+                prim,
+                triangles,
+            },
+            PackError::TooLarge => {
+                crate::TraceError::BadTree("too many leaf triangles to address".into())
+            }
+        }
+    }
+}
+
+impl LeafTriangles {
+    /// Packs the leaves named by the leaf children `leaves` (the kernel's private node
+    /// copy, in tree order), rewriting each to name its slot. Leaf ranges must lie inside
+    /// `prim_indices` (checked by `check_links` first).
+    pub fn pack<'a>(
+        prim_indices: &[u32],
+        triangles: &[Triangle],
+        leaves: impl Iterator<Item = &'a mut ChildRef>,
+    ) -> Result<Self, PackError> {
+        let mut blocks: Vec<Triangles4> = huge_page_vec(prim_indices.len().div_ceil(4) + 1);
+        let mut entries: Vec<[u32; 4]> = Vec::with_capacity(blocks.capacity());
+        let mut fill = 4usize; // lanes used in the last block (4: none free)
+        for c in leaves.filter(|c| c.is_leaf()) {
+            let count = c.count as usize;
+            if count > 4 || fill + count > 4 {
+                fill = 4;
+            }
+            let mut slot = None;
+            for k in 0..count {
+                let entry = c.index as usize + k;
+                let prim = prim_indices[entry];
+                let tri = triangles
+                    .get(prim as usize)
+                    .ok_or(PackError::Missing(entry, prim))?;
+                if fill == 4 {
+                    blocks.push(Triangles4::pack(&[*tri]));
+                    entries.push([u32::MAX; 4]);
+                    fill = 0;
+                }
+                let b = blocks.len() - 1;
+                for (v, vk) in blocks[b].v.iter_mut().enumerate() {
+                    for (a, row) in vk.iter_mut().enumerate() {
+                        row[fill] = tri.v[v][a];
+                    }
+                }
+                entries[b][fill] = entry as u32;
+                slot.get_or_insert(b * 4 + fill);
+                fill += 1;
+            }
+            c.index = u32::try_from(slot.unwrap_or(0)).map_err(|_| PackError::TooLarge)?;
+        }
+        Ok(Self {
+            blocks,
+            entries,
+            prims: prim_indices.to_vec(),
+            source_len: triangles.len(),
+        })
+    }
+
+    /// Leaf-table entries (the tree's `prim_indices.len()`).
+    pub fn entry_count(&self) -> usize {
+        self.prims.len()
+    }
+
+    /// The tree's own reference for a (packed) child: leaves name their first leaf-table
+    /// entry again, inner children are unchanged. (Panic-free, so that with the unit
+    /// observer, which ignores the result, it compiles away.)
+    #[inline(always)]
+    pub fn original(&self, c: ChildRef) -> ChildRef {
+        if c.is_leaf() {
+            let e = self
+                .entries
+                .get(c.index as usize / 4)
+                .map_or(u32::MAX, |b| b[c.index as usize % 4]);
+            ChildRef::leaf(e, c.count)
+        } else {
+            c
+        }
+    }
+
+    /// Prefetches the first block of the leaf at `slot`.
+    #[inline(always)]
+    pub fn prefetch(&self, slot: u32) {
+        prefetch(self.blocks.as_ptr().wrapping_add(slot as usize / 4));
+    }
+
+    /// Tests the leaf of `count` triangles at `slot`; updates `best` and `best_t`. Returns
+    /// true when an any-hit query has found its hit and traversal should stop.
+    ///
+    /// Counters follow the one-at-a-time semantics of the hardware IST unit and of the
+    /// log: every triangle of the leaf is one test, except that an any-hit ray stops at its
+    /// hit, so the lanes after it are not counted.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    pub fn intersect<O: Observer>(
+        &self,
+        slot: u32,
+        count: u32,
+        pre: &RayPrecomp,
+        t_min: f32,
+        query: Query,
+        best: &mut Option<Hit>,
+        best_t: &mut f32,
+        stats: &mut RayStats,
+        obs: &mut O,
+    ) -> bool {
+        stats.leaf_visits += 1;
+        obs.leaf(self.original(ChildRef::leaf(slot, count)).index, count);
+        let mut block = slot as usize / 4;
+        let mut lane = slot as usize % 4;
+        let mut left = count as usize;
+        while left > 0 {
+            // A malformed tree cannot send us past the blocks (leaves were packed from
+            // checked ranges), but stay panic-free regardless.
+            let (Some(tris), Some(entries)) = (self.blocks.get(block), self.entries.get(block))
+            else {
+                break;
+            };
+            let n = left.min(4 - lane);
+            let lanes = (((1u32 << n) - 1) << lane) as u8;
+            let h = intersect_triangles4_watertight(pre, tris, lanes, t_min, *best_t);
+            let mut m = h.mask;
+            let mut tested = n as u64;
+            while m != 0 {
+                let i = m.trailing_zeros() as usize;
+                m &= m - 1;
+                if !enters_own_box(pre, &tris.get(i), t_min, h.t[i]) {
+                    continue;
+                }
+                let entry = entries[i];
+                let hit = Hit {
+                    t: h.t[i],
+                    prim: self.prims.get(entry as usize).copied().unwrap_or(u32::MAX),
+                    leaf_entry: entry,
+                    bary: [h.bary[0][i], h.bary[1][i], h.bary[2][i]],
+                };
+                if hit.beats(best.as_ref()) {
+                    *best_t = hit.t;
+                    *best = Some(hit);
+                    if query == Query::Any {
+                        tested = (i - lane + 1) as u64;
+                        stats.tri_tests += tested;
+                        return true;
+                    }
+                }
+            }
+            stats.tri_tests += tested;
+            left -= n;
+            lane = 0;
+            block += 1;
+        }
+        false
+    }
+}
+
+/// A tree that rays can be traced through.
+pub trait Traverse: Send + Sync {
+    /// Traces `ray` for `query`, reporting events to `obs` and adding the ray's counters
+    /// to `stats`. Returns the closest hit (`Query::Closest`) or the first hit found
+    /// (`Query::Any`).
+    fn trace_observed<O: Observer>(
+        &self,
+        ray: &Ray,
+        query: Query,
+        stack: &mut TraversalStack,
+        stats: &mut RayStats,
+        obs: &mut O,
+    ) -> Option<Hit>;
+
+    /// The closest hit along `ray`.
+    #[inline]
+    fn closest_hit(
+        &self,
+        ray: &Ray,
+        stack: &mut TraversalStack,
+        stats: &mut RayStats,
+    ) -> Option<Hit> {
+        self.trace_observed(ray, Query::Closest, stack, stats, &mut ())
+    }
+
+    /// True when anything lies along `ray` within its range (occlusion).
+    #[inline]
+    fn occluded(&self, ray: &Ray, stack: &mut TraversalStack, stats: &mut RayStats) -> bool {
+        self.trace_observed(ray, Query::Any, stack, stats, &mut ())
+            .is_some()
+    }
+
+    /// Bytes of one node in this tree's format (64 for `Bvh2`, 128 for `Mbvh4`).
+    fn node_bytes(&self) -> u32;
+
+    /// Child slots per node (2 or 4).
+    fn width(&self) -> u32;
+
+    /// Number of inner nodes.
+    fn node_count(&self) -> usize;
+
+    /// Length of the triangle list the tree was built over (hit primitive ids are below it).
+    fn source_triangles(&self) -> usize;
+
+    /// Leaf-table entries.
+    fn leaf_entries(&self) -> usize;
+}

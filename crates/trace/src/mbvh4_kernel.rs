@@ -1,0 +1,415 @@
+//! Traversal of the 4-wide `Mbvh4` ([P4] §3.1, Fig. 3 bottom): one node fetch tests four
+//! child boxes (four slab tests, written lane by lane over the node's structure-of-arrays
+//! planes so that they compile to 4-wide SIMD), the hit children are put in front-to-back
+//! order by a 4-input sorting network of five comparators ([P4] Fig. 4, Knuth's optimal
+//! network of depth 3), traversal continues with the nearest and the others are pushed.
+//!
+//! With the distance stack ([P4] §3.1, after Ernst and Greiner 2008), each stack entry
+//! keeps its entry distance, and an entry farther than the closest hit found since it was
+//! pushed is dropped when popped, without fetching its node; [P4] measured about 10% for
+//! MBVH. [`KernelOptions::distance_stack`] switches it off to measure that effect.
+
+use crate::accel::{
+    cull_distance, fmax, fmin, huge_page_vec, prefetch, Hit, LeafTriangles, Slab, TraversalStack,
+    Traverse,
+};
+use crate::bvh2_kernel::check_links;
+use crate::observer::{Observer, Query};
+use crate::stats::RayStats;
+use crate::{KernelOptions, TraceError};
+use bvh::{ChildRef, Mbvh4, Node4};
+use geom::{Ray, RayPrecomp, Triangle, SLAB_FAR_SCALE};
+
+/// A node aligned to 64-byte cache lines (a `Vec<Node4>` is only 4-byte aligned, so
+/// most of its 128-byte nodes would touch three lines instead of two).
+#[repr(C, align(64))]
+#[derive(Clone, Copy, Debug)]
+struct AlignedNode4(Node4);
+
+/// An `Mbvh4` with its triangles in leaf order, ready to trace. The kernel works on an
+/// aligned copy of the nodes (node `i` of the copy is node `i` of the tree).
+#[derive(Clone, Debug)]
+pub struct Mbvh4Accel {
+    nodes: Vec<AlignedNode4>,
+    leaf: LeafTriangles,
+    options: KernelOptions,
+}
+
+/// Entry distances of the four children of a node; `+inf` for a missed or empty slot.
+/// (The portable form; x86-64 uses [`test4_sse`], which computes the same values.)
+#[cfg_attr(target_arch = "x86_64", allow(dead_code))]
+#[inline(always)]
+fn test4_portable(slab: &Slab, n: &Node4, t_max: f32) -> ([f32; 4], u8, u8) {
+    // Padded to eight so that an index masked with 7 needs no bounds check.
+    let planes = [
+        &n.min_x, &n.min_y, &n.min_z, &n.max_x, &n.max_y, &n.max_z, &n.max_z, &n.max_z,
+    ];
+    let o = slab.origin;
+    let d = slab.inv_dir;
+    let row = |p: usize| planes[p & 7];
+    let (nx, ny, nz) = (row(slab.near[0]), row(slab.near[1]), row(slab.near[2]));
+    let (fx, fy, fz) = (row(slab.far[0]), row(slab.far[1]), row(slab.far[2]));
+    let mut dist = [f32::INFINITY; 4];
+    let mut mask = 0u8;
+    for i in 0..4 {
+        let near = fmax(
+            fmax((nx[i] - o[0]) * d[0], (ny[i] - o[1]) * d[1]),
+            fmax((nz[i] - o[2]) * d[2], slab.t_min),
+        );
+        let far = fmin(
+            fmin((fx[i] - o[0]) * d[0], (fy[i] - o[1]) * d[1]),
+            (fz[i] - o[2]) * d[2],
+        ) * SLAB_FAR_SCALE;
+        let hit = near <= fmin(far, t_max);
+        dist[i] = if hit { near } else { f32::INFINITY };
+        mask |= (hit as u8) << i;
+    }
+    let valid = (0..4).fold(0u8, |v, i| v | ((n.min_x[i] < f32::INFINITY) as u8) << i);
+    (dist, mask, valid)
+}
+
+/// [`test4_portable`] in SSE (part of every x86-64 CPU): the same operations in the same
+/// order (`maxps`/`minps` return their second operand on NaN, as `fmax`/`fmin` do), so the
+/// same bits, but the hit mask comes from one `movmskps` and nothing goes through memory
+/// lane by lane.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+fn test4_sse(slab: &Slab, n: &Node4, t_max: f32) -> ([f32; 4], u8, u8) {
+    use std::arch::x86_64::*;
+    // SAFETY: SSE and SSE2 are part of the x86-64 baseline; the six plane rows of a Node4
+    // are [f32; 4] fields, so each load reads 16 bytes inside the node.
+    unsafe {
+        let base = n as *const Node4 as *const f32;
+        let row = |p: usize| _mm_loadu_ps(base.add((p % 6) * 4));
+        let o = slab.origin;
+        let d = slab.inv_dir;
+        let t = |p: usize, a: usize| {
+            _mm_mul_ps(_mm_sub_ps(row(p), _mm_set1_ps(o[a])), _mm_set1_ps(d[a]))
+        };
+        let near = _mm_max_ps(
+            _mm_max_ps(t(slab.near[0], 0), t(slab.near[1], 1)),
+            _mm_max_ps(t(slab.near[2], 2), _mm_set1_ps(slab.t_min)),
+        );
+        let far = _mm_mul_ps(
+            _mm_min_ps(
+                _mm_min_ps(t(slab.far[0], 0), t(slab.far[1], 1)),
+                t(slab.far[2], 2),
+            ),
+            _mm_set1_ps(SLAB_FAR_SCALE),
+        );
+        let hit = _mm_cmple_ps(near, _mm_min_ps(far, _mm_set1_ps(t_max)));
+        let dist = _mm_or_ps(
+            _mm_and_ps(hit, near),
+            _mm_andnot_ps(hit, _mm_set1_ps(f32::INFINITY)),
+        );
+        let mut out = [0f32; 4];
+        _mm_storeu_ps(out.as_mut_ptr(), dist);
+        let inf = _mm_set1_ps(f32::INFINITY);
+        let valid = _mm_movemask_ps(_mm_cmplt_ps(row(0), inf)) as u8;
+        (out, _mm_movemask_ps(hit) as u8, valid)
+    }
+}
+
+/// The child-box test of the kernel: entry distances, the hit mask, and the mask of
+/// non-empty slots (an empty slot is the only one whose box has `min_x = +inf`: trees over
+/// finite primitives have finite boxes), read off the loaded box rows instead of the four
+/// child references.
+#[inline(always)]
+fn test4(slab: &Slab, n: &Node4, t_max: f32) -> ([f32; 4], u8, u8) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        test4_sse(slab, n, t_max)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        test4_portable(slab, n, t_max)
+    }
+}
+
+/// Sorts four keys with the five comparators of the optimal 4-input network ([P4]
+/// Fig. 4): (0,1) (2,3), then (0,2) (1,3), then (1,2). Each comparator is a branch-free
+/// min/max pair, as in hardware, so traversal order costs no branch mispredictions.
+#[inline(always)]
+pub fn sort4(k: &mut [u32; 4]) {
+    #[inline(always)]
+    fn cmp(k: &mut [u32; 4], a: usize, b: usize) {
+        let (x, y) = (k[a], k[b]);
+        k[a] = x.min(y);
+        k[b] = x.max(y);
+    }
+    cmp(k, 0, 1);
+    cmp(k, 2, 3);
+    cmp(k, 0, 2);
+    cmp(k, 1, 3);
+    cmp(k, 1, 2);
+}
+
+/// Bits set in a 4-bit mask (a table: the target's baseline has no popcount instruction).
+const POPCOUNT4: [u8; 16] = [0, 1, 1, 2, 1, 2, 2, 3, 1, 2, 2, 3, 2, 3, 3, 4];
+
+/// Sort keys of the hit children: the entry distance mapped to an order-preserving
+/// unsigned integer with its two low bits replaced by the slot number (so a key names its
+/// slot, and distances within 4 ulps order by slot); `u32::MAX` for a missed slot.
+#[inline(always)]
+fn child_keys(dist: &[f32; 4], mask: u8) -> [u32; 4] {
+    std::array::from_fn(|i| {
+        let b = dist[i].to_bits();
+        let ordered = if b & 0x8000_0000 != 0 {
+            !b
+        } else {
+            b | 0x8000_0000
+        };
+        if mask >> i & 1 != 0 {
+            (ordered & !3) | i as u32
+        } else {
+            u32::MAX
+        }
+    })
+}
+
+impl Mbvh4Accel {
+    /// Prepares `bvh` (built over `triangles`) for tracing. Fails when a leaf-table entry
+    /// names a triangle that does not exist, or a child link points outside the tree.
+    pub fn new(
+        bvh: Mbvh4,
+        triangles: &[Triangle],
+        options: KernelOptions,
+    ) -> Result<Self, TraceError> {
+        check_links(
+            bvh.nodes.iter().flat_map(|n| n.children.iter()),
+            4,
+            bvh.nodes.len(),
+            bvh.prim_indices.len(),
+        )?;
+        let mut nodes: Vec<AlignedNode4> = huge_page_vec(bvh.nodes.len());
+        nodes.extend(bvh.nodes.iter().map(|n| AlignedNode4(*n)));
+        let leaf = LeafTriangles::pack(
+            &bvh.prim_indices,
+            triangles,
+            nodes.iter_mut().flat_map(|n| n.0.children.iter_mut()),
+        )
+        .map_err(|e| e.into_trace_error(triangles.len()))?;
+        Ok(Self {
+            nodes,
+            leaf,
+            options,
+        })
+    }
+
+    /// The kernel options.
+    pub fn options(&self) -> KernelOptions {
+        self.options
+    }
+
+    /// Starts loading a child that traversal will visit later (both cache lines of a node).
+    #[inline(always)]
+    fn prefetch_child(&self, child: ChildRef) {
+        if child.is_leaf() {
+            self.leaf.prefetch(child.index);
+        } else {
+            let p = self.nodes.as_ptr().wrapping_add(child.index as usize);
+            prefetch(p);
+            prefetch((p as *const u8).wrapping_add(64));
+        }
+    }
+
+    fn run<const DIST: bool, O: Observer>(
+        &self,
+        ray: &Ray,
+        query: Query,
+        stack: &mut TraversalStack,
+        total: &mut RayStats,
+        obs: &mut O,
+    ) -> Option<Hit> {
+        // Counted in a local (kept in registers), added to `total` once at the end.
+        let mut ray_stats = RayStats::default();
+        let stats = &mut ray_stats;
+        let pre = RayPrecomp::new(ray);
+        let slab = Slab::new(&pre, ray.t_min);
+        let nodes = &self.nodes;
+        obs.begin(ray, query);
+        stats.rays += 1;
+        stack.entries.clear();
+        let mut best: Option<Hit> = None;
+        let mut best_t = ray.t_max;
+        // A ray with a NaN or infinite origin or direction hits nothing (the slab test
+        // assumes finite values; a NaN would make every box, even an empty slot, "hit").
+        let finite = geom::is_finite3(ray.origin) && geom::is_finite3(ray.dir);
+        let mut cur = finite.then_some(ChildRef::inner(0));
+        while let Some(c) = cur {
+            if c.is_leaf() {
+                let stop = self.leaf.intersect(
+                    c.index,
+                    c.count,
+                    &pre,
+                    ray.t_min,
+                    query,
+                    &mut best,
+                    &mut best_t,
+                    stats,
+                    obs,
+                );
+                if stop {
+                    break;
+                }
+            } else {
+                let node = &nodes[c.index as usize].0;
+                let (dist, mask, valid) = test4(&slab, node, cull_distance(best_t));
+                let kids = &node.children;
+                stats.node_visits += 1;
+                stats.box_tests += POPCOUNT4[valid as usize & 15] as u64;
+                obs.node(c.index, valid, mask);
+                match POPCOUNT4[mask as usize & 15] {
+                    0 => {}
+                    1 => {
+                        cur = Some(kids[mask.trailing_zeros() as usize & 3]);
+                        continue;
+                    }
+                    2 => {
+                        // Two hits need one comparison, not the whole network.
+                        let a = mask.trailing_zeros() as usize & 3;
+                        let b = (7 - (mask.leading_zeros() as usize)) & 3;
+                        let (near, far) = if dist[b] < dist[a] { (b, a) } else { (a, b) };
+                        self.prefetch_child(kids[far]);
+                        stack.push(kids[far], dist[far], &self.leaf, stats, obs);
+                        cur = Some(kids[near]);
+                        continue;
+                    }
+                    hits => {
+                        let hits = hits as usize;
+                        let mut keys = child_keys(&dist, mask);
+                        sort4(&mut keys);
+                        // Push the far ones far-to-near so the nearest of them pops first.
+                        for k in (1..hits).rev() {
+                            let slot = (keys[k] & 3) as usize;
+                            let child = kids[slot];
+                            self.prefetch_child(child);
+                            stack.push(child, dist[slot], &self.leaf, stats, obs);
+                        }
+                        cur = Some(kids[(keys[0] & 3) as usize]);
+                        continue;
+                    }
+                }
+            }
+            cur = stack.pop(DIST, best_t, stats, obs);
+        }
+        stats.hits += best.is_some() as u64;
+        total.add(stats);
+        obs.end(best.as_ref());
+        best
+    }
+}
+
+impl Traverse for Mbvh4Accel {
+    #[inline]
+    fn trace_observed<O: Observer>(
+        &self,
+        ray: &Ray,
+        query: Query,
+        stack: &mut TraversalStack,
+        stats: &mut RayStats,
+        obs: &mut O,
+    ) -> Option<Hit> {
+        if self.options.distance_stack {
+            self.run::<true, O>(ray, query, stack, stats, obs)
+        } else {
+            self.run::<false, O>(ray, query, stack, stats, obs)
+        }
+    }
+
+    fn node_bytes(&self) -> u32 {
+        std::mem::size_of::<Node4>() as u32
+    }
+
+    fn width(&self) -> u32 {
+        4
+    }
+
+    fn node_count(&self) -> usize {
+        self.nodes.len()
+    }
+
+    fn source_triangles(&self) -> usize {
+        self.leaf.source_len
+    }
+
+    fn leaf_entries(&self) -> usize {
+        self.leaf.entry_count()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The SSE box test computes the portable test's values bit for bit.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn sse_box_test_equals_the_portable_one() {
+        let mut r = crate::testutil::Rng::new(5);
+        for _ in 0..20_000 {
+            let mut n = Node4::EMPTY;
+            for i in 0..(1 + (r.f32() * 4.0) as usize).min(4) {
+                let a = r.vec() * 3.0;
+                let b = a + (r.vec() + geom::Vec3::ONE) * if r.f32() < 0.2 { 0.0 } else { 1.0 };
+                n.set_child_aabb(i, &geom::Aabb::new(a.min(b), a.max(b)));
+            }
+            let mut d = r.vec();
+            if r.f32() < 0.2 {
+                d.x = 0.0;
+            }
+            let ray = Ray::with_range(r.vec() * 5.0, d, r.f32() * 0.1, 1.0 + r.f32() * 20.0);
+            let pre = RayPrecomp::new(&ray);
+            let slab = Slab::new(&pre, ray.t_min);
+            let t_max = if r.f32() < 0.5 {
+                ray.t_max
+            } else {
+                f32::INFINITY
+            };
+            let (a, ma, va) = test4_portable(&slab, &n, t_max);
+            let (b, mb, vb) = test4_sse(&slab, &n, t_max);
+            assert_eq!((ma, va), (mb, vb));
+            // The valid mask names exactly the slots that were given a box.
+            let given = n
+                .min_x
+                .iter()
+                .enumerate()
+                .fold(0u8, |v, (i, &x)| v | ((x != f32::INFINITY) as u8) << i);
+            assert_eq!(va, given);
+            assert_eq!(a.map(f32::to_bits), b.map(f32::to_bits));
+        }
+    }
+
+    /// The five-comparator network sorts every ordering of four distinct keys, and the
+    /// child keys order hit slots by distance (misses last, ties by slot).
+    #[test]
+    fn sorting_network_sorts_all_permutations() {
+        let base = [3u32, 10, 11, u32::MAX];
+        let mut count = 0;
+        for a in 0..4 {
+            for b in 0..4 {
+                for c in 0..4 {
+                    for d in 0..4 {
+                        let p = [a, b, c, d];
+                        let mut seen = [false; 4];
+                        if p.iter().any(|&i| std::mem::replace(&mut seen[i], true)) {
+                            continue;
+                        }
+                        count += 1;
+                        let mut keys = p.map(|i| base[i]);
+                        sort4(&mut keys);
+                        assert_eq!(keys, base, "{p:?}");
+                    }
+                }
+            }
+        }
+        assert_eq!(count, 24);
+        let mut k = child_keys(&[5.0, 1.0, 1.0, -2.0], 0b0111);
+        sort4(&mut k);
+        assert_eq!(k.map(|k| k & 3)[..3], [1, 2, 0]);
+        assert_eq!(k[3], u32::MAX);
+        let mut k = child_keys(&[-1.0, -3.0, 0.0, 2.0], 0b1111);
+        sort4(&mut k);
+        assert_eq!(k.map(|k| k & 3), [1, 0, 2, 3]);
+    }
+}
