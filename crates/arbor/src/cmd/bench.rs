@@ -1,7 +1,7 @@
 //! `arbor bench`: benchmarks that run Arbor side by side with peer libraries in one process
 //! and report ratios, one subcommand each (`bench_*.rs`).
 
-use super::bench_build;
+use super::{bench_build, bench_trace};
 use crate::progress::Ui;
 
 /// Arguments of `arbor bench`.
@@ -17,11 +17,64 @@ pub enum BenchCommand {
     /// Build speed, SAH and peak memory of Arbor's builders next to Embree 3, obvhs and
     /// the bvh crate on the same meshes, on 1 and 2 threads.
     Build(bench_build::BenchBuildArgs),
+    /// Traversal throughput of Arbor's kernels next to Embree 3's rtcIntersect1 and obvhs
+    /// on the same primary and diffuse rays, on 1 and 2 threads.
+    Trace(bench_trace::BenchTraceArgs),
 }
 
 /// Runs `arbor bench ...`.
 pub fn run(args: &BenchArgs, ui: &Ui) -> anyhow::Result<()> {
     match &args.bench {
         BenchCommand::Build(a) => bench_build::run(a, ui),
+        BenchCommand::Trace(a) => bench_trace::run(a, ui),
+    }
+}
+
+/// `/proc/loadavg`'s three averages, where the file exists.
+pub fn load_average() -> Option<[f64; 3]> {
+    let s = std::fs::read_to_string("/proc/loadavg").ok()?;
+    let mut it = s.split_whitespace().map(|v| v.parse::<f64>().ok());
+    Some([it.next()??, it.next()??, it.next()??])
+}
+
+/// Now in UTC as `YYYY-MM-DDTHH:MM:SSZ`.
+pub fn utc_now() -> String {
+    let secs = std::time::SystemTime::now()
+        .duration_since(std::time::UNIX_EPOCH)
+        .map_or(0, |d| d.as_secs());
+    let (days, rem) = (secs / 86_400, secs % 86_400);
+    let (y, m, d) = civil_from_days(days as i64);
+    format!(
+        "{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}Z",
+        rem / 3600,
+        rem / 60 % 60,
+        rem % 60
+    )
+}
+
+/// The proleptic Gregorian date of day `z` after 1970-01-01 (H. Hinnant's algorithm).
+fn civil_from_days(z: i64) -> (i64, u32, u32) {
+    let z = z + 719_468;
+    let era = z.div_euclid(146_097);
+    let doe = z.rem_euclid(146_097);
+    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
+    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
+    let mp = (5 * doy + 2) / 153;
+    let d = (doy - (153 * mp + 2) / 5 + 1) as u32;
+    let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
+    (yoe + era * 400 + (m <= 2) as i64, m, d)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn dates_are_gregorian() {
+        assert_eq!(civil_from_days(0), (1970, 1, 1));
+        assert_eq!(civil_from_days(59), (1970, 3, 1));
+        assert_eq!(civil_from_days(11_016), (2000, 2, 29));
+        assert_eq!(civil_from_days(20_788), (2026, 12, 1));
+        assert_eq!(utc_now().len(), 20);
     }
 }

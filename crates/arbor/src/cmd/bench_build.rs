@@ -20,6 +20,7 @@
 //!
 //! The goals of issue 3 are evaluated from the same rows and printed after the table.
 
+use super::bench::{load_average, utc_now};
 use super::build::{builder, mesh_aabbs, BuildConfig, SAH_REFERENCE_MAX_TRIANGLES};
 use super::{open_scene, thousands, SceneArgs};
 use crate::alloc::{peak_bytes, reset_peak, PeakMeter};
@@ -522,41 +523,6 @@ fn check_args(a: &BenchBuildArgs) -> anyhow::Result<Vec<Entry>> {
     select(&a.builders)
 }
 
-/// `/proc/loadavg`'s three averages, where the file exists.
-fn load_average() -> Option<[f64; 3]> {
-    let s = std::fs::read_to_string("/proc/loadavg").ok()?;
-    let mut it = s.split_whitespace().map(|v| v.parse::<f64>().ok());
-    Some([it.next()??, it.next()??, it.next()??])
-}
-
-/// Now in UTC as `YYYY-MM-DDTHH:MM:SSZ`.
-fn utc_now() -> String {
-    let secs = std::time::SystemTime::now()
-        .duration_since(std::time::UNIX_EPOCH)
-        .map_or(0, |d| d.as_secs());
-    let (days, rem) = (secs / 86_400, secs % 86_400);
-    let (y, m, d) = civil_from_days(days as i64);
-    format!(
-        "{y:04}-{m:02}-{d:02}T{:02}:{:02}:{:02}Z",
-        rem / 3600,
-        rem / 60 % 60,
-        rem % 60
-    )
-}
-
-/// The proleptic Gregorian date of day `z` after 1970-01-01 (H. Hinnant's algorithm).
-fn civil_from_days(z: i64) -> (i64, u32, u32) {
-    let z = z + 719_468;
-    let era = z.div_euclid(146_097);
-    let doe = z.rem_euclid(146_097);
-    let yoe = (doe - doe / 1460 + doe / 36_524 - doe / 146_096) / 365;
-    let doy = doe - (365 * yoe + yoe / 4 - yoe / 100);
-    let mp = (5 * doy + 2) / 153;
-    let d = (doy - (153 * mp + 2) / 5 + 1) as u32;
-    let m = if mp < 10 { mp + 3 } else { mp - 9 } as u32;
-    (yoe + era * 400 + (m <= 2) as i64, m, d)
-}
-
 /// Runs `arbor bench build`.
 pub fn run(args: &BenchBuildArgs, ui: &Ui) -> anyhow::Result<()> {
     let entries = check_args(args)?;
@@ -687,7 +653,7 @@ pub fn run(args: &BenchBuildArgs, ui: &Ui) -> anyhow::Result<()> {
             ("bench-build.csv", csv(&doc)),
             ("bench-build.json", json.clone()),
         ] {
-            write_atomically(&dir.join(name), &body)?;
+            super::report::write_atomic(&dir.join(name), &body)?;
         }
     }
     match format {
@@ -697,31 +663,6 @@ pub fn run(args: &BenchBuildArgs, ui: &Ui) -> anyhow::Result<()> {
         Format::Text => print!("{}", text(&doc)),
     }
     Ok(())
-}
-
-/// Writes `body` to `path` through a temporary file in the same folder, renamed over it,
-/// so an interrupted run never leaves a partial file.
-fn write_atomically(path: &std::path::Path, body: &str) -> anyhow::Result<()> {
-    use std::io::Write;
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => std::path::Path::new("."),
-    };
-    let mut b = tempfile::Builder::new();
-    b.prefix(".arbor-bench-").suffix(".tmp");
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        b.permissions(std::fs::Permissions::from_mode(0o666));
-    }
-    let write = || -> std::io::Result<()> {
-        let mut tmp = b.tempfile_in(dir)?;
-        tmp.write_all(body.as_bytes())?;
-        tmp.as_file().sync_all()?;
-        tmp.persist(path).map_err(|e| e.error)?;
-        Ok(())
-    };
-    write().with_context(|| format!("cannot write {}", path.display()))
 }
 
 /// Fills the SAH and throughput ratios of one scene's rows.
@@ -1041,15 +982,6 @@ fn csv(d: &BenchJson) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    #[test]
-    fn dates_are_gregorian() {
-        assert_eq!(civil_from_days(0), (1970, 1, 1));
-        assert_eq!(civil_from_days(59), (1970, 3, 1));
-        assert_eq!(civil_from_days(11_016), (2000, 2, 29));
-        assert_eq!(civil_from_days(20_788), (2026, 12, 1));
-        assert_eq!(utc_now().len(), 20);
-    }
 
     #[test]
     fn builder_selection() {

@@ -2,6 +2,7 @@
 
 pub mod bench;
 pub mod bench_build;
+pub mod bench_trace;
 pub mod build;
 pub mod cbvh;
 pub mod demo;

@@ -39,6 +39,37 @@ pub fn run(a: &ReportArgs, ui: &Ui) -> anyhow::Result<()> {
 /// default of every report's `--scene-dir`).
 pub const SHARED_SCENES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/scenes");
 
+/// Cameras inside the architectural scenes of `shared/scenes` (their default cameras frame
+/// them from outside, where a ray sees a few walls): (scene, eye, target, vertical field
+/// of view in degrees). Chosen for Arbor's reports and benchmarks; the thesis does not
+/// give its viewpoints.
+pub const INTERIOR_VIEWS: [(&str, [f32; 3], [f32; 3], f32); 3] = [
+    (
+        "crytek-sponza",
+        [-120.0, 20.0, -5.0],
+        [60.0, 40.0, 5.0],
+        70.0,
+    ),
+    (
+        "conference",
+        [1500.0, 350.0, -900.0],
+        [0.0, 150.0, 500.0],
+        70.0,
+    ),
+    ("sibenik", [-17.0, -10.0, 0.0], [10.0, -5.0, 0.0], 70.0),
+];
+
+/// The camera reports and benchmarks use for the scene named `name`: its interior view
+/// where [`INTERIOR_VIEWS`] has one, else `camera` (the scene's own).
+pub fn view_camera(name: &str, mut camera: scene::Camera) -> scene::Camera {
+    if let Some((_, eye, target, fov)) = INTERIOR_VIEWS.iter().find(|c| c.0 == name) {
+        camera.eye = geom::Vec3::from(*eye);
+        camera.target = geom::Vec3::from(*target);
+        camera.vfov_deg = *fov;
+    }
+    camera
+}
+
 /// Short name of a scene spec (file stem, or procedural name).
 pub fn short_name(spec: &str) -> String {
     if let Some(rest) = spec.strip_prefix("proc:") {
@@ -78,7 +109,7 @@ pub fn write_atomic(path: &Path, text: &str) -> anyhow::Result<()> {
         _ => Path::new("."),
     };
     let mut tb = tempfile::Builder::new();
-    tb.prefix(".arbor-report-").suffix(".tmp");
+    tb.prefix(".arbor-").suffix(".tmp");
     // Temporary files are private (0600); the result gets ordinary permissions.
     #[cfg(unix)]
     {

@@ -20,7 +20,7 @@ use super::report_cbvh::load_triangles;
 use crate::progress::{Ui, Unit};
 use cbvh::bottomup::{compress_hlbvh, StreamConfig};
 use cbvh::{compress_topdown, Coords, Params};
-use geom::{Triangle, Vec3};
+use geom::Triangle;
 use rayon::prelude::*;
 use serde::Serialize;
 use std::fmt::Write as _;
@@ -37,25 +37,6 @@ use trace::{
 pub const P3_BOX_TESTS_INCREASE: f64 = 0.08;
 /// \[P3\] §5.4, triangle tests (see [`P3_BOX_TESTS_INCREASE`]).
 pub const P3_TRI_TESTS_INCREASE: f64 = 0.13;
-
-/// Cameras inside the architectural scenes (their default cameras frame them from
-/// outside, where a ray sees a few walls): (scene, eye, target, vertical fov in degrees).
-/// Object scenes (bunny, dragon) and procedural ones use their default camera.
-const INTERIOR: [(&str, [f32; 3], [f32; 3], f32); 3] = [
-    (
-        "crytek-sponza",
-        [-120.0, 20.0, -5.0],
-        [60.0, 40.0, 5.0],
-        70.0,
-    ),
-    (
-        "conference",
-        [1500.0, 350.0, -900.0],
-        [0.0, 150.0, 500.0],
-        70.0,
-    ),
-    ("sibenik", [-17.0, -10.0, 0.0], [10.0, -5.0, 0.0], 70.0),
-];
 
 /// \[P4\] §3.2: diffuse path tracing with 4 bounces.
 const BOUNCES: u32 = 4;
@@ -106,12 +87,8 @@ impl QualityRow {
 
 /// Triangles and camera of a report scene spec: the scene's camera, or the interior one.
 fn load_traced(spec: &str) -> anyhow::Result<(String, Vec<Triangle>, scene::Camera)> {
-    let (name, tris, mut camera) = load_triangles(spec)?;
-    if let Some((_, eye, target, fov)) = INTERIOR.iter().find(|c| c.0 == name) {
-        camera.eye = Vec3::from(*eye);
-        camera.target = Vec3::from(*target);
-        camera.vfov_deg = *fov;
-    }
+    let (name, tris, camera) = load_triangles(spec)?;
+    let camera = super::report::view_camera(&name, camera);
     Ok((name, tris, camera))
 }
 

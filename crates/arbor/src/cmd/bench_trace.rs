@@ -1,0 +1,439 @@
+//! `arbor bench trace`: traversal throughput of Arbor's kernels next to Embree 3's
+//! single-ray `rtcIntersect1` and obvhs's CWBVH traversal, on the same rays, in one process
+//! and one run, as ratios (issue 4, "Speed, against Embree").
+//!
+//! For every scene, each tracer builds its own tree (Arbor: binned SAH as in [P4] §3.2,
+//! collapsed to 4 and 8 wide, and the native top-down MBVH4; Embree: its default scene,
+//! build quality MEDIUM, plain and ROBUST; obvhs: CWBVH from PLOC, `medium_build`), then two
+//! ray sets from an Arbor render are traced: the primary rays (coherent) and the diffuse
+//! bounce rays of a path-traced render with 4 bounces ([P4] §3.2; incoherent). Per ray set
+//! and thread count, `--rounds` rounds time every tracer once in turn, so that load from
+//! other processes falls on all alike, and each tracer's best round counts, both in wall
+//! time and in worker-thread CPU time (steadier on a shared machine). Every tracer's hits
+//! are compared with Arbor's (`agreement`). The work is in `peers::trace_bench`.
+//!
+//! The issue's goal is evaluated from the same rows: Arbor's best kernel at least 0.7x of
+//! Embree's single-ray throughput on incoherent rays.
+
+use super::bench::{load_average, utc_now};
+use super::report::{view_camera, write_atomic, SHARED_SCENES};
+use super::{open_scene, thousands, SceneArgs};
+use crate::progress::Ui;
+use anyhow::Context;
+use peers::trace_bench::{BenchScene, TraceRow};
+use serde::Serialize;
+
+/// Issue 4's goal: Arbor's best kernel over Embree's `rtcIntersect1` on incoherent rays.
+pub const GOAL_VS_EMBREE: f64 = 0.7;
+/// Largest `--rounds`.
+pub const MAX_ROUNDS: usize = 100;
+/// Largest image side of the recorded renders.
+pub const MAX_SIDE: u32 = 4096;
+/// True when this binary was built with Embree (`--features embree`).
+pub const EMBREE: bool = cfg!(feature = "embree");
+/// Scenes of `shared/scenes` measured when none are given (those present).
+const DEFAULT_SHARED: [&str; 5] = ["bunny", "crytek-sponza", "conference", "sibenik", "dragon"];
+
+/// Output formats.
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Format {
+    /// Aligned text table and goal summary.
+    Text,
+    /// Markdown tables (for the README).
+    Markdown,
+    /// One CSV row per measurement.
+    Csv,
+    /// The `arbor.bench.trace.v1` document.
+    Json,
+}
+
+/// Arguments of `arbor bench trace`.
+#[derive(clap::Args, Debug)]
+pub struct BenchTraceArgs {
+    /// Scenes (default: the bundled CesiumMan.glb and bunny, crytek-sponza, conference,
+    /// sibenik and dragon from ../shared/scenes where present). Interior cameras are used
+    /// for crytek-sponza, conference and sibenik.
+    pub scenes: Vec<String>,
+    /// Thread counts, comma-separated.
+    #[arg(long, value_delimiter = ',', default_values_t = [1usize, 2], value_name = "N,...")]
+    pub threads: Vec<usize>,
+    /// Rounds per measurement; the fastest counts.
+    #[arg(long, default_value_t = 5, value_name = "N")]
+    pub rounds: usize,
+    /// Width of the renders whose rays are traced.
+    #[arg(long, default_value_t = 640)]
+    pub width: u32,
+    /// Height of the renders whose rays are traced.
+    #[arg(long, default_value_t = 360)]
+    pub height: u32,
+    /// Diffuse bounces of the incoherent ray set.
+    #[arg(long, default_value_t = 4)]
+    pub bounces: u32,
+    /// Output format.
+    #[arg(long, value_enum, default_value_t = Format::Text)]
+    pub format: Format,
+    /// Same as `--format json`.
+    #[arg(long)]
+    pub json: bool,
+    /// Also write every format to DIR (bench-trace.txt, .md, .csv, .json), atomically.
+    #[arg(long, value_name = "DIR")]
+    pub out: Option<std::path::PathBuf>,
+}
+
+/// The goal, per scene and thread count.
+#[derive(Clone, Debug, Serialize)]
+pub struct Goal {
+    /// Scene.
+    pub scene: String,
+    /// Threads.
+    pub threads: usize,
+    /// Arbor's fastest kernel on the diffuse rays.
+    pub best_kernel: String,
+    /// Its throughput over Embree's (wall time).
+    pub vs_embree: f64,
+    /// The same over CPU time.
+    pub vs_embree_cpu: f64,
+    /// Met on both measures.
+    pub met: bool,
+}
+
+/// The document `arbor bench trace --json` prints (`arbor.bench.trace.v1`).
+#[derive(Clone, Debug, Serialize)]
+pub struct BenchTraceJson {
+    /// `"arbor.bench.trace.v1"`.
+    pub schema: &'static str,
+    /// When the run started (UTC).
+    pub started_utc: String,
+    /// `/proc/loadavg` at the start.
+    pub load_average_start: Option<[f64; 3]>,
+    /// At the end.
+    pub load_average_end: Option<[f64; 3]>,
+    /// Hardware threads available.
+    pub cpus: usize,
+    /// The command line.
+    pub command: String,
+    /// Rounds per measurement.
+    pub rounds: usize,
+    /// Render size of the ray sets.
+    pub width: u32,
+    /// Render height.
+    pub height: u32,
+    /// Whether the Embree rows could run.
+    pub embree: bool,
+    /// Notes (skipped scenes, missing peers).
+    pub notes: Vec<String>,
+    /// Measurements.
+    pub rows: Vec<TraceRow>,
+    /// The goal per scene and thread count (empty without Embree).
+    pub goals: Vec<Goal>,
+}
+
+fn check_args(a: &BenchTraceArgs) -> anyhow::Result<()> {
+    anyhow::ensure!(
+        (1..=MAX_ROUNDS).contains(&a.rounds),
+        "--rounds must be between 1 and {MAX_ROUNDS}, got {}",
+        a.rounds
+    );
+    anyhow::ensure!(!a.threads.is_empty(), "--threads needs at least one count");
+    for &t in &a.threads {
+        anyhow::ensure!(
+            (1..=super::build::MAX_THREADS).contains(&t),
+            "--threads must be between 1 and {}, got {t}",
+            super::build::MAX_THREADS
+        );
+    }
+    anyhow::ensure!(
+        (1..=MAX_SIDE).contains(&a.width) && (1..=MAX_SIDE).contains(&a.height),
+        "--width and --height must be between 1 and {MAX_SIDE}"
+    );
+    anyhow::ensure!(
+        a.bounces <= trace::render::MAX_BOUNCES,
+        "--bounces must be at most {}",
+        trace::render::MAX_BOUNCES
+    );
+    Ok(())
+}
+
+/// The scenes to run: the given ones, or the defaults that exist.
+fn scene_list(a: &BenchTraceArgs, notes: &mut Vec<String>) -> Vec<String> {
+    if !a.scenes.is_empty() {
+        return a.scenes.clone();
+    }
+    let mut v = vec![super::demo::DEFAULT_SCENE.to_string()];
+    for s in DEFAULT_SHARED {
+        let p = std::path::Path::new(SHARED_SCENES).join(format!("{s}.ply"));
+        if p.exists() {
+            v.push(p.display().to_string());
+        } else {
+            notes.push(format!("{s}: not found in {SHARED_SCENES}, skipped"));
+        }
+    }
+    v
+}
+
+/// The goal rows: per scene and thread count, Arbor's best kernel on diffuse rays.
+fn goals(rows: &[TraceRow]) -> Vec<Goal> {
+    let mut out: Vec<Goal> = Vec::new();
+    for r in rows
+        .iter()
+        .filter(|r| r.rays == "diffuse" && r.tracer.starts_with("arbor"))
+    {
+        let (Some(w), Some(c)) = (r.vs_embree, r.vs_embree_cpu) else {
+            continue;
+        };
+        match out
+            .iter_mut()
+            .find(|g| g.scene == r.scene && g.threads == r.threads)
+        {
+            Some(g) if w.min(c) <= g.vs_embree.min(g.vs_embree_cpu) => {}
+            Some(g) => {
+                (g.best_kernel, g.vs_embree, g.vs_embree_cpu) = (r.tracer.clone(), w, c);
+                g.met = w >= GOAL_VS_EMBREE && c >= GOAL_VS_EMBREE;
+            }
+            None => out.push(Goal {
+                scene: r.scene.clone(),
+                threads: r.threads,
+                best_kernel: r.tracer.clone(),
+                vs_embree: w,
+                vs_embree_cpu: c,
+                met: w >= GOAL_VS_EMBREE && c >= GOAL_VS_EMBREE,
+            }),
+        }
+    }
+    out
+}
+
+/// Runs `arbor bench trace`.
+pub fn run(a: &BenchTraceArgs, ui: &Ui) -> anyhow::Result<()> {
+    check_args(a)?;
+    let format = if a.json { Format::Json } else { a.format };
+    if let Some(dir) = &a.out {
+        anyhow::ensure!(!dir.is_file(), "--out {}: is a file", dir.display());
+    }
+    let started_utc = utc_now();
+    let load_average_start = load_average();
+    let mut notes = Vec::new();
+    if !EMBREE {
+        notes.push(
+            "built without Embree (cargo feature `embree`): no Embree rows and no ratios".into(),
+        );
+    }
+    let mut rows = Vec::new();
+    for spec in scene_list(a, &mut notes) {
+        let sargs = SceneArgs {
+            scene: spec.clone(),
+            fps: None,
+            animation: None,
+        };
+        let (scene, _) = open_scene(&sargs, ui)?;
+        let mesh = scene
+            .mesh_at(0.0)
+            .with_context(|| format!("cannot sample {spec}"))?;
+        let name = scene.info().name.clone();
+        let bench = BenchScene {
+            name: name.clone(),
+            positions: &mesh.positions,
+            indices: &mesh.triangles,
+            camera: view_camera(&name, scene.info().camera),
+            width: a.width,
+            height: a.height,
+            bounces: a.bounces,
+        };
+        let tris = thousands(mesh.triangles.len() as u64);
+        // One spinner per stage the benchmark reports.
+        let spinner = std::cell::RefCell::new(None);
+        let note = |m: &str| {
+            spinner.replace(None);
+            spinner.replace(Some(ui.spinner(&format!("{name} ({tris} triangles): {m}"))));
+        };
+        let r = peers::trace_bench::run(&bench, &a.threads, a.rounds, &note)
+            .map_err(|e| anyhow::anyhow!("{spec}: {e}"))?;
+        spinner.replace(None);
+        rows.extend(r);
+    }
+    let goals = goals(&rows);
+    let doc = BenchTraceJson {
+        schema: "arbor.bench.trace.v1",
+        started_utc,
+        load_average_start,
+        load_average_end: load_average(),
+        cpus: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        command: std::env::args().collect::<Vec<_>>().join(" "),
+        rounds: a.rounds,
+        width: a.width,
+        height: a.height,
+        embree: EMBREE,
+        notes,
+        rows,
+        goals,
+    };
+    let json = serde_json::to_string_pretty(&doc)? + "\n";
+    if let Some(dir) = &a.out {
+        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
+        for (name, body) in [
+            ("bench-trace.txt", text(&doc)),
+            ("bench-trace.md", markdown(&doc)),
+            ("bench-trace.csv", csv(&doc)),
+            ("bench-trace.json", json.clone()),
+        ] {
+            write_atomic(&dir.join(name), &body)?;
+        }
+    }
+    match format {
+        Format::Json => print!("{json}"),
+        Format::Csv => print!("{}", csv(&doc)),
+        Format::Markdown => print!("{}", markdown(&doc)),
+        Format::Text => print!("{}", text(&doc)),
+    }
+    Ok(())
+}
+
+fn preamble(d: &BenchTraceJson) -> Vec<String> {
+    let la = |l: Option<[f64; 3]>| {
+        l.map_or("unknown".to_string(), |l| {
+            format!("{:.2} {:.2} {:.2}", l[0], l[1], l[2])
+        })
+    };
+    let mut v = vec![
+        format!("command: {}", d.command),
+        format!(
+            "started {} on {} hardware threads; load average {} at the start, {} at the end",
+            d.started_utc,
+            d.cpus,
+            la(d.load_average_start),
+            la(d.load_average_end)
+        ),
+        format!(
+            "rays of {}x{} renders (primary; diffuse bounces); best of {} rounds; Mrays/s per wall \
+             second and per worker CPU second; ratios over Embree's rtcIntersect1 (MEDIUM) at the \
+             same thread count; agreement: hits equal to Arbor's",
+            d.width, d.height, d.rounds
+        ),
+    ];
+    v.extend(d.notes.iter().cloned());
+    v
+}
+
+const HEADERS: [&str; 10] = [
+    "scene",
+    "rays",
+    "tracer",
+    "threads",
+    "Mrays/s",
+    "vs Embree",
+    "Mrays/CPU-s",
+    "vs Embree (CPU)",
+    "agreement",
+    "build ms",
+];
+
+fn cells(r: &TraceRow) -> [String; 10] {
+    let ratio = |v: Option<f64>| v.map_or("-".to_string(), |v| format!("{v:.2}x"));
+    [
+        r.scene.clone(),
+        format!("{} ({})", r.rays, thousands(r.ray_count as u64)),
+        r.tracer.clone(),
+        r.threads.to_string(),
+        format!("{:.2}", r.mrays_per_s),
+        ratio(r.vs_embree),
+        format!("{:.2}", r.mrays_per_cpu_s),
+        ratio(r.vs_embree_cpu),
+        format!("{:.4}", r.agreement),
+        format!("{:.0}", r.build_ms),
+    ]
+}
+
+fn goal_lines(d: &BenchTraceJson) -> Vec<String> {
+    d.goals
+        .iter()
+        .map(|g| {
+            format!(
+                "best Arbor kernel vs Embree, diffuse | {} | {} | {:.2}x (CPU {:.2}x) | >= {GOAL_VS_EMBREE}x | {} | {}",
+                g.scene,
+                g.threads,
+                g.vs_embree,
+                g.vs_embree_cpu,
+                if g.met { "yes" } else { "no" },
+                g.best_kernel
+            )
+        })
+        .collect()
+}
+
+fn text(d: &BenchTraceJson) -> String {
+    let mut s = String::new();
+    for l in preamble(d) {
+        s += &format!("{l}\n");
+    }
+    let table: Vec<[String; 10]> = d.rows.iter().map(cells).collect();
+    let mut width = HEADERS.map(str::len);
+    for row in &table {
+        for (w, c) in width.iter_mut().zip(row) {
+            *w = (*w).max(c.chars().count());
+        }
+    }
+    let line = |cols: &[String]| {
+        cols.iter()
+            .zip(width)
+            .map(|(c, w)| format!("{c:<w$}"))
+            .collect::<Vec<_>>()
+            .join("  ")
+            .trim_end()
+            .to_string()
+    };
+    s += &line(&HEADERS.map(String::from));
+    s += "\n";
+    for row in &table {
+        s += &line(row);
+        s += "\n";
+    }
+    for g in goal_lines(d) {
+        s += &format!("goal: {}\n", g.replace(" | ", "; "));
+    }
+    s
+}
+
+fn markdown(d: &BenchTraceJson) -> String {
+    let mut s = String::new();
+    for l in preamble(d) {
+        s += &format!("- {l}\n");
+    }
+    s += "\n| ";
+    s += &HEADERS.join(" | ");
+    s += " |\n|---|---|---|---:|---:|---:|---:|---:|---:|---:|\n";
+    for r in &d.rows {
+        s += &format!("| {} |\n", cells(r).join(" | "));
+    }
+    if !d.goals.is_empty() {
+        s += "\n| goal | scene | threads | value | target | met | kernel |\n";
+        s += "|---|---|---:|---:|---:|---|---|\n";
+        for l in goal_lines(d) {
+            s += &format!("| {l} |\n");
+        }
+    }
+    s
+}
+
+fn csv(d: &BenchTraceJson) -> String {
+    let mut s = String::from(
+        "scene,rays,ray_count,tracer,threads,mrays_per_s,vs_embree,mrays_per_cpu_s,vs_embree_cpu,agreement,build_ms\n",
+    );
+    let opt = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
+    for r in &d.rows {
+        s += &format!(
+            "{},{},{},\"{}\",{},{},{},{},{},{},{}\n",
+            r.scene,
+            r.rays,
+            r.ray_count,
+            r.tracer.replace('"', "\"\""),
+            r.threads,
+            r.mrays_per_s,
+            opt(r.vs_embree),
+            r.mrays_per_cpu_s,
+            opt(r.vs_embree_cpu),
+            r.agreement,
+            r.build_ms
+        );
+    }
+    s
+}
