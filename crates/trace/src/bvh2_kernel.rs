@@ -128,7 +128,10 @@ fn test2_sse(
             near = _mm_max_ps(near, _mm_min_ps(t, swapped));
             far = _mm_min_ps(far, _mm_max_ps(t, swapped));
         }
-        let limit = _mm_min_ps(_mm_mul_ps(far, _mm_set1_ps(SLAB_FAR_SCALE)), _mm_set1_ps(t_max));
+        let limit = _mm_min_ps(
+            _mm_mul_ps(far, _mm_set1_ps(SLAB_FAR_SCALE)),
+            _mm_set1_ps(t_max),
+        );
         let mask = _mm_movemask_ps(_mm_cmple_ps(near, limit));
         let mut d = [0f32; 4];
         _mm_storeu_ps(d.as_mut_ptr(), near);
@@ -138,7 +141,13 @@ fn test2_sse(
 
 /// The child-box test of the kernel.
 #[inline(always)]
-fn test2(n: &SoaNode2, o: &[f32; 3], inv: &[f32; 3], t_min: f32, t_max: f32) -> ([f32; 2], [bool; 2]) {
+fn test2(
+    n: &SoaNode2,
+    o: &[f32; 3],
+    inv: &[f32; 3],
+    t_min: f32,
+    t_max: f32,
+) -> ([f32; 2], [bool; 2]) {
     #[cfg(target_arch = "x86_64")]
     {
         test2_sse(n, o, inv, t_min, t_max)
@@ -357,7 +366,11 @@ mod tests {
                 let b = a + (r.vec() + geom::Vec3::ONE) * if r.f32() < 0.2 { 0.0 } else { 1.0 };
                 geom::Aabb::new(a.min(b), a.max(b))
             });
-            let c1 = if r.f32() < 0.1 { ChildRef::EMPTY } else { ChildRef::leaf(0, 1) };
+            let c1 = if r.f32() < 0.1 {
+                ChildRef::EMPTY
+            } else {
+                ChildRef::leaf(0, 1)
+            };
             let node = bvh::Node::new(&boxes[0], ChildRef::leaf(0, 1), &boxes[1], c1);
             let n = SoaNode2::new(&node);
             let mut d = r.vec();
@@ -367,7 +380,11 @@ mod tests {
             let pre = RayPrecomp::new(&Ray::new(r.vec() * 5.0, d));
             let (o, inv) = (pre.origin.to_array(), pre.inv_dir.to_array());
             let t_min = r.f32() * 0.1;
-            let t_max = if r.f32() < 0.5 { 1.0 + r.f32() * 20.0 } else { f32::INFINITY };
+            let t_max = if r.f32() < 0.5 {
+                1.0 + r.f32() * 20.0
+            } else {
+                f32::INFINITY
+            };
             let (a, ha) = test2_portable(&n, &o, &inv, t_min, t_max);
             let (b, hb) = test2_sse(&n, &o, &inv, t_min, t_max);
             assert_eq!(ha, hb);
