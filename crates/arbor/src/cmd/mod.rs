@@ -8,6 +8,7 @@ pub mod log_info;
 pub mod render;
 pub mod report;
 pub mod report_cbvh;
+pub mod report_cbvh_runtime;
 pub mod report_mergetree;
 pub mod sim;
 pub mod sim_dram;

@@ -18,7 +18,11 @@
 //!   read has returned. A line with bytes still waiting in the write buffer is first written
 //!   out (the buffer is flushed through the line's end) and then read: the unit has no
 //!   forwarding path from its write buffer, so every step stays a DRAM read and write, as
-//!   \[P3\]'s traffic model counts it.
+//!   \[P3\]'s traffic model counts it. (The memory controller may still answer such a read
+//!   from its own write queue: DRAMsim3 and Ramulator both do.) The what-if
+//!   `cbvh_flush_before_backtrack = false` skips the flush and reads DRAM at once, as a
+//!   model that replays the encoder's accesses without tracking where the data is would;
+//!   the tree is the same (the data comes from the encoder), only the timing changes.
 //!
 //! # Top-down pass (\[P3\] Fig. 2a, §5.3)
 //! [`TopdownUnit`] runs after the single-precision build has written its 64-byte nodes. It
@@ -63,6 +67,9 @@ pub struct StreamUnitStats {
     pub backtrack_flushes: u64,
     /// Sum over backtracking reads of their latency in unit cycles (accept to data).
     pub backtrack_read_latency_cycles: u64,
+    /// Backtracking reads by latency: entry `i` counts latencies in `[2^i, 2^(i+1))` unit
+    /// cycles (entry 0 also holds latency 0).
+    pub backtrack_read_latency_log2: Vec<u64>,
     /// Cycles the unit encoded a node or wrote a pair.
     pub busy_cycles: u64,
     /// Cycles it had nothing to do and the emitter had not finished.
@@ -106,12 +113,16 @@ pub(super) struct StreamUnit {
     pub done: bool,
     /// Counters.
     pub stats: StreamUnitStats,
+    /// Write out a line still in the write buffer before reading it back.
+    flush_before_read: bool,
 }
 
 impl StreamUnit {
-    /// A unit around `enc`, with an input FIFO of `fifo` nodes.
-    pub fn new(enc: StreamEncoder, fifo: u32) -> Self {
+    /// A unit around `enc`, with an input FIFO of `fifo` nodes; `flush_before_read`: see the
+    /// module documentation.
+    pub fn new(enc: StreamEncoder, fifo: u32, flush_before_read: bool) -> Self {
         Self {
+            flush_before_read,
             enc,
             input: Fifo::new("emitter->cbvh encoder", fifo as usize),
             ops: VecDeque::new(),
@@ -124,8 +135,8 @@ impl StreamUnit {
     }
 
     /// True when the line of the backtracking read at the front has bytes waiting in `wb`.
-    fn line_pending(wb: &WriteBuffer, line: u64, bytes: u32) -> bool {
-        wb.pending() > 0 && wb.next_addr() < line + bytes as u64
+    fn line_pending(&self, wb: &WriteBuffer, line: u64, bytes: u32) -> bool {
+        self.flush_before_read && wb.pending() > 0 && wb.next_addr() < line + bytes as u64
     }
 
     /// One cycle. `emitter_done`: the emitter has output its last node. Returns true when
@@ -153,7 +164,7 @@ impl StreamUnit {
             Some(MemOp::BacktrackRead {
                 addr_bytes, bytes, ..
             }) => {
-                if Self::line_pending(wb, addr_bytes, bytes) {
+                if self.line_pending(wb, addr_bytes, bytes) {
                     self.stats.flush_wait_cycles += 1;
                     if !self.flushing {
                         self.flushing = true;
@@ -200,7 +211,7 @@ impl StreamUnit {
         match self.ops.front()? {
             MemOp::BacktrackRead {
                 addr_bytes, bytes, ..
-            } => (!Self::line_pending(wb, *addr_bytes, *bytes)).then_some((
+            } => (!self.line_pending(wb, *addr_bytes, *bytes)).then_some((
                 AccessKind::Read,
                 *addr_bytes,
                 *bytes,
@@ -230,6 +241,12 @@ impl StreamUnit {
         debug_assert!(self.awaiting_read);
         self.awaiting_read = false;
         self.stats.backtrack_read_latency_cycles += latency;
+        let bucket = (63 - latency.max(1).leading_zeros()) as usize;
+        let h = &mut self.stats.backtrack_read_latency_log2;
+        if h.len() <= bucket {
+            h.resize(bucket + 1, 0);
+        }
+        h[bucket] += 1;
     }
 
     /// The encoder, for its result once the unit is done.

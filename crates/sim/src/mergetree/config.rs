@@ -155,6 +155,10 @@ pub struct MergeTreeConfig {
     pub cbvh_min_scale_exp: i32,
     /// Nodes in the FIFO from the hierarchy emitter to the streaming encoder.
     pub cbvh_fifo: u32,
+    /// A backtracking read of a line that still has bytes in the node-pair write buffer
+    /// first writes them out (coherent, the default); `false` is a timing what-if that reads
+    /// DRAM at once (see `cbvh_unit`).
+    pub cbvh_flush_before_backtrack: bool,
 }
 
 /// Names of the parameters [`MergeTreeConfig::set`] accepts.
@@ -184,6 +188,7 @@ pub const KEYS: &[&str] = &[
     "cbvh_bits",
     "cbvh_min_scale_exp",
     "cbvh_fifo",
+    "cbvh_flush_before_backtrack",
 ];
 
 impl MergeTreeConfig {
@@ -229,6 +234,7 @@ impl MergeTreeConfig {
             cbvh_bits: cbvh::grid::DEFAULT_BITS,
             cbvh_min_scale_exp: cbvh::grid::DEFAULT_MIN_SCALE_EXP,
             cbvh_fifo: 16,
+            cbvh_flush_before_backtrack: true,
         }
     }
 
@@ -349,6 +355,7 @@ impl MergeTreeConfig {
                 self.cbvh_min_scale_exp = value.parse().map_err(|_| bad("expected an integer"))?
             }
             "cbvh_fifo" => self.cbvh_fifo = num32(1)?,
+            "cbvh_flush_before_backtrack" => self.cbvh_flush_before_backtrack = boolean()?,
             _ => {
                 return Err(ConfigError::UnknownKey {
                     key: key.to_string(),

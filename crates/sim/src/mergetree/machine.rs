@@ -399,7 +399,11 @@ impl<'a> Machine<'a> {
         let streaming = cfg.output == OutputMode::CbvhStream;
         let stream = if streaming {
             let enc = cbvh::StreamEncoder::new(cfg.stream_config(layout.cbvh))?;
-            Some(StreamUnit::new(enc, cfg.cbvh_fifo))
+            Some(StreamUnit::new(
+                enc,
+                cfg.cbvh_fifo,
+                cfg.cbvh_flush_before_backtrack,
+            ))
         } else {
             None
         };

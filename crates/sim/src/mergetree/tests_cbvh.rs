@@ -301,3 +301,22 @@ proptest! {
         prop_assert_eq!(cbvh_matches_software(&r, &a).unwrap(), Some(true));
     }
 }
+
+#[test]
+fn topdown_build_phase_is_the_plain_build_on_dramsim3() {
+    // The report takes the BVH column from the TD run's build phase: equal cycle for cycle
+    // on the cycle-accurate memory too (the pass starts once every write is done).
+    let a = boxes(3000, 8);
+    let open = || crate::dram::open("lpddr3-1600-2x32", 1_000_000).unwrap();
+    let base = p3_small(512);
+    let plain = simulate(&a, &base, open()).unwrap();
+    let td = MergeTreeConfig {
+        output: OutputMode::CbvhTopdown,
+        ..base
+    };
+    let r = check(&a, &td, open());
+    let cb = r.cbvh.unwrap();
+    assert_eq!(cb.build_cycles, plain.cycles);
+    assert_eq!(r.phases[..plain.phases.len()], plain.phases[..]);
+    assert!(cb.compress_cycles > 0);
+}
