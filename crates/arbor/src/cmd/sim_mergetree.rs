@@ -35,12 +35,13 @@ pub struct MergetreeArgs {
     /// the emitter) or `topdown` (64-byte nodes, then a top-down compression pass).
     #[arg(long, value_enum, value_name = "MODE")]
     cbvh: Option<CbvhMode>,
-    /// CBVH coordinates with --cbvh: relative or modulo.
-    #[arg(long, value_enum, default_value = "relative", requires = "cbvh")]
-    coords: CoordsArg,
-    /// Treelet depth of the streaming encoder with --cbvh stream (1 = none, up to 8).
-    #[arg(long, value_name = "D", default_value_t = 1, requires = "cbvh")]
-    treelet: u32,
+    /// CBVH coordinates with --cbvh: relative (default) or modulo.
+    #[arg(long, value_enum)]
+    coords: Option<CoordsArg>,
+    /// Treelet depth of the streaming encoder with --cbvh stream (1 = none, the default; up
+    /// to 8).
+    #[arg(long, value_name = "D")]
+    treelet: Option<u32>,
     /// Configuration file (flat TOML `key = value` lines or a flat JSON object), applied
     /// after the preset and before --set.
     #[arg(long, value_name = "FILE")]
@@ -144,21 +145,29 @@ fn config_of(a: &MergetreeArgs) -> anyhow::Result<MergeTreeConfig> {
         .as_deref()
         .unwrap_or(if a.cbvh.is_some() { "p3" } else { "p2" });
     let mut set = Vec::new();
-    if let Some(mode) = a.cbvh {
-        let output = match mode {
-            CbvhMode::Stream => OutputMode::CbvhStream,
-            CbvhMode::Topdown => OutputMode::CbvhTopdown,
-        };
-        let coords = match a.coords {
-            CoordsArg::Relative => "relative",
-            CoordsArg::Modulo => "modulo",
-        };
-        if mode == CbvhMode::Topdown && a.treelet != 1 {
-            anyhow::bail!("--treelet applies to --cbvh stream only");
+    match a.cbvh {
+        Some(mode) => {
+            let output = match mode {
+                CbvhMode::Stream => OutputMode::CbvhStream,
+                CbvhMode::Topdown => OutputMode::CbvhTopdown,
+            };
+            let coords = match a.coords.unwrap_or(CoordsArg::Relative) {
+                CoordsArg::Relative => "relative",
+                CoordsArg::Modulo => "modulo",
+            };
+            let treelet = a.treelet.unwrap_or(1);
+            if mode == CbvhMode::Topdown && treelet != 1 {
+                anyhow::bail!("--treelet applies to --cbvh stream only");
+            }
+            set.push(format!("output={}", output.name()));
+            set.push(format!("cbvh_coords={coords}"));
+            set.push(format!("cbvh_treelet_depth={treelet}"));
         }
-        set.push(format!("output={}", output.name()));
-        set.push(format!("cbvh_coords={coords}"));
-        set.push(format!("cbvh_treelet_depth={}", a.treelet));
+        None => {
+            if a.coords.is_some() || a.treelet.is_some() {
+                anyhow::bail!("--coords and --treelet need --cbvh stream or --cbvh topdown");
+            }
+        }
     }
     set.extend(a.set.iter().cloned());
     config_from(preset, a.config.as_deref(), &set)
