@@ -5,40 +5,20 @@
 use super::*;
 use crate::dram::simple::{SimpleDram, SimpleDramConfig};
 use cbvh::Coords;
-use geom::Vec3;
 use proptest::prelude::*;
 
-/// Deterministic pseudo-random boxes (xorshift), some of them flat.
+/// Deterministic pseudo-random boxes, every seventh flat in z (degenerate axes).
 fn boxes(n: usize, seed: u64) -> Vec<Aabb> {
-    let mut s = seed.wrapping_mul(0x9E37_79B9_7F4A_7C15) | 1;
-    let mut f = move || {
-        s ^= s >> 12;
-        s ^= s << 25;
-        s ^= s >> 27;
-        ((s.wrapping_mul(0x2545_F491_4F6C_DD1D) >> 40) as f32) / (1u64 << 24) as f32
-    };
-    (0..n)
-        .map(|i| {
-            let c = Vec3::new(f(), f(), f()) * 100.0;
-            let flat = if i % 7 == 0 { 0.0 } else { 1.0 };
-            let e = Vec3::new(f(), f(), f() * flat) * 1.5;
-            Aabb::new(c, c + e)
-        })
-        .collect()
+    let mut a = super::tests::random_boxes(n, seed);
+    for b in a.iter_mut().step_by(7) {
+        b.max.z = b.min.z;
+    }
+    a
 }
 
 /// Boxes whose centroids take `distinct` values: long runs of equal codes (big leaves).
 fn clustered(n: usize, distinct: usize) -> Vec<Aabb> {
-    (0..n)
-        .map(|i| {
-            let k = (i * 7919) % distinct;
-            let c = Vec3::new(k as f32, (k * 3 % 5) as f32, 0.5);
-            Aabb::new(
-                c - Vec3::splat(0.2),
-                c + Vec3::splat(0.2 + (i % 3) as f32 * 0.1),
-            )
-        })
-        .collect()
+    super::tests::clustered_boxes(n, distinct)
 }
 
 fn simple(gbps: u64, lat_ns: u64) -> Box<dyn MemoryPort> {
