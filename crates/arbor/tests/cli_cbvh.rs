@@ -100,9 +100,14 @@ fn report_cbvh_writes_its_files() {
         "simple:lpddr3-1600-2x32",
         "--out",
         out.to_str().unwrap(),
+        "--trace-size",
+        "64x36",
     ]);
     assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
     for f in [
+        "trace_quality.csv",
+        "trace_quality.svg",
+        "watertight.csv",
         "report.md",
         "table1.csv",
         "table1.svg",
@@ -126,6 +131,37 @@ fn report_cbvh_writes_its_files() {
     // 9 metric rows x 9 variants, plus the header.
     assert_eq!(t1.lines().count(), 82);
     assert!(t1.contains("traffic_lbvh,avg,M4,"));
+    // Tree quality by ray tracing: two scenes, primary and diffuse rays, the same rays
+    // through both trees; the CBVH costs at least as many box tests (looser boxes) and the
+    // bottom-up CBVH exactly what the top-down one costs.
+    let q = std::fs::read_to_string(out.join("trace_quality.csv")).unwrap();
+    let head: Vec<&str> = q.lines().next().unwrap().split(',').collect();
+    let col = |name: &str| head.iter().position(|h| *h == name).unwrap();
+    let rows: Vec<Vec<&str>> = q.lines().skip(1).map(|l| l.split(',').collect()).collect();
+    assert_eq!(rows.len(), 4, "{q}");
+    for r in &rows {
+        let f = |name: &str| r[col(name)].parse::<f64>().unwrap();
+        assert!(f("ray_count") > 2000.0, "{q}");
+        assert!(
+            f("cbvh_box_tests_per_ray") >= f("bvh_box_tests_per_ray"),
+            "{q}"
+        );
+        assert_eq!(r[col("bottomup_same_counts")], "true", "{q}");
+        assert_eq!(f("thesis_box_increase"), 0.08);
+    }
+    // The watertightness check saw every box test of those renders, without a violation.
+    let w = std::fs::read_to_string(out.join("watertight.csv")).unwrap();
+    assert_eq!(w.lines().count(), 5, "{w}");
+    for l in w.lines().skip(1) {
+        let v: Vec<&str> = l.split(',').collect();
+        assert!(v[3].parse::<u64>().unwrap() > 1000, "{w}");
+        assert_eq!((v[5], v[6]), ("0", "0"), "{w}");
+    }
+    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
+    assert!(
+        md.contains("Watertightness") && md.contains("+8.0%"),
+        "{md}"
+    );
     // Table 2: four alternatives per scene, the cloth beside [P3]'s.
     let t2 = std::fs::read_to_string(out.join("table2.csv")).unwrap();
     assert_eq!(t2.lines().count(), 1 + 2 * 4);
@@ -134,7 +170,6 @@ fn report_cbvh_writes_its_files() {
         .find(|l| l.starts_with("cloth,") && l.contains(",R,"))
         .unwrap();
     assert!(cloth_r.contains(",2.4,"), "{cloth_r}");
-    let md = std::fs::read_to_string(out.join("report.md")).unwrap();
     assert!(md.contains("Table 2 analogue"));
     // --no-runtime skips it.
     let out2 = dir.path().join("r2");
@@ -145,6 +180,7 @@ fn report_cbvh_writes_its_files() {
         "--scenes",
         "proc:soup?n=2000",
         "--no-sweep",
+        "--no-trace",
         "--no-runtime",
         "--out",
         out2.to_str().unwrap(),

@@ -1,5 +1,6 @@
 //! Integration tests of `arbor render` and `arbor log-info`: every output file, the
-//! statistics against the log's own totals, the same image from both tree formats, and
+//! statistics against the log's own totals, the same image from every tree format (the
+//! compressed one with several encoders), and
 //! every bad-argument case.
 
 mod common;
@@ -50,6 +51,10 @@ fn outputs_stats_and_log_agree() {
             vec!["--rays", "diffuse", "--bounces", "2", "--format", "mbvh4"],
         ),
         ("shadow", vec!["--rays", "shadow", "--builder", "lbvh"]),
+        (
+            "cbvh",
+            vec!["--rays", "diffuse", "--bounces", "1", "--format", "cbvh"],
+        ),
     ] {
         let j = render(dir.path(), name, &extra);
         assert_eq!(j["schema"], "arbor.render.v1");
@@ -106,8 +111,56 @@ fn both_formats_and_every_kernel_give_the_same_depth_buffer() {
                 "on",
             ],
         ),
+        ("e", vec!["--format", "cbvh"]),
+        (
+            "f",
+            vec![
+                "--format",
+                "cbvh",
+                "--encoder",
+                "topdown",
+                "--coords",
+                "relative",
+                "--bits",
+                "4",
+            ],
+        ),
+        (
+            "g",
+            vec![
+                "--format",
+                "cbvh",
+                "--builder",
+                "lbvh",
+                "--treelet",
+                "3",
+                "--min-scale-exp",
+                "-40",
+                "--distance-stack",
+                "on",
+            ],
+        ),
     ] {
-        render(dir.path(), name, &extra);
+        let j = render(dir.path(), name, &extra);
+        if extra.contains(&"cbvh") {
+            // The compressed tree: 16-byte pairs at 6 bits (13 at 4), 4 bytes per id.
+            assert_eq!(j["format"], "cbvh");
+            let c = &j["cbvh"];
+            let bits = c["bits"].as_u64().unwrap();
+            assert_eq!(bits, if name == "f" { 4 } else { 6 });
+            assert_eq!(
+                c["encoder"],
+                if name == "f" { "topdown" } else { "bottomup" }
+            );
+            assert_eq!(c["treelet_depth"], if name == "g" { 3 } else { 1 });
+            assert_eq!(c["min_scale_exp"], if name == "g" { -40 } else { -30 });
+            let pair = if bits == 6 { 16 } else { 13 };
+            let nodes = j["nodes"].as_u64().unwrap();
+            let ids = j["triangles"].as_u64().unwrap();
+            assert_eq!(j["tree_bytes"].as_u64().unwrap(), nodes * pair + ids * 4);
+        } else {
+            assert!(j["cbvh"].is_null());
+        }
         depths.push((
             std::fs::read(dir.path().join(format!("{name}.pfm"))).unwrap(),
             std::fs::read(dir.path().join(format!("{name}.png"))).unwrap(),
@@ -166,6 +219,35 @@ fn bad_arguments_are_one_line_errors() {
         (vec![SCENE, "--out", &missing], "does not exist"),
         (vec![SCENE, "--threads", "0"], "--threads"),
         (vec![SCENE, "--frame", "100000"], "out of range"),
+        (vec![SCENE, "--coords", "relative"], "--format cbvh only"),
+        (
+            vec![SCENE, "--format", "mbvh4", "--bits", "5"],
+            "--format cbvh only",
+        ),
+        (
+            vec![
+                SCENE,
+                "--format",
+                "cbvh",
+                "--encoder",
+                "topdown",
+                "--treelet",
+                "2",
+            ],
+            "bottom-up encoder only",
+        ),
+        (
+            vec![SCENE, "--format", "cbvh", "--bits", "9"],
+            "coordinate bits",
+        ),
+        (
+            vec![SCENE, "--format", "cbvh", "--treelet", "0"],
+            "--treelet",
+        ),
+        (
+            vec![SCENE, "--format", "cbvh", "--builder", "mbvh4-topdown"],
+            "--format mbvh4",
+        ),
         (
             vec![SCENE, "--eye", "0,0,0", "--target", "0,0,0"],
             "same point",

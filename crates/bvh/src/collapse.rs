@@ -1,9 +1,9 @@
 //! SAH-guided collapse of a binary [`Bvh2`] into a 4-wide [`Mbvh4`] (Wald, Benthin and
-//! Boulos 2008; thesis §4.2).
+//! Boulos 2008; thesis §4.2), or into a tree of any width `W` ([`Collapse::collapse_wide`]).
 //!
-//! Each 4-wide node starts from the two children of a binary node and greedily pulls up the
+//! Each wide node starts from the two children of a binary node and greedily pulls up the
 //! inner child with the largest surface area, replacing it by its own two children, until
-//! the node has four children or only leaves are left. Pulling up the largest child removes
+//! the node has `W` children or only leaves are left. Pulling up the largest child removes
 //! the node that rays reach most often (the SAH weighs a node by its area), so this is the
 //! greedy step of minimising the SAH's inner-node term. The remaining inner children become
 //! 4-wide nodes in turn. Leaves stay the binary tree's leaves, in the same order.
@@ -74,24 +74,72 @@ impl Default for Collapse {
     }
 }
 
-/// A child of a 4-wide node under construction: its box and the binary child reference.
+/// A child of a wide node under construction: its box and the binary child reference.
 type Kid = (Aabb, ChildRef);
+
+/// A node of a `W`-wide tree made by [`Collapse::collapse_wide`]: its children's boxes and
+/// references (unused slots hold [`Aabb::EMPTY`] and [`ChildRef::EMPTY`], after the used
+/// ones). Leaves are ranges of the tree's leaf table, as in [`Mbvh4`].
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct WideNode<const W: usize> {
+    /// Child boxes.
+    pub boxes: [Aabb; W],
+    /// Child references.
+    pub children: [ChildRef; W],
+}
+
+/// A `W`-wide tree: nodes in depth-first preorder (slot 0 first; every inner child after
+/// its parent), a leaf table, and the scene bounds.
+#[derive(Clone, Debug, PartialEq)]
+pub struct WideBvh<const W: usize> {
+    /// Nodes; `nodes[0]` is the root.
+    pub nodes: Vec<WideNode<W>>,
+    /// Leaf table: primitive indices.
+    pub prim_indices: Vec<u32>,
+    /// Scene bounds.
+    pub bounds: Aabb,
+}
 
 impl Collapse {
     /// Collapses `bvh` into a 4-wide tree with the same primitives and leaf boxes.
     pub fn collapse(&self, bvh: &Bvh2) -> Result<Mbvh4, CollapseError> {
+        let w = self.collapse_wide::<MBVH_WIDTH>(bvh)?;
+        let nodes = w
+            .nodes
+            .iter()
+            .map(|n| {
+                let mut node = Node4::EMPTY;
+                for slot in 0..MBVH_WIDTH {
+                    node.set_child_aabb(slot, &n.boxes[slot]);
+                }
+                node.children = n.children;
+                node
+            })
+            .collect();
+        Ok(Mbvh4 {
+            nodes,
+            prim_indices: w.prim_indices,
+            bounds: w.bounds,
+        })
+    }
+
+    /// Collapses `bvh` into a `W`-wide tree (`W >= 2`) with the same primitives and leaf
+    /// boxes: the 4-wide collapse of [P4] generalized to any branching factor (8-wide
+    /// nodes suit 8-lane SIMD).
+    pub fn collapse_wide<const W: usize>(&self, bvh: &Bvh2) -> Result<WideBvh<W>, CollapseError> {
+        const { assert!(W >= 2) };
         let n = bvh.nodes.len();
         if n == 0 {
             return Err(CollapseError::NoRoot);
         }
         check_links(bvh)?;
         let mergeable = self.mergeable(bvh);
-        let mut out: Vec<Node4> = Vec::with_capacity(n / 2 + 1);
+        let mut out: Vec<WideNode<W>> = Vec::with_capacity(n / (W / 2) + 1);
         let mut table: Vec<u32> = Vec::with_capacity(bvh.prim_indices.len());
         let mut seen = vec![false; n];
         // (binary node, (4-wide parent, slot) to patch)
         let mut stack: Vec<(usize, Option<(usize, usize)>)> = vec![(0, None)];
-        let mut kids: Vec<Kid> = Vec::with_capacity(MBVH_WIDTH);
+        let mut kids: Vec<Kid> = Vec::with_capacity(W);
         while let Some((bi, patch)) = stack.pop() {
             let at = out.len();
             if let Some((p, slot)) = patch {
@@ -101,7 +149,7 @@ impl Collapse {
             kids.clear();
             push_children(&mut kids, bvh, bi);
             // Greedy pull-up of the largest inner child that is not merged into a leaf.
-            while kids.len() < MBVH_WIDTH {
+            while kids.len() < W {
                 let best = kids
                     .iter()
                     .enumerate()
@@ -110,7 +158,7 @@ impl Collapse {
                     .map(|(k, _)| k);
                 let Some(k) = best else { break };
                 let ci = kids[k].1.index as usize;
-                if kids.len() - 1 + child_count(bvh, ci) > MBVH_WIDTH {
+                if kids.len() - 1 + child_count(bvh, ci) > W {
                     break;
                 }
                 visit(&mut seen, ci)?;
@@ -122,10 +170,13 @@ impl Collapse {
                     kids.insert(k + j, kid);
                 }
             }
-            let mut node = Node4::EMPTY;
-            let mut inner = Vec::with_capacity(MBVH_WIDTH);
+            let mut node = WideNode {
+                boxes: [Aabb::EMPTY; W],
+                children: [ChildRef::EMPTY; W],
+            };
+            let mut inner = Vec::with_capacity(W);
             for (slot, &(b, c)) in kids.iter().enumerate() {
-                node.set_child_aabb(slot, &b);
+                node.boxes[slot] = b;
                 node.children[slot] = if c.is_leaf() {
                     let first = table.len() as u32;
                     let (s, e) = (c.index as usize, c.index as usize + c.count as usize);
@@ -145,7 +196,7 @@ impl Collapse {
                 stack.push((ci, Some((at, slot))));
             }
         }
-        Ok(Mbvh4 {
+        Ok(WideBvh {
             nodes: out,
             prim_indices: table,
             bounds: bvh.bounds,
@@ -336,6 +387,58 @@ mod tests {
         let (merged, plain) = (m.sah(), collapse(&bvh).unwrap().sah());
         println!("SAH merged {merged:.3} plain {plain:.3}");
         assert!(merged < 1.1 * plain, "merged {merged} plain {plain}");
+    }
+
+    /// The 8-wide collapse keeps every primitive once, fills its nodes, and has fewer
+    /// nodes than the 4-wide one; width 4 gives exactly the `Mbvh4` collapse.
+    #[test]
+    fn wide_collapse_of_any_width() {
+        let prims = proc_scene("proc:soup?n=20000");
+        let bvh = BinnedSahBuilder::default().build(&prims).unwrap();
+        let w8 = Collapse::default().collapse_wide::<8>(&bvh).unwrap();
+        let m4 = collapse(&bvh).unwrap();
+        let mut seen = vec![false; prims.len()];
+        for &p in &w8.prim_indices {
+            assert!(!std::mem::replace(&mut seen[p as usize], true));
+        }
+        assert!(seen.iter().all(|&s| s));
+        let mut leaves = 0;
+        for (i, n) in w8.nodes.iter().enumerate() {
+            let used = n.children.iter().filter(|c| !c.is_empty()).count();
+            assert!(used >= 2 || i == 0);
+            // Empty slots come last and have empty boxes; inner children follow parents.
+            for (slot, c) in n.children.iter().enumerate() {
+                if c.is_empty() {
+                    assert!(slot >= used && n.boxes[slot].is_empty());
+                } else if c.is_inner() {
+                    assert!(c.index as usize > i);
+                    assert!(n.boxes[slot].contains(&{
+                        let k = &w8.nodes[c.index as usize];
+                        k.boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(*b))
+                    }));
+                } else {
+                    leaves += 1;
+                    for &p in &w8.prim_indices[c.index as usize..(c.index + c.count) as usize] {
+                        assert!(n.boxes[slot].contains(&prims[p as usize]));
+                    }
+                }
+            }
+        }
+        assert_eq!(leaves, bvh.stats().leaves);
+        assert!(
+            w8.nodes.len() * 3 < m4.nodes.len() * 2,
+            "{} vs {}",
+            w8.nodes.len(),
+            m4.nodes.len()
+        );
+        let w4 = Collapse::default().collapse_wide::<4>(&bvh).unwrap();
+        assert_eq!(w4.nodes.len(), m4.nodes.len());
+        for (a, b) in w4.nodes.iter().zip(&m4.nodes) {
+            assert_eq!(a.children, b.children);
+            for s in 0..4 {
+                assert_eq!(a.boxes[s], b.child_aabb(s));
+            }
+        }
     }
 
     #[test]

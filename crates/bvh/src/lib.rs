@@ -31,7 +31,7 @@ mod validate;
 pub use atrbvh::{optimize, AtrbvhBuilder, AtrbvhConfig, MAX_TREELET_SIZE, MIN_GAIN};
 pub use binned_sah::{BinnedSahBuilder, MAX_BINS};
 pub use bvh2::{Bvh2, TreeStats};
-pub use collapse::{collapse, Collapse, CollapseError};
+pub use collapse::{collapse, Collapse, CollapseError, WideBvh, WideNode};
 pub use error::{BuildError, MAX_PRIMITIVES};
 pub use hlbvh::{
     EmitRef, EmittedNode, Emitter, Highlevel, HighlevelRoot, HlbvhBuilder, Prim, Step,

@@ -7,7 +7,7 @@
 //! upper bound, so that a context is the node's decoded box plus its grid: Algorithm 1's
 //! backtracking re-encodes `oldChildContexts[i].aabb`.
 
-use crate::coords::{load, quantize, store};
+use crate::coords::{load_with, quantize, store};
 use crate::error::CbvhError;
 use crate::format::{NodePair, Slot, EMPTY_PTR};
 use crate::grid::{AxisCtx, Params, MAX_ABS_COORD};
@@ -33,13 +33,20 @@ impl Ctx {
     }
 
     /// The context of a node whose decoded box is `b` (scales by Eq. 2).
+    #[inline]
     pub fn from_decoded(b: &Aabb, p: &Params) -> Self {
         Self {
-            axes: [0, 1, 2].map(|i| AxisCtx::from_decoded(b.min[i], b.max[i], p)),
+            // Written out: `[0, 1, 2].map(..)` is not inlined into a traversal kernel.
+            axes: [
+                AxisCtx::from_decoded(b.min.x, b.max.x, p),
+                AxisCtx::from_decoded(b.min.y, b.max.y, p),
+                AxisCtx::from_decoded(b.min.z, b.max.z, p),
+            ],
         }
     }
 
     /// The node's decoded box.
+    #[inline]
     pub fn aabb(&self) -> Aabb {
         Aabb::new(
             Vec3::new(self.axes[0].lo, self.axes[1].lo, self.axes[2].lo),
@@ -157,16 +164,48 @@ pub fn encode_pair_with(
 /// absent child).
 #[inline]
 pub fn decode_slot(slot: &Slot, ctx: &Ctx, p: &Params) -> Option<Ctx> {
+    slot_box(slot, ctx, &lo_mods(ctx, p), p).map(|b| Ctx::from_decoded(&b, p))
+}
+
+/// The decoded boxes of both children of `pair` in context `ctx` (`None` for the absent
+/// child), without their contexts: what a traversal kernel tests per node visit (\[P3\]
+/// Fig. 4 lines 1-9). [`Ctx::from_decoded`] of a box gives the child's context, so
+/// `decode_boxes(..)[c].map(|b| Ctx::from_decoded(&b, p))` equals [`decode_slot`].
+#[inline]
+pub fn decode_boxes(pair: &NodePair, ctx: &Ctx, p: &Params) -> [Option<Aabb>; 2] {
+    let m = lo_mods(ctx, p);
+    [
+        slot_box(&pair.slots[0], ctx, &m, p),
+        slot_box(&pair.slots[1], ctx, &m, p),
+    ]
+}
+
+/// Per axis the node's lower-bound modulo coordinate (0 for relative coordinates).
+#[inline(always)]
+fn lo_mods(ctx: &Ctx, p: &Params) -> [i64; 3] {
+    match p.coords {
+        Coords::Relative => [0; 3],
+        Coords::Modulo => [
+            ctx.axes[0].lo_mod(p),
+            ctx.axes[1].lo_mod(p),
+            ctx.axes[2].lo_mod(p),
+        ],
+    }
+}
+
+/// The decoded box of one slot (Eq. 3 or Eq. 9, rounded outward to `f32`).
+#[inline(always)]
+fn slot_box(slot: &Slot, ctx: &Ctx, m: &[i64; 3], p: &Params) -> Option<Aabb> {
     if slot.is_empty() {
         return None;
     }
-    let mut out = *ctx;
-    for (i, a) in ctx.axes.iter().enumerate() {
-        let (r, s) = load(slot.lo[i], slot.hi[i], a, p);
-        let (clo, chi) = a.child_bounds(r, s);
-        out.axes[i] = AxisCtx::from_decoded(clo, chi, p);
+    let mut lo = [0f32; 3];
+    let mut hi = [0f32; 3];
+    for i in 0..3 {
+        let (r, s) = load_with(slot.lo[i], slot.hi[i], m[i], p);
+        (lo[i], hi[i]) = ctx.axes[i].child_bounds(r, s);
     }
-    Some(out)
+    Some(Aabb::new(Vec3::from(lo), Vec3::from(hi)))
 }
 
 /// The pointer of a slot as a [`ChildPtr`].

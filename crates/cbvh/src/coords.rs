@@ -72,11 +72,22 @@ pub fn store(r: i64, s: i64, ctx: &AxisCtx, prm: &Params) -> (u8, u8) {
 /// Cells `r..s` from the two stored fields (Eq. 3 / Eq. 9, see the module doc).
 #[inline]
 pub fn load(a: u8, b: u8, ctx: &AxisCtx, prm: &Params) -> (i64, i64) {
+    let m = match prm.coords {
+        Coords::Relative => 0,
+        Coords::Modulo => ctx.lo_mod(prm),
+    };
+    load_with(a, b, m, prm)
+}
+
+/// [`load`] with the node's lower-bound modulo coordinate `m` (`ctx.lo_mod(prm)`, unused
+/// for relative coordinates) computed once for both children of a pair, as the traversal
+/// decode of \[P3\] Fig. 4 does (its line 1, per node).
+#[inline(always)]
+pub fn load_with(a: u8, b: u8, m: i64, prm: &Params) -> (i64, i64) {
     let mask = prm.cells() - 1;
     match prm.coords {
         Coords::Relative => (a as i64, b as i64 + 1),
         Coords::Modulo => {
-            let m = ctx.lo_mod(prm);
             let r = (a as i64 - m) & mask;
             let w = ((b as i64 - a as i64 - 1) & mask) + 1;
             (r, r + w)

@@ -92,24 +92,23 @@ pub const fn pair_bytes(bits: u32) -> usize {
     (2 * slot_bits(bits)).div_ceil(8) as usize
 }
 
-/// Writes `n` low bits of `v` at bit `at`.
-fn put(out: &mut [u8], at: u32, n: u32, v: u32) {
-    for i in 0..n {
-        if (v >> i) & 1 == 1 {
-            let b = at + i;
-            out[(b / 8) as usize] |= 1 << (b % 8);
+/// The bits of `src` from bit `at` on, as a little-endian `u128` (bits past the end of
+/// `src` read as zero). One slot (`6N + 28 <= 76` bits) starts at most 7 bits into its
+/// first byte, so it always fits the window.
+#[inline(always)]
+fn window(src: &[u8], at: u32) -> u128 {
+    let byte = (at / 8) as usize;
+    let rest = src.get(byte..).unwrap_or(&[]);
+    let v = match rest.first_chunk::<16>() {
+        // One 16-byte load (a kernel pads its pair array so that this is the usual case).
+        Some(b) => u128::from_le_bytes(*b),
+        None => {
+            let mut buf = [0u8; 16];
+            buf[..rest.len()].copy_from_slice(rest);
+            u128::from_le_bytes(buf)
         }
-    }
-}
-
-/// Reads `n` bits at bit `at`.
-fn get(src: &[u8], at: u32, n: u32) -> u32 {
-    let mut v = 0;
-    for i in 0..n {
-        let b = at + i;
-        v |= u32::from((src[(b / 8) as usize] >> (b % 8)) & 1) << i;
-    }
-    v
+    };
+    v >> (at % 8)
 }
 
 impl NodePair {
@@ -121,42 +120,51 @@ impl NodePair {
         let w = slot_bits(bits);
         let limit = 1u32 << bits;
         for (c, s) in self.slots.iter().enumerate() {
-            let at = c as u32 * w;
-            for (i, &v) in s.lo.iter().chain(s.hi.iter()).enumerate() {
-                if u32::from(v) >= limit {
+            let mut v = 0u128;
+            for (i, &f) in s.lo.iter().chain(s.hi.iter()).enumerate() {
+                if u32::from(f) >= limit {
                     return Err(CbvhError::Corrupt(format!(
-                        "coordinate {v} does not fit {bits} bits"
+                        "coordinate {f} does not fit {bits} bits"
                     )));
                 }
-                put(dst, at + i as u32 * bits, bits, u32::from(v));
+                v |= u128::from(f) << (i as u32 * bits);
             }
-            put(dst, at + 6 * bits, 1, u32::from(s.leaf));
             if s.ptr > EMPTY_PTR {
                 return Err(CbvhError::TooLarge {
                     what: "pointer",
                     count: s.ptr as usize,
                 });
             }
-            put(dst, at + 6 * bits + 1, PTR_BITS, s.ptr);
+            v |= u128::from(s.leaf) << (6 * bits);
+            v |= u128::from(s.ptr) << (6 * bits + 1);
+            // The slot's bits from its first byte on (it starts at most 7 bits in).
+            let at = c as u32 * w;
+            let v = v << (at % 8);
+            for (k, byte) in dst[(at / 8) as usize..].iter_mut().take(16).enumerate() {
+                *byte |= (v >> (8 * k)) as u8;
+            }
         }
         Ok(())
     }
 
-    /// Unpacks a pair from the first `pair_bytes(bits)` bytes of `src`.
+    /// Unpacks a pair from the first `pair_bytes(bits)` bytes of `src` (a traversal kernel
+    /// calls this once per node visit: two 128-bit windows and shifts, no per-bit loop).
+    #[inline(always)]
     pub fn unpack(bits: u32, src: &[u8]) -> Result<Self, CbvhError> {
         if src.len() < pair_bytes(bits) {
             return Err(CbvhError::Corrupt("truncated node pair".into()));
         }
         let w = slot_bits(bits);
+        let field = (1u128 << bits) - 1;
         let mut p = NodePair::default();
         for (c, s) in p.slots.iter_mut().enumerate() {
-            let at = c as u32 * w;
+            let v = window(src, c as u32 * w);
             for i in 0..3 {
-                s.lo[i] = get(src, at + i as u32 * bits, bits) as u8;
-                s.hi[i] = get(src, at + (3 + i) as u32 * bits, bits) as u8;
+                s.lo[i] = ((v >> (i as u32 * bits)) & field) as u8;
+                s.hi[i] = ((v >> ((3 + i as u32) * bits)) & field) as u8;
             }
-            s.leaf = get(src, at + 6 * bits, 1) == 1;
-            s.ptr = get(src, at + 6 * bits + 1, PTR_BITS);
+            s.leaf = (v >> (6 * bits)) & 1 == 1;
+            s.ptr = ((v >> (6 * bits + 1)) & ((1u128 << PTR_BITS) - 1)) as u32;
         }
         Ok(p)
     }
@@ -223,6 +231,20 @@ mod tests {
             p.pack_into(bits, &mut b).unwrap();
             prop_assert_eq!(b.len(), pair_bytes(bits));
             prop_assert_eq!(NodePair::unpack(bits, &b).unwrap(), p);
+        }
+    }
+
+    /// The windowed reader reads what a plain bit-by-bit reader reads, at every offset.
+    #[test]
+    fn window_reads_every_bit_position() {
+        let src: Vec<u8> = (0..19u32).map(|i| (i * 37 + 11) as u8).collect();
+        let bit =
+            |b: u32| u128::from((src.get((b / 8) as usize).copied().unwrap_or(0) >> (b % 8)) & 1);
+        for at in 0..152 {
+            let v = window(&src, at);
+            for k in 0..(128 - 7) {
+                assert_eq!((v >> k) & 1, bit(at + k), "at {at} bit {k}");
+            }
         }
     }
 

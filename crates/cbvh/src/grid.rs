@@ -115,14 +115,13 @@ fn two_sum(a: f64, b: f64) -> (f64, f64) {
     (s, err)
 }
 
-/// The next `f32` above `x` (finite `x`).
+/// The next `f32` above `x` (finite `x`). Branch-free (selects only): decoding rounds
+/// every bound through it, and traversal decodes at every node visit.
 #[inline]
 pub fn next_up(x: f32) -> f32 {
-    if x == 0.0 {
-        return f32::from_bits(1);
-    }
-    let b = x.to_bits();
-    f32::from_bits(if x > 0.0 { b + 1 } else { b - 1 })
+    // -0 counts as +0, whose successor is the smallest subnormal (bits 1).
+    let b = if x == 0.0 { 0 } else { x.to_bits() };
+    f32::from_bits(if (b as i32) >= 0 { b + 1 } else { b - 1 })
 }
 
 /// The next `f32` below `x` (finite `x`).
@@ -136,8 +135,12 @@ pub fn next_down(x: f32) -> f32 {
 fn round_down(s: f64, err: f64) -> f32 {
     let f = s as f32;
     let fd = f as f64;
-    if fd > s || (fd == s && err < 0.0) {
-        next_down(f)
+    // Non-short-circuit `|` and `&`, and a select: whether `f` lies above the exact value
+    // is data-dependent, and a branch on it mispredicts half the time.
+    let above = (fd > s) | ((fd == s) & (err < 0.0));
+    let down = next_down(f);
+    if above {
+        down
     } else {
         f
     }
@@ -256,9 +259,16 @@ impl AxisCtx {
     /// own grid).
     #[inline]
     pub fn lo_mod(&self, p: &Params) -> i64 {
+        // k is an integer held exactly in f64 (an f32 scaled by a power of two). Below 2^62
+        // its two's-complement low bits are k mod 2^N; above, k has at most 24 significant
+        // bits, all above bit 38, so k mod 2^N is 0 (N <= 8).
         let k = self.lo as f64 * pow2(-self.e);
-        let m = pow2(p.bits as i32);
-        (k - m * (k / m).floor()) as i64
+        let mask = (1i64 << p.bits) - 1;
+        if k.abs() < pow2(62) {
+            (k as i64) & mask
+        } else {
+            0
+        }
     }
 }
 
@@ -292,6 +302,34 @@ mod tests {
         assert_eq!(add_up(1e30f32 as f64, 1e-30), next_up(1e30));
         assert_eq!(add_down(-1e30f32 as f64, -1e-30), next_down(-1e30));
         assert_eq!(add_down(3.0, 0.0), 3.0);
+    }
+
+    #[test]
+    fn next_up_and_down_step_one_ulp() {
+        for x in [
+            0.0f32,
+            -0.0,
+            1.0,
+            -1.0,
+            f32::from_bits(1),
+            -f32::from_bits(1),
+            1e30,
+            -1e-30,
+            f32::MAX * 0.5,
+        ] {
+            let up = next_up(x);
+            assert!(up > x && f32::from_bits(up.to_bits()) == up, "{x}");
+            // Nothing lies strictly between x and its successor.
+            let mid = (x as f64 + up as f64) / 2.0;
+            assert!(mid as f32 == x || mid as f32 == up, "{x}");
+            assert!(
+                next_down(x) < x && next_up(next_down(x)) == x || x == 0.0,
+                "{x}"
+            );
+        }
+        assert_eq!(next_up(0.0).to_bits(), 1);
+        assert_eq!(next_up(-0.0).to_bits(), 1);
+        assert_eq!(next_down(0.0).to_bits(), 0x8000_0001);
     }
 
     #[test]
@@ -336,6 +374,20 @@ mod tests {
     }
 
     proptest! {
+        /// The integer modulo equals Eq. 8's `k - 2^N floor(k / 2^N)` (exact in f64).
+        #[test]
+        fn lo_mod_is_the_floor_modulo(x in prop_oneof![-1e3f32..1e3, -1e30f32..1e30, Just(0.0f32)], e in -126i32..100, bits in 3u32..=8) {
+            let p = Params { bits, ..Params::default() };
+            let c = pow2(e);
+            // A multiple of 2^e near x, as a decoded lower bound is.
+            let lo = ((x as f64 / c).floor() * c) as f32;
+            let lo = if (lo as f64 / c).fract() == 0.0 { lo } else { 0.0 };
+            let a = AxisCtx { e, lo, hi: lo };
+            let k = lo as f64 * pow2(-e);
+            let m = pow2(bits as i32);
+            prop_assert_eq!(a.lo_mod(&p), (k - m * (k / m).floor()) as i64);
+        }
+
         #[test]
         fn add_rounding_brackets_exact_sum(a in -1e6f32..1e6, k in -40i32..40, r in 0i64..64) {
             let b = r as f64 * pow2(k);

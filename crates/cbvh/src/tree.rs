@@ -130,6 +130,64 @@ impl Cbvh {
     }
 }
 
+impl Cbvh {
+    /// The full-precision box of each child of each node pair, indexed like
+    /// [`Cbvh::pairs`]: the union of the boxes `prims` (by primitive id) of the primitives
+    /// below the child, which is the child's box in the uncompressed tree the CBVH was
+    /// made from (builders and refit make tight boxes). The empty child gets
+    /// [`Aabb::EMPTY`]. This is the "original box" of the \[P3\] §5.5 watertightness check
+    /// ([`interval_encloses`]), for a tracer that knows only the compressed tree.
+    pub fn original_child_boxes(&self, prims: &[Aabb]) -> Result<Vec<[Aabb; 2]>, CbvhError> {
+        let mut out = vec![[Aabb::EMPTY; 2]; self.pairs.len()];
+        // Iterative postorder: (pair, children done); a pair is finished after both of
+        // its inner children, so their boxes are ready.
+        let mut stack = vec![(self.root, false)];
+        let mut steps = 0usize;
+        while let Some((idx, expanded)) = stack.pop() {
+            steps += 1;
+            if steps > 2 * self.pairs.len() {
+                return Err(CbvhError::Corrupt("pointer cycle".into()));
+            }
+            let pair = self
+                .pairs
+                .get(idx as usize)
+                .ok_or_else(|| CbvhError::Corrupt(format!("pointer {idx} outside the tree")))?;
+            if !expanded {
+                stack.push((idx, true));
+                for s in &pair.slots {
+                    if let ChildPtr::Inner(k) = slot_ptr(s) {
+                        stack.push((k, false));
+                    }
+                }
+                continue;
+            }
+            for c in 0..2 {
+                out[idx as usize][c] = match slot_ptr(&pair.slots[c]) {
+                    ChildPtr::Empty => Aabb::EMPTY,
+                    ChildPtr::Inner(k) => {
+                        let [a, b] = out.get(k as usize).ok_or_else(|| {
+                            CbvhError::Corrupt(format!("pointer {k} outside the tree"))
+                        })?;
+                        a.union(*b)
+                    }
+                    ChildPtr::Leaf(first) => {
+                        let (f, n) = self.leaf_range(first)?;
+                        let mut b = Aabb::EMPTY;
+                        for &id in &self.prim_ids[f as usize..(f + n) as usize] {
+                            let id = id & !LEAF_END;
+                            b = b.union(*prims.get(id as usize).ok_or_else(|| {
+                                CbvhError::Corrupt(format!("primitive {id} missing"))
+                            })?);
+                        }
+                        b
+                    }
+                };
+            }
+        }
+        Ok(out)
+    }
+}
+
 /// Checks that every child box of `decoded` encloses the union of the boxes of the
 /// primitives below it (`prims` indexed by the leaf table). Returns the number of child
 /// boxes that do not (0 for a correct tree).
@@ -279,4 +337,51 @@ pub fn node_intervals_enclose(
             &decoded.child_aabb(c),
         )
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::bottomup::{compress_bottomup, StreamConfig};
+    use crate::topdown::compress_topdown;
+
+    /// The original child boxes recomputed from the primitives are the uncompressed
+    /// tree's, pair for pair (top-down keeps the numbering; bottom-up is matched through
+    /// its decoded tree, which is in preorder like the builder's).
+    #[test]
+    #[allow(clippy::needless_range_loop)] // two child slots of parallel arrays
+    fn original_child_boxes_are_the_uncompressed_boxes() {
+        let prims = crate::bottomup::tests::soup(3000, 5, false);
+        let bvh = crate::study::paper_lbvh().build(&prims).unwrap();
+        let (td, _) = compress_topdown(&bvh, &Params::default()).unwrap();
+        let orig = td.original_child_boxes(&prims).unwrap();
+        for (i, n) in bvh.nodes.iter().enumerate() {
+            for c in 0..2 {
+                if !n.children[c].is_empty() {
+                    assert_eq!(orig[i][c], n.child_aabb(c), "pair {i} child {c}");
+                }
+            }
+        }
+        let (bu, _) = compress_bottomup(&bvh, &StreamConfig::default()).unwrap();
+        let orig = bu.original_child_boxes(&prims).unwrap();
+        let mut found = 0;
+        // Walk both trees from their roots in lockstep.
+        let mut stack = vec![(0u32, bu.root)];
+        while let Some((n, p)) = stack.pop() {
+            let node = &bvh.nodes[n as usize];
+            for c in 0..2 {
+                if node.children[c].is_empty() {
+                    continue;
+                }
+                assert_eq!(orig[p as usize][c], node.child_aabb(c));
+                found += 1;
+                if let ChildPtr::Inner(k) = slot_ptr(&bu.pairs[p as usize].slots[c]) {
+                    stack.push((node.children[c].index, k));
+                }
+            }
+        }
+        assert_eq!(found, 2 * bvh.nodes.len());
+        // A primitive id beyond the boxes given is an error, not a panic.
+        assert!(td.original_child_boxes(&prims[..10]).is_err());
+    }
 }

@@ -263,7 +263,7 @@ pub struct Hits4 {
 /// order (no fused or reassociated arithmetic), so each lane's result equals the scalar
 /// test's bit for bit, the double-precision fallback included (done per lane where an
 /// edge function is zero). On x86-64 it runs in SSE; elsewhere lane by lane.
-#[inline]
+#[inline(always)]
 pub fn intersect_triangles4_watertight(
     r: &RayPrecomp,
     tris: &Triangles4,
@@ -366,7 +366,7 @@ fn intersect4_portable(
 /// [`intersect4_portable`] in SSE: the same IEEE operations lane for lane, so the same bits
 /// (checked by a property test), without the per-lane round trips through memory.
 #[cfg(target_arch = "x86_64")]
-#[inline]
+#[inline(always)]
 fn intersect4_sse(r: &RayPrecomp, tris: &Triangles4, lanes: u8, t_min: f32, t_max: f32) -> Hits4 {
     use std::arch::x86_64::*;
     let [kx, ky, kz] = r.k.map(|k| k % 3);

@@ -52,11 +52,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         peers::trace_bench::print_kernel_stats(&bench)?;
     }
     let rows = peers::trace_bench::run(&bench, &threads, repeats, &|m| eprintln!("{m}"))?;
-    println!("| scene | rays | tracer | threads | Mrays/s | vs Embree | agreement |");
-    println!("|---|---|---|---:|---:|---:|---:|");
+    println!("| scene | rays | tracer | threads | Mrays/s | vs Embree | Mrays/CPU-s | vs Embree (CPU) | agreement |");
+    println!("|---|---|---|---:|---:|---:|---:|---:|---:|");
     for r in rows {
         println!(
-            "| {} | {} ({}) | {} | {} | {:.2} | {} | {:.4} |",
+            "| {} | {} ({}) | {} | {} | {:.2} | {} | {:.2} | {} | {:.4} |",
             r.scene,
             r.rays,
             r.ray_count,
@@ -64,6 +64,8 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             r.threads,
             r.mrays_per_s,
             r.vs_embree.map_or("-".into(), |v| format!("{v:.2}x")),
+            r.mrays_per_cpu_s,
+            r.vs_embree_cpu.map_or("-".into(), |v| format!("{v:.2}x")),
             r.agreement
         );
     }

@@ -63,9 +63,31 @@ impl RaySets {
     }
 }
 
+/// CPU time consumed so far by the calling thread, in seconds (Linux; elsewhere 0).
+///
+/// On a machine shared with other work, a thread's CPU time excludes the time it waited
+/// for a core, so throughput per CPU second is far steadier than per wall second (cache
+/// sharing with the other work still shows).
+pub fn thread_cpu_seconds() -> f64 {
+    #[cfg(target_os = "linux")]
+    {
+        let mut ts = libc::timespec {
+            tv_sec: 0,
+            tv_nsec: 0,
+        };
+        // SAFETY: `ts` is a valid timespec for clock_gettime to fill.
+        if unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) } == 0 {
+            return ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9;
+        }
+    }
+    0.0
+}
+
 /// One measurement.
 #[derive(Clone, Copy, Debug)]
 pub struct Measured {
+    /// CPU time of the worker threads in the repetition with the best wall time.
+    pub cpu_seconds: f64,
     /// Best wall time over the repetitions, in seconds.
     pub seconds: f64,
     /// Millions of rays per second at the best time.
@@ -95,27 +117,34 @@ where
         .build()
         .map_err(|e| crate::PeerError::ThreadPool(e.to_string()))?;
     let mut best = f64::INFINITY;
+    let mut best_cpu = f64::INFINITY;
     let mut results: Vec<Option<(u32, f32)>> = vec![None; rays.len()];
     for _ in 0..repeats.max(1) {
+        let cpu_ns = std::sync::atomic::AtomicU64::new(0);
         let start = Instant::now();
         pool.install(|| {
             results
                 .par_chunks_mut(1024)
                 .zip(rays.par_chunks(1024))
                 .for_each(|(res, rs)| {
+                    let c0 = thread_cpu_seconds();
                     let mut state = init();
                     for (o, r) in res.iter_mut().zip(rs) {
                         *o = closest(&mut state, r);
                     }
+                    let ns = ((thread_cpu_seconds() - c0) * 1e9) as u64;
+                    cpu_ns.fetch_add(ns, std::sync::atomic::Ordering::Relaxed);
                 })
         });
         best = best.min(start.elapsed().as_secs_f64());
+        best_cpu = best_cpu.min(cpu_ns.into_inner() as f64 * 1e-9);
     }
     let hits = results.iter().filter(|h| h.is_some()).count() as u64;
     if let Some(o) = out {
         *o = results;
     }
     Ok(Measured {
+        cpu_seconds: best_cpu,
         seconds: best,
         mrays_per_s: if best > 0.0 {
             rays.len() as f64 / best / 1e6
@@ -179,6 +208,11 @@ pub struct TraceRow {
     pub mrays_per_s: f64,
     /// Throughput relative to Embree's on the same rays and threads (null without Embree).
     pub vs_embree: Option<f64>,
+    /// Millions of rays per second of worker-thread CPU time (best of the repetitions):
+    /// steadier than wall time on a machine shared with other work.
+    pub mrays_per_cpu_s: f64,
+    /// `mrays_per_cpu_s` relative to Embree's.
+    pub vs_embree_cpu: Option<f64>,
     /// Fraction of rays whose hit agrees with Arbor's reference kernel.
     pub agreement: f64,
     /// Tree build time of this tracer, in ms (its own builder).
@@ -186,11 +220,17 @@ pub struct TraceRow {
 }
 
 /// Arbor tracer configurations of the benchmark: (name, builder, format, distance stack).
-pub const ARBOR_KERNELS: [(&str, &str, bool, bool); 4] = [
+pub const ARBOR_KERNELS: [(&str, &str, bool, bool); 5] = [
     ("arbor bvh2 binned-sah", "binned-sah", false, false),
     ("arbor bvh2 binned-sah +dist", "binned-sah", false, true),
     ("arbor mbvh4 collapse(binned-sah)", "binned-sah", true, true),
     ("arbor mbvh4 topdown", "mbvh4-topdown", true, true),
+    (
+        "arbor mbvh8 collapse(binned-sah)",
+        "binned-sah-8",
+        true,
+        true,
+    ),
 ];
 
 /// Prints the traversal counters per ray of every Arbor kernel on both ray sets (what a
@@ -299,6 +339,14 @@ pub fn run(
                 Accel::Mbvh4(Mbvh4Accel::new(collapsed.clone(), &tris, o)?),
                 collapse_ms,
             ),
+            ("binned-sah-8", _) => {
+                let t0 = Instant::now();
+                let a = trace::Mbvh8Accel::from_bvh2(&binned, &tris, o)?;
+                (
+                    Accel::Mbvh8(a),
+                    binned_ms + t0.elapsed().as_secs_f64() * 1e3,
+                )
+            }
             _ => (
                 Accel::Mbvh4(Mbvh4Accel::new(topdown.clone(), &tris, o)?),
                 topdown_ms,
@@ -389,6 +437,7 @@ pub fn run(
         for &th in threads {
             note(&format!("{set_name} rays, {th} thread(s)"));
             let mut best = vec![f64::INFINITY; tracers.len()];
+            let mut best_cpu = vec![f64::INFINITY; tracers.len()];
             let mut answers: Vec<Vec<Option<(u32, f32)>>> = vec![Vec::new(); tracers.len()];
             for round in 0..repeats.max(1) {
                 for (k, (_, _, f)) in tracers.iter().enumerate() {
@@ -402,10 +451,13 @@ pub fn run(
                         out,
                     )?;
                     best[k] = best[k].min(m.seconds);
+                    best_cpu[k] = best_cpu[k].min(m.cpu_seconds);
                 }
             }
             let mrays = |k: usize| rays.len() as f64 / best[k] / 1e6;
+            let mrays_cpu = |k: usize| rays.len() as f64 / best_cpu[k] / 1e6;
             let embree_m = embree_index.map(mrays);
+            let embree_cpu = embree_index.map(mrays_cpu);
             for (k, (name, ms, _)) in tracers.iter().enumerate() {
                 rows.push(TraceRow {
                     scene: scene.name.clone(),
@@ -415,6 +467,8 @@ pub fn run(
                     threads: th,
                     mrays_per_s: mrays(k),
                     vs_embree: embree_m.map(|e| mrays(k) / e),
+                    mrays_per_cpu_s: mrays_cpu(k),
+                    vs_embree_cpu: embree_cpu.map(|e| mrays_cpu(k) / e),
                     agreement: agreement(&answers[0], &answers[k]),
                     build_ms: *ms,
                 });

@@ -16,6 +16,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let binned = bvh::BinnedSahBuilder::default().build(&aabbs)?;
     let b2 = trace::Bvh2Accel::new(binned.clone(), &tris, Default::default())?;
     let b4 = trace::Mbvh4Accel::new(bvh::collapse(&binned)?, &tris, Default::default())?;
+    let b8 = trace::Mbvh8Accel::from_bvh2(&binned, &tris, Default::default())?;
     let mut s = RenderSettings::new(sc.info().camera);
     s.width = 320;
     s.height = 180;
@@ -39,6 +40,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let mut stack = trace::TraversalStack::new();
     for (name, t) in [
         ("mbvh4", &trace::Accel::Mbvh4(b4)),
+        ("mbvh8", &trace::Accel::Mbvh8(b8)),
         ("bvh2", &trace::Accel::Bvh2(b2)),
     ] {
         let mut st = trace::RayStats::default();

@@ -9,6 +9,16 @@
 //! range ([`geom::intersect_triangle_watertight`]), and box culling is conservative (see
 //! [`cull_distance`]), so the result is a function of the ray and the triangles alone:
 //! every tree, of either width, and brute force give the same hit, bit for bit.
+//!
+//! One more condition makes this hold for rays that start on a surface (secondary rays):
+//! a triangle hit counts only when the ray also enters the triangle's own bounding box by
+//! then ([`enters_own_box`]). Near a ray's origin the triangle test's distance carries an
+//! absolute error of the order of an ulp of the coordinates, so it can report a hit at
+//! `t = -0.0` or a few ulps on the wrong side of a box entry, where the slab test (exact
+//! up to relative rounding) has already culled every box around the triangle. With the
+//! check, such a hit is refused the same way by brute force and by every kernel: if the
+//! ray enters a triangle's box in range, it enters every enclosing box too, since the slab
+//! test is monotone in the box and in its range.
 
 use crate::observer::{Observer, Query};
 use crate::stats::RayStats;
@@ -54,6 +64,14 @@ pub const CULL_SLACK: f32 = 1.0 + 1.0 / 65536.0;
 #[inline(always)]
 pub fn cull_distance(best_t: f32) -> f32 {
     best_t * CULL_SLACK
+}
+
+/// Whether the ray enters `tri`'s bounding box within `[t_min, cull_distance(t)]`: the
+/// second condition of a hit at `t` (see the module header). Only evaluated for triangles
+/// the watertight test reports as hit.
+#[inline(always)]
+pub fn enters_own_box(pre: &RayPrecomp, tri: &Triangle, t_min: f32, t: f32) -> bool {
+    geom::ray_aabb(pre, &tri.aabb(), t_min, cull_distance(t)).is_some()
 }
 
 /// One traversal stack entry: a child to visit later and its entry distance.
@@ -372,6 +390,9 @@ impl LeafTriangles {
             while m != 0 {
                 let i = m.trailing_zeros() as usize;
                 m &= m - 1;
+                if !enters_own_box(pre, &tris.get(i), t_min, h.t[i]) {
+                    continue;
+                }
                 let entry = entries[i];
                 let hit = Hit {
                     t: h.t[i],

@@ -1,28 +1,34 @@
-//! [`Accel`]: either tree format behind one type, for code that picks the format at run
+//! [`Accel`]: any tree format behind one type, for code that picks the format at run
 //! time (the `arbor render` command, benchmarks). The per-ray `match` costs one predictable
 //! branch.
 
 use crate::accel::{Hit, TraversalStack, Traverse};
 use crate::observer::{Observer, Query};
 use crate::stats::RayStats;
-use crate::{Bvh2Accel, Mbvh4Accel};
+use crate::{Bvh2Accel, CbvhAccel, Mbvh4Accel, Mbvh8Accel};
 use geom::Ray;
 
-/// A traceable tree of either width.
+/// A traceable tree of any format.
 #[derive(Clone, Debug)]
 pub enum Accel {
     /// A binary tree.
     Bvh2(Bvh2Accel),
     /// A 4-wide tree.
     Mbvh4(Mbvh4Accel),
+    /// An 8-wide tree.
+    Mbvh8(Mbvh8Accel),
+    /// A compressed binary tree ([P3]).
+    Cbvh(CbvhAccel),
 }
 
 impl Accel {
-    /// `"bvh2"` or `"mbvh4"`.
+    /// `"bvh2"`, `"mbvh4"` or `"cbvh"`.
     pub fn format_name(&self) -> &'static str {
         match self {
             Accel::Bvh2(_) => "bvh2",
             Accel::Mbvh4(_) => "mbvh4",
+            Accel::Mbvh8(_) => "mbvh8",
+            Accel::Cbvh(_) => "cbvh",
         }
     }
 
@@ -31,6 +37,8 @@ impl Accel {
         match self {
             Accel::Bvh2(a) => a.options(),
             Accel::Mbvh4(a) => a.options(),
+            Accel::Mbvh8(a) => a.options(),
+            Accel::Cbvh(a) => a.options(),
         }
     }
 
@@ -53,6 +61,8 @@ impl Traverse for Accel {
         match self {
             Accel::Bvh2(a) => a.trace_observed(ray, query, stack, stats, obs),
             Accel::Mbvh4(a) => a.trace_observed(ray, query, stack, stats, obs),
+            Accel::Mbvh8(a) => a.trace_observed(ray, query, stack, stats, obs),
+            Accel::Cbvh(a) => a.trace_observed(ray, query, stack, stats, obs),
         }
     }
 
@@ -60,6 +70,8 @@ impl Traverse for Accel {
         match self {
             Accel::Bvh2(a) => a.node_bytes(),
             Accel::Mbvh4(a) => a.node_bytes(),
+            Accel::Mbvh8(a) => a.node_bytes(),
+            Accel::Cbvh(a) => a.node_bytes(),
         }
     }
 
@@ -67,6 +79,8 @@ impl Traverse for Accel {
         match self {
             Accel::Bvh2(a) => a.width(),
             Accel::Mbvh4(a) => a.width(),
+            Accel::Mbvh8(a) => a.width(),
+            Accel::Cbvh(a) => a.width(),
         }
     }
 
@@ -74,6 +88,8 @@ impl Traverse for Accel {
         match self {
             Accel::Bvh2(a) => a.node_count(),
             Accel::Mbvh4(a) => a.node_count(),
+            Accel::Mbvh8(a) => a.node_count(),
+            Accel::Cbvh(a) => a.node_count(),
         }
     }
 
@@ -81,6 +97,8 @@ impl Traverse for Accel {
         match self {
             Accel::Bvh2(a) => a.source_triangles(),
             Accel::Mbvh4(a) => a.source_triangles(),
+            Accel::Mbvh8(a) => a.source_triangles(),
+            Accel::Cbvh(a) => a.source_triangles(),
         }
     }
 
@@ -88,6 +106,8 @@ impl Traverse for Accel {
         match self {
             Accel::Bvh2(a) => a.leaf_entries(),
             Accel::Mbvh4(a) => a.leaf_entries(),
+            Accel::Mbvh8(a) => a.leaf_entries(),
+            Accel::Cbvh(a) => a.leaf_entries(),
         }
     }
 }

@@ -1,6 +1,7 @@
-//! Arbor's ray tracer: traversal kernels for the binary `Bvh2` ([P2] §4.1) and the 4-wide
-//! `Mbvh4` ([P4] §3.1), closest-hit and any-hit queries with per-ray counters, a pinhole
-//! camera, primary-ray and diffuse path-traced rendering, images (shaded PNG, depth PFM or
+//! Arbor's ray tracer: traversal kernels for the binary `Bvh2` ([P2] §4.1), the 4-wide
+//! `Mbvh4` ([P4] §3.1) and the compressed `Cbvh` ([P3], boxes decoded on the fly, with the
+//! watertightness check of [P3] §5.5), closest-hit and any-hit queries with per-ray
+//! counters, a pinhole camera, primary-ray and diffuse path-traced rendering, images (shaded PNG, depth PFM or
 //! NPY, a heatmap of traversal cost in the style of the thesis's Fig. 2.2) and traversal
 //! logs, the input of the traversal hardware model ([P4] §3.2).
 //!
@@ -31,9 +32,12 @@ mod any;
 mod brute;
 mod bvh2_kernel;
 pub mod camera;
+mod cbvh_kernel;
+mod cbvh_watertight;
 pub mod image;
 pub mod log;
 mod mbvh4_kernel;
+mod mbvh8_kernel;
 mod observer;
 pub mod render;
 pub mod sampling;
@@ -41,16 +45,21 @@ mod stats;
 #[cfg(test)]
 mod tests;
 #[cfg(test)]
+mod tests_cbvh;
+#[cfg(test)]
 mod tests_render;
 #[cfg(test)]
 mod testutil;
 
-pub use accel::{cull_distance, Hit, TraversalStack, Traverse, CULL_SLACK};
+pub use accel::{cull_distance, enters_own_box, Hit, TraversalStack, Traverse, CULL_SLACK};
 pub use any::Accel;
 pub use brute::brute_force;
 pub use bvh2_kernel::Bvh2Accel;
 pub use camera::PinholeCamera;
+pub use cbvh_kernel::{BoxObserver, CbvhAccel};
+pub use cbvh_watertight::{WatertightCheck, WatertightStats};
 pub use mbvh4_kernel::{sort4, Mbvh4Accel};
+pub use mbvh8_kernel::{Mbvh8Accel, WIDTH8};
 pub use observer::{Observer, Query};
 pub use render::{render, RayKind, Render, RenderSettings, RenderStats, Shading};
 pub use stats::RayStats;

@@ -49,6 +49,9 @@ const T_LEAF: u8 = 0x07;
 const T_END: u8 = 0x08;
 /// A node record whose child slots are all valid (no mask byte follows).
 const T_NODE_FULL: u8 = 0x09;
+/// A node record of a tree wider than four (the hit mask does not fit the tag's high
+/// nibble): hit mask byte, valid mask byte, node delta.
+const T_NODE_WIDE: u8 = 0x0A;
 
 /// What kind of render produced a log.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -83,7 +86,7 @@ impl LogRays {
 /// The fixed header of a log.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 pub struct LogHeader {
-    /// Tree width: 2 (`Bvh2`) or 4 (`Mbvh4`).
+    /// Tree width: 2 (`Bvh2`, CBVH), 4 (`Mbvh4`) or 8 (`Mbvh8`).
     pub width: u32,
     /// Bytes per node in memory (64 or 128): what a node fetch reads.
     pub node_bytes: u32,
@@ -136,8 +139,8 @@ impl LogHeader {
             ));
         }
         let width = u32_at(12);
-        if width != 2 && width != 4 {
-            return Err(format!("tree width {width} (expected 2 or 4)"));
+        if ![2, 4, 8].contains(&width) {
+            return Err(format!("tree width {width} (expected 2, 4 or 8)"));
         }
         let rays = LogRays::from_code(h[44]).ok_or(format!("unknown ray kind {}", h[44]))?;
         if h[46] > 1 {
@@ -255,7 +258,11 @@ impl Observer for LogEncoder {
     }
 
     fn node(&mut self, node: u32, valid: u8, hit: u8) {
-        if valid == self.full {
+        if self.full > 0x0F {
+            self.buf.push(T_NODE_WIDE);
+            self.buf.push(hit);
+            self.buf.push(valid);
+        } else if valid == self.full {
             self.buf.push(T_NODE_FULL | (hit & 0x0F) << 4);
         } else {
             self.buf.push(T_NODE | (hit & 0x0F) << 4);
@@ -642,6 +649,13 @@ impl LogReader {
         loop {
             let tag = self.byte()?;
             let ev = match tag & 0x0F {
+                T_NODE_WIDE if tag == T_NODE_WIDE => {
+                    let hit = self.byte()?;
+                    let valid = self.byte()?;
+                    let node = self.delta(last_node)?;
+                    last_node = node;
+                    LogEvent::Node { node, valid, hit }
+                }
                 kind @ (T_NODE | T_NODE_FULL) => {
                     let valid = if kind == T_NODE { self.byte()? } else { full };
                     let node = self.delta(last_node)?;

@@ -17,7 +17,7 @@ use crate::bvh2_kernel::check_links;
 use crate::observer::{Observer, Query};
 use crate::stats::RayStats;
 use crate::{KernelOptions, TraceError};
-use bvh::{ChildRef, Mbvh4, Node4, EMPTY_INDEX};
+use bvh::{ChildRef, Mbvh4, Node4};
 use geom::{Ray, RayPrecomp, Triangle, SLAB_FAR_SCALE};
 
 /// A node aligned to 64-byte cache lines (a `Vec<Node4>` is only 4-byte aligned, so
@@ -39,7 +39,7 @@ pub struct Mbvh4Accel {
 /// (The portable form; x86-64 uses [`test4_sse`], which computes the same values.)
 #[cfg_attr(target_arch = "x86_64", allow(dead_code))]
 #[inline(always)]
-fn test4_portable(slab: &Slab, n: &Node4, t_max: f32) -> ([f32; 4], u8) {
+fn test4_portable(slab: &Slab, n: &Node4, t_max: f32) -> ([f32; 4], u8, u8) {
     // Padded to eight so that an index masked with 7 needs no bounds check.
     let planes = [
         &n.min_x, &n.min_y, &n.min_z, &n.max_x, &n.max_y, &n.max_z, &n.max_z, &n.max_z,
@@ -64,7 +64,8 @@ fn test4_portable(slab: &Slab, n: &Node4, t_max: f32) -> ([f32; 4], u8) {
         dist[i] = if hit { near } else { f32::INFINITY };
         mask |= (hit as u8) << i;
     }
-    (dist, mask)
+    let valid = (0..4).fold(0u8, |v, i| v | ((n.min_x[i] < f32::INFINITY) as u8) << i);
+    (dist, mask, valid)
 }
 
 /// [`test4_portable`] in SSE (part of every x86-64 CPU): the same operations in the same
@@ -73,7 +74,7 @@ fn test4_portable(slab: &Slab, n: &Node4, t_max: f32) -> ([f32; 4], u8) {
 /// lane by lane.
 #[cfg(target_arch = "x86_64")]
 #[inline(always)]
-fn test4_sse(slab: &Slab, n: &Node4, t_max: f32) -> ([f32; 4], u8) {
+fn test4_sse(slab: &Slab, n: &Node4, t_max: f32) -> ([f32; 4], u8, u8) {
     use std::arch::x86_64::*;
     // SAFETY: SSE and SSE2 are part of the x86-64 baseline; the six plane rows of a Node4
     // are [f32; 4] fields, so each load reads 16 bytes inside the node.
@@ -103,13 +104,18 @@ fn test4_sse(slab: &Slab, n: &Node4, t_max: f32) -> ([f32; 4], u8) {
         );
         let mut out = [0f32; 4];
         _mm_storeu_ps(out.as_mut_ptr(), dist);
-        (out, _mm_movemask_ps(hit) as u8)
+        let inf = _mm_set1_ps(f32::INFINITY);
+        let valid = _mm_movemask_ps(_mm_cmplt_ps(row(0), inf)) as u8;
+        (out, _mm_movemask_ps(hit) as u8, valid)
     }
 }
 
-/// The child-box test of the kernel.
+/// The child-box test of the kernel: entry distances, the hit mask, and the mask of
+/// non-empty slots (an empty slot is the only one whose box has `min_x = +inf`: trees over
+/// finite primitives have finite boxes), read off the loaded box rows instead of the four
+/// child references.
 #[inline(always)]
-fn test4(slab: &Slab, n: &Node4, t_max: f32) -> ([f32; 4], u8) {
+fn test4(slab: &Slab, n: &Node4, t_max: f32) -> ([f32; 4], u8, u8) {
     #[cfg(target_arch = "x86_64")]
     {
         test4_sse(slab, n, t_max)
@@ -248,18 +254,12 @@ impl Mbvh4Accel {
                 }
             } else {
                 let node = &nodes[c.index as usize].0;
-                let (dist, mask) = test4(&slab, node, cull_distance(best_t));
-                // Only an empty slot has the index EMPTY_INDEX (a packed leaf slot or a
-                // node index never reaches it).
+                let (dist, mask, valid) = test4(&slab, node, cull_distance(best_t));
                 let kids = &node.children;
-                let valid = (kids[0].index != EMPTY_INDEX) as u8
-                    | ((kids[1].index != EMPTY_INDEX) as u8) << 1
-                    | ((kids[2].index != EMPTY_INDEX) as u8) << 2
-                    | ((kids[3].index != EMPTY_INDEX) as u8) << 3;
                 stats.node_visits += 1;
-                stats.box_tests += POPCOUNT4[valid as usize] as u64;
+                stats.box_tests += POPCOUNT4[valid as usize & 15] as u64;
                 obs.node(c.index, valid, mask);
-                match POPCOUNT4[mask as usize] {
+                match POPCOUNT4[mask as usize & 15] {
                     0 => {}
                     1 => {
                         cur = Some(kids[mask.trailing_zeros() as usize & 3]);
@@ -276,10 +276,11 @@ impl Mbvh4Accel {
                         continue;
                     }
                     hits => {
+                        let hits = hits as usize;
                         let mut keys = child_keys(&dist, mask);
                         sort4(&mut keys);
                         // Push the far ones far-to-near so the nearest of them pops first.
-                        for k in (1..hits as usize).rev() {
+                        for k in (1..hits).rev() {
                             let slot = (keys[k] & 3) as usize;
                             let child = kids[slot];
                             self.prefetch_child(child);
@@ -365,9 +366,16 @@ mod tests {
             } else {
                 f32::INFINITY
             };
-            let (a, ma) = test4_portable(&slab, &n, t_max);
-            let (b, mb) = test4_sse(&slab, &n, t_max);
-            assert_eq!(ma, mb);
+            let (a, ma, va) = test4_portable(&slab, &n, t_max);
+            let (b, mb, vb) = test4_sse(&slab, &n, t_max);
+            assert_eq!((ma, va), (mb, vb));
+            // The valid mask names exactly the slots that were given a box.
+            let given = n
+                .min_x
+                .iter()
+                .enumerate()
+                .fold(0u8, |v, (i, &x)| v | ((x != f32::INFINITY) as u8) << i);
+            assert_eq!(va, given);
             assert_eq!(a.map(f32::to_bits), b.map(f32::to_bits));
         }
     }

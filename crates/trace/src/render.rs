@@ -181,6 +181,29 @@ impl RayObserver for RayRecorder {
     }
 }
 
+/// Renders `settings` with `accel` and returns every ray traced, in log order, with its
+/// bounce and query (a [`RayRecorder`] per tile): the ray set of a render, to trace the
+/// very same rays through other trees.
+pub fn record_rays<T: Traverse>(
+    accel: &T,
+    shading: Shading<'_>,
+    settings: &RenderSettings,
+) -> Result<Vec<(Ray, u8, Query)>, TraceError> {
+    let mut rays = Vec::new();
+    render_observed(
+        accel,
+        shading,
+        settings,
+        RayRecorder::default,
+        |r| {
+            rays.extend(r.rays);
+            Ok(())
+        },
+        None,
+    )?;
+    Ok(rays)
+}
+
 /// Everything one tile produces.
 struct TileOut<O> {
     x0: u32,

@@ -81,32 +81,23 @@ pub fn cosine_hemisphere(n: Vec3, u1: f32, u2: f32) -> Vec3 {
     (t * x + b * y + n * z).normalize()
 }
 
-/// Moves a point `p` on a surface off it along the normal `n` (facing the side the new
-/// ray leaves to), so that the new ray does not hit the surface it starts on. The offset
-/// is a fixed number of float ulps per component, scaled by the normal, which stays
-/// correct at any distance from the origin; near the origin, where ulps are tiny, a small
-/// absolute offset is used instead (Wächter and Binder 2019, "A Fast and Robust Method for
-/// Avoiding Self-Intersection", Ray Tracing Gems ch. 6, constants from there).
+/// Moves a point `p` on a surface off it along the normal `n` (unit, facing the side the
+/// new ray leaves to), so that the new ray does not hit the surface it starts on.
+///
+/// The idea is Wächter and Binder's ("A Fast and Robust Method for Avoiding
+/// Self-Intersection", Ray Tracing Gems ch. 6, 2019): offset by a number of float ulps, so
+/// that the offset stays correct at any distance from the world origin. They offset each
+/// component by ulps of that component; here the distance is 256 ulps of the *largest*
+/// component (`2^-15` relative), along the normal, because the watertight triangle test
+/// mixes the components in its shear, so its error near the origin of a ray scales with
+/// the largest coordinate (a floor at y = -1.5 in a room 2,700 units wide needs an offset
+/// for the x and z of its points, not for its y). Near the world origin a small absolute
+/// offset (`2^-16`) takes over.
 pub fn offset_origin(p: Vec3, n: Vec3) -> Vec3 {
-    const ORIGIN: f32 = 1.0 / 32.0;
-    const FLOAT_SCALE: f32 = 1.0 / 65536.0;
-    const INT_SCALE: f32 = 256.0;
-    let step = |p: f32, n: f32| -> f32 {
-        if p.abs() < ORIGIN {
-            return p + FLOAT_SCALE * n;
-        }
-        let ulps = (INT_SCALE * n) as i32;
-        // Moving away from zero grows the magnitude: add ulps for positive p, subtract
-        // for negative p (in the integer view of the float).
-        let bits = p.to_bits() as i32;
-        let moved = if p < 0.0 {
-            bits.wrapping_sub(ulps)
-        } else {
-            bits.wrapping_add(ulps)
-        };
-        f32::from_bits(moved as u32)
-    };
-    Vec3::new(step(p.x, n.x), step(p.y, n.y), step(p.z, n.z))
+    const RELATIVE: f32 = 1.0 / 32768.0;
+    const ABSOLUTE: f32 = 1.0 / 65536.0;
+    let scale = p.abs().max_element() * RELATIVE + ABSOLUTE;
+    p + n * scale
 }
 
 #[cfg(test)]

@@ -32,7 +32,12 @@ fn check_against<T: Traverse>(
     stats
 }
 
-fn agree_with_brute_force(tris: &[Triangle], rays: usize, seed: u64) {
+/// Random rays around `tris` with their brute-force closest hits and the hit count.
+fn brute_force_case(
+    tris: &[Triangle],
+    rays: usize,
+    seed: u64,
+) -> (Vec<Ray>, Vec<Option<Hit>>, usize) {
     let b = tris
         .iter()
         .fold(geom::Aabb::EMPTY, |b, t| b.union(t.aabb()));
@@ -45,12 +50,21 @@ fn agree_with_brute_force(tris: &[Triangle], rays: usize, seed: u64) {
         "{hits} of {}",
         rays.len()
     );
+    (rays, expected, hits)
+}
+
+fn agree_with_brute_force(tris: &[Triangle], rays: usize, seed: u64) {
+    let (rays, expected, hits) = brute_force_case(tris, rays, seed);
     let (b2, b4) = all_accels(tris);
     for (name, a) in &b2 {
         let s = check_against(name, a, &rays, &expected);
         assert_eq!(s.hits, hits as u64);
     }
     for (name, a) in &b4 {
+        let s = check_against(name, a, &rays, &expected);
+        assert_eq!(s.hits, hits as u64);
+    }
+    for (name, a) in &all_mbvh8(tris) {
         let s = check_against(name, a, &rays, &expected);
         assert_eq!(s.hits, hits as u64);
     }
@@ -69,6 +83,26 @@ fn closed_and_flat_meshes_match_brute_force() {
     let (p, t) = bumpy_sphere(3, 0.2, 5);
     agree_with_brute_force(&resolve(&p, &t), 30_000, 2);
     agree_with_brute_force(&flat_grid(24), 30_000, 3);
+}
+
+/// Every CBVH encoder variant of [`all_cbvh`] (top-down, bottom-up and the emitter stream,
+/// relative and modulo coordinates, treelet depths 1-4, 3 to 8 bits, three minimum scales,
+/// two source trees): the same closest hit as brute force, bit for bit, on a soup, a closed
+/// mesh and a flat axis-aligned grid (whose boxes are flat on one axis).
+#[test]
+fn cbvh_matches_brute_force() {
+    let (p, t) = bumpy_sphere(3, 0.2, 5);
+    for (tris, rays, seed) in [
+        (soup(1500, 1.5, 11), 20_000, 1),
+        (resolve(&p, &t), 10_000, 2),
+        (flat_grid(24), 10_000, 3),
+    ] {
+        let (rays, expected, hits) = brute_force_case(&tris, rays, seed);
+        for (name, a) in &all_cbvh(&tris) {
+            let s = check_against(name, a, &rays, &expected);
+            assert_eq!(s.hits, hits as u64);
+        }
+    }
 }
 
 /// The distance stack never changes a hit, and saves work: it culls entries, and tests
@@ -99,7 +133,7 @@ fn distance_stack_culls_without_changing_hits() {
 }
 
 /// Rays aimed exactly at shared edges and vertices of closed meshes never pass through:
-/// over 1M rays through Bvh2 and Mbvh4 traversal, zero misses.
+/// over 1.5M rays through Bvh2, Mbvh4 and CBVH traversal, zero misses.
 ///
 /// Two kinds of rays, each of which must hit in exact arithmetic whatever rounding does to
 /// the aimed point: rays from inside the mesh (a closed surface must be crossed to leave
@@ -107,7 +141,8 @@ fn distance_stack_culls_without_changing_hits() {
 /// vertex: every face around the aimed point faces the origin (or every one faces away),
 /// none at a grazing angle (|cos| > 0.05), and edge points keep 1% of the edge's length
 /// from its ends. Outside rays that graze a silhouette are left out: an aimed point that
-/// rounding moves just outside such an edge is a true miss.
+/// rounding moves just outside such an edge is a true miss. The CBVH kernel (modulo
+/// coordinates, bottom-up with depth-2 treelets) is held to the same standard.
 #[test]
 fn closed_meshes_are_watertight_under_traversal() {
     let mut misses = 0usize;
@@ -122,14 +157,30 @@ fn closed_meshes_are_watertight_under_traversal() {
             }
         }
         let prims = bvh::triangle_aabbs(&tris);
-        let b2 = crate::Bvh2Accel::new(
-            bvh::BinnedSahBuilder::default().build(&prims).unwrap(),
+        let binned = bvh::BinnedSahBuilder::default().build(&prims).unwrap();
+        let cfg = cbvh::StreamConfig {
+            params: cbvh::Params {
+                coords: cbvh::Coords::Modulo,
+                ..Default::default()
+            },
+            treelet_depth: 2,
+            ..Default::default()
+        };
+        let cb = crate::CbvhAccel::new(
+            &cbvh::compress_bottomup(&binned, &cfg).unwrap().0,
             &tris,
             Default::default(),
         )
         .unwrap();
+        let b2 = crate::Bvh2Accel::new(binned, &tris, Default::default()).unwrap();
         let b4 = crate::Mbvh4Accel::new(
             bvh::Mbvh4TopDownBuilder::default().build(&prims).unwrap(),
+            &tris,
+            Default::default(),
+        )
+        .unwrap();
+        let b8 = crate::Mbvh8Accel::from_bvh2(
+            &bvh::BinnedSahBuilder::default().build(&prims).unwrap(),
             &tris,
             Default::default(),
         )
@@ -171,13 +222,15 @@ fn closed_meshes_are_watertight_under_traversal() {
             };
             made += 1;
             let ray = Ray::new(o, target - o);
-            total += 2;
+            total += 3;
             let m2 = b2.closest_hit(&ray, &mut stack, &mut stats).is_none();
             let m4 = b4.closest_hit(&ray, &mut stack, &mut stats).is_none();
-            misses += m2 as usize + m4 as usize;
+            let m8 = b8.closest_hit(&ray, &mut stack, &mut stats).is_none();
+            let mc = cb.closest_hit(&ray, &mut stack, &mut stats).is_none();
+            misses += m2 as usize + m4 as usize + m8 as usize + mc as usize;
         }
     }
-    assert!(total >= 1_000_000);
+    assert!(total >= 1_500_000);
     assert_eq!(misses, 0, "{misses} of {total} rays slipped through");
 }
 
@@ -211,4 +264,78 @@ fn tiny_trees_and_bad_rays() {
     }
     // A tree over triangles that are not there is refused.
     assert!(crate::Bvh2Accel::new(t, &none, Default::default()).is_err());
+}
+
+/// Rays that start on surfaces far from the world origin (the bounce rays of a path
+/// tracer): coplanar, overlapping and axis-aligned triangles at coordinates near 1000,
+/// origins on the triangles themselves (offset and not offset), every kernel equals brute
+/// force. Near the origin the triangle test's distance has an absolute error of about an
+/// ulp of the coordinates; without the own-box condition of a hit, the kernels and brute
+/// force disagree on such rays (as they did on Conference).
+#[test]
+fn rays_leaving_surfaces_far_from_the_origin_match_brute_force() {
+    let mut r = Rng::new(31);
+    let base = Vec3::new(1350.0, -1.5, -340.0);
+    let mut tris = Vec::new();
+    for i in 0..400 {
+        let p = base + r.vec() * Vec3::new(40.0, 2.0, 40.0);
+        let (a, b) = (r.vec() * 3.0, r.vec() * 3.0);
+        let t = match i % 4 {
+            // Flat in y (floors), often overlapping each other.
+            0 | 1 => Triangle::new(
+                p,
+                p + Vec3::new(a.x, 0.0, a.z),
+                p + Vec3::new(b.x, 0.0, b.z),
+            ),
+            // A coplanar duplicate, shifted within its plane.
+            2 => {
+                let q = tris
+                    .last()
+                    .copied()
+                    .unwrap_or(Triangle::new(p, p + a, p + b));
+                let s = Vec3::new(0.3, 0.0, -0.2);
+                Triangle::new(q.v[0] + s, q.v[1] + s, q.v[2] + s)
+            }
+            _ => Triangle::new(p, p + a, p + b),
+        };
+        tris.push(t);
+    }
+    let mut rays = Vec::new();
+    for k in 0..20_000 {
+        let t = &tris[k % tris.len()];
+        let (u, v) = (r.f32(), r.f32());
+        let (u, v) = if u + v > 1.0 {
+            (1.0 - u, 1.0 - v)
+        } else {
+            (u, v)
+        };
+        let p = t.v[0] * (1.0 - u - v) + t.v[1] * u + t.v[2] * v;
+        let n = t.normal().normalize_or_zero();
+        if n == Vec3::ZERO {
+            continue;
+        }
+        let n = if r.f32() < 0.5 { n } else { -n };
+        let d = crate::sampling::cosine_hemisphere(n, r.f32(), r.f32());
+        let o = if k % 2 == 0 {
+            p
+        } else {
+            crate::sampling::offset_origin(p, n)
+        };
+        rays.push(Ray::new(o, d));
+    }
+    let expected: Vec<Option<Hit>> = rays.iter().map(|ray| brute_force(ray, &tris)).collect();
+    assert!(expected.iter().filter(|h| h.is_some()).count() > rays.len() / 20);
+    let (b2, b4) = all_accels(&tris);
+    for (name, a) in &b2 {
+        check_against(name, a, &rays, &expected);
+    }
+    for (name, a) in &b4 {
+        check_against(name, a, &rays, &expected);
+    }
+    for (name, a) in &all_mbvh8(&tris) {
+        check_against(name, a, &rays, &expected);
+    }
+    for (name, a) in all_cbvh(&tris).iter().step_by(5) {
+        check_against(name, a, &rays, &expected);
+    }
 }

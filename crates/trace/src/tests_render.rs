@@ -48,8 +48,8 @@ fn same_image(a: &Render, b: &Render) -> bool {
     bits(a) == bits(b)
 }
 
-/// Bvh2 and Mbvh4, every builder and both kernels: the same image and depth buffer, for
-/// primary, diffuse and shadow rays.
+/// Bvh2 and Mbvh4, every builder and both kernels, and every CBVH encoder variant: the same
+/// image and depth buffer, for primary, diffuse and shadow rays.
 #[test]
 fn every_tree_renders_the_same_image() {
     let (tris, mats) = scene_tris();
@@ -58,6 +58,7 @@ fn every_tree_renders_the_same_image() {
         material_ids: &mats,
     };
     let (b2, b4) = all_accels(&tris);
+    let cb = all_cbvh(&tris);
     for kind in [RayKind::Primary, RayKind::Diffuse, RayKind::Shadow] {
         let s = settings(kind);
         let reference = render(&b2[0].1, shading, &s, None, None).unwrap();
@@ -71,6 +72,14 @@ fn every_tree_renders_the_same_image() {
             assert!(same_image(&r, &reference), "{kind:?} {name}");
         }
         for (name, a) in &b4 {
+            let r = render(a, shading, &s, None, None).unwrap();
+            assert!(same_image(&r, &reference), "{kind:?} {name}");
+        }
+        for (name, a) in &all_mbvh8(&tris) {
+            let r = render(a, shading, &s, None, None).unwrap();
+            assert!(same_image(&r, &reference), "{kind:?} {name}");
+        }
+        for (name, a) in &cb {
             let r = render(a, shading, &s, None, None).unwrap();
             assert!(same_image(&r, &reference), "{kind:?} {name}");
         }
@@ -116,12 +125,16 @@ fn log_totals_equal_the_tracer_counters() {
         material_ids: &mats,
     };
     let (b2, b4) = all_accels(&tris);
+    let cb = all_cbvh(&tris);
+    let b8 = all_mbvh8(&tris);
     let dir = tempfile::tempdir().unwrap();
     for kind in [RayKind::Diffuse, RayKind::Shadow] {
         let s = settings(kind);
         for (name, accel) in [
             (&b2[1].0, &b2[1].1 as &dyn TraverseDyn),
             (&b4[1].0, &b4[1].1 as &dyn TraverseDyn),
+            (&cb[7].0, &cb[7].1 as &dyn TraverseDyn),
+            (&b8[1].0, &b8[1].1 as &dyn TraverseDyn),
         ] {
             let path = dir.path().join("t.bin");
             let header = LogHeader {

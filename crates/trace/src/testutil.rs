@@ -1,7 +1,9 @@
 //! Test geometry and rays: a deterministic RNG, closed meshes, soups, and every tree the
 //! builders make over them.
 
-use crate::{Bvh2Accel, KernelOptions, Mbvh4Accel};
+use crate::{Bvh2Accel, CbvhAccel, KernelOptions, Mbvh4Accel};
+use cbvh::bottomup::{compress_bottomup, compress_hlbvh, StreamConfig};
+use cbvh::{compress_topdown, Coords, Params};
 use geom::{Ray, Triangle, Vec3};
 
 /// xorshift64* (tests need no RNG crate).
@@ -212,4 +214,80 @@ pub fn all_accels(tris: &[Triangle]) -> (Named<Bvh2Accel>, Named<Mbvh4Accel>) {
         ));
     }
     (b2, b4)
+}
+
+/// The 8-wide collapse of every binary tree, with and without the distance stack.
+pub fn all_mbvh8(tris: &[Triangle]) -> Named<crate::Mbvh8Accel> {
+    let mut out = Vec::new();
+    for (name, t) in all_bvh2(tris) {
+        for d in [false, true] {
+            let o = KernelOptions { distance_stack: d };
+            out.push((
+                format!("{name}+collapse8/{o:?}"),
+                crate::Mbvh8Accel::from_bvh2(&t, tris, o).unwrap(),
+            ));
+        }
+    }
+    out
+}
+
+/// Compressed trees over `tris` with every encoder: top-down, bottom-up (the tree streamed
+/// in postorder, and the LBVH emitter's own stream) with relative and modulo coordinates
+/// and treelet depths 1 to 4, coordinate bits 3 to 8 and three minimum scales, compressed
+/// from the paper's LBVH ([P3] §5.2) and from a binned SAH tree; with and without the
+/// distance stack. Names say tree, encoder, coordinates, treelet depth, bits and scale.
+pub fn all_cbvh(tris: &[Triangle]) -> Named<CbvhAccel> {
+    let prims = bvh::triangle_aabbs(tris);
+    let hl = cbvh::study::paper_lbvh().build_highlevel(&prims).unwrap();
+    let lbvh = hl.to_bvh2();
+    let binned = bvh::BinnedSahBuilder::default().build(&prims).unwrap();
+    // (tree, encoder, coords, treelet depth, bits, min scale exponent)
+    let mut cases: Vec<(&str, &str, Coords, u32, u32, i32)> = Vec::new();
+    for coords in [Coords::Relative, Coords::Modulo] {
+        cases.push(("lbvh", "topdown", coords, 1, 6, -30));
+        for m in 1..=4 {
+            cases.push(("lbvh", "bottomup", coords, m, 6, -30));
+        }
+        cases.push(("lbvh", "emitter", coords, 1, 6, -30));
+        for bits in [3, 4, 5, 7, 8] {
+            cases.push(("lbvh", "bottomup", coords, 2, bits, -30));
+        }
+        cases.push(("lbvh", "topdown", coords, 1, 3, -30));
+        cases.push(("lbvh", "bottomup", coords, 1, 6, -126));
+        cases.push(("lbvh", "emitter", coords, 4, 6, -10));
+        cases.push(("binned", "topdown", coords, 1, 6, -30));
+        cases.push(("binned", "bottomup", coords, 3, 4, -30));
+    }
+    let mut out = Vec::new();
+    for (k, (tree, enc, coords, m, bits, min_e)) in cases.into_iter().enumerate() {
+        let params = Params {
+            bits,
+            min_scale_exp: min_e,
+            coords,
+        };
+        let cfg = StreamConfig {
+            params,
+            treelet_depth: m,
+            ..StreamConfig::default()
+        };
+        let src = if tree == "lbvh" { &lbvh } else { &binned };
+        let (c, _) = match enc {
+            "topdown" => compress_topdown(src, &params),
+            "bottomup" => compress_bottomup(src, &cfg),
+            _ => compress_hlbvh(&hl, &cfg),
+        }
+        .unwrap();
+        // Alternate the distance stack over the cases.
+        let o = KernelOptions {
+            distance_stack: k % 2 == 1,
+        };
+        out.push((
+            format!(
+                "cbvh {tree}/{enc}/{}/{m}/{bits} bits/2^{min_e}/{o:?}",
+                coords.name()
+            ),
+            CbvhAccel::new(&c, tris, o).unwrap(),
+        ));
+    }
+    out
 }

@@ -14,26 +14,101 @@ use cbvh::{compress_topdown, enclosure_violations, refit_streaming, Coords, Enco
 use serde::Serialize;
 use std::time::Instant;
 
+/// The compression options of `arbor cbvh`, shared with `arbor render --format cbvh`.
+#[derive(clap::Args, Debug, Clone, Default)]
+pub struct CbvhOptions {
+    /// Encoder: `topdown` (postprocessing) or `bottomup` (streaming, Algorithm 1)
+    /// [default: bottomup].
+    #[arg(long, value_enum)]
+    encoder: Option<EncoderArg>,
+    /// Coordinates: `relative` or `modulo` [default: modulo].
+    #[arg(long, value_enum)]
+    coords: Option<CoordsArg>,
+    /// Treelet depth (1 = none; 2..=8; bottom-up only) [default: 1].
+    #[arg(long, value_name = "D")]
+    treelet: Option<u32>,
+    /// Bits per coordinate (3..=8) [default: 6].
+    #[arg(long, value_name = "N")]
+    bits: Option<u32>,
+    /// Minimum scale exponent (\[P3\] §4.4) [default: -30].
+    #[arg(long, value_name = "E", allow_hyphen_values = true)]
+    min_scale_exp: Option<i32>,
+}
+
+/// The encoder and its configuration chosen by [`CbvhOptions`].
+#[derive(Clone, Copy, Debug)]
+pub struct CbvhChoice {
+    /// Top-down or bottom-up.
+    pub encoder: Encoder,
+    /// Parameters and treelet depth (for bottom-up).
+    pub cfg: StreamConfig,
+}
+
+impl Default for CbvhChoice {
+    /// The defaults of `arbor cbvh`: bottom-up, modulo coordinates, no treelets, 6 bits,
+    /// minimum scale 2^-30.
+    fn default() -> Self {
+        CbvhOptions::default()
+            .resolve()
+            .expect("the defaults are valid")
+    }
+}
+
+impl CbvhOptions {
+    /// True when any option was given.
+    pub fn any_given(&self) -> bool {
+        self.encoder.is_some()
+            || self.coords.is_some()
+            || self.treelet.is_some()
+            || self.bits.is_some()
+            || self.min_scale_exp.is_some()
+    }
+
+    /// The options with defaults filled in, checked.
+    pub fn resolve(&self) -> anyhow::Result<CbvhChoice> {
+        let treelet = self.treelet.unwrap_or(1);
+        if treelet == 0 || treelet > cbvh::bottomup::MAX_TREELET_DEPTH {
+            bail!(
+                "--treelet must be 1..={}, got {treelet}",
+                cbvh::bottomup::MAX_TREELET_DEPTH
+            );
+        }
+        let encoder = match self.encoder.unwrap_or(EncoderArg::Bottomup) {
+            EncoderArg::Topdown => Encoder::Topdown,
+            EncoderArg::Bottomup => Encoder::Bottomup,
+        };
+        if encoder == Encoder::Topdown && treelet != 1 {
+            bail!("--treelet applies to the bottom-up encoder only");
+        }
+        let params = Params {
+            bits: self.bits.unwrap_or(cbvh::grid::DEFAULT_BITS),
+            min_scale_exp: self
+                .min_scale_exp
+                .unwrap_or(cbvh::grid::DEFAULT_MIN_SCALE_EXP),
+            coords: match self.coords.unwrap_or(CoordsArg::Modulo) {
+                CoordsArg::Relative => Coords::Relative,
+                CoordsArg::Modulo => Coords::Modulo,
+            },
+        };
+        params.check()?;
+        Ok(CbvhChoice {
+            encoder,
+            cfg: StreamConfig {
+                params,
+                treelet_depth: treelet,
+                ..StreamConfig::default()
+            },
+        })
+    }
+}
+
 /// Arguments of `arbor cbvh`.
 #[derive(clap::Args, Debug)]
 pub struct CbvhArgs {
     #[command(flatten)]
     scene: SceneArgs,
-    /// Encoder: `topdown` (postprocessing) or `bottomup` (streaming, Algorithm 1).
-    #[arg(long, value_enum, default_value = "bottomup")]
-    encoder: EncoderArg,
-    /// Coordinates: `relative` or `modulo`.
-    #[arg(long, value_enum, default_value = "modulo")]
-    coords: CoordsArg,
-    /// Treelet depth (1 = none; 2..=8).
-    #[arg(long, value_name = "D", default_value_t = 1)]
-    treelet: u32,
-    /// Bits per coordinate (3..=8).
-    #[arg(long, value_name = "N", default_value_t = cbvh::grid::DEFAULT_BITS)]
-    bits: u32,
-    /// Minimum scale exponent (\[P3\] §4.4).
-    #[arg(long, value_name = "E", default_value_t = cbvh::grid::DEFAULT_MIN_SCALE_EXP, allow_hyphen_values = true)]
-    min_scale_exp: i32,
+    #[command(flatten)]
+    options: CbvhOptions,
     /// Time in seconds to sample the scene at.
     #[arg(long, value_name = "SECONDS", conflicts_with = "frame")]
     time: Option<f32>,
@@ -96,29 +171,8 @@ pub struct CbvhJson {
 
 /// Runs `arbor cbvh`.
 pub fn run(a: &CbvhArgs, ui: &Ui) -> anyhow::Result<()> {
-    if a.treelet == 0 || a.treelet > cbvh::bottomup::MAX_TREELET_DEPTH {
-        bail!(
-            "--treelet must be 1..={}, got {}",
-            cbvh::bottomup::MAX_TREELET_DEPTH,
-            a.treelet
-        );
-    }
-    let encoder = match a.encoder {
-        EncoderArg::Topdown => Encoder::Topdown,
-        EncoderArg::Bottomup => Encoder::Bottomup,
-    };
-    if encoder == Encoder::Topdown && a.treelet != 1 {
-        bail!("--treelet applies to the bottom-up encoder only");
-    }
-    let params = Params {
-        bits: a.bits,
-        min_scale_exp: a.min_scale_exp,
-        coords: match a.coords {
-            CoordsArg::Relative => Coords::Relative,
-            CoordsArg::Modulo => Coords::Modulo,
-        },
-    };
-    params.check()?;
+    let CbvhChoice { encoder, cfg } = a.options.resolve()?;
+    let params = cfg.params;
     let (scene, _) = open_scene(&a.scene, ui)?;
     let timeline = scene.info().timeline;
     let time_s = match (a.time, a.frame) {
@@ -150,11 +204,6 @@ pub fn run(a: &CbvhArgs, ui: &Ui) -> anyhow::Result<()> {
     let (hl, mut bvh) = build_lbvh(&prims0)?;
     let lbvh_ms = ms(s.elapsed());
     drop(spin);
-    let cfg = StreamConfig {
-        params,
-        treelet_depth: a.treelet,
-        ..StreamConfig::default()
-    };
     let spin = ui.spinner("compressing");
     let s = Instant::now();
     let (tree, stats): (cbvh::Cbvh, EncodeStats) = match (encoder, a.refit_from) {
@@ -208,7 +257,7 @@ pub fn run(a: &CbvhArgs, ui: &Ui) -> anyhow::Result<()> {
         refit_from_s: a.refit_from.map(|_| build_time),
         encoder,
         coords: params.coords,
-        treelet_depth: a.treelet,
+        treelet_depth: cfg.treelet_depth,
         bits: params.bits,
         min_scale_exp: params.min_scale_exp,
         triangles: prims.len(),

@@ -9,6 +9,7 @@ pub mod render;
 pub mod report;
 pub mod report_cbvh;
 pub mod report_cbvh_runtime;
+pub mod report_cbvh_trace;
 pub mod report_mergetree;
 pub mod sim;
 pub mod sim_dram;

@@ -1,10 +1,12 @@
-//! `arbor render`: builds a tree over a scene at one time, traces an image through it
-//! (primary rays, diffuse path tracing or shadow rays) and writes the shaded image, the
+//! `arbor render`: builds a tree over a scene at one time (and, for `--format cbvh`,
+//! compresses it as `arbor cbvh` does, \[P3\]), traces an image through it (primary rays,
+//! diffuse path tracing or shadow rays) and writes the shaded image, the
 //! depth buffer, a traversal-cost heatmap, the statistics and the traversal log
 //! (`trace` crate). The statistics JSON (`arbor.render.v1`) is documented in
 //! `docs/cli-json.md`, the log format in `docs/trace-log.md`.
 
 use super::build::{builder, mesh_aabbs, timed_build, BuildConfig, MAX_THREADS};
+use super::cbvh::{CbvhChoice, CbvhOptions};
 use super::{ms, open_scene, thousands, SceneArgs};
 use crate::progress::{Ui, Unit};
 use anyhow::{bail, Context};
@@ -27,9 +29,15 @@ pub struct RenderArgs {
     /// natively, any other builder's tree is collapsed for `--format mbvh4`.
     #[arg(long, value_name = "NAME", default_value = "binned-sah")]
     builder: String,
-    /// Tree format to trace: bvh2 or mbvh4.
+    /// Tree format to trace: bvh2, mbvh4, mbvh8 (8-wide, beyond the thesis), or cbvh (the
+    /// binary tree compressed into 16-byte
+    /// node pairs of the thesis's P3; --encoder, --coords, --treelet, --bits and
+    /// --min-scale-exp as for `arbor cbvh`).
     #[arg(long, value_name = "FORMAT", default_value = "bvh2")]
     format: String,
+    /// Compression of `--format cbvh`.
+    #[command(flatten)]
+    cbvh: CbvhOptions,
     /// Rays: primary, diffuse (path tracing, 1 sample per pixel) or shadow (primary plus
     /// one occlusion ray per hit).
     #[arg(long, value_name = "KIND", default_value = "primary")]
@@ -64,7 +72,8 @@ pub struct RenderArgs {
     /// Sampling seed (diffuse rays).
     #[arg(long, default_value_t = 1)]
     seed: u64,
-    /// Distance stack on or off (default: off for bvh2, on for mbvh4, as in [P4] §3).
+    /// Distance stack on or off (default: off for bvh2 and cbvh, on for mbvh4 and mbvh8, as
+    /// in [P4] §3).
     #[arg(long, value_name = "on|off")]
     distance_stack: Option<String>,
     /// Worker threads (default: all cores).
@@ -148,6 +157,25 @@ impl BounceJson {
     }
 }
 
+/// What `--format cbvh` compressed (the `cbvh` object of `arbor.render.v1`).
+#[derive(Serialize, Debug)]
+pub struct RenderCbvhJson {
+    /// `topdown` or `bottomup`.
+    pub encoder: cbvh::study::Encoder,
+    /// `relative` or `modulo`.
+    pub coords: cbvh::Coords,
+    /// Treelet depth (1 = none).
+    pub treelet_depth: u32,
+    /// Bits per coordinate.
+    pub bits: u32,
+    /// Minimum scale exponent.
+    pub min_scale_exp: i32,
+    /// Backtracking steps of the encoder (0 for top-down).
+    pub backtrack_steps: u64,
+    /// Compression time (included in `build_ms`).
+    pub encode_ms: f64,
+}
+
 /// The statistics document (`arbor.render.v1`).
 #[derive(Serialize, Debug)]
 pub struct RenderJson {
@@ -159,8 +187,10 @@ pub struct RenderJson {
     pub time_s: f32,
     /// Builder name.
     pub builder: String,
-    /// `bvh2` or `mbvh4`.
+    /// `bvh2`, `mbvh4` or `cbvh`.
     pub format: String,
+    /// The compression, for `cbvh` (null otherwise).
+    pub cbvh: Option<RenderCbvhJson>,
     /// Distance stack on.
     pub distance_stack: bool,
     /// `primary`, `diffuse` or `shadow`.
@@ -246,6 +276,10 @@ pub enum Format {
     Bvh2,
     /// 4-wide nodes.
     Mbvh4,
+    /// Compressed binary nodes (\[P3\]).
+    Cbvh,
+    /// 8-wide nodes (beyond the thesis: the SAH-guided collapse to eight children).
+    Mbvh8,
 }
 
 /// Parses a format name.
@@ -253,12 +287,15 @@ pub fn parse_format(s: &str) -> anyhow::Result<Format> {
     match s {
         "bvh2" => Ok(Format::Bvh2),
         "mbvh4" => Ok(Format::Mbvh4),
-        _ => bail!("unknown format '{s}'; valid: bvh2, mbvh4"),
+        "cbvh" => Ok(Format::Cbvh),
+        "mbvh8" => Ok(Format::Mbvh8),
+        _ => bail!("unknown format '{s}'; valid: bvh2, mbvh4, mbvh8, cbvh"),
     }
 }
 
 /// Builds the tree `builder` in `format` over `aabbs` (in the current rayon pool) and
-/// prepares it for tracing `triangles`. Returns it with the build time in ms.
+/// prepares it for tracing `triangles`. Returns it with the build time in ms. A `cbvh`
+/// gets the default compression of `arbor cbvh` (see [`build_accel_with`]).
 pub fn build_accel(
     ui: &Ui,
     builder_name: &str,
@@ -267,6 +304,31 @@ pub fn build_accel(
     triangles: &[Triangle],
     options: KernelOptions,
 ) -> anyhow::Result<(Accel, f64)> {
+    let (accel, build_ms, _) = build_accel_with(
+        ui,
+        builder_name,
+        format,
+        &CbvhChoice::default(),
+        aabbs,
+        triangles,
+        options,
+    )?;
+    Ok((accel, build_ms))
+}
+
+/// [`build_accel`] with the compression of `--format cbvh`: the binary tree is compressed
+/// top-down, or streamed bottom-up through the encoder in depth-first postorder (the order
+/// a streaming builder emits it, \[P3\] Algorithm 1). The build time includes the
+/// compression; the third value describes it (`None` for the other formats).
+pub fn build_accel_with(
+    ui: &Ui,
+    builder_name: &str,
+    format: Format,
+    choice: &CbvhChoice,
+    aabbs: &[Aabb],
+    triangles: &[Triangle],
+    options: KernelOptions,
+) -> anyhow::Result<(Accel, f64, Option<RenderCbvhJson>)> {
     let cfg = BuildConfig::default();
     if builder_name == "mbvh4-topdown" {
         anyhow::ensure!(
@@ -288,6 +350,7 @@ pub fn build_accel(
         return Ok((
             Accel::Mbvh4(trace::Mbvh4Accel::new(t, triangles, options)?),
             build_ms,
+            None,
         ));
     }
     let f = builder(builder_name)?;
@@ -298,6 +361,7 @@ pub fn build_accel(
         Format::Bvh2 => (
             Accel::Bvh2(trace::Bvh2Accel::new(tree, triangles, options)?),
             build_ms,
+            None,
         ),
         Format::Mbvh4 => {
             let s = Instant::now();
@@ -306,6 +370,46 @@ pub fn build_accel(
             (
                 Accel::Mbvh4(trace::Mbvh4Accel::new(m, triangles, options)?),
                 build_ms,
+                None,
+            )
+        }
+        Format::Mbvh8 => {
+            let s = Instant::now();
+            let wide = bvh::Collapse::default()
+                .collapse_wide::<{ trace::WIDTH8 }>(&tree)
+                .context("cannot collapse the tree to 8 wide")?;
+            build_ms += ms(s.elapsed());
+            (
+                Accel::Mbvh8(trace::Mbvh8Accel::new(wide, triangles, options)?),
+                build_ms,
+                None,
+            )
+        }
+        Format::Cbvh => {
+            let spinner = ui.spinner("compressing the tree");
+            let s = Instant::now();
+            let (c, stats) = match choice.encoder {
+                cbvh::study::Encoder::Topdown => cbvh::compress_topdown(&tree, &choice.cfg.params),
+                cbvh::study::Encoder::Bottomup => cbvh::compress_bottomup(&tree, &choice.cfg),
+            }
+            .context("cannot compress the tree")?;
+            let encode_ms = ms(s.elapsed());
+            drop(spinner);
+            build_ms += encode_ms;
+            let p = choice.cfg.params;
+            let info = RenderCbvhJson {
+                encoder: choice.encoder,
+                coords: p.coords,
+                treelet_depth: choice.cfg.treelet_depth,
+                bits: p.bits,
+                min_scale_exp: p.min_scale_exp,
+                backtrack_steps: stats.backtrack_steps,
+                encode_ms,
+            };
+            (
+                Accel::Cbvh(trace::CbvhAccel::new(&c, triangles, options)?),
+                build_ms,
+                Some(info),
             )
         }
     })
@@ -332,6 +436,11 @@ pub fn run(a: &RenderArgs, ui: &Ui) -> anyhow::Result<()> {
     // Everything that needs no scene is checked first.
     let kind = parse_ray_kind(&a.rays)?;
     let format = parse_format(&a.format)?;
+    anyhow::ensure!(
+        format == Format::Cbvh || !a.cbvh.any_given(),
+        "--encoder, --coords, --treelet, --bits and --min-scale-exp apply to --format cbvh only"
+    );
+    let choice = a.cbvh.resolve()?;
     if a.builder != "mbvh4-topdown" {
         builder(&a.builder)?;
     } else {
@@ -360,7 +469,7 @@ pub fn run(a: &RenderArgs, ui: &Ui) -> anyhow::Result<()> {
     }
     let distance_stack = match &a.distance_stack {
         Some(s) => parse_on_off("--distance-stack", s)?,
-        None => format == Format::Mbvh4,
+        None => matches!(format, Format::Mbvh4 | Format::Mbvh8),
     };
     let heat_scale = match &a.heatmap_scale {
         None => None,
@@ -456,8 +565,9 @@ pub fn run(a: &RenderArgs, ui: &Ui) -> anyhow::Result<()> {
     let (aabbs, _) = mesh_aabbs(&mesh)?;
     let triangles: Vec<Triangle> = mesh.triangles_iter().collect();
     let options = KernelOptions { distance_stack };
-    let (accel, build_ms) =
-        pool.install(|| build_accel(ui, &a.builder, format, &aabbs, &triangles, options))?;
+    let (accel, build_ms, cbvh_info) = pool.install(|| {
+        build_accel_with(ui, &a.builder, format, &choice, &aabbs, &triangles, options)
+    })?;
     drop(aabbs);
 
     let mut camera = info.camera;
@@ -550,6 +660,7 @@ pub fn run(a: &RenderArgs, ui: &Ui) -> anyhow::Result<()> {
         time_s,
         builder: a.builder.clone(),
         format: accel.format_name().to_string(),
+        cbvh: cbvh_info,
         distance_stack,
         ray_kind: kind,
         bounces: a.bounces,
@@ -632,6 +743,18 @@ fn print_text(j: &RenderJson) {
         j.build_ms,
         if j.distance_stack { "on" } else { "off" }
     );
+    if let Some(c) = &j.cbvh {
+        println!(
+            "compressed    {:?} {} treelet {}, {} bits, min scale 2^{}: {} backtracking steps, {:.1} ms",
+            c.encoder,
+            c.coords.name(),
+            c.treelet_depth,
+            c.bits,
+            c.min_scale_exp,
+            thousands(c.backtrack_steps),
+            c.encode_ms
+        );
+    }
     println!(
         "image         {}x{} {:?} rays{}",
         j.width,

@@ -13,7 +13,11 @@
 //! - `table2.csv`, `table2-dram.csv`, `table2.svg`: the analogue of \[P3\] Table 2, LBVH
 //!   runtime with single-precision output, top-down postprocessing and streaming
 //!   compression, simulated on the MergeTree model ([`super::report_cbvh_runtime`]);
-//! - `report.md` with all tables, and `table1.svg`, `fig7.svg`, `fig10.svg`.
+//! - `trace_quality.csv`: box and triangle tests per ray, CBVH vs BVH, primary and diffuse
+//!   rays, beside \[P3\] §5.4's averages; `watertight.csv`: the \[P3\] §5.5 check over
+//!   every box test of those renders (see `report_cbvh_trace`);
+//! - `report.md` with all tables, and `table1.svg`, `table2.svg`, `fig7.svg`, `fig10.svg`,
+//!   `trace_quality.svg`.
 
 use super::build::mesh_aabbs;
 use super::report::{bar_svg, short_name, write_file as write, SHARED_SCENES};
@@ -50,6 +54,21 @@ pub struct ReportCbvhArgs {
     /// model.
     #[arg(long, value_name = "NAME", default_value = runtime::DEFAULT_DRAM)]
     runtime_dram: String,
+    /// Image size of the ray-traced quality and watertightness measurement (\[P3\] §5.4-5.5).
+    #[arg(long, value_name = "WxH", default_value = "640x360")]
+    trace_size: String,
+    /// Skip the ray-traced measurement.
+    #[arg(long)]
+    no_trace: bool,
+}
+
+/// Parses `WxH`.
+fn parse_size(s: &str) -> anyhow::Result<(u32, u32)> {
+    let bad = || anyhow::anyhow!("--trace-size must be WIDTHxHEIGHT (1..=4096 each), got '{s}'");
+    let (w, h) = s.split_once(['x', 'X']).ok_or_else(bad)?;
+    let (w, h): (u32, u32) = (w.parse().map_err(|_| bad())?, h.parse().map_err(|_| bad())?);
+    anyhow::ensure!((1..=4096).contains(&w) && (1..=4096).contains(&h), bad());
+    Ok((w, h))
 }
 
 /// \[P3\] Table 1, in the column order of [`Variant::table1`] (TD, R, R2, R3, R4, M, M2,
@@ -229,8 +248,11 @@ struct SceneRun {
 /// Coordinate bits of the bits study.
 const BITS: [u32; 6] = [3, 4, 5, 6, 7, 8];
 
-/// The primitive boxes of a scene spec at t = 0 (or of the report's cloth).
-fn load(spec: &str) -> anyhow::Result<(String, Vec<geom::Aabb>)> {
+/// The triangles of a scene spec at t = 0 (or of the report's cloth: both sheets), by name,
+/// with the scene's camera.
+pub(super) fn load_triangles(
+    spec: &str,
+) -> anyhow::Result<(String, Vec<geom::Triangle>, scene::Camera)> {
     let (source, times) = if spec == CLOTH {
         (CLOTH_SHEET, vec![0.0, CLOTH_WAVING_S])
     } else {
@@ -238,14 +260,22 @@ fn load(spec: &str) -> anyhow::Result<(String, Vec<geom::Aabb>)> {
     };
     let scene = scene::open(source, &scene::LoadOptions::default())
         .with_context(|| format!("cannot open {source}"))?;
-    let mut prims = Vec::new();
+    let mut tris = Vec::new();
     for t in times {
         let mesh = scene
             .mesh_at(t)
             .with_context(|| format!("cannot sample {source}"))?;
-        prims.extend(mesh_aabbs(&mesh)?.0);
+        // Checks the indices (a bad mesh is an error, not a panic).
+        mesh_aabbs(&mesh)?;
+        tris.extend(mesh.triangles_iter());
     }
-    Ok((short_name(spec), prims))
+    Ok((short_name(spec), tris, scene.info().camera))
+}
+
+/// The primitive boxes of a scene spec (see [`load_triangles`]).
+fn load(spec: &str) -> anyhow::Result<(String, Vec<geom::Aabb>)> {
+    let (name, tris, _) = load_triangles(spec)?;
+    Ok((name, bvh::triangle_aabbs(&tris)))
 }
 
 /// Runs `arbor report cbvh`.
@@ -264,6 +294,7 @@ pub fn run(a: &ReportCbvhArgs, ui: &Ui) -> anyhow::Result<()> {
         }
     };
     anyhow::ensure!(!specs.is_empty(), "no scenes to run on");
+    let trace_size = parse_size(&a.trace_size)?;
     let variants = Variant::table1();
     let params = Params::default();
     let sweeps = if a.no_sweep { 0 } else { specs.len() };
@@ -328,6 +359,11 @@ pub fn run(a: &ReportCbvhArgs, ui: &Ui) -> anyhow::Result<()> {
         }
         Some(rows)
     };
+    let traced = if a.no_trace {
+        None
+    } else {
+        Some(super::report_cbvh_trace::measure(&specs, trace_size, ui)?)
+    };
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("cannot create {}", a.out.display()))?;
     let t1 = table1(&runs, &variants);
@@ -348,6 +384,9 @@ pub fn run(a: &ReportCbvhArgs, ui: &Ui) -> anyhow::Result<()> {
         runtime::write_table2(&a.out, &mut md, &names, &leaf, rows, &a.runtime_dram)?;
     }
     write_quality(&a.out, &mut md, &runs)?;
+    if let Some(rows) = &traced {
+        super::report_cbvh_trace::write_tables(&a.out, &mut md, rows, trace_size)?;
+    }
     write_fig7(&a.out, &mut md, &runs)?;
     if !a.no_sweep {
         write_fig10(&a.out, &mut md, &runs)?;
@@ -754,5 +793,9 @@ mod tests {
     fn thesis_table_has_nine_columns() {
         assert_eq!(P3_TABLE1.len(), 9);
         assert_eq!(Variant::table1().len(), 9);
+        assert_eq!(parse_size("640x360").unwrap(), (640, 360));
+        for bad in ["640", "0x10", "10x", "axb", "5000x10"] {
+            assert!(parse_size(bad).is_err(), "{bad}");
+        }
     }
 }
