@@ -3,8 +3,13 @@
 //! library crates; `--json` output is the stable interface for scripts (see
 //! `docs/cli-json.md`).
 
+mod alloc;
 mod cmd;
 mod progress;
+
+/// Counts live and peak bytes for `arbor bench build`'s memory column.
+#[global_allocator]
+static ALLOC: alloc::Counting = alloc::Counting;
 
 use clap::{Parser, Subcommand};
 use std::process::ExitCode;
@@ -41,6 +46,8 @@ enum Command {
     LogInfo(cmd::log_info::LogInfoArgs),
     /// Regenerate a table or figure of the thesis (CSV, Markdown, SVG).
     Report(cmd::report::ReportArgs),
+    /// Benchmark Arbor against peer libraries in one run (`arbor bench build`).
+    Bench(cmd::bench::BenchArgs),
 }
 
 fn main() -> ExitCode {
@@ -55,6 +62,7 @@ fn main() -> ExitCode {
         Command::Report(a) => cmd::report::run(&a, &ui),
         Command::Render(a) => cmd::render::run(&a, &ui),
         Command::LogInfo(a) => cmd::log_info::run(&a, &ui),
+        Command::Bench(a) => cmd::bench::run(&a, &ui),
     };
     match result {
         Ok(()) => ExitCode::SUCCESS,

@@ -7,8 +7,8 @@ use common::arbor;
 use serde_json::Value;
 use std::path::Path;
 
-/// Builders `arbor build` runs today.
-const BUILDERS: [&str; 7] = [
+/// Every builder of `arbor build`: seven binary, then the two 4-wide ones.
+const BUILDERS: [&str; 9] = [
     "lbvh",
     "hlbvh",
     "hlbvh+sah",
@@ -16,7 +16,14 @@ const BUILDERS: [&str; 7] = [
     "binned-sah",
     "sweep-sah",
     "atrbvh",
+    "mbvh4-collapse",
+    "mbvh4-topdown",
 ];
+
+/// True for the builders of 4-wide trees.
+fn wide(builder: &str) -> bool {
+    builder.starts_with("mbvh4-")
+}
 const CLOTH: &str = "proc:cloth?n=5000";
 const BUNDLED: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/CesiumMan.glb");
 
@@ -50,8 +57,42 @@ fn check_doc(j: &Value, scene: &str, builder: &str) {
     assert!(tris > 0, "{scene}");
     let leaves = j["leaves"].as_u64().unwrap();
     let inner = j["inner_nodes"].as_u64().unwrap();
-    // A binary tree: one inner node fewer than leaves (or one root for a single leaf).
-    assert_eq!(inner, (leaves - 1).max(1), "{scene} {builder}");
+    let children = j["mean_children"].as_f64().unwrap();
+    if wide(builder) {
+        // Every node below the root has 2..=4 children: between (leaves - 1) / 3 and
+        // leaves - 1 nodes.
+        assert_eq!(
+            (
+                j["tree_kind"].as_str(),
+                j["width"].as_u64(),
+                j["node_bytes"].as_u64()
+            ),
+            (Some("Mbvh4"), Some(4), Some(128))
+        );
+        assert!(
+            3 * inner + 1 >= leaves && inner < leaves,
+            "{scene} {builder}"
+        );
+        assert!(children > 2.0 && children <= 4.0, "{children}");
+        let tree_bytes = j["tree_bytes"].as_u64().unwrap();
+        assert_eq!(tree_bytes, 128 * inner + 4 * tris);
+    } else {
+        // A binary tree: one inner node fewer than leaves (or one root for a single leaf).
+        assert_eq!(inner, (leaves - 1).max(1), "{scene} {builder}");
+        assert_eq!(
+            (
+                j["tree_kind"].as_str(),
+                j["width"].as_u64(),
+                j["node_bytes"].as_u64()
+            ),
+            (Some("Bvh2"), Some(2), Some(64))
+        );
+        assert_eq!(children, 2.0);
+    }
+    assert_eq!(
+        j["collapse_from"].as_str(),
+        (builder == "mbvh4-collapse").then_some("binned-sah")
+    );
     assert!(leaves <= tris);
     let max_leaf = j["max_leaf_size"].as_u64().unwrap();
     assert!((1..=8).contains(&max_leaf));
@@ -113,31 +154,71 @@ fn out_file_reads_back_as_the_built_tree() {
         let path = dir.path().join(format!("{b}.bvh"));
         let p = path.to_str().unwrap();
         let j = build_json(&[CLOTH, "--builder", b, "--out", p]);
-        let (tree, header) = bvh::io::read_bvh2_file(&path).unwrap();
+        let (tree, header) = bvh::io::read_tree_file(&path).unwrap();
         assert_eq!(header.builder, b);
-        assert_eq!(tree.nodes.len() as u64, j["inner_nodes"].as_u64().unwrap());
+        assert_eq!(header.kind, tree.kind());
+        assert_eq!(tree.kind().width() as u64, j["width"].as_u64().unwrap());
+        assert_eq!(tree.node_count() as u64, j["inner_nodes"].as_u64().unwrap());
         assert_eq!(tree.prim_count() as u64, j["triangles"].as_u64().unwrap());
-        assert_eq!(header.sah, tree.sah());
+        assert_eq!(header.sah, tree.normalized_sah());
         // serde_json parses floats to within an ulp, not bit-exactly.
-        assert!((tree.sah() - j["sah"].as_f64().unwrap()).abs() <= 1e-12 * tree.sah());
+        let sah = tree.normalized_sah();
+        assert!((sah - j["sah"].as_f64().unwrap()).abs() <= 1e-12 * sah);
         // Node for node equal to a build of the same mesh through the library.
         let scene = scene::open(CLOTH, &Default::default()).unwrap();
         let mesh = scene.mesh_at(0.0).unwrap();
         let aabbs = bvh::indexed_triangle_aabbs(&mesh.positions, &mesh.triangles).unwrap();
-        let expect = match b {
-            "lbvh" => bvh::LbvhBuilder::default().build(&aabbs),
-            "binned-sah" => bvh::BinnedSahBuilder::default().build(&aabbs),
-            "atrbvh" => bvh::AtrbvhBuilder::default().build(&aabbs),
-            "hlbvh" => bvh::HlbvhBuilder::default().build(&aabbs),
-            "hlbvh+sah" => bvh::HlbvhSahBuilder::default().build(&aabbs),
-            "hlbvh+atrbvh" => bvh::HlbvhAtrbvhBuilder::default().build(&aabbs),
-            "sweep-sah" => bvh::SweepSahBuilder::default().build(&aabbs),
+        let binned = bvh::BinnedSahBuilder::default().build(&aabbs).unwrap();
+        let expect: bvh::Tree = match b {
+            "lbvh" => bvh::LbvhBuilder::default().build(&aabbs).unwrap().into(),
+            "binned-sah" => binned.into(),
+            "atrbvh" => bvh::AtrbvhBuilder::default().build(&aabbs).unwrap().into(),
+            "hlbvh" => bvh::HlbvhBuilder::default().build(&aabbs).unwrap().into(),
+            "hlbvh+sah" => bvh::HlbvhSahBuilder::default()
+                .build(&aabbs)
+                .unwrap()
+                .into(),
+            "hlbvh+atrbvh" => bvh::HlbvhAtrbvhBuilder::default()
+                .build(&aabbs)
+                .unwrap()
+                .into(),
+            "sweep-sah" => bvh::SweepSahBuilder::default()
+                .build(&aabbs)
+                .unwrap()
+                .into(),
+            "mbvh4-collapse" => bvh::collapse(&binned).unwrap().into(),
+            "mbvh4-topdown" => bvh::Mbvh4TopDownBuilder::default()
+                .build(&aabbs)
+                .unwrap()
+                .into(),
             other => panic!("no library reference for builder {other}"),
-        }
-        .unwrap();
+        };
         assert_eq!(tree, expect, "{b}");
-        assert_eq!(bvh::validate(&tree, &aabbs, 8), Ok(()));
+        assert_eq!(tree.validate(&aabbs, 8), Ok(()));
+        // The single-kind readers accept exactly their kind.
+        assert_eq!(bvh::io::read_bvh2_file(&path).is_ok(), !wide(b));
+        assert_eq!(bvh::io::read_mbvh4_file(&path).is_ok(), wide(b));
     }
+    // Collapsing another binary builder's tree, and the 4-wide builder's bins.
+    let path = dir.path().join("c.bvh");
+    let j = build_json(&[
+        CLOTH,
+        "--builder",
+        "mbvh4-collapse",
+        "--collapse-from",
+        "hlbvh",
+        "--out",
+        path.to_str().unwrap(),
+    ]);
+    assert_eq!(j["collapse_from"], "hlbvh");
+    let scene = scene::open(CLOTH, &Default::default()).unwrap();
+    let mesh = scene.mesh_at(0.0).unwrap();
+    let aabbs = bvh::indexed_triangle_aabbs(&mesh.positions, &mesh.triangles).unwrap();
+    let hl = bvh::HlbvhBuilder::default().build(&aabbs).unwrap();
+    let (back, _) = bvh::io::read_mbvh4_file(&path).unwrap();
+    assert_eq!(back, bvh::collapse(&hl).unwrap());
+    let j = build_json(&[CLOTH, "--builder", "mbvh4-topdown", "--bins", "8"]);
+    assert_eq!(j["bins"], 8);
 }
 
 #[test]
@@ -147,12 +228,11 @@ fn bad_arguments_are_one_line_errors() {
         e.contains("unknown builder") && e.contains("binned-sah"),
         "{e}"
     );
-    for later in ["mbvh4-collapse", "mbvh4-topdown"] {
-        let e = build_error(&[CLOTH, "--builder", later]);
-        assert!(
-            e.contains(&format!("builder {later} is not available yet")),
-            "{e}"
-        );
+    let e = build_error(&[CLOTH, "--builder", "lbvh", "--collapse-from", "lbvh"]);
+    assert!(e.contains("--collapse-from applies only"), "{e}");
+    for bad in ["mbvh4-topdown", "nope"] {
+        let e = build_error(&[CLOTH, "--builder", "mbvh4-collapse", "--collapse-from", bad]);
+        assert!(e.contains(bad) && e.contains("binned-sah"), "{e}");
     }
     let e = build_error(&[CLOTH, "--builder", "lbvh", "--threads", "0"]);
     assert!(e.contains("--threads"), "{e}");
@@ -286,6 +366,8 @@ fn demo_reports_every_available_builder() {
         let r = b["sah_vs_sweep"].as_f64().unwrap();
         if b["builder"] == "sweep-sah" {
             assert_eq!(r, 1.0);
+        } else if wide(b["builder"].as_str().unwrap()) {
+            assert!((0.8..2.0).contains(&r), "{b}");
         } else {
             assert!(r >= 0.99, "{b}");
         }
@@ -313,7 +395,12 @@ fn empty_and_single_triangle_scenes_build() {
             (Some(0), Some(0))
         );
         assert_eq!(j["valid"], true);
-        assert_eq!(bvh::io::read_bvh2_file(&out).unwrap().0, bvh::Bvh2::empty());
+        let empty: bvh::Tree = if wide(b) {
+            bvh::Mbvh4::empty().into()
+        } else {
+            bvh::Bvh2::empty().into()
+        };
+        assert_eq!(bvh::io::read_tree_file(&out).unwrap().0, empty);
         let j = build_json(&[
             one.to_str().unwrap(),
             "--builder",
@@ -325,10 +412,13 @@ fn empty_and_single_triangle_scenes_build() {
             (j["triangles"].as_u64(), j["leaves"].as_u64()),
             (Some(1), Some(1))
         );
-        assert_eq!(j["sah_vs_sweep"], 1.0);
+        // One leaf under the root: C_i + C_t, a 4-wide root costing 2 C_i.
+        let ratio = j["sah_vs_sweep"].as_f64().unwrap();
+        let want = if wide(b) { 3.4 / 2.2 } else { 1.0 };
+        assert!((ratio - want).abs() < 1e-6, "{b}: {ratio}");
         assert_eq!(
-            bvh::io::read_bvh2_file(&out).unwrap().0.prim_indices,
-            vec![0]
+            bvh::io::read_tree_file(&out).unwrap().0.prim_indices(),
+            &[0]
         );
     }
 }
@@ -363,4 +453,14 @@ fn refit_from_an_earlier_frame_gives_a_valid_tree_of_the_later_frame() {
     assert_eq!(same["sah"], built["sah"]);
     assert_eq!(same["sah_at_build"], built["sah"]);
     assert!(fresh["refit_from_s"].is_null());
+    // 4-wide trees refit the same way.
+    for b in ["mbvh4-collapse", "mbvh4-topdown"] {
+        let refit = build_json(&[explode, "--builder", b, "--time", "2", "--refit-from", "0"]);
+        let fresh = build_json(&[explode, "--builder", b, "--time", "2"]);
+        assert_eq!(
+            (refit["valid"].as_bool(), refit["width"].as_u64()),
+            (Some(true), Some(4))
+        );
+        assert!(refit["sah"].as_f64().unwrap() > 1.2 * fresh["sah"].as_f64().unwrap());
+    }
 }

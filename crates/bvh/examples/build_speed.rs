@@ -5,7 +5,7 @@
 //! (default `proc:soup?n=1000000`, threads 1 and 2). Prints build time, throughput, SAH and
 //! SAH relative to the full sweep build, and whether the validator accepts the tree.
 //! `BVH_ONLY=name` runs only builders whose name contains it; `BVH_SKIP_SWEEP=1` skips the
-//! sweep reference (for profiling).
+//! sweep reference and `BVH_RUNS=n` sets the runs per row (default 3; for profiling).
 
 use bvh::{
     validate, BinnedSahBuilder, BuildError, Bvh2, HlbvhBuilder, HlbvhSahBuilder, LbvhBuilder,
@@ -148,12 +148,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     ];
     // BVH_ONLY=substring restricts the run to matching builders (for profiling).
     let only = std::env::var("BVH_ONLY").unwrap_or_default();
+    let runs: usize = std::env::var("BVH_RUNS")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(3)
+        .max(1);
     for (name, max_leaf, build) in builders.iter().filter(|b| b.0.contains(&only)) {
         for &t in &threads {
-            // Best of three runs (the pool is created inside `build` and is included).
+            // Best of `runs` runs (the pool is created inside `build` and is included).
             let mut best = f64::INFINITY;
             let mut tree = None;
-            for _ in 0..3 {
+            for _ in 0..runs {
                 let start = Instant::now();
                 let b = build(&prims, t)?;
                 best = best.min(start.elapsed().as_secs_f64());

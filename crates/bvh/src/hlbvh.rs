@@ -36,8 +36,8 @@ use crate::bvh2::Bvh2;
 use crate::error::{check_input, in_pool, BuildError};
 use crate::lbvh::MortonBits;
 use crate::node::{ChildRef, Node};
-use crate::{centroid, PARALLEL_MIN_PRIMS};
-use geom::{Aabb, MortonQuantizer};
+use crate::PARALLEL_MIN_PRIMS;
+use geom::Aabb;
 use rayon::prelude::*;
 
 /// Configuration of the streaming HLBVH builder.
@@ -236,6 +236,7 @@ impl Emitter {
     }
 
     /// True when the next [`Emitter::step`] reads an input (a primitive or end of stream).
+    #[inline]
     pub fn needs_input(&self) -> bool {
         !self.reducing && !self.done
     }
@@ -246,6 +247,7 @@ impl Emitter {
     }
 
     /// A leaf subtree for `p` at the next sorted position.
+    #[inline]
     fn load(&mut self, p: &Prim) -> Sub {
         let first = self.read;
         self.read += 1;
@@ -257,6 +259,9 @@ impl Emitter {
     }
 
     /// Performs one step; `input` must be `None` unless [`Emitter::needs_input`] is true.
+    // Inlined into its loops: returned through memory, the 80-byte `Step` costs a stalled
+    // store-to-load forward per step (seen in the profile of the HLBVH build).
+    #[inline(always)]
     pub fn step(&mut self, input: Option<Prim>) -> Step {
         if self.done {
             return Step::Done;
@@ -384,40 +389,9 @@ impl Highlevel {
 
     /// Writes the subtree of emitted nodes `first..=root` in depth-first preorder to `out`
     /// (exactly that many nodes), whose first node will be node `base` of the tree.
-    ///
-    /// One forward pass over the emission range counts subtree sizes; one backward pass
-    /// (parents before children) places every node at its preorder index (child 0 right
-    /// after its parent, child 1 after child 0's subtree). Both read the nodes sequentially.
     pub(crate) fn write_subtree(&self, first: u32, root: u32, base: u32, out: &mut [Node]) {
-        let lo = first as usize;
-        let range = &self.nodes[lo..=root as usize];
-        debug_assert_eq!(out.len(), range.len());
-        // Subtree sizes, forward: children are emitted before their parent.
-        let mut size: Vec<u32> = Vec::with_capacity(range.len());
-        let sz = |size: &[u32], c: EmitRef| match c {
-            EmitRef::Node(id) => size[id as usize - lo],
-            EmitRef::Leaf { .. } => 0,
-        };
-        for e in range {
-            let s = 1 + sz(&size, e.children[0]) + sz(&size, e.children[1]);
-            size.push(s);
-        }
-        // Preorder positions (local), backward: a parent is placed before its children.
-        let mut pre = vec![0u32; range.len()];
-        for (k, e) in range.iter().enumerate().rev() {
-            let at = pre[k];
-            let mut refs = [child_ref(e.children[0]), child_ref(e.children[1])];
-            if let EmitRef::Node(c) = e.children[0] {
-                pre[c as usize - lo] = at + 1;
-                refs[0] = ChildRef::inner(base + at + 1);
-            }
-            if let EmitRef::Node(c) = e.children[1] {
-                let p = at + 1 + sz(&size, e.children[0]);
-                pre[c as usize - lo] = p;
-                refs[1] = ChildRef::inner(base + p);
-            }
-            out[at as usize] = Node::new(&e.aabbs[0], refs[0], &e.aabbs[1], refs[1]);
-        }
+        let range = &self.nodes[first as usize..=root as usize];
+        layout_preorder(range, first, base, out, &mut Vec::new());
     }
 
     /// The tree of a single-root output (no threshold) as a [`Bvh2`]; the cell roots of a
@@ -436,6 +410,76 @@ impl Highlevel {
     }
 }
 
+/// Writes emitted nodes `range` — a whole subtree in emission (post)order, `range[k]` being
+/// emitted node `first + k` and its last node the root — in depth-first preorder to `out`
+/// (exactly `range.len()` nodes), whose first node will be node `base` of the tree.
+///
+/// One forward pass over the range counts subtree sizes ([`subtree_sizes`]); one backward
+/// pass (parents before children) places every node at its preorder index (child 0 right
+/// after its parent, child 1 after child 0's subtree). Both read the nodes sequentially.
+/// `scratch` is reused between calls (two `u32` per node).
+pub(crate) fn layout_preorder(
+    range: &[EmittedNode],
+    first: u32,
+    base: u32,
+    out: &mut [Node],
+    scratch: &mut Vec<u32>,
+) {
+    scratch.clear();
+    scratch.extend(subtree_sizes(range, first));
+    place_preorder(range, first, base, out, scratch);
+}
+
+/// The node count of each emitted node's subtree, for a range in emission order whose
+/// node `k` is emitted node `first + k` (children come before their parent).
+fn subtree_sizes(range: &[EmittedNode], first: u32) -> impl Iterator<Item = u32> + '_ {
+    let mut size: Vec<u32> = Vec::with_capacity(range.len());
+    range.iter().map(move |e| {
+        let s = 1 + node_size(&size, first, e.children[0]) + node_size(&size, first, e.children[1]);
+        size.push(s);
+        s
+    })
+}
+
+/// The node count of the subtree of `c` given the sizes of emitted nodes `first..`.
+#[inline]
+fn node_size(size: &[u32], first: u32, c: EmitRef) -> u32 {
+    match c {
+        EmitRef::Node(id) => size[(id - first) as usize],
+        EmitRef::Leaf { .. } => 0,
+    }
+}
+
+/// The backward pass of [`layout_preorder`]; `scratch` holds the subtree sizes of `range`
+/// and is extended by the preorder positions.
+fn place_preorder(
+    range: &[EmittedNode],
+    first: u32,
+    base: u32,
+    out: &mut [Node],
+    scratch: &mut Vec<u32>,
+) {
+    debug_assert_eq!(out.len(), range.len());
+    let m = range.len();
+    debug_assert_eq!(scratch.len(), m);
+    scratch.resize(2 * m, 0);
+    let (size, pre) = scratch.split_at_mut(m);
+    for (k, e) in range.iter().enumerate().rev() {
+        let at = pre[k];
+        let mut refs = [child_ref(e.children[0]), child_ref(e.children[1])];
+        if let EmitRef::Node(c) = e.children[0] {
+            pre[(c - first) as usize] = at + 1;
+            refs[0] = ChildRef::inner(base + at + 1);
+        }
+        if let EmitRef::Node(c) = e.children[1] {
+            let p = at + 1 + node_size(size, first, e.children[0]);
+            pre[(c - first) as usize] = p;
+            refs[1] = ChildRef::inner(base + p);
+        }
+        out[at as usize] = Node::new(&e.aabbs[0], refs[0], &e.aabbs[1], refs[1]);
+    }
+}
+
 /// The [`ChildRef`] of an emitted leaf; inner references are patched by the caller.
 #[inline]
 fn child_ref(r: EmitRef) -> ChildRef {
@@ -445,58 +489,79 @@ fn child_ref(r: EmitRef) -> ChildRef {
     }
 }
 
-/// Sorted (code, primitive index) keys of all centroids.
-pub(crate) fn sorted_codes(aabbs: &[Aabb], bits: MortonBits) -> (Vec<u64>, Vec<u32>) {
-    let cbounds = aabbs
-        .par_iter()
-        .fold(|| Aabb::EMPTY, |b, a| b.grow(centroid(a)))
-        .reduce(|| Aabb::EMPTY, Aabb::union);
-    let q = MortonQuantizer::new(&cbounds);
-    match bits {
-        MortonBits::Bits30 => {
-            // Code and index packed in one u64: a plain integer sort, cheapest.
-            let mut keys: Vec<u64> = aabbs
-                .par_iter()
-                .enumerate()
-                .map(|(i, a)| ((q.code30(centroid(a)) as u64) << 32) | i as u64)
-                .collect();
-            keys.par_sort_unstable();
-            keys.par_iter().map(|k| (k >> 32, *k as u32)).unzip()
+pub(crate) use crate::morton_sort::sorted_codes;
+
+/// The tie field of each sorted position in turn (see the module doc): the chunk index
+/// inside a run of identical codes when combining, the sorted position otherwise.
+struct Ties {
+    combine: bool,
+    max_leaf: u32,
+    /// Chunk index inside the current run of identical codes.
+    chunk: u32,
+    /// Position inside the current chunk.
+    in_chunk: u32,
+}
+
+impl Ties {
+    fn new(combine: bool, max_leaf: u32) -> Self {
+        Self {
+            combine,
+            max_leaf,
+            chunk: 0,
+            in_chunk: 0,
         }
-        MortonBits::Bits63 => {
-            let mut keys: Vec<(u64, u32)> = aabbs
-                .par_iter()
-                .enumerate()
-                .map(|(i, a)| (q.code63(centroid(a)), i as u32))
-                .collect();
-            keys.par_sort_unstable();
-            keys.into_par_iter().unzip()
+    }
+
+    /// The tie of sorted position `k`, whose code equals the previous position's when
+    /// `same`, and whether `k` starts a new leaf (its key differs from the previous one).
+    #[inline]
+    fn next(&mut self, k: usize, same: bool) -> (u32, bool) {
+        if !self.combine {
+            return (k as u32, true);
         }
+        // `run / max_leaf` and `run % max_leaf == 0` for the position `run` in the run of
+        // identical codes, without a division per primitive.
+        if !same {
+            (self.chunk, self.in_chunk) = (0, 0);
+        } else {
+            self.in_chunk += 1;
+            if self.in_chunk == self.max_leaf {
+                (self.chunk, self.in_chunk) = (self.chunk + 1, 0);
+            }
+        }
+        (self.chunk, self.in_chunk == 0)
     }
 }
 
-/// Tie fields of sorted `codes` (see the module doc): chunk index inside a run of identical
-/// codes when combining, the sorted position otherwise.
+/// Tie fields of sorted `codes` (see [`Ties`]).
 pub(crate) fn ties(codes: &[u64], combine: bool, max_leaf: u32) -> Vec<u32> {
-    if !combine {
-        return (0..codes.len() as u32).collect();
-    }
-    let mut out = Vec::with_capacity(codes.len());
-    let mut run = 0u32;
-    for (i, &c) in codes.iter().enumerate() {
-        run = if i > 0 && codes[i - 1] == c {
-            run + 1
-        } else {
-            0
-        };
-        out.push(run / max_leaf);
-    }
-    out
+    let mut t = Ties::new(combine, max_leaf);
+    (0..codes.len())
+        .map(|k| t.next(k, k > 0 && codes[k - 1] == codes[k]).0)
+        .collect()
+}
+
+/// Per-thread buffers of [`HlbvhBuilder::build`]'s cell emitters, reused across cells.
+#[derive(Default)]
+struct CellScratch {
+    /// The cell's boxes in sorted order.
+    boxes: Vec<Aabb>,
+    /// The cell's emitted nodes.
+    nodes: Vec<EmittedNode>,
+    /// Subtree sizes, then preorder positions, of the cell's nodes ([`place_preorder`]).
+    layout: Vec<u32>,
+}
+
+/// A node of the top tree over the cells, or a cell, while laying out the final tree.
+#[derive(Clone, Copy)]
+enum Slot {
+    Top(usize),
+    Cell(usize),
 }
 
 impl HlbvhBuilder {
     /// Checks the configuration.
-    fn check(&self) -> Result<(), BuildError> {
+    pub(crate) fn check(&self) -> Result<(), BuildError> {
         if self.max_leaf_size == 0 {
             return Err(BuildError::InvalidConfig(
                 "HLBVH max_leaf_size must be at least 1".into(),
@@ -518,33 +583,262 @@ impl HlbvhBuilder {
     /// joining the cells by their Morton prefixes gives the uncut tree).
     ///
     /// Large inputs are emitted as cells of the top `PARALLEL_CELL_BITS` (9) code bits in
-    /// parallel and joined by [`crate::toplevel::morton_top`]: the result is node for node
-    /// the single-stream tree (the tests check this), for any thread count.
+    /// parallel, joined by [`crate::toplevel::morton_top`]: the result is node for node the
+    /// single-stream tree (the tests check this), for any thread count. The nodes go
+    /// straight into the final [`Bvh2`] (see `HlbvhBuilder::build_cells`).
     pub fn build(&self, aabbs: &[Aabb]) -> Result<Bvh2, BuildError> {
-        let total_bits = match self.bits {
-            MortonBits::Bits30 => 30,
-            MortonBits::Bits63 => 63,
-        };
-        let cut = if aabbs.len() >= 2 * PARALLEL_MIN_PRIMS {
-            Some(total_bits - PARALLEL_CELL_BITS)
-        } else {
-            None
-        };
         check_input(aabbs)?;
         self.check()?;
-        let cfg = HlbvhBuilder {
-            highlevel_threshold: cut,
-            ..self.clone()
+        let shift = if aabbs.len() >= 2 * PARALLEL_MIN_PRIMS {
+            self.bits.total_bits() - PARALLEL_CELL_BITS
+        } else {
+            u32::MAX
         };
-        // One pool for the emission and the parallel layout of the cells.
         in_pool(self.threads, || {
-            let hl = cfg.emit_all(aabbs);
-            if hl.roots.len() <= 1 {
-                return Ok(hl.to_bvh2());
-            }
-            let top = crate::toplevel::morton_top(&hl);
-            crate::toplevel::stitch(&top, &hl)
+            self.build_cells(aabbs, shift, false, |hl| {
+                Ok(crate::toplevel::morton_top(hl))
+            })
         })?
+    }
+
+    /// Emits the cells of equal `code >> shift` (one cell when `shift >= 64`) and joins
+    /// them under the tree `top` builds over them: a valid tree over the cell roots' boxes
+    /// whose leaves hold one root each, like [`crate::toplevel::stitch`] takes. `top` gets
+    /// the cells as a [`Highlevel`] with `roots` only (each root's key and, when `boxes`,
+    /// its box; `root` is a placeholder) and no `nodes` or `order`. Input and configuration
+    /// are checked by the caller; runs in the current pool.
+    ///
+    /// The emitted nodes go straight into the final [`Bvh2`]: each cell's node count (its
+    /// leaves, the distinct sort keys, less one) and box follow from the sorted codes, so
+    /// the top tree over the cells and every cell's place in the preorder layout are known
+    /// before emission, and each cell's emitter lays its subtree out into its own range of
+    /// the output from a small buffer that stays in cache. No emission-order array of the
+    /// whole tree is made (the [`HlbvhBuilder::build_highlevel`] output keeps one). The
+    /// result is node for node `stitch(top, build_highlevel(..))` (tests check it); a top
+    /// tree with a leaf of several roots is stitched that way.
+    pub(crate) fn build_cells(
+        &self,
+        aabbs: &[Aabb],
+        shift: u32,
+        boxes: bool,
+        top: impl FnOnce(&Highlevel) -> Result<Bvh2, BuildError>,
+    ) -> Result<Bvh2, BuildError> {
+        let (codes, order) = sorted_codes(aabbs, self.bits);
+        let n = codes.len();
+        if n == 0 {
+            return Ok(Bvh2::empty());
+        }
+        // Cells: runs of equal `code >> shift`.
+        let prefix = |c: u64| c.checked_shr(shift).unwrap_or(0);
+        let mut cells: Vec<std::ops::Range<usize>> = Vec::new();
+        let mut start = 0;
+        while start < n {
+            let p = prefix(codes[start]);
+            let end = start + codes[start..].partition_point(|&c| prefix(c) == p);
+            cells.push(start..end);
+            start = end;
+        }
+        // Per cell: inner nodes (its leaves, the distinct keys, less one), the key of its
+        // last primitive, and its box when the top tree needs it.
+        let plan: Vec<(u32, u32, Aabb)> = cells
+            .par_iter()
+            .map(|r| {
+                let mut t = Ties::new(self.combine_identical, self.max_leaf_size);
+                let (mut leaves, mut tie) = (0u32, 0u32);
+                for k in r.clone() {
+                    let (tk, starts) = t.next(k, k > r.start && codes[k - 1] == codes[k]);
+                    leaves += starts as u32;
+                    tie = tk;
+                }
+                let b = if boxes {
+                    order[r.clone()]
+                        .iter()
+                        .fold(Aabb::EMPTY, |b, &i| b.union(aabbs[i as usize]))
+                } else {
+                    Aabb::EMPTY
+                };
+                (leaves - 1, tie, b)
+            })
+            .collect();
+        if cells.len() == 1 {
+            let mut nodes = crate::node::zeroed_nodes(plan[0].0 as usize);
+            let mut sc = CellScratch::default();
+            let (root, bounds) =
+                self.emit_cell(0..n, &codes, &order, aabbs, 0, &mut nodes, &mut sc);
+            return Ok(Bvh2::from_root(root, bounds, nodes, order));
+        }
+        let skeleton = Highlevel {
+            nodes: Vec::new(),
+            roots: cells
+                .iter()
+                .zip(&plan)
+                .map(|(r, p)| HighlevelRoot {
+                    aabb: p.2,
+                    root: EmitRef::Leaf { first: 0, count: 0 },
+                    key: (codes[r.end - 1], p.1),
+                })
+                .collect(),
+            order: Vec::new(),
+        };
+        let top = top(&skeleton)?;
+        if boxes {
+            let b = crate::toplevel::root_boxes(&skeleton);
+            crate::validate::validate(&top, &b, u32::MAX).map_err(|e| {
+                BuildError::InvalidConfig(format!("top tree over the cell roots: {e}"))
+            })?;
+        }
+        let root = top.nodes[0];
+        let grouped = top
+            .nodes
+            .iter()
+            .any(|t| t.children.iter().any(|c| c.count > 1));
+        if grouped || root.children[1].is_empty() {
+            // A leaf of several roots: the general stitch over the whole emission.
+            let hl = HlbvhBuilder {
+                highlevel_threshold: Some(shift),
+                ..self.clone()
+            }
+            .emit_all(aabbs);
+            return crate::toplevel::stitch(&top, &hl);
+        }
+        // Preorder places: each top node, then each cell's range, child 0 first.
+        let cell_of = |c: ChildRef| top.prim_indices[c.index as usize] as usize;
+        let mut top_at = vec![0u32; top.nodes.len()];
+        let mut cell_at = vec![0u32; cells.len()];
+        let mut by_place = Vec::with_capacity(cells.len());
+        let mut at = 0u32;
+        let mut stack = vec![Slot::Top(0)];
+        while let Some(slot) = stack.pop() {
+            match slot {
+                Slot::Top(t) => {
+                    top_at[t] = at;
+                    at += 1;
+                    for c in top.nodes[t].children.iter().rev() {
+                        if c.is_inner() {
+                            stack.push(Slot::Top(c.index as usize));
+                        } else if c.is_leaf() {
+                            stack.push(Slot::Cell(cell_of(*c)));
+                        }
+                    }
+                }
+                Slot::Cell(c) => {
+                    cell_at[c] = at;
+                    at += plan[c].0;
+                    by_place.push(c);
+                }
+            }
+        }
+        // Zeroed pages, no fill pass: every node is written below.
+        let mut nodes = crate::node::zeroed_nodes(at as usize);
+        // Each cell's range of the output, in the order of their places.
+        let mut tasks: Vec<(usize, &mut [Node])> = Vec::with_capacity(cells.len());
+        let mut rest = nodes.as_mut_slice();
+        let mut taken = 0usize;
+        for &c in &by_place {
+            let from = cell_at[c] as usize;
+            let (_, tail) = std::mem::take(&mut rest).split_at_mut(from - taken);
+            let (mine, tail) = tail.split_at_mut(plan[c].0 as usize);
+            taken = from + mine.len();
+            rest = tail;
+            tasks.push((c, mine));
+        }
+        let mut roots = vec![(ChildRef::EMPTY, Aabb::EMPTY); cells.len()];
+        let emitted: Vec<(usize, (ChildRef, Aabb))> = tasks
+            .into_par_iter()
+            .map_init(CellScratch::default, |sc, (c, out)| {
+                let r = cells[c].clone();
+                (
+                    c,
+                    self.emit_cell(r, &codes, &order, aabbs, cell_at[c], out, sc),
+                )
+            })
+            .collect();
+        for (c, r) in emitted {
+            roots[c] = r;
+        }
+        // The top nodes, children (later in preorder) before parents.
+        let mut top_box = vec![Aabb::EMPTY; top.nodes.len()];
+        for t in (0..top.nodes.len()).rev() {
+            let kid = |c: ChildRef| {
+                if c.is_inner() {
+                    let i = c.index as usize;
+                    (ChildRef::inner(top_at[i]), top_box[i])
+                } else {
+                    roots[cell_of(c)]
+                }
+            };
+            let [k0, k1] = top.nodes[t].children.map(kid);
+            nodes[top_at[t] as usize] = Node::new(&k0.1, k0.0, &k1.1, k1.0);
+            top_box[t] = k0.1.union(k1.1);
+        }
+        Ok(Bvh2 {
+            nodes,
+            prim_indices: order,
+            bounds: top_box[0],
+        })
+    }
+
+    /// Emits the cell of sorted positions `r` with one emitter and lays its subtree out in
+    /// preorder into `out` (exactly its inner nodes), whose first node is node `base` of
+    /// the tree. Returns the cell root's reference and box.
+    #[allow(clippy::too_many_arguments)]
+    fn emit_cell(
+        &self,
+        r: std::ops::Range<usize>,
+        codes: &[u64],
+        order: &[u32],
+        aabbs: &[Aabb],
+        base: u32,
+        out: &mut [Node],
+        sc: &mut CellScratch,
+    ) -> (ChildRef, Aabb) {
+        // Gather the cell's boxes in a tight loop first: its cache misses overlap, where
+        // the emission loop would take them one at a time ([P2] §4.2 sorts the AABBs
+        // themselves for the same reason).
+        sc.boxes.clear();
+        sc.boxes
+            .extend(order[r.clone()].iter().map(|&i| aabbs[i as usize]));
+        sc.nodes.clear();
+        sc.nodes.reserve(out.len());
+        sc.layout.clear();
+        sc.layout.reserve(2 * out.len());
+        let mut em = Emitter::new(None);
+        em.read = r.start as u32;
+        let mut ties = Ties::new(self.combine_identical, self.max_leaf_size);
+        let boxes = &sc.boxes;
+        let mut input = r.clone().map(|k| {
+            let same = k > r.start && codes[k - 1] == codes[k];
+            Prim {
+                code: codes[k],
+                tie: ties.next(k, same).0,
+                aabb: boxes[k - r.start],
+            }
+        });
+        let mut root = None;
+        loop {
+            let inp = if em.needs_input() { input.next() } else { None };
+            match em.step(inp) {
+                Step::Emitted(e) => {
+                    // Subtree sizes as the nodes come (the forward pass of the layout).
+                    let s = 1
+                        + node_size(&sc.layout, 0, e.children[0])
+                        + node_size(&sc.layout, 0, e.children[1]);
+                    sc.layout.push(s);
+                    sc.nodes.push(e);
+                }
+                Step::Highlevel(h) => root = Some(h),
+                Step::Done => break,
+                Step::Loaded | Step::Combined | Step::Pushed => {}
+            }
+        }
+        let root = root.expect("a non-empty stream ends with its root");
+        match root.root {
+            EmitRef::Leaf { first, count } => (ChildRef::leaf(first, count), root.aabb),
+            EmitRef::Node(_) => {
+                place_preorder(&sc.nodes, 0, base, out, &mut sc.layout);
+                (ChildRef::inner(base), root.aabb)
+            }
+        }
     }
 
     /// Runs the emitter with the configured threshold and returns its raw output: the
@@ -704,8 +998,10 @@ const PLACEHOLDER: EmittedNode = EmittedNode {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::centroid;
     use crate::testutil::*;
     use crate::{validate, SweepSahBuilder};
+    use geom::MortonQuantizer;
     use geom::Vec3;
     use proptest::prelude::*;
 
@@ -983,6 +1279,42 @@ mod tests {
                 let t = cfg.build(&prims).unwrap();
                 assert_valid("large", &t, &prims, cfg.leaf_limit());
                 assert_eq!(t, reference(&prims, &cfg), "{cfg:?}");
+            }
+        }
+    }
+
+    /// The direct layout with cells of every shape: single-leaf cells (isolated boxes, and
+    /// a few identical ones combined into one leaf) among ordinary ones, 1 to 3 threads.
+    #[test]
+    fn direct_layout_handles_leaf_cells_and_equals_the_emitter_path() {
+        let mut prims = soup(20_000, 1.0, 17);
+        for k in 0..6 {
+            let c = Vec3::splat(1.0e4 * (k as f32 + 1.0));
+            prims.push(Aabb::new(c, c + 0.5));
+        }
+        let far = Vec3::new(-3.0e4, 2.0e4, -1.0e4);
+        prims.extend(std::iter::repeat_n(Aabb::new(far, far + 0.5), 5));
+        for cfg in configs() {
+            let hl = HlbvhBuilder {
+                highlevel_threshold: Some(cfg.bits.total_bits() - PARALLEL_CELL_BITS),
+                ..cfg.clone()
+            }
+            .build_highlevel(&prims)
+            .unwrap();
+            assert!(hl
+                .roots
+                .iter()
+                .any(|r| matches!(r.root, EmitRef::Leaf { .. })));
+            let want = hl.to_bvh2();
+            assert_eq!(want, reference(&prims, &cfg), "{cfg:?}");
+            for threads in [1, 2, 3] {
+                let t = HlbvhBuilder {
+                    threads,
+                    ..cfg.clone()
+                }
+                .build(&prims)
+                .unwrap();
+                assert_eq!(t, want, "{cfg:?} threads {threads}");
             }
         }
     }

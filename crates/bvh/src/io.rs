@@ -1,75 +1,80 @@
-//! The Arbor tree file: a little-endian binary format for [`Bvh2`] that `arbor build --out`
-//! writes and that `arbor render` and the hardware models read back. The nodes are stored in
-//! exactly their 64-byte in-memory layout ([`Node`], \[P2\] §4.1 Fig. 2), so a
-//! hardware model can map the node section and fetch one node per 64-byte line.
+//! The Arbor tree file: a little-endian binary format for a [`Bvh2`] or an [`Mbvh4`] that
+//! `arbor build --out` writes and that `arbor render` and the hardware models read back.
+//! The nodes are stored in exactly their in-memory layout — the 64-byte [`Node`] of \[P2\]
+//! §4.1 Fig. 2, or the 128-byte [`Node4`] of \[P4\] §3.1 — so a hardware model can map the
+//! node section and fetch one node per 64- or 128-byte line.
+//!
+//! Loading, for a ray tracer: [`read_tree_file`] returns a [`Tree`] of either kind (match on
+//! it, or use [`Tree::kind`]); [`read_bvh2_file`] and [`read_mbvh4_file`] return one kind
+//! and fail with [`IoError::WrongKind`] on the other.
 //!
 //! Layout (all integers and floats little-endian; `docs/tree-format.md` has the same table):
 //!
 //! | offset      | size | field                                                         |
 //! |-------------|------|---------------------------------------------------------------|
 //! | 0           | 8    | magic `ARBORBVH`                                              |
-//! | 8           | 4    | format version `u32` (= [`FORMAT_VERSION`])                   |
-//! | 12          | 4    | tree kind `u32`: 1 = `Bvh2`; 2 = `Mbvh4` (reserved)           |
+//! | 8           | 4    | format version `u32` (= [`FORMAT_VERSION`]; 1 is still read)  |
+//! | 12          | 4    | tree kind `u32`: 1 = `Bvh2`; 2 = `Mbvh4` (version 2 only)     |
 //! | 16          | 4    | node count `u32` (>= 1: the root always exists)               |
 //! | 20          | 4    | leaf-table length `u32`                                       |
-//! | 24          | 4    | primitive count `u32` (= leaf-table length for `Bvh2`)        |
+//! | 24          | 4    | primitive count `u32` (= leaf-table length)                   |
 //! | 28          | 4    | builder name length `u32` in bytes (<= [`MAX_BUILDER_NAME_BYTES`]) |
 //! | 32          | 24   | scene bounds: min x, y, z, max x, y, z (`f32`)                |
-//! | 56          | 8    | SAH cost with the thesis parameters (`f64`, informational)    |
+//! | 56          | 8    | SAH cost (`f64`, informational; [`Tree::normalized_sah`])     |
 //! | 64          | L    | builder name, UTF-8, then zero bytes up to a multiple of 16   |
-//! | H           | 64 N | nodes, each in the 64-byte layout of [`Node`]          |
-//! | H + 64 N    | 4 T  | leaf table (`u32` primitive indices)                          |
+//! | H           | S N  | nodes, each in the S-byte layout of [`Node`] (64) or [`Node4`] (128) |
+//! | H + S N     | 4 T  | leaf table (`u32` primitive indices)                          |
 //! | end - 4     | 4    | CRC-32 (IEEE, as zlib/PNG) of every byte before it            |
 //!
 //! `H = 64 + L` rounded up to 16, so the node section is 16-byte aligned in the file.
+//! Version 2 added kind 2; a version-1 file is a version-2 file of kind 1, byte for byte
+//! apart from the version field, and is read the same way.
 //!
 //! Reading trusts nothing: bad magic, an unknown version or kind, counts above the format's
 //! limits, non-zero padding, a truncated file, trailing bytes and a checksum mismatch are
 //! each a typed [`IoError`]. Arrays grow as their bytes actually arrive (never preallocated
 //! from a header count), so a header that claims 2^32 nodes on a 100-byte file costs
 //! nothing. A tree that passes the checksum is then validated structurally with
-//! [`crate::validate`] (every index in range, preorder, each primitive once, child boxes
-//! inside parents), so a reader can walk it without bounds checks going wrong.
+//! [`crate::validate`] or [`crate::validate_mbvh4`] (every index in range, preorder, each
+//! primitive once, child boxes inside parents, slot rules), so a reader can walk it without
+//! bounds checks going wrong.
 //!
-//! [`write_bvh2_file`] writes atomically: to a temporary file in the destination's
-//! directory, flushed to disk, then renamed over the destination, so a crash or a full disk
-//! never leaves a half-written file or clobbers an existing one.
+//! The writers are atomic: [`write_tree_file`] (and [`write_bvh2_file`],
+//! [`write_mbvh4_file`]) write to a temporary file in the destination's directory, flush it
+//! to disk, then rename it over the destination, so a crash or a full disk never leaves a
+//! half-written file or clobbers an existing one.
 
 use crate::bvh2::Bvh2;
 use crate::error::MAX_PRIMITIVES;
-use crate::node::{ChildRef, Node};
+use crate::mbvh4::{validate_mbvh4, Mbvh4, Node4};
+use crate::node::{ChildRef, Node, TreeNode};
 use crate::validate::{validate, ValidationError};
 use geom::{Aabb, Vec3};
 use std::io::{Read, Write};
 use std::path::Path;
 use thiserror::Error;
 
+pub use crate::tree::{Tree, TreeKind};
+
 /// The eight bytes every tree file starts with.
 pub const MAGIC: [u8; 8] = *b"ARBORBVH";
-/// The format version this module writes and reads.
-pub const FORMAT_VERSION: u32 = 1;
+/// The format version this module writes (it reads this and every earlier version).
+pub const FORMAT_VERSION: u32 = 2;
 /// Longest builder name a file may carry, in bytes.
 pub const MAX_BUILDER_NAME_BYTES: u32 = 255;
 /// Size of the fixed part of the header, in bytes.
 pub const FIXED_HEADER_BYTES: usize = 64;
-/// Size of one node in the file, in bytes (\[P2\] §4.1: 64-byte nodes).
+/// Size of one binary node in the file, in bytes (\[P2\] §4.1: 64-byte nodes).
 pub const NODE_BYTES: usize = 64;
-/// Largest node count a file may claim: a binary tree over [`MAX_PRIMITIVES`] primitives
-/// has fewer inner nodes than primitives (plus the root of the empty tree).
+/// Size of one 4-wide node in the file, in bytes (\[P4\] §3.1: 128-byte nodes).
+pub const NODE4_BYTES: usize = 128;
+/// Largest node count a file may claim: a tree over [`MAX_PRIMITIVES`] primitives has
+/// fewer inner nodes than primitives (plus the root of the empty tree).
 pub const MAX_NODES: usize = MAX_PRIMITIVES;
 /// Alignment of the node section in the file, in bytes.
 const SECTION_ALIGN_BYTES: usize = 16;
-/// Nodes decoded per read: bounds the read buffer, not the tree (64 KiB).
-const NODES_PER_CHUNK: usize = 1024;
-
-/// Which kind of tree a file holds.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub enum TreeKind {
-    /// The binary 64-byte-node tree [`Bvh2`].
-    Bvh2 = 1,
-    /// The 4-wide tree of \[P4\] (reserved: not read or written yet).
-    Mbvh4 = 2,
-}
+/// Bytes decoded per read: bounds the read buffer, not the tree (64 KiB).
+const CHUNK_BYTES: usize = 64 * 1024;
 
 /// What a tree file's header says.
 #[derive(Clone, Debug, PartialEq)]
@@ -88,7 +93,8 @@ pub struct Header {
     pub bounds: Aabb,
     /// Name of the builder that made the tree (e.g. `binned-sah`).
     pub builder: String,
-    /// SAH cost with the thesis parameters, as computed by the writer.
+    /// SAH cost as computed by the writer ([`Tree::normalized_sah`]: the thesis weights,
+    /// a 4-wide node costing `2 C_i`).
     pub sah: f64,
 }
 
@@ -102,11 +108,26 @@ pub enum IoError {
     #[error("not an Arbor tree file (bad magic)")]
     BadMagic,
     /// A format version this build does not know.
-    #[error("unsupported tree file version {0} (this build reads version {FORMAT_VERSION})")]
+    #[error("unsupported tree file version {0} (this build reads versions 1 to {FORMAT_VERSION})")]
     UnsupportedVersion(u32),
-    /// A tree kind this build does not read.
-    #[error("unsupported tree kind {0} (this build reads kind 1, Bvh2)")]
-    UnsupportedKind(u32),
+    /// A tree kind this build (or this file's version) does not have.
+    #[error("unsupported tree kind {kind} in a version {version} file (kinds: 1 = Bvh2, 2 = Mbvh4 from version 2)")]
+    UnsupportedKind {
+        /// The kind field.
+        kind: u32,
+        /// The file's version.
+        version: u32,
+    },
+    /// The file holds the other kind of tree than the caller asked for.
+    #[error(
+        "the tree file holds a {found} tree, not a {expected} (read it with bvh::io::read_tree)"
+    )]
+    WrongKind {
+        /// The kind asked for.
+        expected: TreeKind,
+        /// The kind in the file.
+        found: TreeKind,
+    },
     /// The file ends before the data its header announces.
     #[error("truncated tree file: it ends inside the {0}")]
     Truncated(&'static str),
@@ -170,6 +191,29 @@ impl<R: Read> CrcReader<R> {
             Err(e) => Err(IoError::Io(e)),
         }
     }
+
+    /// Reads `count` records of `size` bytes, decoding each with `decode`, in bounded
+    /// chunks: memory grows only with bytes actually read.
+    fn records<T>(
+        &mut self,
+        count: usize,
+        size: usize,
+        what: &'static str,
+        decode: impl Fn(&[u8]) -> T,
+    ) -> Result<Vec<T>, IoError> {
+        let per_chunk = CHUNK_BYTES / size;
+        let mut chunk = vec![0u8; per_chunk * size];
+        let mut out = Vec::new();
+        let mut left = count;
+        while left > 0 {
+            let k = left.min(per_chunk);
+            let bytes = &mut chunk[..k * size];
+            self.fill(bytes, what)?;
+            out.extend(bytes.chunks_exact(size).map(&decode));
+            left -= k;
+        }
+        Ok(out)
+    }
 }
 
 /// Length of the header including the padded builder name.
@@ -185,56 +229,119 @@ fn f32_at(b: &[u8], off: usize) -> f32 {
     f32::from_bits(u32_at(b, off))
 }
 
-/// The 64 file bytes of a node (the in-memory layout, little-endian).
-fn encode_node(n: &Node, out: &mut [u8]) {
-    let mut o = 0;
-    for b in &n.bounds {
-        for v in b {
-            out[o..o + 4].copy_from_slice(&v.to_le_bytes());
-            o += 4;
+/// Writes `vals` as little-endian `u32`/`f32` words into `out` from byte `o`; returns the
+/// offset after them.
+fn put_words(out: &mut [u8], mut o: usize, vals: impl IntoIterator<Item = u32>) -> usize {
+    for v in vals {
+        out[o..o + 4].copy_from_slice(&v.to_le_bytes());
+        o += 4;
+    }
+    o
+}
+
+/// `(index, count)` of child reference `k` stored at byte `off` of a node record.
+fn child_at(b: &[u8], off: usize, k: usize) -> ChildRef {
+    ChildRef {
+        index: u32_at(b, off + 8 * k),
+        count: u32_at(b, off + 8 * k + 4),
+    }
+}
+
+/// A node type the file stores: its record size and its byte encoding (the in-memory
+/// `#[repr(C)]` layout, little-endian).
+trait FileNode: TreeNode {
+    /// The kind of tree made of these nodes.
+    const KIND: TreeKind;
+    /// Bytes per record.
+    const BYTES: usize;
+    /// Writes the record into `out` (exactly `BYTES` long).
+    fn encode(&self, out: &mut [u8]);
+    /// Reads a record (exactly `BYTES` long).
+    fn decode(b: &[u8]) -> Self;
+}
+
+impl FileNode for Node {
+    const KIND: TreeKind = TreeKind::Bvh2;
+    const BYTES: usize = NODE_BYTES;
+    fn encode(&self, out: &mut [u8]) {
+        let o = put_words(out, 0, self.bounds.iter().flatten().map(|v| v.to_bits()));
+        put_words(
+            out,
+            o,
+            self.children.iter().flat_map(|c| [c.index, c.count]),
+        );
+    }
+    fn decode(b: &[u8]) -> Self {
+        let mut bounds = [[0.0f32; 6]; 2];
+        for (i, v) in bounds.iter_mut().flatten().enumerate() {
+            *v = f32_at(b, i * 4);
+        }
+        Node {
+            bounds,
+            children: [0, 1].map(|k| child_at(b, 48, k)),
         }
     }
-    for c in &n.children {
-        out[o..o + 4].copy_from_slice(&c.index.to_le_bytes());
-        out[o + 4..o + 8].copy_from_slice(&c.count.to_le_bytes());
-        o += 8;
+}
+
+impl FileNode for Node4 {
+    const KIND: TreeKind = TreeKind::Mbvh4;
+    const BYTES: usize = NODE4_BYTES;
+    fn encode(&self, out: &mut [u8]) {
+        let planes = [
+            &self.min_x,
+            &self.min_y,
+            &self.min_z,
+            &self.max_x,
+            &self.max_y,
+            &self.max_z,
+        ];
+        let o = put_words(out, 0, planes.iter().flat_map(|p| p.map(f32::to_bits)));
+        put_words(
+            out,
+            o,
+            self.children.iter().flat_map(|c| [c.index, c.count]),
+        );
+    }
+    fn decode(b: &[u8]) -> Self {
+        let plane = |p: usize| [0, 1, 2, 3].map(|i| f32_at(b, 16 * p + 4 * i));
+        Node4 {
+            min_x: plane(0),
+            min_y: plane(1),
+            min_z: plane(2),
+            max_x: plane(3),
+            max_y: plane(4),
+            max_z: plane(5),
+            children: [0, 1, 2, 3].map(|k| child_at(b, 96, k)),
+        }
     }
 }
 
-/// A node from its 64 file bytes.
-fn decode_node(b: &[u8]) -> Node {
-    let mut bounds = [[0.0f32; 6]; 2];
-    for (i, v) in bounds.iter_mut().flatten().enumerate() {
-        *v = f32_at(b, i * 4);
-    }
-    let child = |k: usize| ChildRef {
-        index: u32_at(b, 48 + 8 * k),
-        count: u32_at(b, 52 + 8 * k),
-    };
-    Node {
-        bounds,
-        children: [child(0), child(1)],
-    }
+/// The parts of a tree that the file stores.
+struct Parts<'a, N> {
+    nodes: &'a [N],
+    prim_indices: &'a [u32],
+    bounds: Aabb,
+    sah: f64,
 }
 
-/// Writes `bvh`, built by `builder`, in the tree file format to `w`.
-pub fn write_bvh2(bvh: &Bvh2, builder: &str, w: impl Write) -> Result<(), IoError> {
+/// Writes a tree's parts in the file format.
+fn write_parts<N: FileNode>(t: &Parts<'_, N>, builder: &str, w: impl Write) -> Result<(), IoError> {
     if builder.len() > MAX_BUILDER_NAME_BYTES as usize {
         return Err(IoError::Unwritable(format!(
             "builder name is {} bytes, above the limit of {MAX_BUILDER_NAME_BYTES}",
             builder.len()
         )));
     }
-    if bvh.nodes.is_empty() || bvh.nodes.len() > MAX_NODES {
+    if t.nodes.is_empty() || t.nodes.len() > MAX_NODES {
         return Err(IoError::Unwritable(format!(
             "{} nodes (must be 1..={MAX_NODES})",
-            bvh.nodes.len()
+            t.nodes.len()
         )));
     }
-    if bvh.prim_indices.len() > MAX_PRIMITIVES {
+    if t.prim_indices.len() > MAX_PRIMITIVES {
         return Err(IoError::Unwritable(format!(
             "{} leaf-table entries exceed {MAX_PRIMITIVES}",
-            bvh.prim_indices.len()
+            t.prim_indices.len()
         )));
     }
     let mut w = CrcWriter {
@@ -243,29 +350,26 @@ pub fn write_bvh2(bvh: &Bvh2, builder: &str, w: impl Write) -> Result<(), IoErro
     };
     let mut head = vec![0u8; header_bytes(builder.len())];
     head[0..8].copy_from_slice(&MAGIC);
-    let put = |h: &mut [u8], off: usize, v: u32| h[off..off + 4].copy_from_slice(&v.to_le_bytes());
-    put(&mut head, 8, FORMAT_VERSION);
-    put(&mut head, 12, TreeKind::Bvh2 as u32);
-    put(&mut head, 16, bvh.nodes.len() as u32);
-    put(&mut head, 20, bvh.prim_indices.len() as u32);
-    put(&mut head, 24, bvh.prim_indices.len() as u32);
-    put(&mut head, 28, builder.len() as u32);
-    let b = &bvh.bounds;
-    for (i, v) in [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z]
-        .iter()
-        .enumerate()
-    {
-        put(&mut head, 32 + 4 * i, v.to_bits());
-    }
-    head[56..64].copy_from_slice(&bvh.sah().to_le_bytes());
+    let b = &t.bounds;
+    let bounds = [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z].map(f32::to_bits);
+    let words = [
+        FORMAT_VERSION,
+        N::KIND as u32,
+        t.nodes.len() as u32,
+        t.prim_indices.len() as u32,
+        t.prim_indices.len() as u32,
+        builder.len() as u32,
+    ];
+    put_words(&mut head, 8, words.into_iter().chain(bounds));
+    head[56..64].copy_from_slice(&t.sah.to_le_bytes());
     head[64..64 + builder.len()].copy_from_slice(builder.as_bytes());
     w.write_all(&head)?;
-    let mut buf = [0u8; NODE_BYTES];
-    for n in &bvh.nodes {
-        encode_node(n, &mut buf);
+    let mut buf = vec![0u8; N::BYTES];
+    for n in t.nodes {
+        n.encode(&mut buf);
         w.write_all(&buf)?;
     }
-    for p in &bvh.prim_indices {
+    for p in t.prim_indices {
         w.write_all(&p.to_le_bytes())?;
     }
     let crc = w.crc.clone().finalize();
@@ -274,9 +378,42 @@ pub fn write_bvh2(bvh: &Bvh2, builder: &str, w: impl Write) -> Result<(), IoErro
     Ok(())
 }
 
-/// Writes `bvh` to the file `path` atomically: a temporary file in the same directory is
-/// written, synced and renamed over `path`, so `path` is either untouched or complete.
-pub fn write_bvh2_file(bvh: &Bvh2, builder: &str, path: &Path) -> Result<(), IoError> {
+/// Writes `bvh`, built by `builder`, in the tree file format to `w`.
+pub fn write_bvh2(bvh: &Bvh2, builder: &str, w: impl Write) -> Result<(), IoError> {
+    let parts = Parts {
+        nodes: &bvh.nodes,
+        prim_indices: &bvh.prim_indices,
+        bounds: bvh.bounds,
+        sah: bvh.sah(),
+    };
+    write_parts(&parts, builder, w)
+}
+
+/// Writes the 4-wide `tree`, built by `builder`, in the tree file format to `w`.
+pub fn write_mbvh4(tree: &Mbvh4, builder: &str, w: impl Write) -> Result<(), IoError> {
+    let parts = Parts {
+        nodes: &tree.nodes,
+        prim_indices: &tree.prim_indices,
+        bounds: tree.bounds,
+        sah: tree.normalized_sah(),
+    };
+    write_parts(&parts, builder, w)
+}
+
+/// Writes a tree of either kind in the tree file format to `w`.
+pub fn write_tree(tree: &Tree, builder: &str, w: impl Write) -> Result<(), IoError> {
+    match tree {
+        Tree::Bvh2(t) => write_bvh2(t, builder, w),
+        Tree::Mbvh4(t) => write_mbvh4(t, builder, w),
+    }
+}
+
+/// Runs `write` on a temporary file in `path`'s folder, syncs it and renames it over
+/// `path`, so `path` is either untouched or complete.
+fn write_atomically(
+    path: &Path,
+    write: impl FnOnce(&mut std::fs::File) -> Result<(), IoError>,
+) -> Result<(), IoError> {
     let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d,
         _ => Path::new("."),
@@ -291,17 +428,32 @@ pub fn write_bvh2_file(bvh: &Bvh2, builder: &str, path: &Path) -> Result<(), IoE
         tb.permissions(std::fs::Permissions::from_mode(0o666));
     }
     let mut tmp = tb.tempfile_in(dir)?;
-    write_bvh2(bvh, builder, tmp.as_file_mut())?;
+    write(tmp.as_file_mut())?;
     tmp.as_file().sync_all()?;
     // On failure the temporary file is removed when `tmp` (inside the error) is dropped.
     tmp.persist(path).map_err(|e| IoError::Io(e.error))?;
     Ok(())
 }
 
-/// Reads a [`Bvh2`] tree file from `r`, checking everything (see the module doc), and
-/// returns the tree with its header. The tree is validated structurally before it is
+/// Writes `bvh` to the file `path` atomically (see the module doc).
+pub fn write_bvh2_file(bvh: &Bvh2, builder: &str, path: &Path) -> Result<(), IoError> {
+    write_atomically(path, |f| write_bvh2(bvh, builder, f))
+}
+
+/// Writes the 4-wide `tree` to the file `path` atomically (see the module doc).
+pub fn write_mbvh4_file(tree: &Mbvh4, builder: &str, path: &Path) -> Result<(), IoError> {
+    write_atomically(path, |f| write_mbvh4(tree, builder, f))
+}
+
+/// Writes a tree of either kind to the file `path` atomically (see the module doc).
+pub fn write_tree_file(tree: &Tree, builder: &str, path: &Path) -> Result<(), IoError> {
+    write_atomically(path, |f| write_tree(tree, builder, f))
+}
+
+/// Reads a tree file of either kind from `r`, checking everything (see the module doc),
+/// and returns the tree with its header. The tree is validated structurally before it is
 /// returned.
-pub fn read_bvh2(r: impl Read) -> Result<(Bvh2, Header), IoError> {
+pub fn read_tree(r: impl Read) -> Result<(Tree, Header), IoError> {
     let mut r = CrcReader {
         inner: r,
         crc: crc32fast::Hasher::new(),
@@ -317,13 +469,14 @@ pub fn read_bvh2(r: impl Read) -> Result<(Bvh2, Header), IoError> {
     fixed[..8].copy_from_slice(&magic);
     r.fill(&mut fixed[8..], "header")?;
     let version = u32_at(&fixed, 8);
-    if version != FORMAT_VERSION {
+    if !(1..=FORMAT_VERSION).contains(&version) {
         return Err(IoError::UnsupportedVersion(version));
     }
-    let kind = u32_at(&fixed, 12);
-    if kind != TreeKind::Bvh2 as u32 {
-        return Err(IoError::UnsupportedKind(kind));
-    }
+    let kind = match (u32_at(&fixed, 12), version) {
+        (1, _) => TreeKind::Bvh2,
+        (2, 2..) => TreeKind::Mbvh4,
+        (kind, version) => return Err(IoError::UnsupportedKind { kind, version }),
+    };
     let node_count = u32_at(&fixed, 16);
     let leaf_table_len = u32_at(&fixed, 20);
     let prim_count = u32_at(&fixed, 24);
@@ -362,26 +515,31 @@ pub fn read_bvh2(r: impl Read) -> Result<(Bvh2, Header), IoError> {
     let builder = String::from_utf8(name)
         .map_err(|_| IoError::BadHeader("builder name is not UTF-8".into()))?;
 
-    // Nodes, in chunks: memory grows only with bytes actually read.
-    let mut nodes = Vec::new();
-    let mut chunk = vec![0u8; NODES_PER_CHUNK * NODE_BYTES];
-    let mut left = node_count as usize;
-    while left > 0 {
-        let k = left.min(NODES_PER_CHUNK);
-        let bytes = &mut chunk[..k * NODE_BYTES];
-        r.fill(bytes, "node array")?;
-        nodes.extend(bytes.chunks_exact(NODE_BYTES).map(decode_node));
-        left -= k;
-    }
-    let mut prim_indices = Vec::new();
-    let mut left = leaf_table_len as usize;
-    while left > 0 {
-        let k = left.min(NODES_PER_CHUNK * NODE_BYTES / 4);
-        let bytes = &mut chunk[..k * 4];
-        r.fill(bytes, "leaf table")?;
-        prim_indices.extend(bytes.chunks_exact(4).map(|b| u32_at(b, 0)));
-        left -= k;
-    }
+    let tree = match kind {
+        TreeKind::Bvh2 => {
+            let nodes = r.records(node_count as usize, NODE_BYTES, "node array", Node::decode)?;
+            let prim_indices = read_leaf_table(&mut r, leaf_table_len)?;
+            Tree::Bvh2(Bvh2 {
+                nodes,
+                prim_indices,
+                bounds,
+            })
+        }
+        TreeKind::Mbvh4 => {
+            let nodes = r.records(
+                node_count as usize,
+                NODE4_BYTES,
+                "node array",
+                Node4::decode,
+            )?;
+            let prim_indices = read_leaf_table(&mut r, leaf_table_len)?;
+            Tree::Mbvh4(Mbvh4 {
+                nodes,
+                prim_indices,
+                bounds,
+            })
+        }
+    };
     let computed = r.crc.clone().finalize();
     let mut stored = [0u8; 4];
     r.fill(&mut stored, "checksum")?;
@@ -398,16 +556,10 @@ pub fn read_bvh2(r: impl Read) -> Result<(Bvh2, Header), IoError> {
             Err(e) => return Err(IoError::Io(e)),
         }
     }
-
-    let bvh = Bvh2 {
-        nodes,
-        prim_indices,
-        bounds,
-    };
-    check_structure(&bvh)?;
+    check_structure(&tree)?;
     let header = Header {
         version,
-        kind: TreeKind::Bvh2,
+        kind,
         node_count,
         leaf_table_len,
         prim_count,
@@ -415,51 +567,99 @@ pub fn read_bvh2(r: impl Read) -> Result<(Bvh2, Header), IoError> {
         builder,
         sah,
     };
-    Ok((bvh, header))
+    Ok((tree, header))
 }
 
-/// Reads a tree file from `path` (see [`read_bvh2`]).
+/// The leaf table of `len` entries.
+fn read_leaf_table<R: Read>(r: &mut CrcReader<R>, len: u32) -> Result<Vec<u32>, IoError> {
+    r.records(len as usize, 4, "leaf table", |b| u32_at(b, 0))
+}
+
+/// Reads a tree file of either kind from `path` (see [`read_tree`]).
+pub fn read_tree_file(path: &Path) -> Result<(Tree, Header), IoError> {
+    let f = std::fs::File::open(path)?;
+    read_tree(std::io::BufReader::new(f))
+}
+
+/// Reads a [`Bvh2`] tree file from `r` (see [`read_tree`]); a file holding an [`Mbvh4`] is
+/// [`IoError::WrongKind`].
+pub fn read_bvh2(r: impl Read) -> Result<(Bvh2, Header), IoError> {
+    match read_tree(r)? {
+        (Tree::Bvh2(t), h) => Ok((t, h)),
+        (t, _) => Err(IoError::WrongKind {
+            expected: TreeKind::Bvh2,
+            found: t.kind(),
+        }),
+    }
+}
+
+/// Reads an [`Mbvh4`] tree file from `r` (see [`read_tree`]); a file holding a [`Bvh2`] is
+/// [`IoError::WrongKind`].
+pub fn read_mbvh4(r: impl Read) -> Result<(Mbvh4, Header), IoError> {
+    match read_tree(r)? {
+        (Tree::Mbvh4(t), h) => Ok((t, h)),
+        (t, _) => Err(IoError::WrongKind {
+            expected: TreeKind::Mbvh4,
+            found: t.kind(),
+        }),
+    }
+}
+
+/// Reads a [`Bvh2`] tree file from `path` (see [`read_bvh2`]).
 pub fn read_bvh2_file(path: &Path) -> Result<(Bvh2, Header), IoError> {
     let f = std::fs::File::open(path)?;
     read_bvh2(std::io::BufReader::new(f))
 }
 
-/// Validates a tree read from a file, whose primitive boxes are unknown: each primitive
-/// gets the box of the leaf that references it, so [`validate`] checks everything but
-/// primitive-in-leaf containment (indices, preorder, each primitive once, child boxes
-/// inside parents, bounds). Leaf sizes are not limited: the file does not record the
-/// builder's maximum.
-fn check_structure(bvh: &Bvh2) -> Result<(), ValidationError> {
+/// Reads an [`Mbvh4`] tree file from `path` (see [`read_mbvh4`]).
+pub fn read_mbvh4_file(path: &Path) -> Result<(Mbvh4, Header), IoError> {
+    let f = std::fs::File::open(path)?;
+    read_mbvh4(std::io::BufReader::new(f))
+}
+
+/// Boxes for the primitives of a tree read from a file, whose real boxes are unknown: each
+/// primitive gets the box of the leaf that references it, so the validator checks
+/// everything but primitive-in-leaf containment (indices, preorder, each primitive once,
+/// child boxes inside parents, bounds, slot rules). Out-of-range leaves and primitives are
+/// skipped here and reported by the validator; an unreferenced primitive keeps the empty
+/// box and is reported unreferenced.
+fn leaf_boxes<N: TreeNode>(nodes: &[N], prim_indices: &[u32]) -> Vec<Aabb> {
     // The leaf table was read from the file, so this allocation is bounded by its size.
-    let mut prims = vec![Aabb::EMPTY; bvh.prim_indices.len()];
-    for n in &bvh.nodes {
-        for (slot, c) in n.children.iter().enumerate() {
+    let mut prims = vec![Aabb::EMPTY; prim_indices.len()];
+    for n in nodes {
+        for (slot, c) in n.child_refs().iter().enumerate() {
             if !c.is_leaf() {
                 continue;
             }
             let first = c.index as usize;
-            let Some(range) = bvh
-                .prim_indices
-                .get(first..first.saturating_add(c.count as usize))
+            let Some(range) = prim_indices.get(first..first.saturating_add(c.count as usize))
             else {
-                continue; // out of range: `validate` reports it
+                continue;
             };
             for &p in range {
                 if let Some(b) = prims.get_mut(p as usize) {
-                    *b = n.child_aabb(slot);
+                    *b = n.slot_aabb(slot);
                 }
             }
         }
     }
-    // An unreferenced primitive keeps the empty box; the validator reports it unreferenced.
-    validate(bvh, &prims, u32::MAX)
+    prims
+}
+
+/// Validates a tree read from a file (see [`leaf_boxes`]). Leaf sizes are not limited:
+/// the file does not record the builder's maximum.
+fn check_structure(tree: &Tree) -> Result<(), ValidationError> {
+    match tree {
+        Tree::Bvh2(t) => validate(t, &leaf_boxes(&t.nodes, &t.prim_indices), u32::MAX),
+        Tree::Mbvh4(t) => validate_mbvh4(t, &leaf_boxes(&t.nodes, &t.prim_indices), u32::MAX),
+    }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::testutil::soup;
-    use crate::{BinnedSahBuilder, LbvhBuilder, SweepSahBuilder};
+    use crate::{collapse, BinnedSahBuilder, LbvhBuilder, Mbvh4TopDownBuilder, SweepSahBuilder};
 
     fn bytes_of(t: &Bvh2, name: &str) -> Vec<u8> {
         let mut v = Vec::new();
@@ -471,6 +671,18 @@ mod tests {
         BinnedSahBuilder::default()
             .build(&soup(500, 2.0, 7))
             .unwrap()
+    }
+
+    fn sample4() -> Mbvh4 {
+        Mbvh4TopDownBuilder::default()
+            .build(&soup(500, 2.0, 7))
+            .unwrap()
+    }
+
+    fn bytes4_of(t: &Mbvh4, name: &str) -> Vec<u8> {
+        let mut v = Vec::new();
+        write_mbvh4(t, name, &mut v).unwrap();
+        v
     }
 
     /// Re-seals a modified file with a correct checksum, so the test reaches the check
@@ -541,18 +753,174 @@ mod tests {
 
     #[test]
     fn rejects_unknown_version_and_kind() {
-        let mut v = bytes_of(&sample(), "b");
-        v[8] = 2;
+        for bad in [0u8, 3, 255] {
+            let mut v = bytes_of(&sample(), "b");
+            v[8] = bad;
+            assert!(matches!(
+                read_bvh2(&v[..]),
+                Err(IoError::UnsupportedVersion(x)) if x == bad as u32
+            ));
+        }
+        for bad in [0u8, 3, 200] {
+            let mut v = bytes_of(&sample(), "b");
+            v[12] = bad;
+            assert!(matches!(
+                read_tree(&v[..]),
+                Err(IoError::UnsupportedKind { kind, version: 2 }) if kind == bad as u32
+            ));
+        }
+        // Version 1 knew only kind 1: a 4-wide tree in a version-1 file is rejected.
+        let mut v = bytes4_of(&sample4(), "b");
+        v[8] = 1;
+        reseal(&mut v);
         assert!(matches!(
-            read_bvh2(&v[..]),
-            Err(IoError::UnsupportedVersion(2))
+            read_tree(&v[..]),
+            Err(IoError::UnsupportedKind {
+                kind: 2,
+                version: 1
+            })
         ));
-        let mut v = bytes_of(&sample(), "b");
-        v[12] = TreeKind::Mbvh4 as u8;
+    }
+
+    #[test]
+    fn version_one_files_still_read() {
+        // A version-1 file is a version-2 file of kind 1 with the old version number.
+        let t = sample();
+        let mut v = bytes_of(&t, "binned-sah");
+        assert_eq!(u32_at(&v, 8), 2);
+        v[8] = 1;
+        reseal(&mut v);
+        let (back, h) = read_bvh2(&v[..]).unwrap();
+        assert_eq!(back, t);
+        assert_eq!((h.version, h.kind), (1, TreeKind::Bvh2));
+    }
+
+    #[test]
+    fn mbvh4_round_trips_and_either_kind_reads_as_a_tree() {
+        let prims = soup(2000, 3.0, 1);
+        let binned = BinnedSahBuilder::default().build(&prims).unwrap();
+        let one = Mbvh4TopDownBuilder::default().build(&prims[..1]).unwrap();
+        let trees = [
+            (
+                "mbvh4-topdown",
+                Mbvh4TopDownBuilder::default().build(&prims).unwrap(),
+            ),
+            ("mbvh4-collapse", collapse(&binned).unwrap()),
+            ("empty", Mbvh4::empty()),
+            ("one", one),
+        ];
+        for (name, t) in trees {
+            let v = bytes4_of(&t, name);
+            assert_eq!(
+                v.len(),
+                header_bytes(name.len()) + 128 * t.nodes.len() + 4 * t.prim_indices.len() + 4
+            );
+            let (back, h) = read_mbvh4(&v[..]).unwrap();
+            assert_eq!(back, t, "{name}");
+            assert_eq!((h.kind, h.version), (TreeKind::Mbvh4, FORMAT_VERSION));
+            assert_eq!(h.builder, name);
+            assert_eq!(h.node_count as usize, t.nodes.len());
+            assert!(h.sah == t.normalized_sah());
+            let (any, _) = read_tree(&v[..]).unwrap();
+            assert_eq!(any, Tree::Mbvh4(t.clone()));
+            // Through `Tree`, byte for byte the same file.
+            let mut w = Vec::new();
+            write_tree(&any, name, &mut w).unwrap();
+            assert_eq!(w, v);
+            // Asking for the other kind names both.
+            let e = read_bvh2(&v[..]).unwrap_err();
+            assert!(matches!(
+                e,
+                IoError::WrongKind {
+                    expected: TreeKind::Bvh2,
+                    found: TreeKind::Mbvh4
+                }
+            ));
+            assert!(e.to_string().contains("Mbvh4"), "{e}");
+        }
+        let v = bytes_of(&binned, "binned-sah");
+        assert_eq!(read_tree(&v[..]).unwrap().0, Tree::Bvh2(binned));
         assert!(matches!(
-            read_bvh2(&v[..]),
-            Err(IoError::UnsupportedKind(2))
+            read_mbvh4(&v[..]),
+            Err(IoError::WrongKind {
+                expected: TreeKind::Mbvh4,
+                found: TreeKind::Bvh2
+            })
         ));
+    }
+
+    #[test]
+    fn mbvh4_node_bytes_are_the_in_memory_layout() {
+        let t = sample4();
+        let v = bytes4_of(&t, "x");
+        let h = header_bytes(1);
+        let n = &t.nodes[0];
+        // Structure of arrays: min x of the four children, ..., max z, then the refs.
+        assert_eq!(f32_at(&v, h), n.min_x[0]);
+        assert_eq!(f32_at(&v, h + 4), n.min_x[1]);
+        assert_eq!(f32_at(&v, h + 16), n.min_y[0]);
+        assert_eq!(f32_at(&v, h + 92), n.max_z[3]);
+        assert_eq!(u32_at(&v, h + 96), n.children[0].index);
+        assert_eq!(u32_at(&v, h + 124), n.children[3].count);
+        assert_eq!(u32_at(&v, 12), 2);
+        // The file's node bytes are the node's memory bytes (little-endian target).
+        #[cfg(target_endian = "little")]
+        {
+            // SAFETY: `Node4` is `repr(C)` plain old data of 128 bytes without padding
+            // (asserted in the mbvh4 module), so viewing it as bytes is sound.
+            let mem = unsafe { std::slice::from_raw_parts(n as *const Node4 as *const u8, 128) };
+            assert_eq!(&v[h..h + 128], mem);
+        }
+    }
+
+    #[test]
+    fn mbvh4_rejects_truncation_and_structural_corruption() {
+        let t = sample4();
+        let v = bytes4_of(&t, "mbvh4-topdown");
+        for len in (0..v.len()).filter(|l| l % 11 == 0 || *l < 100 || v.len() - l < 100) {
+            match read_tree(&v[..len]) {
+                Err(IoError::Truncated(_)) | Err(IoError::BadMagic) => {}
+                other => panic!("prefix {len}: {other:?}"),
+            }
+        }
+        let h = header_bytes("mbvh4-topdown".len());
+        let used = t.nodes[0].child_count();
+        assert!(used >= 2);
+        type Corrupt = Box<dyn Fn(&mut Vec<u8>)>;
+        let cases: Vec<(&str, Corrupt)> = vec![
+            (
+                "child index out of range",
+                Box::new(move |v| v[h + 96..h + 100].copy_from_slice(&999_999u32.to_le_bytes())),
+            ),
+            (
+                "used slot after an empty one",
+                Box::new(move |v| {
+                    // Empty slot 0 (index u32::MAX, count 0): slots 1.. are still used.
+                    v[h + 96..h + 104].copy_from_slice(&[255, 255, 255, 255, 0, 0, 0, 0]);
+                }),
+            ),
+            (
+                "NaN box",
+                Box::new(move |v| v[h..h + 4].copy_from_slice(&f32::NAN.to_le_bytes())),
+            ),
+            (
+                "wrong scene bounds",
+                Box::new(|v| v[32..36].copy_from_slice(&(-1e30f32).to_le_bytes())),
+            ),
+        ];
+        for (what, corrupt) in cases {
+            let mut w = v.clone();
+            corrupt(&mut w);
+            reseal(&mut w);
+            assert!(
+                matches!(read_tree(&w[..]), Err(IoError::Invalid(_))),
+                "{what}: {:?}",
+                read_tree(&w[..])
+            );
+        }
+        let mut w = v.clone();
+        w[h + 7] ^= 1;
+        assert!(matches!(read_tree(&w[..]), Err(IoError::Checksum { .. })));
     }
 
     #[test]
@@ -690,6 +1058,15 @@ mod tests {
         assert_eq!(names.len(), 1, "temporary file left behind");
         // A directory that does not exist is an error, not a panic.
         assert!(write_bvh2_file(&t, "b", &dir.path().join("no/such/t.bvh")).is_err());
+        // Either kind through `Tree`, and the 4-wide writer, over the same path.
+        let m = Tree::Mbvh4(sample4());
+        write_tree_file(&m, "mbvh4-topdown", &path).unwrap();
+        assert_eq!(read_tree_file(&path).unwrap().0, m);
+        assert!(read_bvh2_file(&path).is_err());
+        write_mbvh4_file(m.as_mbvh4().unwrap(), "x", &path).unwrap();
+        assert_eq!(&read_mbvh4_file(&path).unwrap().0, m.as_mbvh4().unwrap());
+        assert!(write_tree_file(&m, &long, &path).is_err());
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
     }
 
     proptest::proptest! {
@@ -708,6 +1085,21 @@ mod tests {
             reseal(&mut v);
             let _ = read_bvh2(&v[..]);
             let _ = read_bvh2(&v[..cut % v.len()]);
+        }
+
+        /// The same for 4-wide files, read as either kind.
+        #[test]
+        fn corrupted_mbvh4_bytes_never_panic(pos in 0usize..4096, val in 0u8..=255, cut in 0usize..4096) {
+            let t = Mbvh4TopDownBuilder::default().build(&soup(40, 2.0, 3)).unwrap();
+            let mut v = bytes4_of(&t, "mbvh4-topdown");
+            let p = pos % v.len();
+            v[p] = val;
+            if let Ok((back, _)) = read_tree(&v[..]) {
+                proptest::prop_assert_eq!(back, Tree::Mbvh4(t.clone()));
+            }
+            reseal(&mut v);
+            let _ = read_tree(&v[..]);
+            let _ = read_mbvh4(&v[..cut % v.len()]);
         }
     }
 }

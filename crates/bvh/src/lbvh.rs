@@ -20,8 +20,8 @@
 use crate::bvh2::Bvh2;
 use crate::error::{check_input, in_pool, BuildError};
 use crate::node::{ChildRef, Node};
-use crate::{centroid, PARALLEL_MIN_PRIMS};
-use geom::{Aabb, MortonQuantizer};
+use crate::PARALLEL_MIN_PRIMS;
+use geom::Aabb;
 use rayon::prelude::*;
 
 /// Length of the Morton codes the LBVH sorts by.
@@ -32,6 +32,16 @@ pub enum MortonBits {
     Bits30,
     /// 63-bit codes (21 bits per axis).
     Bits63,
+}
+
+impl MortonBits {
+    /// Code length in bits (30 or 63).
+    pub const fn total_bits(self) -> u32 {
+        match self {
+            MortonBits::Bits30 => 30,
+            MortonBits::Bits63 => 63,
+        }
+    }
 }
 
 /// Configuration of the LBVH builder (leaves always hold one primitive).
@@ -69,7 +79,8 @@ impl LbvhBuilder {
         let sorted = sort_by_morton(aabbs, self.bits);
         let splits = karras_splits(&sorted.codes);
         let n = aabbs.len();
-        let mut nodes = vec![Node::EMPTY; n - 1];
+        // Every node is written by `emit_node`.
+        let mut nodes = crate::node::zeroed_nodes(n - 1);
         let ctx = Emit {
             aabbs,
             order: &sorted.order,
@@ -86,38 +97,8 @@ impl LbvhBuilder {
 
 /// Computes the codes of all centroids and sorts (code, primitive index) pairs.
 fn sort_by_morton(aabbs: &[Aabb], bits: MortonBits) -> Sorted {
-    let cbounds = aabbs
-        .par_iter()
-        .fold(|| Aabb::EMPTY, |b, a| b.grow(centroid(a)))
-        .reduce(|| Aabb::EMPTY, Aabb::union);
-    let q = MortonQuantizer::new(&cbounds);
-    match bits {
-        MortonBits::Bits30 => {
-            // Code and index packed in one u64 key: a plain integer sort, cheapest.
-            let mut keys: Vec<u64> = aabbs
-                .par_iter()
-                .enumerate()
-                .map(|(i, a)| ((q.code30(centroid(a)) as u64) << 32) | i as u64)
-                .collect();
-            keys.par_sort_unstable();
-            Sorted {
-                codes: keys.par_iter().map(|k| k >> 32).collect(),
-                order: keys.par_iter().map(|&k| k as u32).collect(),
-            }
-        }
-        MortonBits::Bits63 => {
-            let mut keys: Vec<(u64, u32)> = aabbs
-                .par_iter()
-                .enumerate()
-                .map(|(i, a)| (q.code63(centroid(a)), i as u32))
-                .collect();
-            keys.par_sort_unstable();
-            Sorted {
-                codes: keys.par_iter().map(|k| k.0).collect(),
-                order: keys.par_iter().map(|k| k.1).collect(),
-            }
-        }
-    }
+    let (codes, order) = crate::morton_sort::sorted_codes(aabbs, bits);
+    Sorted { codes, order }
 }
 
 /// Karras's `δ(i, j)`: common prefix length of the keys at sorted positions `i` and `j`,

@@ -2,7 +2,7 @@
 //! the builders that the thesis compares (full sweep SAH, binned SAH, LBVH).
 //!
 //! Every builder is a small config struct with one `build(&[Aabb]) -> Result<Bvh2, _>`
-//! entry point. Builders take primitive AABBs, so any primitive type works (\[P2\] §4.1);
+//! entry point (`Mbvh4` for the 4-wide builders; [`Tree`] holds either kind). Builders take primitive AABBs, so any primitive type works (\[P2\] §4.1);
 //! [`triangle_aabbs`] and [`indexed_triangle_aabbs`] make them from triangles. All builders
 //! are deterministic: the same input gives the same tree for any thread count.
 
@@ -19,6 +19,7 @@ pub mod io;
 mod lbvh;
 mod mbvh4;
 mod mbvh4_topdown;
+mod morton_sort;
 mod node;
 mod refit;
 mod sah;
@@ -26,6 +27,7 @@ mod sweep_sah;
 #[cfg(test)]
 mod testutil;
 pub mod toplevel;
+mod tree;
 mod validate;
 
 pub use atrbvh::{optimize, AtrbvhBuilder, AtrbvhConfig, MAX_TREELET_SIZE, MIN_GAIN};
@@ -44,6 +46,7 @@ pub use refit::{refit_bvh2, refit_mbvh4, RefitError, RefitFrame, RefitTracker};
 pub use sah::{sah_cost, sah_cost_with, sah_ratio, SahParams};
 pub use sweep_sah::SweepSahBuilder;
 pub use toplevel::{HlbvhAtrbvhBuilder, HlbvhSahBuilder};
+pub use tree::{Tree, TreeKind};
 pub use validate::{validate, ValidationError};
 
 use geom::{Aabb, Triangle, Vec3};

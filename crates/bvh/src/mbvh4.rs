@@ -178,9 +178,21 @@ impl Mbvh4 {
         }
     }
 
-    /// SAH cost with the thesis parameters ([`mbvh4_sah_cost_with`]).
+    /// SAH cost with the thesis parameters as they stand ([`mbvh4_sah_cost_with`]): each
+    /// 4-wide node costs `C_i` = 1.2, like a binary node. This undercounts the box tests of
+    /// a 4-wide node; compare widths with [`Mbvh4::normalized_sah`].
     pub fn sah(&self) -> f64 {
         mbvh4_sah_cost_with(self, &SahParams::THESIS)
+    }
+
+    /// SAH cost in the binary SAH's units: the thesis parameters with each 4-wide node
+    /// costing `2 C_i` = 2.4 for its four box tests ([`SahParams::for_width`]). This is the
+    /// cost to divide by a binary sweep SAH build (`arbor build`'s `sah_vs_sweep` for the
+    /// 4-wide builders). Pulling the two binary children (areas `A_l`, `A_r`) of a node of
+    /// area `A` up into a 4-wide node changes the cost by `C_i (A - A_l - A_r)`: collapsing
+    /// lowers it only where `A_l + A_r > A` (large, overlapping children).
+    pub fn normalized_sah(&self) -> f64 {
+        mbvh4_sah_cost_with(self, &SahParams::THESIS.for_width(MBVH_WIDTH))
     }
 }
 
@@ -335,7 +347,11 @@ mod tests {
             "{} vs {want}",
             t.sah()
         );
+        // Normalized: each of the three nodes costs 2.4 instead of 1.2.
+        let want_norm = 2.4 + 2.0 * 2.4 * a1 + 5.0 * leaf;
+        assert!((t.normalized_sah() - want_norm).abs() < 1e-6 * want_norm);
         assert_eq!(Mbvh4::empty().sah(), 0.0);
+        assert_eq!(Mbvh4::empty().normalized_sah(), 0.0);
         assert_eq!(validate_mbvh4(&Mbvh4::empty(), &[], 1), Ok(()));
     }
 

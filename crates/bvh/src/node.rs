@@ -99,6 +99,18 @@ const _: () = assert!(std::mem::size_of::<Node>() == 64);
 const _: () = assert!(std::mem::align_of::<Node>() == 4);
 const _: () = assert!(std::mem::size_of::<ChildRef>() == 8);
 
+// SAFETY: `Node` is `repr(C)` of `f32` and `u32` fields only, without padding (asserted
+// above), and all-zero bytes are a valid value of each (0.0 and 0): a zeroed `Node` is
+// valid (two zero-size boxes at the origin, both children inner node 0). Builders allocate
+// node arrays zeroed (calloc: no fill pass) and then overwrite every node.
+unsafe impl bytemuck::Zeroable for Node {}
+
+/// `n` zeroed nodes, to be overwritten (see the `Zeroable` impl): the operating system's
+/// zero pages, with no pass over the memory.
+pub(crate) fn zeroed_nodes(n: usize) -> Vec<Node> {
+    bytemuck::zeroed_vec(n)
+}
+
 /// Packs a box into the six floats of a node slot.
 #[inline]
 fn pack(b: &Aabb) -> [f32; 6] {
@@ -210,6 +222,16 @@ mod tests {
             n.aabb(),
             Aabb::new(Vec3::new(1.0, 2.0, 3.0), Vec3::new(11.0, 12.0, 13.0))
         );
+    }
+
+    #[test]
+    fn zeroed_nodes_are_zero() {
+        let v = zeroed_nodes(3);
+        assert_eq!(v.len(), 3);
+        let zero = Aabb::new(Vec3::ZERO, Vec3::ZERO);
+        assert!(v
+            .iter()
+            .all(|n| n.child_aabb(1) == zero && n.children == [ChildRef::inner(0); 2]));
     }
 
     #[test]

@@ -29,6 +29,23 @@ impl SahParams {
     };
 }
 
+impl SahParams {
+    /// These weights for a tree whose nodes test `width` child boxes, in the units of the
+    /// binary SAH: `C_i` prices a visit of a binary node, i.e. testing its two child boxes,
+    /// so a node that tests `width` boxes costs `C_i · width / 2`; `C_l` and `C_t` stay.
+    /// Thesis §4.2: "a four-way MBVH requires twice as many intersection tests to traverse a
+    /// node", so a 4-wide node costs `2 C_i` (2.4 with [`SahParams::THESIS`]). A node costs
+    /// this whether or not all its slots are used: \[P4\]'s traversal unit (and a SIMD
+    /// lane set) tests all four slots at once. The cost is then the expected number of box
+    /// tests (at `C_i / 2` each) plus triangle tests per ray, comparable across widths.
+    pub fn for_width(&self, width: usize) -> SahParams {
+        SahParams {
+            c_inner: self.c_inner * width as f32 / 2.0,
+            ..*self
+        }
+    }
+}
+
 impl Default for SahParams {
     fn default() -> Self {
         Self::THESIS
@@ -141,6 +158,13 @@ mod tests {
         };
         assert!((t.sah() - 3.6).abs() < 1e-6, "{}", t.sah());
         assert!((t.sah_vs(&t) - 1.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn width_scales_only_the_inner_cost() {
+        let p = SahParams::THESIS.for_width(4);
+        assert_eq!((p.c_inner, p.c_leaf, p.c_tri), (2.4, 0.0, 1.0));
+        assert_eq!(SahParams::THESIS.for_width(2), SahParams::THESIS);
     }
 
     #[test]

@@ -259,10 +259,16 @@ impl Default for HlbvhSahBuilder {
     }
 }
 
-/// A toplevel build with any top builder: runs the HLBVH emitter of `hlbvh` with its
-/// threshold (`None` uses [`default_threshold`]), builds the top tree with
-/// `top(&cells, &root_boxes)` (a valid tree over the root boxes, e.g. [`morton_top`] or any
-/// builder's output, optionally optimized), and [`stitch`]es the cells under it.
+/// A toplevel build with any top builder: emits the HLBVH cells of `hlbvh`'s threshold
+/// (`None` uses [`default_threshold`]), builds the top tree with `top(&cells, &root_boxes)`
+/// (a valid tree over the root boxes, e.g. [`morton_top`] or any builder's output,
+/// optionally optimized), and joins the cells under it as [`stitch`] does.
+///
+/// `cells` holds the cell roots only — each root's box and key; its `root` is a
+/// placeholder, and `nodes` and `order` are empty — because the cells are emitted after
+/// the top tree is built, straight into their places in the result
+/// (`HlbvhBuilder::build_cells`); the tree is node for node
+/// `stitch(&top, &hlbvh.build_highlevel(aabbs))`.
 ///
 /// HLBVH+ATRBVH is this with `top = |hl, boxes| { let mut t = morton_top(hl);
 /// atrbvh::optimize(&mut t, boxes, cfg); Ok(t) }` (treelet size 8, two iterations).
@@ -270,20 +276,21 @@ impl Default for HlbvhSahBuilder {
 pub fn build_toplevel(
     hlbvh: &HlbvhBuilder,
     aabbs: &[Aabb],
-    top: impl FnOnce(&Highlevel, &[Aabb]) -> Result<Bvh2, BuildError>,
+    top: impl FnOnce(&Highlevel, &[Aabb]) -> Result<Bvh2, BuildError> + Send,
 ) -> Result<Bvh2, BuildError> {
-    let hl = HlbvhBuilder {
-        highlevel_threshold: Some(
-            hlbvh
-                .highlevel_threshold
-                .unwrap_or_else(|| default_threshold(hlbvh.bits)),
-        ),
+    crate::error::check_input(aabbs)?;
+    let shift = hlbvh
+        .highlevel_threshold
+        .unwrap_or_else(|| default_threshold(hlbvh.bits));
+    let cfg = HlbvhBuilder {
+        highlevel_threshold: Some(shift),
         ..hlbvh.clone()
-    }
-    .build_highlevel(aabbs)?;
-    let t = top(&hl, &root_boxes(&hl))?;
-    // The cells are laid out in parallel: in the configured pool.
-    in_pool(hlbvh.threads, || stitch(&t, &hl))?
+    };
+    cfg.check()?;
+    // The cells are emitted and laid out in parallel: in the configured pool.
+    in_pool(hlbvh.threads, || {
+        cfg.build_cells(aabbs, shift, true, |hl| top(hl, &root_boxes(hl)))
+    })?
 }
 
 impl HlbvhSahBuilder {
@@ -424,6 +431,68 @@ mod tests {
             let top = morton_top(&hl);
             assert_valid("top", &top, &root_boxes(&hl), 1);
             assert_eq!(stitch(&top, &hl).unwrap(), plain, "threshold {t}");
+        }
+    }
+
+    /// The direct layout of the toplevel builds equals stitching the full emission output,
+    /// for SAH and ATRBVH tops, thresholds from few to many cells, and tops whose leaves
+    /// group several roots (stitched by the general path).
+    #[test]
+    fn toplevel_builds_equal_stitching_the_emission() {
+        let mut forest = proc_scene("proc:forest?n=20000");
+        forest.truncate(30_000);
+        for prims in [soup(25_000, 1.0, 5), forest] {
+            for threshold in [None, Some(12), Some(24), Some(29)] {
+                let hlbvh = HlbvhBuilder {
+                    highlevel_threshold: threshold,
+                    ..Default::default()
+                };
+                let sah = HlbvhSahBuilder {
+                    hlbvh: hlbvh.clone(),
+                    ..Default::default()
+                };
+                let hl = sah.highlevel(&prims).unwrap();
+                let boxes = root_boxes(&hl);
+                let top = BinnedSahBuilder {
+                    bins: 16,
+                    max_leaf_size: 1,
+                    min_leaf_size: 1,
+                    ..Default::default()
+                }
+                .build(&boxes)
+                .unwrap();
+                let want = stitch(&top, &hl).unwrap();
+                assert_eq!(sah.build(&prims).unwrap(), want, "sah {threshold:?}");
+                let atr = HlbvhAtrbvhBuilder {
+                    hlbvh: hlbvh.clone(),
+                    ..Default::default()
+                };
+                let mut top = morton_top(&hl);
+                let cfg = AtrbvhConfig {
+                    max_leaf_size: 1,
+                    ..Default::default()
+                };
+                optimize(&mut top, &boxes, &cfg).unwrap();
+                assert_eq!(
+                    atr.build(&prims).unwrap(),
+                    stitch(&top, &hl).unwrap(),
+                    "atrbvh {threshold:?}"
+                );
+                // Leaves of up to 4 roots: the general stitch.
+                let grouped = |b: &[Aabb]| {
+                    BinnedSahBuilder {
+                        max_leaf_size: 4,
+                        ..Default::default()
+                    }
+                    .build(b)
+                };
+                if boxes.len() > 8 {
+                    assert!(grouped(&boxes).unwrap().stats().max_leaf_size > 1);
+                }
+                let t = build_toplevel(&hlbvh, &prims, |_, b| grouped(b)).unwrap();
+                assert_eq!(t, stitch(&grouped(&boxes).unwrap(), &hl).unwrap());
+                assert_eq!(validate(&t, &prims, 8), Ok(()));
+            }
         }
     }
 

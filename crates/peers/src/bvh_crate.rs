@@ -6,7 +6,7 @@
 //! enum nodes (inner nodes store both child boxes, as Arbor's do), converted here.
 
 use crate::convert::{to_bvh2, PeerNode};
-use crate::{check_input, with_threads, PeerBuild, PeerError};
+use crate::{check_input, with_threads, BuildProbe, NoProbe, PeerBuild, PeerError};
 use bvh_peer::aabb::{Aabb as PAabb, Bounded};
 use bvh_peer::bounding_hierarchy::BHShape;
 use bvh_peer::bvh::{rayon_executor, Bvh, BvhNode};
@@ -60,6 +60,15 @@ fn from_peer(b: &PAabb<f32, 3>) -> Aabb {
 impl BvhCrateBuilder {
     /// Builds the `bvh` crate's tree over `aabbs` and converts it to Arbor's format.
     pub fn build(&self, aabbs: &[Aabb]) -> Result<PeerBuild, PeerError> {
+        self.build_probed(aabbs, &NoProbe)
+    }
+
+    /// [`BvhCrateBuilder::build`] with `probe` run around the crate's build call.
+    pub fn build_probed(
+        &self,
+        aabbs: &[Aabb],
+        probe: &dyn BuildProbe,
+    ) -> Result<PeerBuild, PeerError> {
         check_input(aabbs)?;
         let mut shapes: Vec<Shape> = aabbs
             .iter()
@@ -68,6 +77,7 @@ impl BvhCrateBuilder {
                 node: 0,
             })
             .collect();
+        probe.before_build();
         let start = Instant::now();
         // The crate panics on some finite inputs (boxes near f32::MAX overflow its bucket
         // arithmetic to NaN and it unwraps); that becomes an error here, never a panic.
@@ -79,12 +89,13 @@ impl BvhCrateBuilder {
                     Bvh::build_with_executor(&mut shapes, rayon_executor)
                 })
             }
-        }))
-        .map_err(|_| PeerError::Peer {
+        }));
+        let build_time = start.elapsed();
+        probe.after_build();
+        let tree = tree.map_err(|_| PeerError::Peer {
             peer: "bvh crate",
             message: "the build panicked (coordinates too large for its arithmetic?)".into(),
         })??;
-        let build_time = start.elapsed();
         let start = Instant::now();
         let bvh = convert(&tree, aabbs)?;
         Ok(PeerBuild {

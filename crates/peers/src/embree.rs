@@ -16,7 +16,7 @@
 
 use crate::convert::{to_bvh2, PeerNode};
 use crate::embree_ffi::*;
-use crate::{check_input, PeerBuild, PeerError};
+use crate::{check_input, BuildProbe, NoProbe, PeerBuild, PeerError};
 use geom::{Aabb, Vec3};
 use std::ffi::{c_void, CString};
 use std::time::Instant;
@@ -57,9 +57,35 @@ impl Default for EmbreeBuilder {
 
 /// An Embree device (its worker threads); create once and reuse across builds, so that
 /// thread start-up is not part of a measured build.
+///
+/// The device counts the memory Embree allocates itself (its build buffers and the node
+/// memory of its allocator) through `rtcSetDeviceMemoryMonitorFunction`: see
+/// [`EmbreeDevice::reset_memory_peak`] and [`EmbreeDevice::memory_peak_bytes`]. Memory
+/// that Rust allocates is not part of it.
 #[derive(Debug)]
 pub struct EmbreeDevice {
     raw: RtcDevice,
+    /// Embree's live and peak bytes, updated by [`memory_monitor`]; boxed so that its
+    /// address, handed to Embree, stays fixed.
+    memory: Box<MemoryCount>,
+}
+
+/// Live and peak bytes that Embree reported to its memory monitor.
+#[derive(Debug, Default)]
+struct MemoryCount {
+    live: std::sync::atomic::AtomicI64,
+    peak: std::sync::atomic::AtomicI64,
+}
+
+/// Embree's memory monitor callback: `bytes` > 0 before an allocation, < 0 after a free.
+/// Never refuses an allocation.
+unsafe extern "C" fn memory_monitor(user: *mut c_void, bytes: isize, _post: bool) -> bool {
+    use std::sync::atomic::Ordering::Relaxed;
+    // SAFETY: `user` is the `MemoryCount` of the device, which outlives the device.
+    let m = &*(user as *const MemoryCount);
+    let now = m.live.fetch_add(bytes as i64, Relaxed) + bytes as i64;
+    m.peak.fetch_max(now, Relaxed);
+    true
 }
 
 // Embree devices are thread-safe objects (its API may be called from any thread).
@@ -85,7 +111,33 @@ impl EmbreeDevice {
                 error_name(code)
             )));
         }
-        Ok(Self { raw })
+        let memory = Box::<MemoryCount>::default();
+        // SAFETY: `raw` is a live device; the callback's user pointer is the boxed counter,
+        // which is dropped only after `Drop::drop` has released the device.
+        unsafe {
+            rtcSetDeviceMemoryMonitorFunction(
+                raw,
+                Some(memory_monitor),
+                &*memory as *const MemoryCount as *mut c_void,
+            )
+        };
+        Ok(Self { raw, memory })
+    }
+
+    /// Sets the peak of Embree's own allocations to what is allocated now.
+    pub fn reset_memory_peak(&self) {
+        use std::sync::atomic::Ordering::Relaxed;
+        self.memory
+            .peak
+            .store(self.memory.live.load(Relaxed), Relaxed);
+    }
+
+    /// Embree's own allocated bytes at their peak since the last
+    /// [`EmbreeDevice::reset_memory_peak`], above what was allocated at that reset.
+    pub fn memory_peak_bytes(&self) -> usize {
+        use std::sync::atomic::Ordering::Relaxed;
+        // Only called between builds, when live is what it was at the reset (or lower).
+        (self.memory.peak.load(Relaxed) - self.memory.live.load(Relaxed)).max(0) as usize
     }
 
     /// The raw device handle, for the other Embree adapters of this crate.
@@ -233,6 +285,16 @@ impl EmbreeBuilder {
 
     /// Builds over `aabbs` on `device`; `build_time` is the `rtcBuildBVH` call alone.
     pub fn build_on(&self, device: &EmbreeDevice, aabbs: &[Aabb]) -> Result<PeerBuild, PeerError> {
+        self.build_on_probed(device, aabbs, &NoProbe)
+    }
+
+    /// [`EmbreeBuilder::build_on`] with `probe` run around the `rtcBuildBVH` call.
+    pub fn build_on_probed(
+        &self,
+        device: &EmbreeDevice,
+        aabbs: &[Aabb],
+        probe: &dyn BuildProbe,
+    ) -> Result<PeerBuild, PeerError> {
         check_input(aabbs)?;
         if !(1..=RTC_BUILD_MAX_PRIMITIVES_PER_LEAF).contains(&self.max_leaf_size) {
             return Err(PeerError::Input(bvh::BuildError::InvalidConfig(format!(
@@ -292,11 +354,13 @@ impl EmbreeBuilder {
             build_progress: None,
             user_ptr: std::ptr::null_mut(),
         };
+        probe.before_build();
         let start = Instant::now();
         // SAFETY: `args` matches the header's struct; `prims` (capacity = count) and the
         // BVH outlive the call; the callbacks only write the memory they allocate.
         let root = unsafe { rtcBuildBVH(&args) } as *const u8;
         let build_time = start.elapsed();
+        probe.after_build();
         // SAFETY: `device.raw` is a live device.
         let code = unsafe { rtcGetDeviceError(device.raw) };
         if code != 0 || root.is_null() {
@@ -424,5 +488,43 @@ mod tests {
             b.build(&soup(10, 1.0, 1), 1),
             Err(PeerError::Input(bvh::BuildError::InvalidConfig(_)))
         ));
+    }
+
+    /// The memory monitor sees Embree's own allocations: at least the node memory of
+    /// the tree (our `InnerNode`s live in Embree's allocator), and the probe runs around
+    /// the build call alone.
+    #[test]
+    fn memory_monitor_counts_embree_allocations_and_probe_brackets_the_build() {
+        use std::sync::atomic::{AtomicUsize, Ordering::SeqCst};
+        struct Count(AtomicUsize, AtomicUsize);
+        impl BuildProbe for Count {
+            fn before_build(&self) {
+                self.0.fetch_add(1, SeqCst);
+            }
+            fn after_build(&self) {
+                self.1.fetch_add(1, SeqCst);
+            }
+        }
+        let prims = soup(50_000, 2.0, 3);
+        let device = EmbreeDevice::new(1).unwrap();
+        for quality in [EmbreeQuality::Low, EmbreeQuality::Medium] {
+            device.reset_memory_peak();
+            assert_eq!(device.memory_peak_bytes(), 0);
+            let probe = Count(AtomicUsize::new(0), AtomicUsize::new(0));
+            let b = EmbreeBuilder {
+                quality,
+                ..Default::default()
+            };
+            let t = b.build_on_probed(&device, &prims, &probe).unwrap();
+            assert_eq!((probe.0.load(SeqCst), probe.1.load(SeqCst)), (1, 1));
+            let nodes = t.bvh.nodes.len() * std::mem::size_of::<InnerNode>();
+            let peak = device.memory_peak_bytes();
+            assert!(
+                peak >= nodes,
+                "{quality:?}: peak {peak} below the nodes' {nodes}"
+            );
+            // Not wildly more than a tree's worth plus build buffers per primitive.
+            assert!(peak < 1000 * prims.len(), "{quality:?}: {peak}");
+        }
     }
 }

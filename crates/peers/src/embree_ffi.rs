@@ -163,4 +163,16 @@ extern "C" {
     ) -> *mut c_void;
     /// `void rtcReleaseBVH(RTCBVH bvh)`.
     pub fn rtcReleaseBVH(bvh: RtcBvh);
+    /// `void rtcSetDeviceMemoryMonitorFunction(RTCDevice device,
+    /// RTCMemoryMonitorFunction memoryMonitor, void* userPtr)`.
+    pub fn rtcSetDeviceMemoryMonitorFunction(
+        device: RtcDevice,
+        monitor: RtcMemoryMonitorFunction,
+        user: *mut c_void,
+    );
 }
+
+/// `bool (*RTCMemoryMonitorFunction)(void* ptr, ssize_t bytes, bool post)`: `bytes` > 0
+/// announces an allocation, < 0 a free; returning false makes the allocation fail.
+pub type RtcMemoryMonitorFunction =
+    Option<unsafe extern "C" fn(user: *mut c_void, bytes: isize, post: bool) -> bool>;

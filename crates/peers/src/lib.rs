@@ -54,6 +54,25 @@ pub struct PeerBuild {
     pub convert_time: Duration,
 }
 
+/// Hooks that a caller runs right around a peer's build call alone — after the adapter has
+/// copied the input into the peer's format and before the tree is converted to [`Bvh2`] —
+/// e.g. to read a counting allocator's peak over exactly the peer's build (`arbor bench
+/// build` does).
+pub trait BuildProbe: Sync {
+    /// Called right before the peer's build call.
+    fn before_build(&self);
+    /// Called right after it.
+    fn after_build(&self);
+}
+
+/// The probe that does nothing (what the plain `build` methods use).
+pub struct NoProbe;
+
+impl BuildProbe for NoProbe {
+    fn before_build(&self) {}
+    fn after_build(&self) {}
+}
+
 /// Why a peer build failed.
 #[derive(Debug, Error, Clone, PartialEq)]
 pub enum PeerError {

@@ -9,7 +9,7 @@
 //! the private pool it runs in.
 
 use crate::convert::{to_bvh2, PeerNode};
-use crate::{check_input, with_threads, PeerBuild, PeerError};
+use crate::{check_input, with_threads, BuildProbe, NoProbe, PeerBuild, PeerError};
 use geom::Aabb;
 use obvhs::aabb::Aabb as OAabb;
 use obvhs::bvh2::builder::build_bvh2;
@@ -79,6 +79,15 @@ impl ObvhsBuilder {
     /// Builds obvhs's tree over `aabbs` and converts it to Arbor's format. The build time
     /// is obvhs's own "core build time" (PLOC and post-passes, not its debug validation).
     pub fn build(&self, aabbs: &[Aabb]) -> Result<PeerBuild, PeerError> {
+        self.build_probed(aabbs, &NoProbe)
+    }
+
+    /// [`ObvhsBuilder::build`] with `probe` run around obvhs's build call.
+    pub fn build_probed(
+        &self,
+        aabbs: &[Aabb],
+        probe: &dyn BuildProbe,
+    ) -> Result<PeerBuild, PeerError> {
         check_input(aabbs)?;
         if aabbs.is_empty() {
             // obvhs has no tree of zero primitives.
@@ -99,7 +108,10 @@ impl ObvhsBuilder {
             .collect();
         let params = self.preset.params();
         let mut build_time = Duration::ZERO;
-        let tree = with_threads(self.threads, || build_bvh2(&prims, params, &mut build_time))?;
+        probe.before_build();
+        let tree = with_threads(self.threads, || build_bvh2(&prims, params, &mut build_time));
+        probe.after_build();
+        let tree = tree?;
         let start = Instant::now();
         let bvh = convert(&tree, aabbs.len())?;
         Ok(PeerBuild {

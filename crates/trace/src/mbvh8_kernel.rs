@@ -57,6 +57,9 @@ pub struct Mbvh8Accel {
     nodes: Vec<Node8>,
     leaf: LeafTriangles,
     options: KernelOptions,
+    /// The CPU has AVX (checked once): the kernel then tests all eight boxes in one
+    /// 8-lane operation, compiled for AVX.
+    avx: bool,
 }
 
 /// Entry distances of a node's eight children (`+inf` for a missed or empty slot), the
@@ -73,6 +76,47 @@ fn test8(slab: &Slab, n: &Node8, t_max: f32) -> ([f32; WIDTH8], u8, u8) {
         valid |= v << (half * 4);
     }
     (dist, mask, valid)
+}
+
+/// [`test8`] in AVX: the same operations on all eight lanes at once (the same bits as the
+/// two SSE halves: same IEEE operations, `vmaxps`/`vminps` return their second operand on
+/// NaN like `maxps`/`minps`).
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx")]
+#[inline]
+fn test8_avx(slab: &Slab, n: &Node8, t_max: f32) -> ([f32; WIDTH8], u8, u8) {
+    use std::arch::x86_64::*;
+    // SAFETY: the caller runs with AVX enabled (this function's target feature); every
+    // load reads one 8-lane row of the node.
+    unsafe {
+        let row = |p: usize| _mm256_loadu_ps(n.rows[p % 6].as_ptr());
+        let o = slab.origin;
+        let d = slab.inv_dir;
+        let t = |p: usize, a: usize| {
+            _mm256_mul_ps(
+                _mm256_sub_ps(row(p), _mm256_set1_ps(o[a])),
+                _mm256_set1_ps(d[a]),
+            )
+        };
+        let near = _mm256_max_ps(
+            _mm256_max_ps(t(slab.near[0], 0), t(slab.near[1], 1)),
+            _mm256_max_ps(t(slab.near[2], 2), _mm256_set1_ps(slab.t_min)),
+        );
+        let far = _mm256_mul_ps(
+            _mm256_min_ps(
+                _mm256_min_ps(t(slab.far[0], 0), t(slab.far[1], 1)),
+                t(slab.far[2], 2),
+            ),
+            _mm256_set1_ps(SLAB_FAR_SCALE),
+        );
+        let hit = _mm256_cmp_ps::<_CMP_LE_OQ>(near, _mm256_min_ps(far, _mm256_set1_ps(t_max)));
+        let inf = _mm256_set1_ps(f32::INFINITY);
+        let dist = _mm256_blendv_ps(inf, near, hit);
+        let mut out = [0f32; WIDTH8];
+        _mm256_storeu_ps(out.as_mut_ptr(), dist);
+        let valid = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(row(0), inf)) as u8;
+        (out, _mm256_movemask_ps(hit) as u8, valid)
+    }
 }
 
 /// Lanes `lo .. lo + 4` of [`test8`] in SSE (the x86-64 baseline).
@@ -184,11 +228,23 @@ impl Mbvh8Accel {
             nodes.iter_mut().flat_map(|n| n.children.iter_mut()),
         )
         .map_err(|e| e.into_trace_error(triangles.len()))?;
+        #[cfg(target_arch = "x86_64")]
+        let avx = std::arch::is_x86_feature_detected!("avx");
+        #[cfg(not(target_arch = "x86_64"))]
+        let avx = false;
         Ok(Self {
             nodes,
             leaf,
             options,
+            avx,
         })
+    }
+
+    /// The same tree traced without AVX even where the CPU has it (to test and measure
+    /// both paths).
+    pub fn without_avx(mut self) -> Self {
+        self.avx = false;
+        self
     }
 
     /// An 8-wide tree collapsed from a binary one ([`bvh::Collapse::collapse_wide`]).
@@ -222,7 +278,22 @@ impl Mbvh8Accel {
         }
     }
 
-    fn run<const DIST: bool, O: Observer>(
+    /// [`Self::run`] compiled for AVX, with the AVX box test.
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx")]
+    fn run_avx<const DIST: bool, O: Observer>(
+        &self,
+        ray: &Ray,
+        query: Query,
+        stack: &mut TraversalStack,
+        total: &mut RayStats,
+        obs: &mut O,
+    ) -> Option<Hit> {
+        self.run::<DIST, true, O>(ray, query, stack, total, obs)
+    }
+
+    #[inline(always)]
+    fn run<const DIST: bool, const AVX: bool, O: Observer>(
         &self,
         ray: &Ray,
         query: Query,
@@ -260,6 +331,15 @@ impl Mbvh8Accel {
                 }
             } else {
                 let node = &nodes[c.index as usize];
+                #[cfg(target_arch = "x86_64")]
+                let (dist, mask, valid) = if AVX {
+                    // SAFETY: `AVX` is only set by `run_avx`, which runs with AVX enabled
+                    // (and is only called where the CPU has it).
+                    unsafe { test8_avx(&slab, node, cull_distance(best_t)) }
+                } else {
+                    test8(&slab, node, cull_distance(best_t))
+                };
+                #[cfg(not(target_arch = "x86_64"))]
                 let (dist, mask, valid) = test8(&slab, node, cull_distance(best_t));
                 let kids = &node.children;
                 stats.node_visits += 1;
@@ -327,10 +407,21 @@ impl Traverse for Mbvh8Accel {
         stats: &mut RayStats,
         obs: &mut O,
     ) -> Option<Hit> {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx {
+            // SAFETY: `avx` is set only where the CPU has AVX.
+            return unsafe {
+                if self.options.distance_stack {
+                    self.run_avx::<true, O>(ray, query, stack, stats, obs)
+                } else {
+                    self.run_avx::<false, O>(ray, query, stack, stats, obs)
+                }
+            };
+        }
         if self.options.distance_stack {
-            self.run::<true, O>(ray, query, stack, stats, obs)
+            self.run::<true, false, O>(ray, query, stack, stats, obs)
         } else {
-            self.run::<false, O>(ray, query, stack, stats, obs)
+            self.run::<false, false, O>(ray, query, stack, stats, obs)
         }
     }
 

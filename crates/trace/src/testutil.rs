@@ -222,10 +222,12 @@ pub fn all_mbvh8(tris: &[Triangle]) -> Named<crate::Mbvh8Accel> {
     for (name, t) in all_bvh2(tris) {
         for d in [false, true] {
             let o = KernelOptions { distance_stack: d };
+            let a = crate::Mbvh8Accel::from_bvh2(&t, tris, o).unwrap();
             out.push((
-                format!("{name}+collapse8/{o:?}"),
-                crate::Mbvh8Accel::from_bvh2(&t, tris, o).unwrap(),
+                format!("{name}+collapse8/{o:?}/sse"),
+                a.clone().without_avx(),
             ));
+            out.push((format!("{name}+collapse8/{o:?}"), a));
         }
     }
     out

@@ -3,13 +3,16 @@
 //! "SAH %" columns, \[P2\] §6.2), and optionally writes it as a tree file (`bvh::io`).
 //! The JSON form (`arbor.build.v1`) is documented in `docs/cli-json.md`.
 //!
-//! Builders are looked up by name in [`BUILDERS`]; a builder being written elsewhere is
-//! listed with `None` and reports "not available yet", so adding it is one line.
+//! Builders are looked up by name in [`BUILDERS`], so adding one is one line. The binary
+//! builders make a `Bvh2`; `mbvh4-collapse` (a binary build, `--collapse-from`, collapsed
+//! by `bvh::collapse`) and `mbvh4-topdown` make the 4-wide `Mbvh4` of \[P4\]. A 4-wide
+//! tree's SAH is `Mbvh4::normalized_sah` (each node costs `2 C_i` for its four box tests),
+//! so it divides by the binary sweep SAH like any other.
 
 use super::{ms, open_scene, thousands, SceneArgs};
 use crate::progress::Ui;
 use anyhow::{bail, Context};
-use bvh::{BuildError, Bvh2, LbvhBuilder, SweepSahBuilder};
+use bvh::{LbvhBuilder, SweepSahBuilder, Tree};
 use geom::Aabb;
 use serde::Serialize;
 use std::path::{Path, PathBuf};
@@ -29,8 +32,14 @@ pub const MAX_LEAF_LIMIT: u32 = 1024;
 pub const DEFAULT_MAX_LEAF: u32 = 8;
 /// Bin counts `--bins` accepts (\[P2\] §6.2 compares binned SAH with 8, 16 and 32 bins).
 pub const BIN_CHOICES: [usize; 3] = [8, 16, 32];
-/// Builders that take `--bins` (binned SAH over primitives, or over HLBVH cells).
-const BINNED: [&str; 2] = ["binned-sah", "hlbvh+sah"];
+/// Builders that take `--bins` (binned SAH over primitives, over HLBVH cells, or the
+/// 4-wide top-down split search).
+const BINNED: [&str; 3] = ["binned-sah", "hlbvh+sah", "mbvh4-topdown"];
+/// The builder that collapses a binary tree into a 4-wide one.
+pub const COLLAPSE: &str = "mbvh4-collapse";
+/// Binary builder whose tree `mbvh4-collapse` collapses when `--collapse-from` is not
+/// given (binned SAH, the best of the fast binary builders in SAH).
+pub const DEFAULT_COLLAPSE_FROM: &str = "binned-sah";
 
 /// Bins per axis of `binned-sah` when `--bins` is not given.
 pub const DEFAULT_BINS: usize = 16;
@@ -42,6 +51,8 @@ pub struct BuildConfig {
     pub max_leaf: u32,
     /// Bins per axis for binned builders.
     pub bins: usize,
+    /// The binary builder whose tree `mbvh4-collapse` collapses.
+    pub collapse_from: &'static str,
 }
 
 impl Default for BuildConfig {
@@ -49,55 +60,57 @@ impl Default for BuildConfig {
         Self {
             max_leaf: DEFAULT_MAX_LEAF,
             bins: DEFAULT_BINS,
+            collapse_from: DEFAULT_COLLAPSE_FROM,
         }
     }
 }
 
 /// A builder entry point. It runs in the current rayon pool (`threads: 0`): the caller
 /// installs the pool that sets the thread count, so pool creation is not timed.
-pub type BuildFn = fn(&[Aabb], &BuildConfig) -> Result<Bvh2, BuildError>;
+pub type BuildFn = fn(&[Aabb], &BuildConfig) -> anyhow::Result<Tree>;
 
-/// Every builder name of the issue, in its order; `None` marks one not available yet.
-pub static BUILDERS: &[(&str, Option<BuildFn>)] = &[
-    ("lbvh", Some(|p, _| LbvhBuilder::default().build(p))),
-    ("hlbvh", Some(|p, c| hlbvh(c).build(p))),
-    (
-        "hlbvh+sah",
-        Some(|p, c| {
+/// A binary builder's tree as a [`Tree`].
+fn binary(t: Result<bvh::Bvh2, bvh::BuildError>) -> anyhow::Result<Tree> {
+    Ok(Tree::Bvh2(t?))
+}
+
+/// Every builder name of the issue, in its order.
+pub static BUILDERS: &[(&str, BuildFn)] = &[
+    ("lbvh", |p, _| binary(LbvhBuilder::default().build(p))),
+    ("hlbvh", |p, c| binary(hlbvh(c).build(p))),
+    ("hlbvh+sah", |p, c| {
+        binary(
             bvh::HlbvhSahBuilder {
                 hlbvh: hlbvh(c),
                 bins: c.bins,
                 threads: 0,
             }
-            .build(p)
-        }),
-    ),
-    (
-        "hlbvh+atrbvh",
-        Some(|p, c| {
+            .build(p),
+        )
+    }),
+    ("hlbvh+atrbvh", |p, c| {
+        binary(
             bvh::HlbvhAtrbvhBuilder {
                 hlbvh: hlbvh(c),
                 ..Default::default()
             }
-            .build(p)
-        }),
-    ),
-    (
-        "binned-sah",
-        Some(|p, c| {
+            .build(p),
+        )
+    }),
+    ("binned-sah", |p, c| {
+        binary(
             bvh::BinnedSahBuilder {
                 bins: c.bins,
                 max_leaf_size: c.max_leaf,
                 threads: 0,
                 ..Default::default()
             }
-            .build(p)
-        }),
-    ),
-    ("sweep-sah", Some(|p, c| sweep(c).build(p))),
-    (
-        "atrbvh",
-        Some(|p, c| {
+            .build(p),
+        )
+    }),
+    ("sweep-sah", |p, c| binary(sweep(c).build(p))),
+    ("atrbvh", |p, c| {
+        binary(
             bvh::AtrbvhBuilder {
                 bits: Default::default(),
                 config: bvh::AtrbvhConfig {
@@ -106,12 +119,34 @@ pub static BUILDERS: &[(&str, Option<BuildFn>)] = &[
                     ..Default::default()
                 },
             }
-            .build(p)
-        }),
-    ),
-    ("mbvh4-collapse", None),
-    ("mbvh4-topdown", None),
+            .build(p),
+        )
+    }),
+    (COLLAPSE, |p, c| {
+        // The binary build and the collapse together are the 4-wide build.
+        let from = binary_builder_name(c.collapse_from)?;
+        let Tree::Bvh2(t) = builder(from)?(p, c)? else {
+            anyhow::bail!("--collapse-from {from} did not build a binary tree")
+        };
+        Ok(Tree::Mbvh4(bvh::collapse(&t)?))
+    }),
+    ("mbvh4-topdown", |p, c| {
+        Ok(Tree::Mbvh4(
+            bvh::Mbvh4TopDownBuilder {
+                bins: c.bins,
+                max_leaf_size: c.max_leaf,
+                threads: 0,
+                ..Default::default()
+            }
+            .build(p)?,
+        ))
+    }),
 ];
+
+/// Whether builder `name` makes a 4-wide tree.
+pub fn is_wide(name: &str) -> bool {
+    name.starts_with("mbvh4-")
+}
 
 /// The streaming HLBVH builder for a configuration (\[P2\] leaf combining of identical
 /// Morton codes, leaves up to `max_leaf`).
@@ -132,27 +167,31 @@ fn sweep(c: &BuildConfig) -> SweepSahBuilder {
     }
 }
 
-/// Names of the builders that can run now.
+/// Names of every builder, in the issue's order.
 pub fn available_builders() -> impl Iterator<Item = &'static str> {
-    BUILDERS
-        .iter()
-        .filter(|(_, f)| f.is_some())
-        .map(|(n, _)| *n)
+    BUILDERS.iter().map(|(n, _)| *n)
 }
 
 /// The builder called `name`, or a one-line error listing the valid names.
 pub fn builder(name: &str) -> anyhow::Result<BuildFn> {
     match BUILDERS.iter().find(|(n, _)| *n == name) {
-        Some((_, Some(f))) => Ok(*f),
-        Some((_, None)) => bail!(
-            "builder {name} is not available yet (available now: {})",
-            available_builders().collect::<Vec<_>>().join(", ")
-        ),
+        Some((_, f)) => Ok(*f),
         None => bail!(
             "unknown builder '{name}'; valid names: {}",
-            BUILDERS
-                .iter()
-                .map(|(n, _)| *n)
+            available_builders().collect::<Vec<_>>().join(", ")
+        ),
+    }
+}
+
+/// The registered name of binary builder `name` (what `--collapse-from` accepts).
+fn binary_builder_name(name: &str) -> anyhow::Result<&'static str> {
+    builder(name)?;
+    match available_builders().find(|n| *n == name && !is_wide(n)) {
+        Some(n) => Ok(n),
+        None => bail!(
+            "--collapse-from needs a binary builder, not {name}; valid names: {}",
+            available_builders()
+                .filter(|n| !is_wide(n))
                 .collect::<Vec<_>>()
                 .join(", ")
         ),
@@ -164,10 +203,13 @@ pub fn builder(name: &str) -> anyhow::Result<BuildFn> {
 pub struct BuildArgs {
     #[command(flatten)]
     scene: SceneArgs,
-    /// Builder: lbvh, hlbvh, hlbvh+sah, hlbvh+atrbvh, binned-sah, sweep-sah, atrbvh,
-    /// mbvh4-collapse, mbvh4-topdown (one not yet implemented says so).
+    /// Builder: lbvh, hlbvh, hlbvh+sah, hlbvh+atrbvh, binned-sah, sweep-sah, atrbvh (binary
+    /// trees), mbvh4-collapse, mbvh4-topdown (4-wide trees).
     #[arg(long, value_name = "NAME")]
     builder: String,
+    /// mbvh4-collapse: the binary builder whose tree is collapsed (default binned-sah).
+    #[arg(long, value_name = "NAME")]
+    collapse_from: Option<String>,
     /// Time in seconds at which to sample the scene (clamped to its timeline).
     #[arg(long, value_name = "SECONDS", conflicts_with = "frame")]
     time: Option<f32>,
@@ -180,7 +222,7 @@ pub struct BuildArgs {
     /// Largest leaf, in primitives (default 8; LBVH leaves always hold 1).
     #[arg(long, value_name = "N")]
     max_leaf: Option<u32>,
-    /// Bins per axis for binned-sah: 8, 16 or 32 (default 16).
+    /// Bins per axis for binned-sah, hlbvh+sah and mbvh4-topdown: 8, 16 or 32 (default 16).
     #[arg(long, value_name = "N")]
     bins: Option<usize>,
     /// Print JSON (schema `arbor.build.v1`) instead of text.
@@ -213,7 +255,17 @@ pub struct BuildJson {
     pub frame: Option<u32>,
     /// Triangles (primitives) built over.
     pub triangles: usize,
-    /// Inner nodes (64-byte nodes).
+    /// Tree format: `"Bvh2"` (binary) or `"Mbvh4"` (4-wide).
+    pub tree_kind: &'static str,
+    /// Children per node: 2 or 4.
+    pub width: usize,
+    /// Bytes per node: 64 or 128.
+    pub node_bytes: usize,
+    /// Mean number of used child slots per node.
+    pub mean_children: f64,
+    /// mbvh4-collapse: the binary builder whose tree was collapsed (null otherwise).
+    pub collapse_from: Option<&'static str>,
+    /// Nodes (64-byte binary or 128-byte 4-wide nodes).
     pub inner_nodes: usize,
     /// Leaves.
     pub leaves: usize,
@@ -223,7 +275,7 @@ pub struct BuildJson {
     pub max_leaf_limit: u32,
     /// Longest root-to-leaf path in nodes.
     pub max_depth: usize,
-    /// SAH cost with the thesis parameters.
+    /// SAH cost with the thesis parameters (a 4-wide node costs `2 C_i`).
     pub sah: f64,
     /// SAH relative to a sweep SAH build of the same primitives (null when skipped).
     pub sah_vs_sweep: Option<f64>,
@@ -245,7 +297,7 @@ pub struct BuildJson {
     pub threads: usize,
     /// Bins per axis (binned builders only).
     pub bins: Option<usize>,
-    /// `bvh::validate` passed (always true in printed output: a failure is an error).
+    /// The validator passed (always true in printed output: a failure is an error).
     pub valid: bool,
     /// Tree file written, if any.
     pub out: Option<String>,
@@ -274,7 +326,7 @@ pub fn timed_build(
     f: BuildFn,
     cfg: &BuildConfig,
     aabbs: &[Aabb],
-) -> anyhow::Result<(Bvh2, f64)> {
+) -> anyhow::Result<(Tree, f64)> {
     let spinner = ui.spinner(&format!(
         "building {name} over {} triangles",
         thousands(aabbs.len() as u64)
@@ -309,11 +361,18 @@ fn check_args(a: &BuildArgs) -> anyhow::Result<(BuildFn, BuildConfig)> {
         );
         cfg.max_leaf = m;
     }
+    if let Some(from) = &a.collapse_from {
+        anyhow::ensure!(
+            a.builder == COLLAPSE,
+            "--collapse-from applies only to --builder {COLLAPSE}"
+        );
+        cfg.collapse_from = binary_builder_name(from)?;
+    }
     if let Some(b) = a.bins {
         anyhow::ensure!(
             BINNED.contains(&a.builder.as_str()),
             "--bins applies only to --builder {}",
-            BINNED.join(" or ")
+            BINNED.join(", ")
         );
         anyhow::ensure!(
             BIN_CHOICES.contains(&b),
@@ -434,18 +493,18 @@ pub fn run(args: &BuildArgs, ui: &Ui) -> anyhow::Result<()> {
             drop(mesh0);
             let (mut tree, build_ms) =
                 pool.install(|| timed_build(ui, &args.builder, build_fn, &cfg, &aabbs0))?;
-            let sah_at_build = tree.sah();
+            let sah_at_build = tree.normalized_sah();
             let s = Instant::now();
-            pool.install(|| bvh::refit_bvh2(&mut tree, &aabbs))
+            pool.install(|| tree.refit(&aabbs))
                 .context("cannot refit the tree")?;
             (tree, build_ms, Some((t0, sah_at_build, ms(s.elapsed()))))
         }
     };
-    bvh::validate(&tree, &aabbs, cfg.max_leaf)
+    tree.validate(&aabbs, cfg.max_leaf)
         .with_context(|| format!("builder {} produced an invalid tree", args.builder))?;
 
     // The normalization reference: the tree itself for sweep-sah, else a sweep build.
-    let sah = tree.sah();
+    let sah = tree.normalized_sah();
     let (sweep_sah, reference_ms, note) =
         match reference_plan(&args.builder, aabbs.len(), args.sah_reference) {
             Reference::Itself => (Some(sah), None, None),
@@ -455,18 +514,18 @@ pub fn run(args: &BuildArgs, ui: &Ui) -> anyhow::Result<()> {
                     timed_build(
                         ui,
                         "sweep-sah (reference)",
-                        |p, c| sweep(c).build(p),
+                        |p, c| binary(sweep(c).build(p)),
                         &cfg,
                         &aabbs,
                     )
                 })?;
-                (Some(r.sah()), Some(r_ms), None)
+                (Some(r.normalized_sah()), Some(r_ms), None)
             }
         };
     let sah_vs_sweep = sweep_sah.map(|r| bvh::sah_ratio(sah, r));
 
     if let Some(out) = &args.out {
-        bvh::io::write_bvh2_file(&tree, &args.builder, out)
+        bvh::io::write_tree_file(&tree, &args.builder, out)
             .with_context(|| format!("cannot write tree file {}", out.display()))?;
     }
     let st = tree.stats();
@@ -477,6 +536,11 @@ pub fn run(args: &BuildArgs, ui: &Ui) -> anyhow::Result<()> {
         time_s,
         frame: args.frame,
         triangles: aabbs.len(),
+        tree_kind: tree.kind().name(),
+        width: tree.kind().width(),
+        node_bytes: tree.kind().node_bytes(),
+        mean_children: tree.mean_children(),
+        collapse_from: (args.builder == COLLAPSE).then_some(cfg.collapse_from),
         inner_nodes: st.inner_nodes,
         leaves: st.leaves,
         max_leaf_size: st.max_leaf_size,
@@ -498,8 +562,7 @@ pub fn run(args: &BuildArgs, ui: &Ui) -> anyhow::Result<()> {
         refit_from_s: refit.map(|r| r.0),
         sah_at_build: refit.map(|r| r.1),
         refit_ms: refit.map(|r| r.2),
-        tree_bytes: tree.nodes.len() * std::mem::size_of::<bvh::Node>()
-            + tree.prim_indices.len() * 4,
+        tree_bytes: tree.bytes(),
     };
     if args.json {
         println!("{}", serde_json::to_string_pretty(&j)?);
@@ -516,22 +579,34 @@ fn print_text(j: &BuildJson) {
     };
     println!("scene         {} ({at})", j.scene);
     let bins = j.bins.map(|b| format!(", {b} bins")).unwrap_or_default();
+    let from = j
+        .collapse_from
+        .map(|f| format!(", collapsing {f}"))
+        .unwrap_or_default();
     println!(
-        "builder       {} ({} threads, max leaf {}{bins})",
+        "builder       {} ({} threads, max leaf {}{bins}{from})",
         j.builder, j.threads, j.max_leaf_limit
     );
     println!("triangles     {}", thousands(j.triangles as u64));
     println!(
-        "tree          {} inner nodes, {} leaves, largest leaf {}, depth {}, {:.1} MiB",
+        "tree          {} inner nodes ({}-wide, {} bytes, {:.2} children each), {} leaves, largest leaf {}, depth {}, {:.1} MiB",
         thousands(j.inner_nodes as u64),
+        j.width,
+        j.node_bytes,
+        j.mean_children,
         thousands(j.leaves as u64),
         j.max_leaf_size,
         j.max_depth,
         j.tree_bytes as f64 / (1024.0 * 1024.0)
     );
+    let units = if j.width > 2 {
+        ", a 4-wide node costing 2 C_i"
+    } else {
+        ""
+    };
     match (j.sah_vs_sweep, &j.sah_reference_note) {
         (Some(r), _) => println!(
-            "SAH           {:.3} ({:.2}% of sweep SAH)",
+            "SAH           {:.3} ({:.2}% of sweep SAH{units})",
             j.sah,
             r * 100.0
         ),
@@ -580,8 +655,16 @@ mod tests {
         }
         let e = builder("nope").err().unwrap().to_string();
         assert!(e.contains("lbvh") && e.contains("mbvh4-topdown"), "{e}");
-        let e = builder("mbvh4-topdown").err().unwrap().to_string();
-        assert!(e.contains("not available yet"), "{e}");
+        assert_eq!(available_builders().count(), BUILDERS.len());
+        assert_eq!(binary_builder_name("hlbvh").unwrap(), "hlbvh");
+        let e = binary_builder_name("mbvh4-topdown")
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("binary builder") && e.contains("sweep-sah"),
+            "{e}"
+        );
+        assert!(binary_builder_name("nope").is_err());
     }
 
     #[test]
@@ -614,7 +697,25 @@ mod tests {
                 ..Default::default()
             };
             let t = builder(name).unwrap()(&aabbs, &cfg).unwrap();
-            assert_eq!(bvh::validate(&t, &aabbs, 4), Ok(()), "{name}");
+            assert_eq!(t.validate(&aabbs, 4), Ok(()), "{name}");
+            assert_eq!(
+                t.kind().width(),
+                if is_wide(name) { 4 } else { 2 },
+                "{name}"
+            );
         }
+        // The collapse of a chosen binary builder is exactly that tree collapsed.
+        let cfg = BuildConfig {
+            collapse_from: "lbvh",
+            ..Default::default()
+        };
+        let t = builder(COLLAPSE).unwrap()(&aabbs, &cfg).unwrap();
+        let lbvh = LbvhBuilder::default().build(&aabbs).unwrap();
+        assert_eq!(t, Tree::Mbvh4(bvh::collapse(&lbvh).unwrap()));
+        let cfg = BuildConfig {
+            collapse_from: COLLAPSE,
+            ..Default::default()
+        };
+        assert!(builder(COLLAPSE).unwrap()(&aabbs, &cfg).is_err());
     }
 }

@@ -298,7 +298,7 @@ fn build_step(ui: &Ui, scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<B
     frames.dedup();
     let cfg = BuildConfig::default();
     let mut rows = Vec::new();
-    println!("  builds     frame  builder        build ms  SAH vs sweep  valid");
+    println!("  builds     frame  builder         build ms  SAH vs sweep  valid");
     for &f in &frames {
         let t = timeline.time_of_frame(f);
         let mesh = scene.mesh_at(t).with_context(|| format!("frame {f}"))?;
@@ -307,8 +307,8 @@ fn build_step(ui: &Ui, scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<B
         let mut built = Vec::new();
         for name in available_builders() {
             let (tree, build_ms) = timed_build(ui, name, builder(name)?, &cfg, &aabbs)?;
-            let valid = bvh::validate(&tree, &aabbs, cfg.max_leaf).is_ok();
-            built.push((name, tree.sah(), build_ms, valid));
+            let valid = tree.validate(&aabbs, cfg.max_leaf).is_ok();
+            built.push((name, tree.normalized_sah(), build_ms, valid));
         }
         // The sweep SAH build is one of the builders: it normalizes the others.
         let sweep = built
@@ -319,7 +319,7 @@ fn build_step(ui: &Ui, scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<B
         for (name, sah, build_ms, valid) in built {
             let ratio = bvh::sah_ratio(sah, sweep);
             println!(
-                "             {f:>5}  {name:<13} {build_ms:>9.2}  {ratio:>12.3}  {}",
+                "             {f:>5}  {name:<14} {build_ms:>9.2}  {ratio:>12.3}  {}",
                 if valid { "yes" } else { "NO" }
             );
             rows.push(BuildRow {
@@ -355,7 +355,7 @@ fn refit_step(ui: &Ui, scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<R
     let (aabbs0, _) = mesh_aabbs(&mesh0)?;
     drop(mesh0);
     let (mut tree, _) = timed_build(ui, REFIT_BUILDER, build, &cfg, &aabbs0)?;
-    let mut tracker = bvh::RefitTracker::with_default_threshold(tree.sah());
+    let mut tracker = bvh::RefitTracker::with_default_threshold(tree.normalized_sah());
     println!(
         "  refit      frame  refit ms  rebuild ms  refit SAH / rebuild SAH  vs build  rebuild?"
     );
@@ -366,19 +366,20 @@ fn refit_step(ui: &Ui, scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<R
         let (aabbs, _) = mesh_aabbs(&mesh)?;
         drop(mesh);
         let s = Instant::now();
-        bvh::refit_bvh2(&mut tree, &aabbs).with_context(|| format!("refit to frame {f}"))?;
+        tree.refit(&aabbs)
+            .with_context(|| format!("refit to frame {f}"))?;
         let refit_ms = super::ms(s.elapsed());
-        bvh::validate(&tree, &aabbs, cfg.max_leaf)
+        tree.validate(&aabbs, cfg.max_leaf)
             .with_context(|| format!("refitted tree invalid at frame {f}"))?;
         let (fresh, rebuild_ms) = timed_build(ui, REFIT_BUILDER, build, &cfg, &aabbs)?;
-        let rec = tracker.record_bvh2(&tree);
+        let rec = tracker.record(tree.normalized_sah());
         let row = RefitRow {
             frame: f,
             time_s: t,
             refit_ms,
             rebuild_ms,
             refit_sah: rec.sah,
-            rebuild_sah: fresh.sah(),
+            rebuild_sah: fresh.normalized_sah(),
             ratio_to_build: rec.ratio,
             rebuild_advised: rec.rebuild_advised,
         };

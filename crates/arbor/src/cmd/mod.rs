@@ -1,5 +1,7 @@
 //! Subcommands, one file each.
 
+pub mod bench;
+pub mod bench_build;
 pub mod build;
 pub mod cbvh;
 pub mod demo;

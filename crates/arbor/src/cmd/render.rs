@@ -355,6 +355,9 @@ pub fn build_accel_with(
     }
     let f = builder(builder_name)?;
     let (tree, mut build_ms) = timed_build(ui, builder_name, f, &cfg, aabbs)?;
+    let bvh::Tree::Bvh2(tree) = tree else {
+        bail!("builder {builder_name} makes a 4-wide tree; use a binary builder (--format mbvh4 collapses its tree)")
+    };
     bvh::validate(&tree, aabbs, cfg.max_leaf)
         .with_context(|| format!("builder {builder_name} produced an invalid tree"))?;
     Ok(match format {

@@ -367,6 +367,9 @@ fn software(s: &Scene) -> anyhow::Result<SoftwareRow> {
     let build = |name: &str| -> anyhow::Result<bvh::Bvh2> {
         let tree =
             builder(name)?(&s.prims, &cfg).with_context(|| format!("{name} over {}", s.name))?;
+        let bvh::Tree::Bvh2(tree) = tree else {
+            anyhow::bail!("{name} makes a 4-wide tree, not a binary one")
+        };
         bvh::validate(&tree, &s.prims, cfg.max_leaf)
             .with_context(|| format!("{name} over {}: invalid tree", s.name))?;
         Ok(tree)

@@ -12,6 +12,7 @@ pub fn arbor(args: &[&str]) -> Output {
 }
 
 /// Runs `arbor COMMAND --json --quiet ARGS` and parses its output, failing with stderr.
+#[allow(dead_code)] // not every test file uses it
 pub fn json(command: &str, args: &[&str]) -> Value {
     let mut a = vec![command, "--json", "--quiet"];
     a.extend_from_slice(args);
