@@ -96,6 +96,8 @@ fn report_cbvh_writes_its_files() {
         "cbvh",
         "--scenes",
         "cloth,proc:soup?n=3000",
+        "--runtime-dram",
+        "simple:lpddr3-1600-2x32",
         "--out",
         out.to_str().unwrap(),
         "--trace-size",
@@ -115,6 +117,9 @@ fn report_cbvh_writes_its_files() {
         "fig7.svg",
         "fig10.csv",
         "fig10.svg",
+        "table2.csv",
+        "table2-dram.csv",
+        "table2.svg",
     ] {
         let p = out.join(f);
         assert!(
@@ -157,4 +162,29 @@ fn report_cbvh_writes_its_files() {
         md.contains("Watertightness") && md.contains("+8.0%"),
         "{md}"
     );
+    // Table 2: four alternatives per scene, the cloth beside [P3]'s.
+    let t2 = std::fs::read_to_string(out.join("table2.csv")).unwrap();
+    assert_eq!(t2.lines().count(), 1 + 2 * 4);
+    let cloth_r = t2
+        .lines()
+        .find(|l| l.starts_with("cloth,") && l.contains(",R,"))
+        .unwrap();
+    assert!(cloth_r.contains(",2.4,"), "{cloth_r}");
+    assert!(md.contains("Table 2 analogue"));
+    // --no-runtime skips it.
+    let out2 = dir.path().join("r2");
+    let o = arbor(&[
+        "--quiet",
+        "report",
+        "cbvh",
+        "--scenes",
+        "proc:soup?n=2000",
+        "--no-sweep",
+        "--no-trace",
+        "--no-runtime",
+        "--out",
+        out2.to_str().unwrap(),
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    assert!(!out2.join("table2.csv").exists());
 }

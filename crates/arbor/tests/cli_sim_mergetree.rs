@@ -120,3 +120,81 @@ fn bad_arguments_are_one_line_errors() {
     assert!(sim_error(&[CLOTH, "--dram", "ddr9"]).contains("ddr9"));
     assert!(sim_error(&["/nonexistent.ply"]).contains("nonexistent"));
 }
+
+#[test]
+fn cbvh_output_modes() {
+    const SOUP: &str = "proc:soup?n=6000";
+    // --cbvh defaults to preset p3 on lpddr3-1600-2x32 (DRAMsim3), thesis P3 5.3.
+    let j = sim_json(&[SOUP, "--cbvh", "stream"]);
+    assert_eq!(j["preset"], "p3");
+    assert_eq!(j["dram_system"], "lpddr3-1600-2x32");
+    assert_eq!(
+        (j["config"]["m"].as_u64(), j["config"]["b"].as_u64()),
+        (Some(8192), Some(8))
+    );
+    assert_eq!(j["config"]["output"], "cbvh-stream");
+    assert_eq!(j["tree_matches_software"], true);
+    assert_eq!(j["cbvh_matches_software"], true);
+    let c = &j["cbvh"];
+    assert_eq!(c["mode"], "cbvh-stream");
+    assert_eq!(c["params"]["coords"], "relative");
+    assert_eq!(c["treelet_depth"], 1);
+    assert_eq!(c["pair_bytes"], 16);
+    assert_eq!(c["node_pairs"], j["nodes"]);
+    let steps = c["backtrack_steps"].as_u64().unwrap();
+    assert!(steps > 0);
+    assert_eq!(c["stream"]["backtrack_reads"].as_u64(), Some(steps));
+    assert_eq!(c["build_cycles"], j["cycles"]);
+    assert_eq!(c["compress_cycles"], 0);
+    assert!(c["topdown"].is_null());
+    let m4 = sim_json(&[
+        SOUP,
+        "--cbvh",
+        "stream",
+        "--coords",
+        "modulo",
+        "--treelet",
+        "4",
+        "--dram",
+        "simple:lpddr3-1600-2x32",
+    ]);
+    assert_eq!(m4["cbvh_matches_software"], true);
+    assert_eq!(m4["cbvh"]["params"]["coords"], "modulo");
+    assert!(m4["cbvh"]["backtrack_steps"].as_u64().unwrap() < steps / 10);
+    let td = sim_json(&[
+        SOUP,
+        "--cbvh",
+        "topdown",
+        "--dram",
+        "simple:lpddr3-1600-2x32",
+    ]);
+    assert_eq!(td["cbvh_matches_software"], true);
+    let c = &td["cbvh"];
+    let (build, pass) = (
+        c["build_cycles"].as_u64().unwrap(),
+        c["compress_cycles"].as_u64().unwrap(),
+    );
+    assert!(pass > 0);
+    assert_eq!(build + pass, td["cycles"].as_u64().unwrap());
+    assert_eq!(
+        td["phases"].as_array().unwrap().last().unwrap()["name"],
+        "topdown_compress"
+    );
+    assert_eq!(c["topdown"]["node_reads"], td["nodes"]);
+    // The plain build of the same preset takes the TD run's build cycles.
+    let plain = sim_json(&[SOUP, "--preset", "p3", "--dram", "simple:lpddr3-1600-2x32"]);
+    assert_eq!(plain["cycles"].as_u64(), Some(build));
+    assert!(plain["cbvh"].is_null() && plain["cbvh_matches_software"].is_null());
+}
+
+#[test]
+fn cbvh_bad_arguments_are_one_line_errors() {
+    assert!(sim_error(&[CLOTH, "--treelet", "2"]).contains("--cbvh"));
+    assert!(sim_error(&[CLOTH, "--cbvh", "topdown", "--treelet", "2"]).contains("stream"));
+    assert!(sim_error(&[CLOTH, "--cbvh", "stream", "--treelet", "9"]).contains("treelet"));
+    assert!(
+        sim_error(&[CLOTH, "--cbvh", "stream", "--set", "highlevel_threshold=18"])
+            .contains("highlevel_threshold")
+    );
+    assert!(sim_error(&[CLOTH, "--cbvh", "stream", "--set", "cbvh_bits=2"]).contains("bits"));
+}

@@ -42,7 +42,7 @@ use crate::format::{pair_bytes, NodePair, LEAF_END, MAX_PTR};
 use crate::grid::Params;
 use crate::tree::{prim_ids_of, Cbvh};
 use crate::EncodeStats;
-use bvh::{Bvh2, EmitRef, Highlevel};
+use bvh::{Bvh2, EmitRef, EmittedNode, Highlevel, HighlevelRoot};
 use geom::Aabb;
 
 /// \[P3\] §5.2: "a DRAM interface with a 64B access granularity".
@@ -453,62 +453,93 @@ impl StreamEncoder {
     }
 }
 
+/// The encoder input for a leaf of the emitter's stream: flags the leaf's last entry of
+/// the primitive-id array `ids` with [`LEAF_END`] (as the CBVH format needs) and returns
+/// the child reference.
+fn leaf_child(ids: &mut [u32], first: u32, count: u32) -> Result<InChild, CbvhError> {
+    let last = (first as usize + count as usize).wrapping_sub(1);
+    let id = ids
+        .get_mut(last)
+        .filter(|_| count > 0)
+        .ok_or_else(|| CbvhError::Corrupt("leaf outside the primitive order".into()))?;
+    *id |= LEAF_END;
+    Ok(InChild::Leaf { first })
+}
+
+/// The encoder input for node `n` of the emitter's stream (`bvh::Step::Emitted`), flagging
+/// the last primitive id of each leaf child in `ids` (the leaf table so far). A cycle model
+/// calls this once per emitted node, as [`compress_hlbvh`] does.
+#[allow(clippy::needless_range_loop)] // two child slots of parallel arrays
+pub fn input_of_emitted(n: &EmittedNode, ids: &mut [u32]) -> Result<InputNode, CbvhError> {
+    let mut children = [InChild::Node; 2];
+    for c in 0..2 {
+        if let EmitRef::Leaf { first, count } = n.children[c] {
+            children[c] = leaf_child(ids, first, count)?;
+        }
+    }
+    Ok(InputNode {
+        boxes: n.aabbs,
+        children,
+        addr: None,
+    })
+}
+
+/// The encoder input that a stream's root needs before its nodes: when the whole tree is
+/// one leaf (no inner node is emitted), a node holding that leaf and an empty child; for
+/// an inner root, nothing. With no root (an empty scene), an empty node.
+pub fn input_of_root(
+    root: Option<&HighlevelRoot>,
+    ids: &mut [u32],
+) -> Result<Option<InputNode>, CbvhError> {
+    match root {
+        None => Ok(Some(InputNode {
+            boxes: [Aabb::EMPTY; 2],
+            children: [InChild::Empty; 2],
+            addr: None,
+        })),
+        Some(r) => match r.root {
+            EmitRef::Leaf { first, count } => Ok(Some(InputNode {
+                boxes: [r.aabb, Aabb::EMPTY],
+                children: [leaf_child(ids, first, count)?, InChild::Empty],
+                addr: None,
+            })),
+            EmitRef::Node(_) => Ok(None),
+        },
+    }
+}
+
+/// Checks that a stream of the emitter (`roots` and a leaf table of `prims` entries) can
+/// be compressed: one root at most (no high-level threshold), ids below [`LEAF_END`].
+pub fn check_stream(roots: usize, prims: usize) -> Result<(), CbvhError> {
+    if roots > 1 {
+        return Err(CbvhError::BadOrder(format!(
+            "{roots} high-level roots: build without a high-level threshold"
+        )));
+    }
+    if prims >= LEAF_END as usize {
+        return Err(CbvhError::TooLarge {
+            what: "primitive",
+            count: prims,
+        });
+    }
+    Ok(())
+}
+
 /// Compresses the streaming emitter's output (`bvh::HlbvhBuilder::build_highlevel`
 /// without a threshold: one root) bottom-up, in emission order.
-#[allow(clippy::needless_range_loop)] // two child slots of parallel arrays
 pub fn compress_hlbvh(
     hl: &Highlevel,
     cfg: &StreamConfig,
 ) -> Result<(Cbvh, EncodeStats), CbvhError> {
-    if hl.roots.len() > 1 {
-        return Err(CbvhError::BadOrder(format!(
-            "{} high-level roots: build without a high-level threshold",
-            hl.roots.len()
-        )));
-    }
-    if hl.order.len() >= LEAF_END as usize {
-        return Err(CbvhError::TooLarge {
-            what: "primitive",
-            count: hl.order.len(),
-        });
-    }
+    check_stream(hl.roots.len(), hl.order.len())?;
     let mut ids = hl.order.clone();
-    let mut flag = |first: u32, count: u32| -> Result<InChild, CbvhError> {
-        let last = (first + count - 1) as usize;
-        let id = ids
-            .get_mut(last)
-            .ok_or_else(|| CbvhError::Corrupt("leaf outside the primitive order".into()))?;
-        *id |= LEAF_END;
-        Ok(InChild::Leaf { first })
-    };
     let mut enc = StreamEncoder::new(*cfg)?;
-    match hl.roots.first() {
-        None => enc.push(InputNode {
-            boxes: [Aabb::EMPTY; 2],
-            children: [InChild::Empty; 2],
-            addr: None,
-        })?,
-        Some(root) => {
-            if let EmitRef::Leaf { first, count } = root.root {
-                enc.push(InputNode {
-                    boxes: [root.aabb, Aabb::EMPTY],
-                    children: [flag(first, count)?, InChild::Empty],
-                    addr: None,
-                })?;
-            }
-            for n in &hl.nodes {
-                let mut children = [InChild::Node; 2];
-                for c in 0..2 {
-                    if let EmitRef::Leaf { first, count } = n.children[c] {
-                        children[c] = flag(first, count)?;
-                    }
-                }
-                enc.push(InputNode {
-                    boxes: n.aabbs,
-                    children,
-                    addr: None,
-                })?;
-            }
+    if let Some(n) = input_of_root(hl.roots.first(), &mut ids)? {
+        enc.push(n)?;
+    }
+    if !hl.roots.is_empty() {
+        for n in &hl.nodes {
+            enc.push(input_of_emitted(n, &mut ids)?)?;
         }
     }
     enc.finish(ids)

@@ -11,6 +11,7 @@ pub mod log_info;
 pub mod render;
 pub mod report;
 pub mod report_cbvh;
+pub mod report_cbvh_runtime;
 pub mod report_cbvh_trace;
 pub mod report_mergetree;
 pub mod sim;

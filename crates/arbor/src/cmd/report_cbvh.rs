@@ -10,14 +10,18 @@
 //! - `fig10.csv`: backtracking and SAH against the minimum scale, cloth vs the others
 //!   (\[P3\] Fig. 10);
 //! - `bits.csv`: quality and backtracking against the coordinate bits `N = 3..=8`;
+//! - `table2.csv`, `table2-dram.csv`, `table2.svg`: the analogue of \[P3\] Table 2, LBVH
+//!   runtime with single-precision output, top-down postprocessing and streaming
+//!   compression, simulated on the MergeTree model ([`super::report_cbvh_runtime`]);
 //! - `trace_quality.csv`: box and triangle tests per ray, CBVH vs BVH, primary and diffuse
 //!   rays, beside \[P3\] §5.4's averages; `watertight.csv`: the \[P3\] §5.5 check over
 //!   every box test of those renders (see `report_cbvh_trace`);
-//! - `report.md` with all tables, and `table1.svg`, `fig7.svg`, `fig10.svg`,
+//! - `report.md` with all tables, and `table1.svg`, `table2.svg`, `fig7.svg`, `fig10.svg`,
 //!   `trace_quality.svg`.
 
 use super::build::mesh_aabbs;
 use super::report::{bar_svg, short_name, write_file as write, SHARED_SCENES};
+use super::report_cbvh_runtime as runtime;
 use crate::progress::{Ui, Unit};
 use anyhow::Context;
 use cbvh::study::{
@@ -43,6 +47,13 @@ pub struct ReportCbvhArgs {
     /// Skip the minimum-scale sweep (Fig. 10).
     #[arg(long)]
     no_sweep: bool,
+    /// Skip the runtime simulations (Table 2).
+    #[arg(long)]
+    no_runtime: bool,
+    /// Memory system of the runtime simulations (Table 2); `simple:NAME` for the quick
+    /// model.
+    #[arg(long, value_name = "NAME", default_value = runtime::DEFAULT_DRAM)]
+    runtime_dram: String,
     /// Image size of the ray-traced quality and watertightness measurement (\[P3\] §5.4-5.5).
     #[arg(long, value_name = "WxH", default_value = "640x360")]
     trace_size: String,
@@ -205,16 +216,6 @@ pub const P3_TABLE1: [(&str, &str, [Option<f64>; 9]); 9] = {
     ]
 };
 
-/// \[P3\] Table 2 "leaf size" (primitives per leaf of their LBVH) for the scenes we share,
-/// by our scene name.
-pub const P3_LEAF_SIZE: [(&str, f64); 5] = [
-    ("bunny", 1.1),
-    ("cloth", 1.0),
-    ("crytek-sponza", 2.0),
-    ("conference", 8.7),
-    ("dragon", 1.3),
-];
-
 /// Minimum-scale exponents of the Fig. 10 sweep.
 const SWEEP_EXPS: [i32; 11] = [-126, -90, -60, -45, -35, -30, -25, -20, -15, -10, -5];
 /// The report's cloth: the procedural sheet exactly flat at z = 0 (t = 0) together with the
@@ -301,6 +302,7 @@ pub fn run(a: &ReportCbvhArgs, ui: &Ui) -> anyhow::Result<()> {
     let bar = ui.progress("report cbvh", Unit::Items);
     let mut done = 0u64;
     let mut runs = Vec::new();
+    let mut scenes = Vec::new();
     for spec in &specs {
         let (name, prims) = load(spec)?;
         let study = study_scene(&prims, &params, &variants, |_| {
@@ -330,6 +332,9 @@ pub fn run(a: &ReportCbvhArgs, ui: &Ui) -> anyhow::Result<()> {
             done += 1;
             bar.update(done, total);
         }
+        if !a.no_runtime {
+            scenes.push((name.clone(), prims));
+        }
         runs.push(SceneRun {
             name,
             study,
@@ -338,6 +343,22 @@ pub fn run(a: &ReportCbvhArgs, ui: &Ui) -> anyhow::Result<()> {
         });
     }
     bar.finish();
+    let runtime_rows = if a.no_runtime {
+        None
+    } else {
+        let rows = runtime::simulate_all(&scenes, &a.runtime_dram, ui)?;
+        // The model builds the study's LBVH: its backtracking must be the study's.
+        for (run, row) in runs.iter().zip(&rows) {
+            let study_r = run.study.variants[1].build.backtrack_steps;
+            anyhow::ensure!(
+                row.main[1].backtrack_steps == study_r,
+                "{}: the simulated R run backtracked {} times, the study {study_r}",
+                run.name,
+                row.main[1].backtrack_steps
+            );
+        }
+        Some(rows)
+    };
     let traced = if a.no_trace {
         None
     } else {
@@ -357,6 +378,11 @@ pub fn run(a: &ReportCbvhArgs, ui: &Ui) -> anyhow::Result<()> {
     )?;
     write_table1(&a.out, &mut md, &t1, &variants)?;
     write_table3(&a.out, &mut md, &runs)?;
+    if let Some(rows) = &runtime_rows {
+        let names: Vec<String> = runs.iter().map(|r| r.name.clone()).collect();
+        let leaf: Vec<f64> = runs.iter().map(|r| r.study.avg_leaf_size).collect();
+        runtime::write_table2(&a.out, &mut md, &names, &leaf, rows, &a.runtime_dram)?;
+    }
     write_quality(&a.out, &mut md, &runs)?;
     if let Some(rows) = &traced {
         super::report_cbvh_trace::write_tables(&a.out, &mut md, rows, trace_size)?;
@@ -491,7 +517,7 @@ fn write_table3(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Resul
     writeln!(md, "|---|---|---|---|---|---|---|---|---|")?;
     for r in runs {
         let s = &r.study;
-        let thesis = P3_LEAF_SIZE.iter().find(|(n, _)| *n == r.name).map(|x| x.1);
+        let thesis = runtime::p3_row(&r.name).map(|x| x.leaf_size);
         for v in &s.variants {
             writeln!(
                 csv,

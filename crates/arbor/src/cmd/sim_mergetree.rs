@@ -2,7 +2,10 @@
 //! builder model (`sim::mergetree`, \[P1\], \[P2\] §4-6) over a scene, checks that its tree
 //! equals the software HLBVH builder's node for node, and reports cycles, time, traffic per
 //! phase, bus utilization, stall causes and a utilization trace (CSV and SVG, \[P2\] Fig. 6
-//! style). The JSON form (`arbor.sim.mergetree.v1`) is documented in `docs/cli-json.md`.
+//! style). With `--cbvh` the unit writes a compressed BVH (\[P3\] §5.3): through the
+//! streaming bottom-up encoder attached to the emitter, or with a top-down pass after the
+//! build; the CBVH is then also checked bit for bit against the software encoder. The JSON
+//! form (`arbor.sim.mergetree.v1`) is documented in `docs/cli-json.md`.
 
 use super::build::mesh_aabbs;
 use super::{ms, open_scene, thousands, SceneArgs};
@@ -10,7 +13,7 @@ use crate::progress::{Ui, Unit};
 use anyhow::Context;
 use geom::Aabb;
 use serde::Serialize;
-use sim::mergetree::{self, MergeTreeConfig, MergeTreeReport};
+use sim::mergetree::{self, MergeTreeConfig, MergeTreeReport, OutputMode};
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -19,13 +22,26 @@ use std::time::Instant;
 pub struct MergetreeArgs {
     #[command(flatten)]
     scene: SceneArgs,
-    /// Architecture preset: p1 (thesis P1: M=4096, B=8) or p2 (thesis P2: M=8192, B=16).
-    #[arg(long, default_value = "p2")]
-    preset: String,
+    /// Architecture preset: p1 (thesis P1: M=4096, B=8), p2 (thesis P2: M=8192, B=16) or
+    /// p3 (thesis P3: M=8192, B=8, leaves of any size). Default: p2, or p3 with --cbvh.
+    #[arg(long)]
+    preset: Option<String>,
     /// Memory system: lpddr3-1600-1x64 (slow), lpddr3-1600-2x64 (medium),
     /// lpddr3-1333-4x64 (fast), lpddr3-1600-2x32; prefix `simple:` for the simple model.
-    #[arg(long, default_value = "lpddr3-1600-1x64")]
-    dram: String,
+    /// Default: lpddr3-1600-1x64, or lpddr3-1600-2x32 with --cbvh (thesis P3 5.3).
+    #[arg(long)]
+    dram: Option<String>,
+    /// Write a compressed BVH (thesis P3): `stream` (the streaming bottom-up encoder behind
+    /// the emitter) or `topdown` (64-byte nodes, then a top-down compression pass).
+    #[arg(long, value_enum, value_name = "MODE")]
+    cbvh: Option<CbvhMode>,
+    /// CBVH coordinates with --cbvh: relative (default) or modulo.
+    #[arg(long, value_enum)]
+    coords: Option<CoordsArg>,
+    /// Treelet depth of the streaming encoder with --cbvh stream (1 = none, the default; up
+    /// to 8).
+    #[arg(long, value_name = "D")]
+    treelet: Option<u32>,
     /// Configuration file (flat TOML `key = value` lines or a flat JSON object), applied
     /// after the preset and before --set.
     #[arg(long, value_name = "FILE")]
@@ -50,6 +66,20 @@ pub struct MergetreeArgs {
     json: bool,
 }
 
+/// `--cbvh` values.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+enum CbvhMode {
+    Stream,
+    Topdown,
+}
+
+/// `--coords` values.
+#[derive(Clone, Copy, Debug, clap::ValueEnum)]
+enum CoordsArg {
+    Relative,
+    Modulo,
+}
+
 /// The JSON document `arbor sim mergetree --json` prints.
 #[derive(Serialize)]
 struct Output<'a> {
@@ -61,6 +91,7 @@ struct Output<'a> {
     #[serde(flatten)]
     report: &'a MergeTreeReport,
     tree_matches_software: Option<bool>,
+    cbvh_matches_software: Option<bool>,
     trace: Option<String>,
     svg: Option<String>,
     sim_wall_ms: f64,
@@ -107,10 +138,50 @@ pub fn simulate(
     Ok((r, ms(start.elapsed())))
 }
 
+/// The configuration of `a`: preset, file, the `--cbvh` options, then `--set`.
+fn config_of(a: &MergetreeArgs) -> anyhow::Result<MergeTreeConfig> {
+    let preset = a
+        .preset
+        .as_deref()
+        .unwrap_or(if a.cbvh.is_some() { "p3" } else { "p2" });
+    let mut set = Vec::new();
+    match a.cbvh {
+        Some(mode) => {
+            let output = match mode {
+                CbvhMode::Stream => OutputMode::CbvhStream,
+                CbvhMode::Topdown => OutputMode::CbvhTopdown,
+            };
+            let coords = match a.coords.unwrap_or(CoordsArg::Relative) {
+                CoordsArg::Relative => "relative",
+                CoordsArg::Modulo => "modulo",
+            };
+            let treelet = a.treelet.unwrap_or(1);
+            if mode == CbvhMode::Topdown && treelet != 1 {
+                anyhow::bail!("--treelet applies to --cbvh stream only");
+            }
+            set.push(format!("output={}", output.name()));
+            set.push(format!("cbvh_coords={coords}"));
+            set.push(format!("cbvh_treelet_depth={treelet}"));
+        }
+        None => {
+            if a.coords.is_some() || a.treelet.is_some() {
+                anyhow::bail!("--coords and --treelet need --cbvh stream or --cbvh topdown");
+            }
+        }
+    }
+    set.extend(a.set.iter().cloned());
+    config_from(preset, a.config.as_deref(), &set)
+}
+
 pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
-    let cfg = config_from(&a.preset, a.config.as_deref(), &a.set)?;
+    let cfg = config_of(a)?;
+    let dram = a.dram.as_deref().unwrap_or(if a.cbvh.is_some() {
+        "lpddr3-1600-2x32"
+    } else {
+        "lpddr3-1600-1x64"
+    });
     // Fail on a bad memory name before loading the scene.
-    sim::dram::open(&a.dram, cfg.period_fs())?;
+    sim::dram::open(dram, cfg.period_fs())?;
     let (scene, _) = open_scene(&a.scene, ui)?;
     let t = scene.info().timeline.clamp(a.time.unwrap_or(0.0));
     let mesh = scene
@@ -118,18 +189,21 @@ pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
         .with_context(|| format!("cannot sample the scene at t = {t} s"))?;
     let (aabbs, _) = mesh_aabbs(&mesh)?;
     drop(mesh);
-    let (report, wall_ms) = simulate(ui, &aabbs, &cfg, &a.dram)?;
-    let matches = if a.no_check {
-        None
+    let (report, wall_ms) = simulate(ui, &aabbs, &cfg, dram)?;
+    let (matches, cbvh_matches) = if a.no_check {
+        (None, None)
     } else {
         let _s = ui.spinner("building the software HLBVH tree to compare");
-        Some(mergetree::tree_matches_software(&report, &aabbs)?)
+        (
+            Some(mergetree::tree_matches_software(&report, &aabbs)?),
+            mergetree::cbvh_matches_software(&report, &aabbs)?,
+        )
     };
     if let Some(p) = &a.trace {
         super::report::write_atomic(p, &report.trace_csv())?;
     }
     if let Some(p) = &a.svg {
-        let title = format!("MergeTree {} on {}: {}", cfg.preset, a.dram, a.scene.scene);
+        let title = format!("MergeTree {} on {}: {}", cfg.preset, dram, a.scene.scene);
         super::report::write_atomic(p, &report.trace_svg(&title))?;
     }
     let cps = report.cycles as f64 / (wall_ms / 1e3).max(1e-9);
@@ -137,10 +211,11 @@ pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
         let out = Output {
             schema: "arbor.sim.mergetree.v1",
             scene: &a.scene.scene,
-            preset: &a.preset,
-            dram_system: &a.dram,
+            preset: &cfg.preset,
+            dram_system: dram,
             report: &report,
             tree_matches_software: matches,
+            cbvh_matches_software: cbvh_matches,
             trace: a.trace.as_ref().map(|p| p.display().to_string()),
             svg: a.svg.as_ref().map(|p| p.display().to_string()),
             sim_wall_ms: wall_ms,
@@ -148,15 +223,24 @@ pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
         };
         println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
-        print_text(a, &report, matches, wall_ms);
+        print_text(a, dram, &report, [matches, cbvh_matches], wall_ms);
     }
     if matches == Some(false) {
         anyhow::bail!("the simulated tree differs from the software HLBVH tree");
     }
+    if cbvh_matches == Some(false) {
+        anyhow::bail!("the simulated CBVH differs from the software encoder's");
+    }
     Ok(())
 }
 
-fn print_text(a: &MergetreeArgs, r: &MergeTreeReport, matches: Option<bool>, wall_ms: f64) {
+fn print_text(
+    a: &MergetreeArgs,
+    dram: &str,
+    r: &MergeTreeReport,
+    [matches, cbvh_matches]: [Option<bool>; 2],
+    wall_ms: f64,
+) {
     println!(
         "MergeTree {} (M={}, B={}, {} presorters, {} MHz) on {} [{}]",
         r.config.preset,
@@ -164,7 +248,7 @@ fn print_text(a: &MergetreeArgs, r: &MergeTreeReport, matches: Option<bool>, wal
         r.config.b,
         r.config.presorters,
         r.config.clock_mhz,
-        a.dram,
+        dram,
         r.dram
     );
     println!(
@@ -204,13 +288,52 @@ fn print_text(a: &MergetreeArgs, r: &MergeTreeReport, matches: Option<bool>, wal
         thousands(s.presort_starved_cycles),
         thousands(s.presort_wait_scratchpad_cycles)
     );
+    let yes_no = |m: Option<bool>| match m {
+        Some(true) => "yes",
+        Some(false) => "NO",
+        None => "not checked",
+    };
+    if let Some(c) = &r.cbvh {
+        println!(
+            "CBVH ({}, {} coordinates, {} bits, treelet depth {}): {} node pairs of {} B, \
+             {} backtracking steps; build {:.3} ms{}",
+            c.mode.name(),
+            c.params.coords.name(),
+            c.params.bits,
+            c.treelet_depth,
+            thousands(c.node_pairs),
+            c.pair_bytes,
+            thousands(c.backtrack_steps),
+            c.build_ms,
+            if c.compress_cycles > 0 {
+                format!(
+                    " + top-down pass {:.3} ms",
+                    c.compress_cycles as f64 / (r.config.clock_mhz as f64 * 1e3)
+                )
+            } else {
+                String::new()
+            }
+        );
+        if let Some(st) = &c.stream {
+            println!(
+                "  encoder: {} backtracking reads (mean latency {:.1} cycles, {} after a write-buffer \
+                 flush); waiting for reads {} cycles, starved {}; emitter waiting for the encoder {} cycles",
+                thousands(st.backtrack_reads),
+                st.mean_backtrack_read_latency(),
+                thousands(st.backtrack_flushes),
+                thousands(st.read_wait_cycles),
+                thousands(st.starved_cycles),
+                thousands(s.emitter.encoder_full_cycles)
+            );
+        }
+        println!(
+            "CBVH matches the software encoder: {}",
+            yes_no(cbvh_matches)
+        );
+    }
     println!(
         "tree matches software hlbvh: {}; simulated {:.1} M cycles/s",
-        match matches {
-            Some(true) => "yes",
-            Some(false) => "NO",
-            None => "not checked",
-        },
+        yes_no(matches),
         r.cycles as f64 / (wall_ms * 1e3).max(1e-9)
     );
 }

@@ -1,12 +1,20 @@
 //! Configuration of the MergeTree model: the architecture parameters of \[P1\] §4 and
 //! \[P2\] §5-6.2, FIFO capacities, and the HLBVH options that select the tree.
 //!
-//! Two presets follow the thesis: `p1` (\[P1\] §4: M = 4096, B = 8, a 128 KB scratchpad,
-//! 4 presorters) and `p2` (\[P2\] §6.2: M = 8192, B = 16, 256 KB, 8 presorters), both at
-//! 1 GHz. Every field can be overridden by name with [`MergeTreeConfig::set`], or from a
+//! Three presets follow the thesis: `p1` (\[P1\] §4: M = 4096, B = 8, a 128 KB scratchpad,
+//! 4 presorters), `p2` (\[P2\] §6.2: M = 8192, B = 16, 256 KB, 8 presorters) and `p3`
+//! (\[P3\] §5.3: the \[P1\] unit with a 256 KB scratchpad, M = 8192, B = 8, and leaves of
+//! any size for runs of equal Morton codes, \[P3\] §5.2), all at 1 GHz.
+//!
+//! The output mode ([`OutputMode`]) chooses what becomes of the emitted hierarchy: 64-byte
+//! single-precision nodes, a CBVH written by the streaming bottom-up encoder attached to
+//! the emitter, or 64-byte nodes followed by a separate top-down compression pass (the
+//! four alternatives of \[P3\] §5.3 and Table 2). Every field can be overridden by name with [`MergeTreeConfig::set`], or from a
 //! file of `key = value` lines (flat TOML) or a flat JSON object
 //! ([`MergeTreeConfig::apply_file`]).
 
+use cbvh::bottomup::{StreamConfig, MAX_TREELET_DEPTH};
+use cbvh::{Coords, Params};
 use serde::Serialize;
 
 /// Bytes of one sort element in DRAM and in the scratchpad: an AABB (24 B), a primitive
@@ -23,11 +31,41 @@ pub const LEAF_ENTRY_BYTES: u64 = 4;
 /// Bytes of one high-level output record: the cell root's AABB and reference.
 pub const HIGHLEVEL_BYTES: u64 = 32;
 
+/// What the unit does with the hierarchy it emits (\[P3\] §5.3).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum OutputMode {
+    /// 64-byte single-precision nodes (\[P2\] §4.1): the plain builder.
+    Bvh,
+    /// A CBVH written by the streaming bottom-up encoder (\[P3\] Algorithm 1) that consumes
+    /// the emitter's nodes, with its backtracking steps as DRAM reads and writes.
+    CbvhStream,
+    /// 64-byte nodes, then a separate top-down compression pass that reads them back and
+    /// writes the CBVH (the postprocessing baseline of \[P3\] Fig. 2a).
+    CbvhTopdown,
+}
+
+impl OutputMode {
+    /// The name `--set output=...` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            OutputMode::Bvh => "bvh",
+            OutputMode::CbvhStream => "cbvh-stream",
+            OutputMode::CbvhTopdown => "cbvh-topdown",
+        }
+    }
+
+    /// True for the two CBVH modes.
+    pub fn is_cbvh(self) -> bool {
+        self != OutputMode::Bvh
+    }
+}
+
 /// Errors of configuration.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum ConfigError {
     /// No preset of that name.
-    #[error("unknown MergeTree preset '{0}' (known: p1, p2)")]
+    #[error("unknown MergeTree preset '{0}' (known: p1, p2, p3)")]
     UnknownPreset(String),
     /// No parameter of that name.
     #[error("unknown MergeTree parameter '{key}' (known: {known})")]
@@ -105,6 +143,22 @@ pub struct MergeTreeConfig {
     pub trace_window_cycles: u64,
     /// Skip cycles in which every unit waits for memory (exact; off only to test that).
     pub fast_forward: bool,
+    /// What the emitted hierarchy becomes (\[P3\] §5.3).
+    pub output: OutputMode,
+    /// CBVH coordinates (\[P3\] §3, §4.2).
+    pub cbvh_coords: Coords,
+    /// Treelet depth of the streaming encoder (\[P3\] §4.3; 1 = none).
+    pub cbvh_treelet_depth: u32,
+    /// Bits per CBVH coordinate (\[P3\] §5: 6).
+    pub cbvh_bits: u32,
+    /// Minimum scale exponent of the CBVH grids (\[P3\] §4.4, §5.1: -30).
+    pub cbvh_min_scale_exp: i32,
+    /// Nodes in the FIFO from the hierarchy emitter to the streaming encoder.
+    pub cbvh_fifo: u32,
+    /// A backtracking read of a line that still has bytes in the node-pair write buffer
+    /// first writes them out (coherent, the default); `false` is a timing what-if that reads
+    /// DRAM at once (see `cbvh_unit`).
+    pub cbvh_flush_before_backtrack: bool,
 }
 
 /// Names of the parameters [`MergeTreeConfig::set`] accepts.
@@ -128,6 +182,13 @@ pub const KEYS: &[&str] = &[
     "sah_cycles_per_sweep",
     "trace_window_cycles",
     "fast_forward",
+    "output",
+    "cbvh_coords",
+    "cbvh_treelet_depth",
+    "cbvh_bits",
+    "cbvh_min_scale_exp",
+    "cbvh_fifo",
+    "cbvh_flush_before_backtrack",
 ];
 
 impl MergeTreeConfig {
@@ -167,14 +228,35 @@ impl MergeTreeConfig {
             sah_cycles_per_sweep: 32,
             trace_window_cycles: 10_000,
             fast_forward: true,
+            output: OutputMode::Bvh,
+            cbvh_coords: Coords::Relative,
+            cbvh_treelet_depth: 1,
+            cbvh_bits: cbvh::grid::DEFAULT_BITS,
+            cbvh_min_scale_exp: cbvh::grid::DEFAULT_MIN_SCALE_EXP,
+            cbvh_fifo: 16,
+            cbvh_flush_before_backtrack: true,
         }
     }
 
-    /// The preset called `name` (`p1` or `p2`).
+    /// \[P3\] §5.3: "a 256KB scratchpad memory and a buffer size of 8 AABBs, such that it can
+    /// handle scenes of up to 4M triangles" (M = 8192, B = 8: M^2 / (2B) = 4M), on the
+    /// \[P1\] unit (\[VKJ*15\], 4 presorters) "modified to output large leafs when multiple
+    /// primitives share the same Morton code" (\[P3\] §5.2: no leaf-size limit), 1 GHz.
+    pub fn p3() -> Self {
+        Self {
+            preset: "p3".into(),
+            m: 8192,
+            max_leaf_size: u32::MAX,
+            ..Self::p1()
+        }
+    }
+
+    /// The preset called `name` (`p1`, `p2` or `p3`).
     pub fn preset(name: &str) -> Result<Self, ConfigError> {
         match name {
             "p1" => Ok(Self::p1()),
             "p2" => Ok(Self::p2()),
+            "p3" => Ok(Self::p3()),
             _ => Err(ConfigError::UnknownPreset(name.to_string())),
         }
     }
@@ -252,6 +334,28 @@ impl MergeTreeConfig {
             "sah_cycles_per_sweep" => self.sah_cycles_per_sweep = num32(0)?,
             "trace_window_cycles" => self.trace_window_cycles = num(1)?,
             "fast_forward" => self.fast_forward = boolean()?,
+            "output" => {
+                self.output = match value {
+                    "bvh" => OutputMode::Bvh,
+                    "cbvh-stream" => OutputMode::CbvhStream,
+                    "cbvh-topdown" => OutputMode::CbvhTopdown,
+                    _ => return Err(bad("expected bvh, cbvh-stream or cbvh-topdown")),
+                }
+            }
+            "cbvh_coords" => {
+                self.cbvh_coords = match value {
+                    "relative" => Coords::Relative,
+                    "modulo" => Coords::Modulo,
+                    _ => return Err(bad("expected relative or modulo")),
+                }
+            }
+            "cbvh_treelet_depth" => self.cbvh_treelet_depth = num32(1)?,
+            "cbvh_bits" => self.cbvh_bits = num32(1)?,
+            "cbvh_min_scale_exp" => {
+                self.cbvh_min_scale_exp = value.parse().map_err(|_| bad("expected an integer"))?
+            }
+            "cbvh_fifo" => self.cbvh_fifo = num32(1)?,
+            "cbvh_flush_before_backtrack" => self.cbvh_flush_before_backtrack = boolean()?,
             _ => {
                 return Err(ConfigError::UnknownKey {
                     key: key.to_string(),
@@ -378,6 +482,34 @@ impl MergeTreeConfig {
         if self.toplevel_sah && self.highlevel_threshold.is_none() {
             return err("toplevel_sah needs a highlevel_threshold".into());
         }
+        if self.output.is_cbvh() {
+            if self.highlevel_threshold.is_some() || self.toplevel_sah {
+                return err(format!(
+                    "output = {} builds one LBVH: it needs highlevel_threshold = none and \
+                     toplevel_sah = false",
+                    self.output.name()
+                ));
+            }
+            self.cbvh_params()
+                .check()
+                .map_err(|e| ConfigError::Inconsistent(e.to_string()))?;
+            if !(1..=MAX_TREELET_DEPTH).contains(&self.cbvh_treelet_depth) {
+                return err(format!(
+                    "cbvh_treelet_depth ({}) must be 1..={MAX_TREELET_DEPTH}",
+                    self.cbvh_treelet_depth
+                ));
+            }
+            if self.output == OutputMode::CbvhTopdown && self.cbvh_treelet_depth != 1 {
+                return err("treelets apply to output = cbvh-stream only".into());
+            }
+            if self.cbvh_fifo as u64 > 1 << 20 {
+                return err(format!(
+                    "cbvh_fifo ({}) exceeds the model's limit of {}",
+                    self.cbvh_fifo,
+                    1 << 20
+                ));
+            }
+        }
         if let Some(t) = self.highlevel_threshold {
             if t > self.morton_bits {
                 return err(format!(
@@ -387,6 +519,28 @@ impl MergeTreeConfig {
             }
         }
         Ok(())
+    }
+}
+
+impl MergeTreeConfig {
+    /// The CBVH quantization parameters of the CBVH output modes.
+    pub fn cbvh_params(&self) -> Params {
+        Params {
+            bits: self.cbvh_bits,
+            min_scale_exp: self.cbvh_min_scale_exp,
+            coords: self.cbvh_coords,
+        }
+    }
+
+    /// The streaming encoder's configuration (`base_addr_bytes` is the CBVH region's
+    /// address; accesses are recorded for the cycle model).
+    pub fn stream_config(&self, base_addr_bytes: u64) -> StreamConfig {
+        StreamConfig {
+            params: self.cbvh_params(),
+            treelet_depth: self.cbvh_treelet_depth,
+            record_ops: true,
+            base_addr_bytes,
+        }
     }
 }
 
@@ -413,6 +567,48 @@ mod tests {
         assert_eq!(p2.single_pass_limit(), 2 << 20); // 2M triangles
         p1.validate().unwrap();
         p2.validate().unwrap();
+        // [P3] §5.3: 256 KB, buffers of 8 AABBs, "scenes of up to 4M triangles".
+        let p3 = MergeTreeConfig::p3();
+        assert_eq!((p3.m, p3.b, p3.presorters), (8192, 8, 4));
+        assert_eq!(p3.m as u64 * ELEM_BYTES, 256 * 1024);
+        assert_eq!(p3.single_pass_limit(), 4 << 20);
+        assert!(p3.combine_identical && p3.max_leaf_size == u32::MAX);
+        p3.validate().unwrap();
+    }
+
+    #[test]
+    fn cbvh_output_keys() {
+        let mut c = MergeTreeConfig::p3();
+        c.set("output", "cbvh-stream").unwrap();
+        c.set("cbvh_coords", "modulo").unwrap();
+        c.set("cbvh_treelet_depth", "4").unwrap();
+        c.set("cbvh_min_scale_exp", "-126").unwrap();
+        c.validate().unwrap();
+        assert_eq!(c.output, OutputMode::CbvhStream);
+        let s = c.stream_config(4096);
+        assert_eq!((s.treelet_depth, s.base_addr_bytes), (4, 4096));
+        assert_eq!(s.params.coords, Coords::Modulo);
+        assert_eq!(s.params.min_scale_exp, -126);
+        assert!(c.set("output", "cbvh").is_err());
+        assert!(c.set("cbvh_coords", "absolute").is_err());
+        assert!(c.set("cbvh_min_scale_exp", "x").is_err());
+        let mut t = c.clone();
+        t.set("output", "cbvh-topdown").unwrap();
+        assert!(t.validate().is_err(), "treelets with top-down");
+        t.set("cbvh_treelet_depth", "1").unwrap();
+        t.validate().unwrap();
+        let mut bits = c.clone();
+        bits.set("cbvh_bits", "9").unwrap();
+        assert!(bits.validate().is_err());
+        let mut deep = c.clone();
+        deep.set("cbvh_treelet_depth", "9").unwrap();
+        assert!(deep.validate().is_err());
+        let mut hl = c.clone();
+        hl.set("highlevel_threshold", "18").unwrap();
+        assert!(hl.validate().unwrap_err().to_string().contains("none"));
+        // The plain output ignores the CBVH keys.
+        hl.set("output", "bvh").unwrap();
+        hl.validate().unwrap();
     }
 
     #[test]

@@ -9,8 +9,15 @@
 //! fly from the stream, as a counter. Every primitive read writes one 4-byte leaf-table
 //! entry; every emitted node one 64-byte node; every high-level root one 32-byte record.
 //! Padding elements (\[P2\] §5.3) sort after the scene and end the stream.
+//!
+//! With the streaming CBVH encoder attached (\[P3\] §5.3), emitted nodes go into the
+//! encoder's input FIFO instead of the node write buffer (the emitter stalls while it is
+//! full), and the leaf-table entry that ends each leaf carries the CBVH format's leaf-end
+//! flag (set when the leaf's node is emitted, before the entry is written out; the write
+//! buffer models bytes, so the flag costs no traffic).
 
 use bvh::{EmittedNode, Emitter, HighlevelRoot, Prim, Step};
+use cbvh::bottomup::{input_of_emitted, input_of_root, InputNode};
 
 use super::config::{HIGHLEVEL_BYTES, LEAF_ENTRY_BYTES, NODE_BYTES};
 use super::machine::WriteBuffer;
@@ -24,6 +31,16 @@ pub struct EmitterStalls {
     pub starved_cycles: u64,
     /// Cycles a write buffer (nodes, leaf table, high-level) was full.
     pub write_full_cycles: u64,
+    /// Cycles the streaming CBVH encoder's input FIFO was full.
+    pub encoder_full_cycles: u64,
+}
+
+/// Where the emitter's inner nodes go.
+pub(super) enum NodeSink<'a> {
+    /// 64-byte single-precision nodes into the node write buffer.
+    Bvh(&'a mut WriteBuffer),
+    /// Encoder inputs into the streaming CBVH encoder's FIFO.
+    Cbvh(&'a mut Fifo<InputNode>),
 }
 
 /// The hierarchy emitter unit and the tree it has produced so far.
@@ -51,11 +68,22 @@ pub(super) struct EmitUnit {
     pub steps: u64,
     /// Stall counters.
     pub stalls: EmitterStalls,
+    /// With the CBVH encoder attached: the primitive-id array (the leaf table with each
+    /// leaf's last entry flagged).
+    pub cbvh_ids: Option<Vec<u32>>,
+    /// An error of the encoder-input conversion (cannot happen with a correct emitter).
+    pub fault: Option<cbvh::CbvhError>,
 }
 
 impl EmitUnit {
     /// An emitter for `total` primitives.
-    pub fn new(total: u64, threshold: Option<u32>, combine: bool, max_leaf: u32) -> Self {
+    pub fn new(
+        total: u64,
+        threshold: Option<u32>,
+        combine: bool,
+        max_leaf: u32,
+        cbvh: bool,
+    ) -> Self {
         Self {
             em: Emitter::new(threshold),
             total,
@@ -71,6 +99,8 @@ impl EmitUnit {
             done: false,
             steps: 0,
             stalls: EmitterStalls::default(),
+            cbvh_ids: cbvh.then(|| Vec::with_capacity(total as usize)),
+            fault: None,
         }
     }
 
@@ -83,7 +113,7 @@ impl EmitUnit {
     pub fn tick(
         &mut self,
         input: &mut Fifo<Elem>,
-        nodes_out: &mut WriteBuffer,
+        mut nodes_out: NodeSink<'_>,
         leaves_out: &mut WriteBuffer,
         highlevel_out: &mut WriteBuffer,
     ) -> bool {
@@ -97,7 +127,17 @@ impl EmitUnit {
             return false;
         }
         // Room for whatever this step may write.
-        if !nodes_out.has_room(NODE_BYTES)
+        let node_room = match &nodes_out {
+            NodeSink::Bvh(wb) => wb.has_room(NODE_BYTES),
+            NodeSink::Cbvh(f) => {
+                if f.is_full() {
+                    self.stalls.encoder_full_cycles += 1;
+                    return false;
+                }
+                true
+            }
+        };
+        if !node_room
             || !leaves_out.has_room(LEAF_ENTRY_BYTES)
             || !highlevel_out.has_room(HIGHLEVEL_BYTES)
         {
@@ -130,6 +170,9 @@ impl EmitUnit {
                 self.consumed as u32
             };
             self.order.push(e.index);
+            if let Some(ids) = &mut self.cbvh_ids {
+                ids.push(e.index);
+            }
             self.consumed += 1;
             leaves_out.add(LEAF_ENTRY_BYTES);
             prim = Some(Prim {
@@ -142,15 +185,50 @@ impl EmitUnit {
         match self.em.step(prim) {
             Step::Emitted(n) => {
                 self.nodes.push(n);
-                nodes_out.add(NODE_BYTES);
+                match &mut nodes_out {
+                    NodeSink::Bvh(wb) => wb.add(NODE_BYTES),
+                    NodeSink::Cbvh(f) => {
+                        let n = input_of_emitted_in(&n, &mut self.cbvh_ids);
+                        self.send_to_encoder(f, n)
+                    }
+                }
             }
             Step::Highlevel(r) => {
                 self.roots.push(r);
                 highlevel_out.add(HIGHLEVEL_BYTES);
+                if let NodeSink::Cbvh(f) = &mut nodes_out {
+                    // A tree that is one leaf: the encoder gets that leaf as a node.
+                    let ids = self.cbvh_ids.as_mut().expect("ids with the encoder");
+                    match input_of_root(Some(&r), ids) {
+                        Ok(Some(n)) => self.send_to_encoder(f, Ok(n)),
+                        Ok(None) => {}
+                        Err(e) => self.fault = Some(e),
+                    }
+                }
             }
             Step::Done => self.done = true,
             Step::Loaded | Step::Combined | Step::Pushed => {}
         }
         true
     }
+
+    /// Hands one encoder input to the encoder's FIFO (room was checked before the step).
+    fn send_to_encoder(&mut self, f: &mut Fifo<InputNode>, n: Result<InputNode, cbvh::CbvhError>) {
+        match n {
+            Ok(n) => {
+                if f.push(n).is_err() {
+                    unreachable!("room in the encoder FIFO was checked before the step");
+                }
+            }
+            Err(e) => self.fault = Some(e),
+        }
+    }
+}
+
+/// [`input_of_emitted`] over the emitter's id array.
+fn input_of_emitted_in(
+    n: &EmittedNode,
+    ids: &mut Option<Vec<u32>>,
+) -> Result<InputNode, cbvh::CbvhError> {
+    input_of_emitted(n, ids.as_mut().expect("ids with the encoder"))
 }

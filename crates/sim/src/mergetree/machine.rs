@@ -11,20 +11,26 @@
 //!   written back but streamed into the hierarchy emitter;
 //! - `nodes`: BVH nodes, 64 bytes each, in emission (bottom-up) order;
 //! - `leaves`: the leaf table, one 4-byte primitive reference per sorted position;
-//! - `highlevel`: 32-byte high-level roots (with a threshold) and the toplevel nodes.
+//! - `highlevel`: 32-byte high-level roots (with a threshold) and the toplevel nodes;
+//! - `cbvh`: the compressed tree's node pairs, in the CBVH output modes (\[P3\] §5.3), written
+//!   by the streaming encoder (in its write order) or by the top-down pass (in its read
+//!   order; see [`super::cbvh_unit`]). With the streaming encoder, `nodes` stays unused.
 //!
 //! # Memory arbiter
-//! Five requesters share the port: the run writer, the node, leaf-table and high-level
-//! write buffers, and the reader (input reads for the presorters, refills for the merge
-//! queues). One request may be issued per cycle, granted round robin among the ready
-//! requesters; a request refused by a full controller queue is retried.
+//! Six requesters share the port: the run writer, the node (or, in the CBVH modes, node-pair)
+//! leaf-table and high-level write buffers, the reader (input reads for the presorters,
+//! refills for the merge queues) and the CBVH unit (backtracking reads and writes of the
+//! streaming encoder, node reads of the top-down pass). One request may be issued per
+//! cycle, granted round robin among the ready requesters; a request refused by a full
+//! controller queue is retried.
 
 use std::collections::VecDeque;
 
 use geom::{Aabb, MortonQuantizer};
 
-use super::config::{MergeTreeConfig, ELEM_BYTES};
-use super::emitter::EmitUnit;
+use super::cbvh_unit::{StreamUnit, TopdownUnit, STREAM_COUNTERS, TOPDOWN_COUNTERS};
+use super::config::{MergeTreeConfig, OutputMode, ELEM_BYTES};
+use super::emitter::{EmitUnit, NodeSink};
 use super::merge::{MergeState, Merger};
 use super::presort::{PresortState, Presorter};
 use super::report::{PhaseReport, StallReport, TraceRow};
@@ -60,6 +66,8 @@ pub struct MemoryLayout {
     pub leaves: u64,
     /// High-level roots and toplevel nodes.
     pub highlevel: u64,
+    /// CBVH node pairs (CBVH output modes).
+    pub cbvh: u64,
     /// First byte after the layout.
     pub end: u64,
 }
@@ -74,13 +82,16 @@ impl MemoryLayout {
         let nodes = up(run1 + npad * ELEM_BYTES);
         let leaves = up(nodes + n.saturating_sub(1) * super::config::NODE_BYTES);
         let highlevel = up(leaves + n * super::config::LEAF_ENTRY_BYTES);
-        let end = up(highlevel + n * super::config::HIGHLEVEL_BYTES);
+        let cbvh = up(highlevel + n * super::config::HIGHLEVEL_BYTES);
+        let pair_max = cbvh::format::pair_bytes(cbvh::grid::MAX_BITS) as u64;
+        let end = up(cbvh + n.max(1) * pair_max);
         Self {
             input,
             runs: [run0, run1],
             nodes,
             leaves,
             highlevel,
+            cbvh,
             end,
         }
     }
@@ -104,15 +115,18 @@ fn elem_of(aabbs: &[Aabb], quant: &MortonQuantizer, bits: u32, i: u64) -> Elem {
 }
 
 /// A write-combining buffer in front of the port: a unit adds bytes, the arbiter writes
-/// them out in chunks to consecutive addresses.
+/// them out in chunks to consecutive addresses (chunks aligned to `chunk` from the base).
 #[derive(Clone, Debug)]
 pub struct WriteBuffer {
+    base: u64,
     next_addr: u64,
     pending: u64,
     capacity: u64,
     chunk: u64,
     /// Write out a partial chunk (the producer has finished).
     pub flush: bool,
+    /// Write out partial chunks until every byte below this address is written.
+    flush_until: u64,
     /// Bytes handed to the port.
     pub written: u64,
 }
@@ -121,11 +135,13 @@ impl WriteBuffer {
     /// A buffer of `capacity` bytes that writes `chunk`-byte requests from `base` on.
     pub fn new(base: u64, capacity: u64, chunk: u64) -> Self {
         Self {
+            base,
             next_addr: base,
             pending: 0,
             capacity,
             chunk,
             flush: false,
+            flush_until: 0,
             written: 0,
         }
     }
@@ -147,11 +163,15 @@ impl WriteBuffer {
         self.pending += bytes;
     }
 
-    /// The write request ready to go, if any.
+    /// The write request ready to go, if any: the rest of the current chunk once it is
+    /// full, or what is there when flushing.
     #[inline]
     fn ready(&self) -> Option<(u64, u32)> {
-        if self.pending >= self.chunk || (self.flush && self.pending > 0) {
-            Some((self.next_addr, self.pending.min(self.chunk) as u32))
+        let room = self.chunk - (self.next_addr - self.base) % self.chunk;
+        if self.pending >= room
+            || ((self.flush || self.next_addr < self.flush_until) && self.pending > 0)
+        {
+            Some((self.next_addr, self.pending.min(room) as u32))
         } else {
             None
         }
@@ -167,6 +187,18 @@ impl WriteBuffer {
     pub fn pending(&self) -> u64 {
         self.pending
     }
+
+    /// Address of the first byte not yet handed to the port (the bytes below it are).
+    pub fn next_addr(&self) -> u64 {
+        self.next_addr
+    }
+
+    /// Writes out partial chunks until every byte held now below `addr` has gone to the
+    /// port (bytes added later are written as usual).
+    pub fn flush_through(&mut self, addr: u64) {
+        let held_end = self.next_addr + self.pending;
+        self.flush_until = self.flush_until.max(addr.min(held_end));
+    }
 }
 
 /// Where a read's data goes.
@@ -176,6 +208,10 @@ enum ReadDest {
     Presort { p: u32, slot: u32 },
     /// Buffer half `buf` of the merge scratchpad (sort runs).
     Merge { buf: u32 },
+    /// The streaming CBVH encoder's backtracking read.
+    Backtrack,
+    /// Node at stream position `j` of the top-down pass.
+    Topdown { j: u64 },
 }
 
 /// An outstanding read.
@@ -203,12 +239,17 @@ enum Phase {
     Emit,
     /// The toplevel binned SAH unit.
     Toplevel,
+    /// The top-down CBVH compression pass.
+    Topdown,
     /// Finished.
     Done,
 }
 
 /// Requesters of the memory arbiter.
-const REQUESTERS: usize = 5;
+const REQUESTERS: usize = 6;
+
+/// Number of stall counters [`Machine::snapshot`] records.
+const SNAP: usize = 10 + STREAM_COUNTERS + TOPDOWN_COUNTERS;
 
 /// The whole unit. See the module documentation.
 pub(super) struct Machine<'a> {
@@ -263,6 +304,12 @@ pub(super) struct Machine<'a> {
     leaves_wb: WriteBuffer,
     hl_wb: WriteBuffer,
     top: Option<TopUnit>,
+    /// The streaming CBVH encoder (output = cbvh-stream).
+    pub stream: Option<StreamUnit>,
+    /// The top-down pass (output = cbvh-topdown, after the build).
+    pub td: Option<TopdownUnit>,
+    /// Cycle at which the hierarchy (and, streaming, the CBVH) was complete in DRAM.
+    pub build_cycles: u64,
     // Memory.
     inflight: Vec<ReadDesc>,
     free_tags: Vec<u32>,
@@ -316,7 +363,7 @@ impl<'a> Machine<'a> {
         cfg: &MergeTreeConfig,
         port: Box<dyn MemoryPort>,
         progress_hook: Option<&'a mut dyn FnMut(u64, u64)>,
-    ) -> Self {
+    ) -> Result<Self, MergeTreeError> {
         let n = aabbs.len() as u64;
         let b = cfg.b as u64;
         let m = cfg.m as u64;
@@ -349,7 +396,18 @@ impl<'a> Machine<'a> {
         // Functional contents of the run regions: region 0 holds the partial-sort runs
         // when a merge pass follows; region 1 is written only by non-final passes.
         let region_len = |needed: bool| if needed { npad as usize } else { 0 };
-        Self {
+        let streaming = cfg.output == OutputMode::CbvhStream;
+        let stream = if streaming {
+            let enc = cbvh::StreamEncoder::new(cfg.stream_config(layout.cbvh))?;
+            Some(StreamUnit::new(
+                enc,
+                cfg.cbvh_fifo,
+                cfg.cbvh_flush_before_backtrack,
+            ))
+        } else {
+            None
+        };
+        Ok(Self {
             cfg: cfg.clone(),
             aabbs,
             quant: MortonQuantizer::new(centroid_bounds),
@@ -392,9 +450,10 @@ impl<'a> Machine<'a> {
                 cfg.highlevel_threshold,
                 cfg.combine_identical,
                 cfg.max_leaf_size,
+                streaming,
             ),
             nodes_wb: WriteBuffer::new(
-                layout.nodes,
+                if streaming { layout.cbvh } else { layout.nodes },
                 cfg.node_buffer_bytes as u64,
                 cfg.write_chunk_bytes as u64,
             ),
@@ -409,6 +468,9 @@ impl<'a> Machine<'a> {
                 cfg.write_chunk_bytes as u64,
             ),
             top: None,
+            stream,
+            td: None,
+            build_cycles: 0,
             inflight: Vec::with_capacity(64),
             free_tags: Vec::with_capacity(64),
             rr: 0,
@@ -424,8 +486,8 @@ impl<'a> Machine<'a> {
             trace: Vec::new(),
             win: TraceRow::default(),
             idle: 0,
-            snap_before: vec![0; 9],
-            snap_after: vec![0; 9],
+            snap_before: vec![0; SNAP],
+            snap_after: vec![0; SNAP],
             probe: false,
             wake_at: u64::MAX,
             presort_busy_now: 0,
@@ -437,7 +499,7 @@ impl<'a> Machine<'a> {
             skipped_cycles: 0,
             waiting: 0,
             progress_hook,
-        }
+        })
     }
 
     fn sub_len(npad: u64, b: u64, sub: u64) -> u32 {
@@ -478,11 +540,12 @@ impl<'a> Machine<'a> {
                 };
                 self.waiting -= 1;
                 progress = true;
+                let latency = r.completed_cycle - r.accepted_cycle;
                 if r.kind == AccessKind::Read {
                     self.phase_reads += 1;
-                    self.phase_read_latency += r.completed_cycle - r.accepted_cycle;
+                    self.phase_read_latency += latency;
                 }
-                self.on_response(r.tag);
+                self.on_response(r.tag, latency);
             }
             if self.control() {
                 progress = true;
@@ -492,9 +555,13 @@ impl<'a> Machine<'a> {
                 break;
             }
             if self.emit_active {
+                let sink = match &mut self.stream {
+                    Some(st) => NodeSink::Cbvh(&mut st.input),
+                    None => NodeSink::Bvh(&mut self.nodes_wb),
+                };
                 let stepped = self.emit.tick(
                     &mut self.emit_fifo,
-                    &mut self.nodes_wb,
+                    sink,
                     &mut self.leaves_wb,
                     &mut self.hl_wb,
                 );
@@ -502,6 +569,15 @@ impl<'a> Machine<'a> {
                     self.win.emitter_steps += 1;
                 }
                 progress |= stepped;
+                if let Some(e) = self.emit.fault.take() {
+                    return Err(e.into());
+                }
+                if let Some(st) = &mut self.stream {
+                    progress |= st.tick(&mut self.nodes_wb, self.emit.done)?;
+                }
+            }
+            if let Some(td) = &mut self.td {
+                progress |= td.tick(&mut self.nodes_wb);
             }
             if let Some(top) = &mut self.top {
                 progress |= top.tick(&mut self.hl_wb);
@@ -558,7 +634,7 @@ impl<'a> Machine<'a> {
     fn snapshot(&self, out: &mut [u64]) {
         let m = &self.merger.stalls;
         let e = &self.emit.stalls;
-        out[..7].copy_from_slice(&[
+        out[..8].copy_from_slice(&[
             m.queue_dry_cycles,
             m.output_full_cycles,
             m.init_wait_cycles,
@@ -566,8 +642,16 @@ impl<'a> Machine<'a> {
             e.write_full_cycles,
             self.reader_blocked_cycles,
             self.port_refusals,
+            e.encoder_full_cycles,
         ]);
-        out[7..9].copy_from_slice(&self.frozen_totals);
+        out[8..10].copy_from_slice(&self.frozen_totals);
+        let (st, td) = out[10..].split_at_mut(STREAM_COUNTERS);
+        if let Some(u) = &self.stream {
+            st.copy_from_slice(&u.counters());
+        }
+        if let Some(u) = &self.td {
+            td.copy_from_slice(&u.counters());
+        }
     }
 
     /// After an idle probe cycle: no unit can change state until a memory response
@@ -609,8 +693,16 @@ impl<'a> Machine<'a> {
             e.write_full_cycles += k * after[4];
             self.reader_blocked_cycles += k * after[5];
             self.port_refusals += k * after[6];
-            for (t, d) in self.frozen_totals.iter_mut().zip(&after[7..9]) {
+            e.encoder_full_cycles += k * after[7];
+            for (t, d) in self.frozen_totals.iter_mut().zip(&after[8..10]) {
                 *t += k * d;
+            }
+            let (st, td) = after[10..].split_at(STREAM_COUNTERS);
+            if let Some(u) = &mut self.stream {
+                u.add_counters(st, k);
+            }
+            if let Some(u) = &mut self.td {
+                u.add_counters(td, k);
             }
 
             self.idle += k;
@@ -626,8 +718,13 @@ impl<'a> Machine<'a> {
             self.trace.push(w);
             if let Some(h) = self.progress_hook.as_mut() {
                 // Work: every merge output (partial sorts and passes) and every emitter read.
-                let total = self.npad * (self.passes_total as u64 + 1) + self.n;
-                h(self.emit.consumed + self.merger.outputs, total);
+                let (td_done, td_total) = match &self.td {
+                    Some(t) => t.progress(),
+                    None if self.cfg.output == OutputMode::CbvhTopdown => (0, self.n),
+                    None => (0, 0),
+                };
+                let total = self.npad * (self.passes_total as u64 + 1) + self.n + td_total;
+                h(self.emit.consumed + self.merger.outputs + td_done, total);
             }
         }
         self.win.cycle_start = self.cycle;
@@ -645,6 +742,7 @@ impl<'a> Machine<'a> {
                 }
             }
             Phase::Toplevel => "toplevel_sah".into(),
+            Phase::Topdown => "topdown_compress".into(),
             Phase::Done => "done".into(),
         }
     }
@@ -732,22 +830,51 @@ impl<'a> Machine<'a> {
             }
             Phase::Emit => {
                 if self.emit.done {
-                    self.nodes_wb.flush = true;
+                    // The streaming encoder writes node pairs until it is done.
+                    let stream_done = self.stream.as_ref().is_none_or(|s| s.done);
+                    self.nodes_wb.flush |= stream_done;
                     self.leaves_wb.flush = true;
                     self.hl_wb.flush = true;
-                    if self.nodes_wb.pending() == 0
+                    if stream_done
+                        && self.nodes_wb.pending() == 0
                         && self.leaves_wb.pending() == 0
                         && self.hl_wb.pending() == 0
                         && self.port.outstanding() == 0
                     {
                         self.end_phase();
+                        self.build_cycles = self.cycle;
                         if self.cfg.toplevel_sah && self.emit.roots.len() > 1 {
                             self.top = Some(TopUnit::new(&self.emit.roots, &self.cfg));
                             self.hl_wb.flush = false;
                             self.phase = Phase::Toplevel;
+                        } else if self.cfg.output == OutputMode::CbvhTopdown {
+                            self.nodes_wb = WriteBuffer::new(
+                                self.layout.cbvh,
+                                self.cfg.node_buffer_bytes as u64,
+                                self.cfg.write_chunk_bytes as u64,
+                            );
+                            let pair = cbvh::format::pair_bytes(self.cfg.cbvh_bits) as u64;
+                            self.td = Some(TopdownUnit::new(
+                                self.emit.nodes.len() as u64,
+                                self.layout.nodes,
+                                pair,
+                            ));
+                            self.phase = Phase::Topdown;
                         } else {
                             self.phase = Phase::Done;
                         }
+                        return true;
+                    }
+                }
+                false
+            }
+            Phase::Topdown => {
+                let td = self.td.as_ref().expect("top-down unit in its phase");
+                if td.done() {
+                    self.nodes_wb.flush = true;
+                    if self.nodes_wb.pending() == 0 && self.port.outstanding() == 0 {
+                        self.end_phase();
+                        self.phase = Phase::Done;
                         return true;
                     }
                 }
@@ -979,15 +1106,16 @@ impl<'a> Machine<'a> {
                     &mut *self.port,
                     &mut self.outstanding_writes,
                 ),
-                _ => self.try_read(),
+                4 => self.try_read(),
+                _ => self.try_cbvh(),
             };
             match ok {
                 None => {
                     who += 1;
                     continue;
                 }
-                Some(Ok(bytes)) => {
-                    if who == 4 {
+                Some(Ok((bytes, read))) => {
+                    if read {
                         self.phase_read += bytes;
                     } else {
                         self.phase_written += bytes;
@@ -1018,7 +1146,12 @@ impl<'a> Machine<'a> {
         } else {
             !self.refill.is_empty()
         };
-        let mut mask = run as u32 | (read as u32) << 4;
+        let cbvh = match (&self.stream, &self.td) {
+            (Some(s), _) => s.request(&self.nodes_wb).is_some(),
+            (None, Some(t)) => t.request().is_some(),
+            (None, None) => false,
+        };
+        let mut mask = run as u32 | (read as u32) << 4 | (cbvh as u32) << 5;
         // Only the emitter and the toplevel unit fill the write buffers: before emission
         // starts they are empty.
         if self.emit_active || self.top.is_some() {
@@ -1043,7 +1176,50 @@ impl<'a> Machine<'a> {
         crate::dram::bursts_of(addr, bytes, bb) * bb as u64
     }
 
-    fn try_read(&mut self) -> Option<Result<u64, ()>> {
+    /// The CBVH unit's request: a backtracking read or write of the streaming encoder, or a
+    /// node read of the top-down pass. Returns the bytes and whether it was a read.
+    fn try_cbvh(&mut self) -> Option<Result<(u64, bool), ()>> {
+        let (kind, addr, bytes, dest) = if let Some(st) = &self.stream {
+            let (kind, addr, bytes) = st.request(&self.nodes_wb)?;
+            (kind, addr, bytes, ReadDest::Backtrack)
+        } else {
+            let (j, addr, bytes) = self.td.as_ref()?.request()?;
+            (AccessKind::Read, addr, bytes, ReadDest::Topdown { j })
+        };
+        let tag = match kind {
+            AccessKind::Read => self.new_tag(ReadDesc {
+                dest,
+                src: 0,
+                count: 0,
+                bytes,
+            }),
+            AccessKind::Write => WRITE_TAG | bytes as u64,
+        };
+        let req = MemRequest {
+            tag,
+            addr,
+            bytes,
+            kind,
+        };
+        if self.port.send(req).is_err() {
+            if kind == AccessKind::Read {
+                self.free_tags.push(tag as u32);
+            }
+            return Some(Err(()));
+        }
+        match (&mut self.stream, &mut self.td) {
+            (Some(st), _) => st.issued(),
+            (None, Some(td)) => td.issued(),
+            (None, None) => unreachable!("a CBVH request without a CBVH unit"),
+        }
+        if kind == AccessKind::Write {
+            self.outstanding_writes += 1;
+        }
+        let read = kind == AccessKind::Read;
+        Some(Ok((Self::burst_bytes(&*self.port, addr, bytes), read)))
+    }
+
+    fn try_read(&mut self) -> Option<Result<(u64, bool), ()>> {
         let Some((d, addr)) = self.next_read() else {
             if self.phase == Phase::PartialSort && self.in_next < self.npad {
                 self.reader_blocked_cycles += 1;
@@ -1078,11 +1254,14 @@ impl<'a> Machine<'a> {
                 self.refill.pop_front();
                 self.merger.commit_fetch(buf, d.count);
             }
+            ReadDest::Backtrack | ReadDest::Topdown { .. } => {
+                unreachable!("the reader issues input and run reads only")
+            }
         }
-        Some(Ok(Self::burst_bytes(&*self.port, addr, d.bytes)))
+        Some(Ok((Self::burst_bytes(&*self.port, addr, d.bytes), true)))
     }
 
-    fn try_run_write(&mut self) -> Option<Result<u64, ()>> {
+    fn try_run_write(&mut self) -> Option<Result<(u64, bool), ()>> {
         let len = self.run_fifo.len() as u64;
         let b = self.cfg.b as u64;
         if len == 0 || (len < b && !self.run_flush) {
@@ -1106,14 +1285,14 @@ impl<'a> Machine<'a> {
             self.wr_pos += 1;
         }
         self.outstanding_writes += 1;
-        Some(Ok(Self::burst_bytes(&*self.port, addr, bytes)))
+        Some(Ok((Self::burst_bytes(&*self.port, addr, bytes), false)))
     }
 
     fn try_buffer_write(
         wb: &mut WriteBuffer,
         port: &mut dyn MemoryPort,
         outstanding: &mut u64,
-    ) -> Option<Result<u64, ()>> {
+    ) -> Option<Result<(u64, bool), ()>> {
         let (addr, bytes) = wb.ready()?;
         let req = MemRequest {
             tag: WRITE_TAG | bytes as u64,
@@ -1126,10 +1305,10 @@ impl<'a> Machine<'a> {
         }
         wb.issued(bytes);
         *outstanding += 1;
-        Some(Ok(Self::burst_bytes(port, addr, bytes)))
+        Some(Ok((Self::burst_bytes(port, addr, bytes), false)))
     }
 
-    fn on_response(&mut self, tag: u64) {
+    fn on_response(&mut self, tag: u64, latency: u64) {
         if tag & WRITE_TAG != 0 {
             self.outstanding_writes -= 1;
             self.win.bus_bytes += tag & 0xffff_ffff;
@@ -1154,6 +1333,16 @@ impl<'a> Machine<'a> {
                 ps.slot_count[slot as usize] = d.count;
                 ps.slot_valid[slot as usize] = true;
                 self.presort_dirty = true;
+            }
+            ReadDest::Backtrack => {
+                if let Some(st) = &mut self.stream {
+                    st.read_returned(latency);
+                }
+            }
+            ReadDest::Topdown { j } => {
+                if let Some(td) = &mut self.td {
+                    td.arrived(j, latency);
+                }
             }
             ReadDest::Merge { buf } => {
                 let s = d.src as usize;
@@ -1210,6 +1399,14 @@ impl<'a> Machine<'a> {
             self.hl_wb.pending(),
             self.outstanding_writes
         );
+        if let Some(u) = &self.stream {
+            s += "; ";
+            s += &u.state();
+        }
+        if let Some(u) = &self.td {
+            s += "; ";
+            s += &u.state();
+        }
         s
     }
 

@@ -13,6 +13,9 @@
 //! - [`emitter`]: the hierarchy emitter (\[P2\] §5.4, Algorithm 1), which drives the same
 //!   [`bvh::Emitter`] as the software builder, so the tree is the software tree;
 //! - [`toplevel`]: the optional toplevel binned SAH unit (\[P2\] §6.1);
+//! - [`cbvh_unit`]: the CBVH output of \[P3\] §5.3: the streaming bottom-up encoder behind
+//!   the emitter (backtracking steps as DRAM reads and writes), or a top-down compression
+//!   pass after the build;
 //! - [`report`]: cycles, traffic, utilization, stalls, time series (CSV and SVG).
 //!
 //! The centroid bounds that scale the Morton codes are an input of the unit (a
@@ -22,6 +25,7 @@
 //! Padding: the scene is padded to a multiple of B with elements whose code lies above
 //! every real code (\[P2\] §5.3), so they sort last and end the emitter's stream.
 
+pub mod cbvh_unit;
 pub mod config;
 pub mod emitter;
 pub mod heap;
@@ -31,9 +35,9 @@ pub mod presort;
 pub mod report;
 pub mod toplevel;
 
-pub use config::{ConfigError, MergeTreeConfig};
+pub use config::{ConfigError, MergeTreeConfig, OutputMode};
 pub use machine::MemoryLayout;
-pub use report::{MergeTreeReport, PhaseReport, StallReport, TraceRow};
+pub use report::{CbvhRunReport, MergeTreeReport, PhaseReport, StallReport, TraceRow};
 
 use bvh::{Bvh2, HlbvhBuilder, HlbvhSahBuilder, MortonBits};
 use geom::Aabb;
@@ -104,6 +108,10 @@ pub enum MergeTreeError {
     /// The software reference builder failed.
     #[error(transparent)]
     Build(#[from] bvh::BuildError),
+    /// The CBVH encoder refused the tree (for example, more node pairs than its pointers
+    /// address).
+    #[error("CBVH output: {0}")]
+    Cbvh(#[from] cbvh::CbvhError),
 }
 
 /// The centroid bounds of `aabbs`, with the software builder's centroid expression.
@@ -143,7 +151,10 @@ pub fn simulate_with_progress<'a>(
         )));
     }
     let cb = centroid_bounds(aabbs);
-    let mut m = machine::Machine::new(aabbs, &cb, cfg, port, progress);
+    if cfg.output.is_cbvh() {
+        cbvh::bottomup::check_stream(1, aabbs.len())?;
+    }
+    let mut m = machine::Machine::new(aabbs, &cb, cfg, port, progress)?;
     let cycles = m.run()?;
     let mem = m.port().stats();
     let peak = m.port().peak_bytes_per_unit_cycle();
@@ -166,6 +177,12 @@ pub fn simulate_with_progress<'a>(
         None => (0, 0, None),
     };
     let blocks = (aabbs.len() as u64).div_ceil(cfg.m as u64);
+    let highlevel = bvh::Highlevel {
+        nodes: std::mem::take(&mut m.emit.nodes),
+        roots: std::mem::take(&mut m.emit.roots),
+        order: std::mem::take(&mut m.emit.order),
+    };
+    let cbvh = cbvh_result(&mut m, &highlevel, cfg, cycles)?;
     let report = MergeTreeReport {
         triangles: aabbs.len() as u64,
         config: cfg.clone(),
@@ -194,9 +211,9 @@ pub fn simulate_with_progress<'a>(
             stalls.merge_outputs as f64 / cycles as f64
         },
         stalls,
-        nodes: m.emit.nodes.len() as u64,
-        leaf_entries: m.emit.order.len() as u64,
-        highlevel_roots: m.emit.roots.len() as u64,
+        nodes: highlevel.nodes.len() as u64,
+        leaf_entries: highlevel.order.len() as u64,
+        highlevel_roots: highlevel.roots.len() as u64,
         max_stack_depth: m.emit.max_stack_depth(),
         toplevel_sweeps,
         toplevel_cycles,
@@ -204,14 +221,62 @@ pub fn simulate_with_progress<'a>(
         layout: m.layout,
         memory: mem,
         trace: std::mem::take(&mut m.trace),
-        highlevel: bvh::Highlevel {
-            nodes: std::mem::take(&mut m.emit.nodes),
-            roots: std::mem::take(&mut m.emit.roots),
-            order: std::mem::take(&mut m.emit.order),
-        },
+        highlevel,
         top_tree,
+        cbvh,
     };
     Ok(report)
+}
+
+/// The CBVH the unit wrote, with its counts, in the CBVH output modes.
+fn cbvh_result(
+    m: &mut machine::Machine<'_>,
+    hl: &bvh::Highlevel,
+    cfg: &MergeTreeConfig,
+    cycles: u64,
+) -> Result<Option<CbvhRunReport>, MergeTreeError> {
+    let pair_bytes = cbvh::format::pair_bytes(cfg.cbvh_bits) as u64;
+    let build_cycles = if hl.order.is_empty() {
+        0
+    } else {
+        m.build_cycles
+    };
+    let (tree, encode, stream, topdown) = match cfg.output {
+        OutputMode::Bvh => return Ok(None),
+        OutputMode::CbvhStream => match m.stream.take() {
+            Some(unit) if !hl.order.is_empty() => {
+                let stats = unit.stats.clone();
+                let ids = m.emit.cbvh_ids.take().unwrap_or_default();
+                let (tree, encode) = unit.into_encoder().finish(ids)?;
+                (tree, encode, Some(stats), None)
+            }
+            // An empty scene: nothing ran; the encoder's tree of no primitives.
+            _ => {
+                let (tree, encode) = cbvh::compress_hlbvh(hl, &cfg.stream_config(0))?;
+                (tree, encode, None, None)
+            }
+        },
+        OutputMode::CbvhTopdown => {
+            let (tree, encode) = cbvh::compress_topdown(&hl.to_bvh2(), &cfg.cbvh_params())?;
+            (tree, encode, None, m.td.take().map(|t| t.stats))
+        }
+    };
+    Ok(Some(CbvhRunReport {
+        mode: cfg.output,
+        params: cfg.cbvh_params(),
+        treelet_depth: cfg.cbvh_treelet_depth,
+        node_pairs: tree.pairs.len() as u64,
+        pair_bytes,
+        backtrack_steps: encode.backtrack_steps,
+        backtrack_depth_hist: encode.backtrack_depth_hist.clone(),
+        build_cycles,
+        build_ms: build_cycles as f64 / (cfg.clock_mhz as f64 * 1e3),
+        compress_cycles: cycles - build_cycles,
+        stream,
+        topdown,
+        encode,
+        tree,
+    }))
 }
 
 /// The software HLBVH builder with the same tree options as `cfg`.
@@ -244,6 +309,40 @@ pub fn software_tree(aabbs: &[Aabb], cfg: &MergeTreeConfig) -> Result<Bvh2, Merg
     Ok(hl.build(aabbs)?)
 }
 
+/// The CBVH software makes for `cfg`'s output mode: `cbvh::compress_hlbvh` of the software
+/// emitter's stream (streaming), or `cbvh::compress_topdown` of the software tree
+/// (top-down); `None` for the plain output.
+pub fn software_cbvh(
+    aabbs: &[Aabb],
+    cfg: &MergeTreeConfig,
+) -> Result<Option<(cbvh::Cbvh, cbvh::EncodeStats)>, MergeTreeError> {
+    Ok(match cfg.output {
+        OutputMode::Bvh => None,
+        OutputMode::CbvhStream => {
+            let hl = software_builder(cfg).build_highlevel(aabbs)?;
+            Some(cbvh::compress_hlbvh(&hl, &cfg.stream_config(0))?)
+        }
+        OutputMode::CbvhTopdown => Some(cbvh::compress_topdown(
+            &software_tree(aabbs, cfg)?,
+            &cfg.cbvh_params(),
+        )?),
+    })
+}
+
+/// In the CBVH output modes, true when the CBVH the unit wrote equals the software
+/// encoder's bit for bit (node pairs, root, root context, primitive ids) with the same
+/// counts; `None` for the plain output.
+pub fn cbvh_matches_software(
+    report: &MergeTreeReport,
+    aabbs: &[Aabb],
+) -> Result<Option<bool>, MergeTreeError> {
+    let (Some(ours), Some((tree, stats))) = (&report.cbvh, software_cbvh(aabbs, &report.config)?)
+    else {
+        return Ok(None);
+    };
+    Ok(Some(ours.tree == tree && ours.encode == stats))
+}
+
 /// True when the simulated unit's tree equals the software builder's node for node (and,
 /// with a threshold, its high-level output equals the software emitter's).
 pub fn tree_matches_software(
@@ -262,3 +361,5 @@ pub fn tree_matches_software(
 
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_cbvh;

@@ -6,7 +6,8 @@ use std::fmt::Write as _;
 
 use serde::Serialize;
 
-use super::config::MergeTreeConfig;
+use super::cbvh_unit::{StreamUnitStats, TopdownStats};
+use super::config::{MergeTreeConfig, OutputMode};
 use super::emitter::EmitterStalls;
 use super::machine::MemoryLayout;
 use super::merge::MergeStalls;
@@ -143,6 +144,45 @@ pub struct MergeTreeReport {
     /// The toplevel unit's tree over the cell roots, when it ran.
     #[serde(skip)]
     pub top_tree: Option<bvh::Bvh2>,
+    /// The CBVH output (\[P3\] §5.3), in the CBVH output modes.
+    pub cbvh: Option<CbvhRunReport>,
+}
+
+/// What the CBVH output of a run did (\[P3\] §5.3).
+#[derive(Clone, Debug, Serialize)]
+pub struct CbvhRunReport {
+    /// `cbvh-stream` or `cbvh-topdown`.
+    pub mode: OutputMode,
+    /// Quantization parameters.
+    pub params: cbvh::Params,
+    /// Treelet depth of the streaming encoder (1 = none).
+    pub treelet_depth: u32,
+    /// Node pairs of the CBVH.
+    pub node_pairs: u64,
+    /// Bytes of one node pair.
+    pub pair_bytes: u64,
+    /// Backtracking steps (streaming; 0 for top-down).
+    pub backtrack_steps: u64,
+    /// Backtracking steps by depth (\[P3\] Fig. 7).
+    pub backtrack_depth_hist: Vec<u64>,
+    /// Cycles until the build's output was complete in DRAM: for top-down, the
+    /// single-precision build before the pass (\[P3\] Table 2's "BVH" column is this
+    /// build alone); for streaming, the whole run.
+    pub build_cycles: u64,
+    /// `build_cycles` in milliseconds.
+    pub build_ms: f64,
+    /// Cycles of the top-down pass (0 for streaming).
+    pub compress_cycles: u64,
+    /// Streaming encoder unit counters.
+    pub stream: Option<StreamUnitStats>,
+    /// Top-down pass counters.
+    pub topdown: Option<TopdownStats>,
+    /// The encoder's own counts.
+    #[serde(skip)]
+    pub encode: cbvh::EncodeStats,
+    /// The CBVH written.
+    #[serde(skip)]
+    pub tree: cbvh::Cbvh,
 }
 
 impl MergeTreeReport {

@@ -8,7 +8,7 @@ use geom::Vec3;
 use proptest::prelude::*;
 
 /// Deterministic pseudo-random boxes (splitmix64).
-fn random_boxes(n: usize, seed: u64) -> Vec<Aabb> {
+pub(super) fn random_boxes(n: usize, seed: u64) -> Vec<Aabb> {
     let mut s = seed;
     let mut next = move || {
         s = s.wrapping_add(0x9e37_79b9_7f4a_7c15);
@@ -27,7 +27,7 @@ fn random_boxes(n: usize, seed: u64) -> Vec<Aabb> {
 }
 
 /// Boxes whose centroids take only `distinct` values: long runs of identical codes.
-fn clustered_boxes(n: usize, distinct: usize) -> Vec<Aabb> {
+pub(super) fn clustered_boxes(n: usize, distinct: usize) -> Vec<Aabb> {
     (0..n)
         .map(|i| {
             let k = (i * 7919) % distinct;
