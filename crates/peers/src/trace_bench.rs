@@ -233,65 +233,6 @@ pub const ARBOR_KERNELS: [(&str, &str, bool, bool); 5] = [
     ),
 ];
 
-/// Prints the traversal counters per ray of every Arbor kernel on both ray sets (what a
-/// throughput difference has to be read against).
-pub fn print_kernel_stats(scene: &BenchScene<'_>) -> Result<(), Box<dyn std::error::Error>> {
-    let tris: Vec<geom::Triangle> = scene
-        .indices
-        .iter()
-        .map(|t| {
-            geom::Triangle::new(
-                scene.positions[t[0] as usize],
-                scene.positions[t[1] as usize],
-                scene.positions[t[2] as usize],
-            )
-        })
-        .collect();
-    let aabbs = bvh::triangle_aabbs(&tris);
-    let binned = bvh::BinnedSahBuilder::default().build(&aabbs)?;
-    let b2 = trace::Bvh2Accel::new(binned.clone(), &tris, Default::default())?;
-    let b4 = trace::Mbvh4Accel::new(bvh::collapse(&binned)?, &tris, Default::default())?;
-    let mut settings = RenderSettings::new(scene.camera);
-    settings.width = scene.width;
-    settings.height = scene.height;
-    let shading = Shading {
-        triangles: &tris,
-        material_ids: &[],
-    };
-    let sets = RaySets::record(&b2, shading, &settings, scene.bounces)?;
-    for (name, rays) in [("primary", &sets.primary), ("diffuse", &sets.diffuse)] {
-        for (k, s) in [
-            ("bvh2", {
-                let mut s = trace::RayStats::default();
-                let mut st = trace::TraversalStack::new();
-                for r in rays.iter() {
-                    b2.closest_hit(r, &mut st, &mut s);
-                }
-                s
-            }),
-            ("mbvh4", {
-                let mut s = trace::RayStats::default();
-                let mut st = trace::TraversalStack::new();
-                for r in rays.iter() {
-                    b4.closest_hit(r, &mut st, &mut s);
-                }
-                s
-            }),
-        ] {
-            eprintln!(
-                "{name:8} {k:6} rays {:>8} nodes/ray {:6.2} boxes/ray {:6.2} leaves/ray {:5.2} tris/ray {:5.2} pushes/ray {:5.2}",
-                s.rays,
-                s.per_ray(s.node_visits),
-                s.per_ray(s.box_tests),
-                s.per_ray(s.leaf_visits),
-                s.per_ray(s.tri_tests),
-                s.per_ray(s.pushes)
-            );
-        }
-    }
-    Ok(())
-}
-
 /// Runs the whole comparison on `scene`: builds every tracer, records the two ray sets
 /// with the first Arbor kernel, and measures every tracer on both sets for each thread
 /// count. `note` is called with a line of progress.
@@ -425,10 +366,6 @@ pub fn run(
         Box::new(|_: &mut Scratch, r: &Ray| obvhs.intersect(r)),
     ));
 
-    // TRACE_ONLY=substring keeps only matching tracers (for profiling one kernel).
-    if let Ok(only) = std::env::var("TRACE_ONLY") {
-        tracers.retain(|t| t.0.contains(&only));
-    }
     let embree_index = tracers
         .iter()
         .position(|t| t.0 == "embree 3 rtcIntersect1 (MEDIUM)");

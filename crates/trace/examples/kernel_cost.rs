@@ -1,7 +1,8 @@
 //! Traces a scene's diffuse bounce rays through the MBVH4 and BVH2 kernels many times, for
 //! profiling one kernel in isolation (e.g. under `valgrind --tool=callgrind
 //! --toggle-collect='*Mbvh4Accel*run*'`). `cargo run --release -p trace --example
-//! kernel_cost -- SCENE [REPEATS]`.
+//! kernel_cost -- SCENE [REPEATS [EYE TARGET FOV [KERNEL]]]` (EYE and TARGET as `x,y,z`;
+//! KERNEL one of `mbvh4`, `mbvh8`, `bvh2` to trace only that one).
 
 use trace::{RayKind, RenderSettings, Shading, Traverse};
 
@@ -17,7 +18,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let b2 = trace::Bvh2Accel::new(binned.clone(), &tris, Default::default())?;
     let b4 = trace::Mbvh4Accel::new(bvh::collapse(&binned)?, &tris, Default::default())?;
     let b8 = trace::Mbvh8Accel::from_bvh2(&binned, &tris, Default::default())?;
-    let mut s = RenderSettings::new(sc.info().camera);
+    let mut cam = sc.info().camera;
+    let v3 = |a: &str| -> Result<geom::Vec3, Box<dyn std::error::Error>> {
+        let c: Vec<f32> = a.split(',').map(str::parse).collect::<Result<_, _>>()?;
+        match c[..] {
+            [x, y, z] => Ok(geom::Vec3::new(x, y, z)),
+            _ => Err(format!("{a}: expected x,y,z").into()),
+        }
+    };
+    if let [eye, target, fov, ..] = &args[2.min(args.len())..] {
+        (cam.eye, cam.target, cam.vfov_deg) = (v3(eye)?, v3(target)?, fov.parse()?);
+    }
+    let only = args.get(5);
+    let mut s = RenderSettings::new(cam);
     s.width = 320;
     s.height = 180;
     s.rays = RayKind::Diffuse;
@@ -43,6 +56,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         ("mbvh8", &trace::Accel::Mbvh8(b8)),
         ("bvh2", &trace::Accel::Bvh2(b2)),
     ] {
+        if only.is_some_and(|o| o != name) {
+            continue;
+        }
         let mut st = trace::RayStats::default();
         let start = std::time::Instant::now();
         let mut hits = 0u64;

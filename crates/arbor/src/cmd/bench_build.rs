@@ -56,7 +56,7 @@ pub const GOAL_ATRBVH_TIME: f64 = 2.0;
 /// Issue 3's goal: peak memory during a build at most this multiple of input plus output.
 pub const GOAL_MEMORY: f64 = 2.0;
 
-/// Output formats.
+/// Output formats (of `arbor bench build` and `arbor bench trace`).
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Format {
     /// Aligned text table and goal summary.
@@ -65,7 +65,7 @@ pub enum Format {
     Markdown,
     /// One CSV row per measurement.
     Csv,
-    /// The `arbor.bench.build.v1` document.
+    /// The versioned JSON document (`arbor.bench.build.v1`, `arbor.bench.trace.v1`).
     Json,
 }
 

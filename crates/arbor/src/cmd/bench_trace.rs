@@ -16,6 +16,7 @@
 //! Embree's single-ray throughput on incoherent rays.
 
 use super::bench::{load_average, utc_now};
+pub use super::bench_build::Format;
 use super::report::{view_camera, write_atomic, SHARED_SCENES};
 use super::{open_scene, thousands, SceneArgs};
 use crate::progress::Ui;
@@ -33,19 +34,6 @@ pub const MAX_SIDE: u32 = 4096;
 pub const EMBREE: bool = cfg!(feature = "embree");
 /// Scenes of `shared/scenes` measured when none are given (those present).
 const DEFAULT_SHARED: [&str; 5] = ["bunny", "crytek-sponza", "conference", "sibenik", "dragon"];
-
-/// Output formats.
-#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
-pub enum Format {
-    /// Aligned text table and goal summary.
-    Text,
-    /// Markdown tables (for the README).
-    Markdown,
-    /// One CSV row per measurement.
-    Csv,
-    /// The `arbor.bench.trace.v1` document.
-    Json,
-}
 
 /// Arguments of `arbor bench trace`.
 #[derive(clap::Args, Debug)]
