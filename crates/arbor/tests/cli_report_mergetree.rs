@@ -102,6 +102,13 @@ fn tiny_procedural_scenes_on_dramsim3() {
         .map(|k| num(&t6[0], k))
         .sum();
     assert!((split - num(&t6[0], "mergetree_mb")).abs() < 1e-2);
+    // The cube-grid run (no leaf limit): its own traffic, leaves of at least one triangle,
+    // no thesis value to compare with.
+    for r in &t6 {
+        assert!(num(r, "cube_grid_mib") > 0.0);
+        assert!(num(r, "cube_grid_leaf_size") >= 1.0);
+        assert!(r["cube_grid_diff_pct_mib"].is_empty());
+    }
     let md = std::fs::read_to_string(d.join("report.md")).unwrap();
     assert!(md.contains("Table III analogue") && md.contains("Table VI analogue"));
 }
@@ -131,6 +138,9 @@ fn a_shared_scene_gets_the_thesis_columns() {
     let t6 = csv(&dir.path().join("table6.csv"));
     assert_eq!(t6[0]["thesis_mergetree_mb"], "10.6");
     assert_eq!(t6[0]["thesis_gpu_hlbvh_mb"], "27");
+    // Codes on a cube grid, no leaf-size limit, Table VI read as MiB: Bunny's 10.6.
+    let d = num(&t6[0], "cube_grid_diff_pct_mib");
+    assert!(d.abs() < 0.5, "cube grid: {d}% from Table VI");
     let sah = csv(&dir.path().join("sah.csv"));
     assert_eq!(sah[0]["thesis_pct"], "122");
     for f in ["table3.svg", "speedup.svg", "table6.svg"] {

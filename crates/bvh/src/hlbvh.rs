@@ -37,7 +37,7 @@ use crate::error::{check_input, in_pool, BuildError};
 use crate::lbvh::MortonBits;
 use crate::node::{ChildRef, Node};
 use crate::PARALLEL_MIN_PRIMS;
-use geom::Aabb;
+use geom::{Aabb, MortonGrid};
 use rayon::prelude::*;
 
 /// Configuration of the streaming HLBVH builder.
@@ -58,6 +58,9 @@ pub struct HlbvhBuilder {
     /// Worker threads for coding and sorting: 0 uses the current rayon pool, `n` a private
     /// pool of `n` threads. Emission itself is serial, as in the hardware.
     pub threads: usize,
+    /// The grid of the Morton codes over the centroid bounds (default: stretched to the
+    /// box on each axis; [`MortonGrid::Cube`] for cubic cells).
+    pub grid: MortonGrid,
 }
 
 impl Default for HlbvhBuilder {
@@ -68,6 +71,7 @@ impl Default for HlbvhBuilder {
             max_leaf_size: 8,
             highlevel_threshold: None,
             threads: 0,
+            grid: MortonGrid::Box,
         }
     }
 }
@@ -623,7 +627,7 @@ impl HlbvhBuilder {
         boxes: bool,
         top: impl FnOnce(&Highlevel) -> Result<Bvh2, BuildError>,
     ) -> Result<Bvh2, BuildError> {
-        let (codes, order) = sorted_codes(aabbs, self.bits);
+        let (codes, order) = sorted_codes(aabbs, self.bits, self.grid);
         let n = codes.len();
         if n == 0 {
             return Ok(Bvh2::empty());
@@ -854,7 +858,7 @@ impl HlbvhBuilder {
     }
 
     fn emit_all(&self, aabbs: &[Aabb]) -> Highlevel {
-        let (codes, order) = sorted_codes(aabbs, self.bits);
+        let (codes, order) = sorted_codes(aabbs, self.bits, self.grid);
         // Gather the boxes in sorted order up front: a tight parallel loop overlaps the cache
         // misses of this random gather, which dominated the serial emission loop ([P2] §4.2
         // sorts the AABBs themselves for the same reason).
@@ -1013,7 +1017,7 @@ mod tests {
             return Bvh2::empty();
         }
         let cb = aabbs.iter().fold(Aabb::EMPTY, |b, a| b.grow(centroid(a)));
-        let q = MortonQuantizer::new(&cb);
+        let q = MortonQuantizer::with_grid(&cb, cfg.grid);
         let mut pairs: Vec<(u64, u32)> = aabbs
             .iter()
             .enumerate()
@@ -1068,15 +1072,51 @@ mod tests {
         for bits in [MortonBits::Bits30, MortonBits::Bits63] {
             for (combine_identical, max_leaf_size) in [(true, 8), (true, 1), (true, 3), (false, 8)]
             {
-                v.push(HlbvhBuilder {
-                    bits,
-                    combine_identical,
-                    max_leaf_size,
-                    ..Default::default()
-                });
+                for grid in [MortonGrid::Box, MortonGrid::Cube] {
+                    v.push(HlbvhBuilder {
+                        bits,
+                        combine_identical,
+                        max_leaf_size,
+                        grid,
+                        ..Default::default()
+                    });
+                }
             }
         }
         v
+    }
+
+    #[test]
+    fn a_cube_grid_shares_codes_on_the_short_axes() {
+        // A long, thin row of boxes: on the box grid every box has its own code; on the
+        // cube grid the short axes have a single cell, so the codes are those of x alone
+        // and identical ones fall into shared leaves.
+        let prims: Vec<Aabb> = (0..4096)
+            .map(|i| {
+                let c = Vec3::new(
+                    i as f32 * 0.25,
+                    (i % 7) as f32 * 0.01,
+                    (i % 5) as f32 * 0.01,
+                );
+                Aabb::new(c, c + Vec3::splat(0.1))
+            })
+            .collect();
+        let boxed = HlbvhBuilder::default().build(&prims).unwrap();
+        let cube = HlbvhBuilder {
+            grid: MortonGrid::Cube,
+            ..Default::default()
+        }
+        .build(&prims)
+        .unwrap();
+        assert_valid("row box", &boxed, &prims, 8);
+        assert_valid("row cube", &cube, &prims, 8);
+        assert!(
+            cube.stats().leaves < boxed.stats().leaves,
+            "{:?} {:?}",
+            cube.stats(),
+            boxed.stats()
+        );
+        assert_ne!(cube, boxed);
     }
 
     #[test]
@@ -1195,7 +1235,7 @@ mod tests {
     #[test]
     fn step_count_is_two_per_node() {
         let prims = soup(5000, 1.0, 8);
-        let (codes, order) = sorted_codes(&prims, MortonBits::Bits30);
+        let (codes, order) = sorted_codes(&prims, MortonBits::Bits30, MortonGrid::Box);
         let ties = ties(&codes, false, 1);
         let mut em = Emitter::new(None);
         let mut input = codes
@@ -1334,7 +1374,7 @@ mod tests {
             let one = serial.emit_range(0, &[], &[], &[], &mut []);
             assert!(one.0 == 0 && one.1.is_empty());
             // One emitter over the whole stream, by hand.
-            let (codes, order) = sorted_codes(&prims, cfg.bits);
+            let (codes, order) = sorted_codes(&prims, cfg.bits, cfg.grid);
             let boxes: Vec<Aabb> = order.iter().map(|&i| prims[i as usize]).collect();
             let ties = ties(&codes, true, 8);
             let mut nodes = vec![PLACEHOLDER; prims.len() - 1];

@@ -97,7 +97,7 @@ impl LbvhBuilder {
 
 /// Computes the codes of all centroids and sorts (code, primitive index) pairs.
 fn sort_by_morton(aabbs: &[Aabb], bits: MortonBits) -> Sorted {
-    let (codes, order) = crate::morton_sort::sorted_codes(aabbs, bits);
+    let (codes, order) = crate::morton_sort::sorted_codes(aabbs, bits, geom::MortonGrid::Box);
     Sorted { codes, order }
 }
 

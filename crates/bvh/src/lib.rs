@@ -35,6 +35,7 @@ pub use binned_sah::{BinnedSahBuilder, MAX_BINS};
 pub use bvh2::{Bvh2, TreeStats};
 pub use collapse::{collapse, Collapse, CollapseError, WideBvh, WideNode};
 pub use error::{BuildError, MAX_PRIMITIVES};
+pub use geom::MortonGrid;
 pub use hlbvh::{
     EmitRef, EmittedNode, Emitter, Highlevel, HighlevelRoot, HlbvhBuilder, Prim, Step,
 };

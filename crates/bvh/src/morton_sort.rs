@@ -15,7 +15,7 @@
 
 use crate::centroid;
 use crate::lbvh::MortonBits;
-use geom::{Aabb, MortonQuantizer};
+use geom::{Aabb, MortonGrid, MortonQuantizer};
 use rayon::prelude::*;
 
 /// Keys per chunk below which a pass runs on one chunk (parallel passes pay a
@@ -102,12 +102,16 @@ fn radix_sort<K: Key>(keys: Vec<K>, lo: u32, bits: u32, passes: u32) -> Vec<K> {
 /// The Morton code of every centroid over the centroid bounds, sorted with the primitive
 /// indices: `(codes, order)`, `codes[k]` the `k`-th smallest code and `order[k]` its
 /// primitive (ties in index order).
-pub(crate) fn sorted_codes(aabbs: &[Aabb], bits: MortonBits) -> (Vec<u64>, Vec<u32>) {
+pub(crate) fn sorted_codes(
+    aabbs: &[Aabb],
+    bits: MortonBits,
+    grid: MortonGrid,
+) -> (Vec<u64>, Vec<u32>) {
     let cbounds = aabbs
         .par_iter()
         .fold(|| Aabb::EMPTY, |b, a| b.grow(centroid(a)))
         .reduce(|| Aabb::EMPTY, Aabb::union);
-    let q = MortonQuantizer::new(&cbounds);
+    let q = MortonQuantizer::with_grid(&cbounds, grid);
     match bits {
         MortonBits::Bits30 => {
             // Code and index packed in one u64; sorted by the 30 code bits, 10 per pass.
@@ -191,7 +195,7 @@ mod tests {
     fn sorted_codes_are_the_total_code_index_order() {
         let prims = soup(100_000, 1.0, 4);
         for bits in [MortonBits::Bits30, MortonBits::Bits63] {
-            let (codes, order) = sorted_codes(&prims, bits);
+            let (codes, order) = sorted_codes(&prims, bits, MortonGrid::Box);
             assert_eq!(codes.len(), prims.len());
             let mut seen = vec![false; prims.len()];
             for (c, o) in codes.windows(2).zip(order.windows(2)) {
@@ -203,7 +207,7 @@ mod tests {
         }
         // All codes equal: the identity order.
         let same = vec![prims[0]; 70_000];
-        let (codes, order) = sorted_codes(&same, MortonBits::Bits30);
+        let (codes, order) = sorted_codes(&same, MortonBits::Bits30, MortonGrid::Box);
         assert!(codes.iter().all(|&c| c == codes[0]));
         assert!(order.iter().enumerate().all(|(k, &i)| k as u32 == i));
     }

@@ -17,7 +17,7 @@ pub use intersect::{
     intersect_triangle_watertight, intersect_triangles4_watertight, ray_aabb, Hits4, RayPrecomp,
     TriangleHit, Triangles4, SLAB_FAR_SCALE,
 };
-pub use morton::{morton30, morton63, MortonQuantizer};
+pub use morton::{morton30, morton63, MortonGrid, MortonQuantizer};
 pub use ray::Ray;
 pub use triangle::Triangle;
 

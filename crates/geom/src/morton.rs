@@ -43,6 +43,30 @@ pub fn morton63(q: [u32; 3]) -> u64 {
     (spread21(q[0]) << 2) | (spread21(q[1]) << 1) | spread21(q[2])
 }
 
+/// The grid that Morton codes quantize centroids on.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum MortonGrid {
+    /// `2^bits` cells on each axis of the box: cells are stretched to the box's shape, so a
+    /// long, flat scene keeps its full resolution on every axis (the default; Karras 2012).
+    #[default]
+    Box,
+    /// Cubic cells: the box's longest axis is split into `2^bits` cells and the others get
+    /// cells of the same size (fewer of them), as when a unit quantizes on the scene's
+    /// bounding cube. Coarser on the short axes, so more primitives share a code.
+    Cube,
+}
+
+impl MortonGrid {
+    /// The grid's name as `--set morton_grid=` takes it.
+    pub fn name(self) -> &'static str {
+        match self {
+            MortonGrid::Box => "box",
+            MortonGrid::Cube => "cube",
+        }
+    }
+}
+
 /// Maps points in a bounding box to integer grid cells and Morton codes.
 ///
 /// Each axis of the box is split into `2^bits` equal cells; points outside the box (and
@@ -69,6 +93,30 @@ impl MortonQuantizer {
         Self {
             origin: bounds.min,
             inv_extent: Vec3::new(inv(e.x), inv(e.y), inv(e.z)),
+        }
+    }
+
+    /// A quantizer over `bounds` on `grid`: [`Self::new`] for [`MortonGrid::Box`]; for
+    /// [`MortonGrid::Cube`], cells whose size on every axis is the longest extent over
+    /// `2^bits`, from the same origin.
+    pub fn with_grid(bounds: &Aabb, grid: MortonGrid) -> Self {
+        let q = Self::new(bounds);
+        match grid {
+            MortonGrid::Box => q,
+            MortonGrid::Cube => {
+                let inv = q.inv_extent;
+                // The longest axis has the smallest non-zero inverse extent; an all-flat
+                // box (every inverse zero) stays a single cell.
+                let longest = [inv.x, inv.y, inv.z]
+                    .into_iter()
+                    .filter(|&v| v > 0.0)
+                    .fold(f32::INFINITY, f32::min);
+                let c = if longest.is_finite() { longest } else { 0.0 };
+                Self {
+                    origin: q.origin,
+                    inv_extent: Vec3::splat(c),
+                }
+            }
         }
     }
 
@@ -113,6 +161,43 @@ impl MortonQuantizer {
 mod tests {
     use super::*;
     use proptest::prelude::*;
+
+    #[test]
+    fn cube_grid_has_equal_cells_on_every_axis() {
+        let b = Aabb::new(Vec3::new(0.0, 0.0, 0.0), Vec3::new(8.0, 2.0, 1.0));
+        let boxed = MortonQuantizer::with_grid(&b, MortonGrid::Box);
+        assert_eq!(boxed, MortonQuantizer::new(&b));
+        let cube = MortonQuantizer::with_grid(&b, MortonGrid::Cube);
+        // 4 bits: 16 cells of 0.5 on x, and the same 0.5 cells on y and z.
+        assert_eq!(cube.cell(Vec3::new(7.9, 1.9, 0.9), 4), [15, 3, 1]);
+        assert_eq!(boxed.cell(Vec3::new(7.9, 1.9, 0.9), 4), [15, 15, 14]);
+        assert_eq!(cube.cell(Vec3::new(0.6, 0.6, 0.6), 4), [1, 1, 1]);
+        // A flat axis stays at cell 0; a point box is one cell.
+        let flat = Aabb::new(Vec3::ZERO, Vec3::new(4.0, 0.0, 2.0));
+        let q = MortonQuantizer::with_grid(&flat, MortonGrid::Cube);
+        assert_eq!(q.cell(Vec3::new(4.0, 0.0, 2.0), 2), [3, 0, 2]);
+        let point = Aabb::new(Vec3::ONE, Vec3::ONE);
+        let q = MortonQuantizer::with_grid(&point, MortonGrid::Cube);
+        assert_eq!(q.cell(Vec3::new(5.0, -3.0, 1.0), 10), [0, 0, 0]);
+    }
+
+    proptest! {
+        /// On a cube grid every cell coordinate is within range and no finer than on the
+        /// box grid (cells are at least as large on every axis).
+        #[test]
+        fn cube_cells_are_never_finer_than_box_cells(
+            ext in prop::array::uniform3(0.0f32..100.0),
+            t in prop::array::uniform3(0.0f32..=1.0),
+        ) {
+            let b = Aabb::new(Vec3::ZERO, Vec3::from(ext));
+            let p = Vec3::new(t[0] * ext[0], t[1] * ext[1], t[2] * ext[2]);
+            let cube = MortonQuantizer::with_grid(&b, MortonGrid::Cube).cell(p, 10);
+            let boxed = MortonQuantizer::new(&b).cell(p, 10);
+            for a in 0..3 {
+                prop_assert!(cube[a] <= boxed[a] && cube[a] < 1024);
+            }
+        }
+    }
 
     /// Reference interleaving, one bit at a time.
     fn slow(q: [u32; 3], bits: u32) -> u64 {

@@ -106,6 +106,8 @@ struct SimRow {
     row_hit_rate: Option<f64>,
     energy_mj: Option<f64>,
     toplevel_cycles: u64,
+    /// Inner nodes written.
+    nodes: u64,
     tree_matches_software: bool,
     /// `(csv, svg)` of the activity trace, for the Fig. 6 scene.
     trace: Option<(String, String)>,
@@ -151,12 +153,16 @@ enum Job {
     Toplevel { scene: usize },
     /// The software builders and the analytic models.
     Software { scene: usize },
+    /// Plain HLBVH on the first system with the likeliest reading of the thesis's unit:
+    /// Morton codes on a cube grid and no leaf-size limit (`docs/mergetree-vs-thesis.md`).
+    Cube { scene: usize },
 }
 
 enum Done {
     Sim(usize, usize, SimRow),
     Toplevel(usize, SimRow),
     Software(usize, SoftwareRow),
+    Cube(usize, SimRow),
 }
 
 /// Everything the report prints.
@@ -167,6 +173,8 @@ struct Results {
     sims: Vec<Vec<SimRow>>,
     top: Vec<SimRow>,
     sw: Vec<SoftwareRow>,
+    /// [`Job::Cube`] per scene.
+    cube: Vec<SimRow>,
 }
 
 /// Runs `arbor report mergetree`.
@@ -248,6 +256,7 @@ fn simulate_all(scenes: Vec<Scene>, drams: &[String], ui: &Ui) -> anyhow::Result
         jobs.extend((0..drams.len()).map(|system| Job::Sim { scene, system }));
         jobs.push(Job::Toplevel { scene });
         jobs.push(Job::Software { scene });
+        jobs.push(Job::Cube { scene });
     }
     // Largest first, so the last jobs to start are short ones.
     jobs.sort_by_key(|j| {
@@ -255,6 +264,7 @@ fn simulate_all(scenes: Vec<Scene>, drams: &[String], ui: &Ui) -> anyhow::Result
             Job::Sim { scene, system } => (scene, if system == 0 { 4 } else { 3 }),
             Job::Toplevel { scene } => (scene, 4),
             Job::Software { scene } => (scene, 2),
+            Job::Cube { scene } => (scene, 4),
         };
         std::cmp::Reverse(scenes[s].prims.len() as u64 * w)
     });
@@ -276,6 +286,7 @@ fn simulate_all(scenes: Vec<Scene>, drams: &[String], ui: &Ui) -> anyhow::Result
         sims: vec![vec![SimRow::default(); drams.len()]; n],
         top: vec![SimRow::default(); n],
         sw: vec![SoftwareRow::default(); n],
+        cube: vec![SimRow::default(); n],
         drams: drams.to_vec(),
         scenes,
     };
@@ -284,6 +295,7 @@ fn simulate_all(scenes: Vec<Scene>, drams: &[String], ui: &Ui) -> anyhow::Result
             Done::Sim(s, k, row) => res.sims[s][k] = row,
             Done::Toplevel(s, row) => res.top[s] = row,
             Done::Software(s, row) => res.sw[s] = row,
+            Done::Cube(s, row) => res.cube[s] = row,
         }
     }
     for (s, scene) in res.scenes.iter().enumerate() {
@@ -298,6 +310,11 @@ fn simulate_all(scenes: Vec<Scene>, drams: &[String], ui: &Ui) -> anyhow::Result
         anyhow::ensure!(
             res.top[s].tree_matches_software,
             "{}: the simulated HLBVH+SAH tree differs from the software one",
+            scene.name
+        );
+        anyhow::ensure!(
+            res.cube[s].tree_matches_software,
+            "{}: the simulated cube-grid tree differs from the software one",
             scene.name
         );
     }
@@ -328,6 +345,19 @@ fn run_job(job: Job, scenes: &[Scene], drams: &[String]) -> anyhow::Result<Done>
             Ok(Done::Toplevel(scene, row))
         }
         Job::Software { scene } => Ok(Done::Software(scene, software(&scenes[scene])?)),
+        Job::Cube { scene } => {
+            let row = simulate(&scenes[scene], &cube_config(), &drams[0], false)?;
+            Ok(Done::Cube(scene, row))
+        }
+    }
+}
+
+/// Preset `p2` with Morton codes on a cube grid and no leaf-size limit ([`Job::Cube`]).
+fn cube_config() -> MergeTreeConfig {
+    MergeTreeConfig {
+        morton_grid: geom::MortonGrid::Cube,
+        max_leaf_size: u32::MAX,
+        ..MergeTreeConfig::p2()
     }
 }
 
@@ -351,6 +381,7 @@ fn simulate(s: &Scene, cfg: &MergeTreeConfig, dram: &str, trace: bool) -> anyhow
         row_hit_rate: (bursts > 0).then(|| m.row_hits as f64 / bursts as f64),
         energy_mj: m.energy_pj.map(|e| e.total_pj() * 1e-9),
         toplevel_cycles: r.toplevel_cycles,
+        nodes: r.nodes,
         tree_matches_software: matches,
         trace: trace.then(|| {
             let title = format!("MergeTree p2 on {dram}: {} (cf. [P2] Fig. 6)", s.name);
@@ -497,24 +528,27 @@ fn write_summary(md: &mut String, r: &Results) -> anyhow::Result<()> {
     }
     writeln!(md, "- Bus utilization: {}.", util.join("; "))?;
     // Traffic within 10 %.
-    let mut traffic = Vec::new();
+    let (mut traffic, mut cube) = (Vec::new(), Vec::new());
+    let verdict = |d: f64| if d.abs() <= 10.0 { "met" } else { "missed" };
     for (s, scene) in r.scenes.iter().enumerate() {
         let Some(t) = scene.thesis else { continue };
         let d = (r.sims[s][0].mb() / t.traffic_mb[0] - 1.0) * 100.0;
-        traffic.push(format!(
-            "{} {d:+.1}% ({})",
-            scene.name,
-            if d.abs() <= 10.0 { "met" } else { "missed" }
-        ));
+        traffic.push(format!("{} {d:+.1}% ({})", scene.name, verdict(d)));
+        let c = &r.cube[s];
+        let mib = (c.bytes_read + c.bytes_written) as f64 / (1u64 << 20) as f64;
+        let d = (mib / t.traffic_mb[0] - 1.0) * 100.0;
+        cube.push(format!("{} {d:+.1}% ({})", scene.name, verdict(d)));
     }
     if !traffic.is_empty() {
         writeln!(
             md,
-            "- MergeTree traffic within 10% of Table VI: {}.",
-            traffic.join(", ")
+            "- MergeTree traffic within 10% of Table VI: {}; with Morton codes on a cube \
+             grid, no leaf-size limit and Table VI read as MiB: {}.",
+            traffic.join(", "),
+            cube.join(", ")
         )?;
     }
-    let all = r.sims.iter().flatten().count() + r.top.len();
+    let all = r.sims.iter().flatten().count() + r.top.len() + r.cube.len();
     writeln!(
         md,
         "- Every simulated tree ({all} runs) equals the software builder's node for node; \
@@ -750,7 +784,8 @@ fn write_table6(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> 
         "scene,triangles,mergetree_mb,thesis_mergetree_mb,mergetree_diff_pct,\
          binned_sah_hw_mb,thesis_binned_sah_hw_mb,binned_sah_hw_diff_pct,binned_ratio,thesis_binned_ratio,\
          gpu_hlbvh_mb,thesis_gpu_hlbvh_mb,gpu_hlbvh_diff_pct,gpu_ratio,thesis_gpu_ratio,\
-         input_mb,runs_written_mb,runs_read_mb,output_mb,bytes_per_triangle\n",
+         input_mb,runs_written_mb,runs_read_mb,output_mb,bytes_per_triangle,\
+         cube_grid_mib,cube_grid_diff_pct_mib,cube_grid_leaf_size\n",
     );
     writeln!(md, "## Table VI analogue: memory traffic (MB)\n")?;
     writeln!(
@@ -760,14 +795,17 @@ fn write_table6(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> 
          the 16-bin `binned-sah` tree. GPU HLBVH: `sim::analytic::gpu_hlbvh`, the 324 B per \
          triangle of [P2] §4.2, against [P2]'s profiler measurement on a GTX 1080. Ratios \
          are over MergeTree's traffic, ours / [P2]. The split: input read, sort runs written \
-         and read, BVH output.\n",
+         and read, BVH output. Cube grid: the same simulation with Morton codes on cubic \
+         cells and no leaf-size limit, in MiB (2^20 bytes), beside Table VI read as MiB: the \
+         likeliest reading of the thesis's unit (`docs/mergetree-vs-thesis.md`); triangles \
+         per leaf in brackets.\n",
         r.label(0)
     )?;
     writeln!(
         md,
-        "| scene | triangles | MergeTree | binned SAH HW | ratio | GPU HLBVH | ratio | input / runs w / runs r / output | B per triangle |"
+        "| scene | triangles | MergeTree | binned SAH HW | ratio | GPU HLBVH | ratio | input / runs w / runs r / output | B per triangle | cube grid (MiB) |"
     )?;
-    writeln!(md, "|---|---:|---|---|---|---|---|---|---:|")?;
+    writeln!(md, "|---|---:|---|---|---|---|---|---|---:|---|")?;
     let mut labels = Vec::new();
     let mut series: Vec<(String, Vec<Option<f64>>)> = [
         "MergeTree ours",
@@ -788,9 +826,13 @@ fn write_table6(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> 
         let t = scene.thesis.map(|t| t.traffic_mb);
         let split = traffic_split(&r.sims[s][0]).map(|b| b as f64 / 1e6);
         let ratio = |i: usize| t.map(|t| t[i] / t[0]);
+        let cube = &r.cube[s];
+        let cube_mib = (cube.bytes_read + cube.bytes_written) as f64 / (1u64 << 20) as f64;
+        // One binary tree of L leaves has L - 1 inner nodes.
+        let cube_leaf = n as f64 / (cube.nodes + 1) as f64;
         writeln!(
             csv,
-            "{},{n},{mt:.3},{},{bh:.3},{},{:.3},{},{gpu:.3},{},{:.3},{},{:.3},{:.3},{:.3},{:.3},{:.1}",
+            "{},{n},{mt:.3},{},{bh:.3},{},{:.3},{},{gpu:.3},{},{:.3},{},{:.3},{:.3},{:.3},{:.3},{:.1},{cube_mib:.3},{},{cube_leaf:.2}",
             scene.name,
             csv_pair(mt, t.map(|t| t[0])),
             csv_pair(bh, t.map(|t| t[1])),
@@ -804,6 +846,7 @@ fn write_table6(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> 
             split[2],
             split[3],
             mt * 1e6 / n as f64,
+            t.map_or(String::new(), |t| format!("{:.2}", (cube_mib / t[0] - 1.0) * 100.0)),
         )?;
         let rat = |x: f64, i: usize| match ratio(i) {
             Some(tr) => format!("{:.1}x / {tr:.1}x", x / mt),
@@ -811,7 +854,7 @@ fn write_table6(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> 
         };
         writeln!(
             md,
-            "| {} | {} | {} | {} | {} | {} | {} | {:.1} / {:.1} / {:.1} / {:.1} | {:.0} |",
+            "| {} | {} | {} | {} | {} | {} | {} | {:.1} / {:.1} / {:.1} / {:.1} | {:.0} | {} ({cube_leaf:.2}) |",
             scene.name,
             thousands(n as u64),
             pair(mt, t.map(|t| t[0]), 1),
@@ -823,7 +866,8 @@ fn write_table6(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> 
             split[1],
             split[2],
             split[3],
-            mt * 1e6 / n as f64
+            mt * 1e6 / n as f64,
+            pair(cube_mib, t.map(|t| t[0]), 1),
         )?;
         if let Some(t) = t {
             labels.push(scene.name.clone());

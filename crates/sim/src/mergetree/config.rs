@@ -15,6 +15,7 @@
 
 use cbvh::bottomup::{StreamConfig, MAX_TREELET_DEPTH};
 use cbvh::{Coords, Params};
+use geom::MortonGrid;
 use serde::Serialize;
 
 /// Bytes of one sort element in DRAM and in the scratchpad: an AABB (24 B), a primitive
@@ -125,6 +126,9 @@ pub struct MergeTreeConfig {
     pub write_chunk_bytes: u32,
     /// Morton code length: 30 or 63 bits.
     pub morton_bits: u32,
+    /// Grid of the Morton codes over the centroid bounds: `box` (cells stretched to the
+    /// box, Arbor's default) or `cube` (cubic cells; see `docs/mergetree-vs-thesis.md`).
+    pub morton_grid: MortonGrid,
     /// Identical Morton codes share a leaf (\[P2\] §5.4) rather than being split (\[P1\]).
     pub combine_identical: bool,
     /// Largest leaf when combining identical codes.
@@ -174,6 +178,7 @@ pub const KEYS: &[&str] = &[
     "leaf_buffer_bytes",
     "write_chunk_bytes",
     "morton_bits",
+    "morton_grid",
     "combine_identical",
     "max_leaf_size",
     "highlevel_threshold",
@@ -220,6 +225,7 @@ impl MergeTreeConfig {
             leaf_buffer_bytes: 1024,
             write_chunk_bytes: 512,
             morton_bits: 30,
+            morton_grid: MortonGrid::Box,
             combine_identical: true,
             max_leaf_size: 8,
             highlevel_threshold: None,
@@ -318,6 +324,13 @@ impl MergeTreeConfig {
                     30 => 30,
                     63 => 63,
                     _ => return Err(bad("must be 30 or 63")),
+                }
+            }
+            "morton_grid" => {
+                self.morton_grid = match value {
+                    "box" => MortonGrid::Box,
+                    "cube" => MortonGrid::Cube,
+                    _ => return Err(bad("expected box or cube")),
                 }
             }
             "combine_identical" => self.combine_identical = boolean()?,

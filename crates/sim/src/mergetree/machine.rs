@@ -410,7 +410,7 @@ impl<'a> Machine<'a> {
         Ok(Self {
             cfg: cfg.clone(),
             aabbs,
-            quant: MortonQuantizer::new(centroid_bounds),
+            quant: MortonQuantizer::with_grid(centroid_bounds, cfg.morton_grid),
             n,
             npad,
             blocks,

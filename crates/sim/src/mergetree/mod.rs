@@ -291,6 +291,7 @@ pub fn software_builder(cfg: &MergeTreeConfig) -> HlbvhBuilder {
         max_leaf_size: cfg.max_leaf_size,
         highlevel_threshold: cfg.highlevel_threshold,
         threads: 0,
+        grid: cfg.morton_grid,
     }
 }
 
