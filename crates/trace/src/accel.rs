@@ -419,6 +419,64 @@ impl LeafTriangles {
     }
 }
 
+/// The traversal loop shared by the kernels over uncompressed trees (`Bvh2`, `Mbvh4`,
+/// `Mbvh8`): per-ray counters kept in a local and added to `total` once, observer begin and
+/// end, a ray with a non-finite origin or direction hitting nothing (the slab tests assume
+/// finite values), leaves tested through `leaf`, and the stack popped (culled by the
+/// closest hit when `DIST`) whenever a node visit continues nowhere. `visit(node,
+/// best_t, stack, stats, obs)` tests inner node `node` against the cull distance of
+/// `best_t`, pushes the hit children it does not continue with, and returns the one it
+/// continues with (or `None`). Inlined into each kernel, so each keeps its own code.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn traverse<const DIST: bool, O: Observer>(
+    leaf: &LeafTriangles,
+    ray: &Ray,
+    pre: &RayPrecomp,
+    query: Query,
+    stack: &mut TraversalStack,
+    total: &mut RayStats,
+    obs: &mut O,
+    mut visit: impl FnMut(u32, f32, &mut TraversalStack, &mut RayStats, &mut O) -> Option<ChildRef>,
+) -> Option<Hit> {
+    // Counted in a local (kept in registers), added to `total` once at the end.
+    let mut ray_stats = RayStats::default();
+    let stats = &mut ray_stats;
+    obs.begin(ray, query);
+    stats.rays += 1;
+    stack.entries.clear();
+    let mut best: Option<Hit> = None;
+    let mut best_t = ray.t_max;
+    let finite = geom::is_finite3(ray.origin) && geom::is_finite3(ray.dir);
+    let mut cur = finite.then_some(ChildRef::inner(0));
+    while let Some(c) = cur {
+        if c.is_leaf() {
+            let stop = leaf.intersect(
+                c.index,
+                c.count,
+                pre,
+                ray.t_min,
+                query,
+                &mut best,
+                &mut best_t,
+                stats,
+                obs,
+            );
+            if stop {
+                break;
+            }
+        } else if let Some(next) = visit(c.index, best_t, stack, stats, obs) {
+            cur = Some(next);
+            continue;
+        }
+        cur = stack.pop(DIST, best_t, stats, obs);
+    }
+    stats.hits += best.is_some() as u64;
+    total.add(stats);
+    obs.end(best.as_ref());
+    best
+}
+
 /// A tree that rays can be traced through.
 pub trait Traverse: Send + Sync {
     /// Traces `ray` for `query`, reporting events to `obs` and adding the ray's counters

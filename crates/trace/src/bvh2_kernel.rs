@@ -17,8 +17,8 @@
 //! for BVH).
 
 use crate::accel::{
-    cull_distance, fmax, fmin, huge_page_vec, prefetch, Hit, LeafTriangles, TraversalStack,
-    Traverse,
+    cull_distance, fmax, fmin, huge_page_vec, prefetch, traverse, Hit, LeafTriangles,
+    TraversalStack, Traverse,
 };
 use crate::observer::{Observer, Query};
 use crate::stats::RayStats;
@@ -200,83 +200,47 @@ impl Bvh2Accel {
         total: &mut RayStats,
         obs: &mut O,
     ) -> Option<Hit> {
-        // Counted in a local (kept in registers), added to `total` once at the end.
-        let mut ray_stats = RayStats::default();
-        let stats = &mut ray_stats;
         let pre = RayPrecomp::new(ray);
         let o = pre.origin.to_array();
         let inv = pre.inv_dir.to_array();
         let nodes = &self.nodes;
-        obs.begin(ray, query);
-        stats.rays += 1;
-        stack.entries.clear();
-        let mut best: Option<Hit> = None;
-        let mut best_t = ray.t_max;
-        // A ray with a NaN or infinite origin or direction hits nothing (the slab test
-        // assumes finite values; a NaN would make every box, even an empty slot, "hit").
-        let finite = geom::is_finite3(ray.origin) && geom::is_finite3(ray.dir);
-        let mut cur = finite.then_some(ChildRef::inner(0));
-        while let Some(c) = cur {
-            if c.is_leaf() {
-                let stop = self.leaf.intersect(
-                    c.index,
-                    c.count,
-                    &pre,
-                    ray.t_min,
-                    query,
-                    &mut best,
-                    &mut best_t,
-                    stats,
-                    obs,
-                );
-                if stop {
-                    break;
+        let visit = |index: u32,
+                     best_t: f32,
+                     stack: &mut TraversalStack,
+                     stats: &mut RayStats,
+                     obs: &mut O| {
+            let node = &nodes[index as usize];
+            let (d, hit) = test2(node, &o, &inv, ray.t_min, cull_distance(best_t));
+            let [c0, c1] = node.children;
+            let valid = (!c0.is_empty()) as u8 | ((!c1.is_empty()) as u8) << 1;
+            // An empty slot is never hit (its box at +inf could be "entered at
+            // infinity" by an unbounded ray).
+            let hit = [hit[0] && valid & 1 != 0, hit[1] && valid & 2 != 0];
+            stats.node_visits += 1;
+            stats.box_tests += valid.count_ones() as u64;
+            obs.node(index, valid, hit[0] as u8 | (hit[1] as u8) << 1);
+            match hit {
+                [true, true] => {
+                    // Front to back: continue with the nearer child, push the other.
+                    let (near, far, far_d) = if d[1] < d[0] {
+                        (c1, c0, d[0])
+                    } else {
+                        (c0, c1, d[1])
+                    };
+                    if far.is_leaf() {
+                        self.leaf.prefetch(far.index);
+                    } else {
+                        prefetch(nodes.as_ptr().wrapping_add(far.index as usize));
+                    }
+                    stack.push(far, far_d, &self.leaf, stats, obs);
+                    Some(near)
                 }
-            } else {
-                let node = &nodes[c.index as usize];
-                let (d, hit) = test2(node, &o, &inv, ray.t_min, cull_distance(best_t));
-                let [c0, c1] = node.children;
-                let valid = (!c0.is_empty()) as u8 | ((!c1.is_empty()) as u8) << 1;
-                // An empty slot is never hit (its box at +inf could be "entered at
-                // infinity" by an unbounded ray).
-                let hit = [hit[0] && valid & 1 != 0, hit[1] && valid & 2 != 0];
-                stats.node_visits += 1;
-                stats.box_tests += valid.count_ones() as u64;
-                obs.node(c.index, valid, hit[0] as u8 | (hit[1] as u8) << 1);
-                match hit {
-                    [true, true] => {
-                        // Front to back: continue with the nearer child, push the other.
-                        let (near, far, far_d) = if d[1] < d[0] {
-                            (c1, c0, d[0])
-                        } else {
-                            (c0, c1, d[1])
-                        };
-                        if far.is_leaf() {
-                            self.leaf.prefetch(far.index);
-                        } else {
-                            prefetch(nodes.as_ptr().wrapping_add(far.index as usize));
-                        }
-                        stack.push(far, far_d, &self.leaf, stats, obs);
-                        cur = Some(near);
-                        continue;
-                    }
-                    [true, false] => {
-                        cur = Some(c0);
-                        continue;
-                    }
-                    [false, true] => {
-                        cur = Some(c1);
-                        continue;
-                    }
-                    [false, false] => {}
-                }
+                [true, false] => Some(c0),
+                [false, true] => Some(c1),
+                [false, false] => None,
             }
-            cur = stack.pop(DIST, best_t, stats, obs);
-        }
-        stats.hits += best.is_some() as u64;
-        total.add(stats);
-        obs.end(best.as_ref());
-        best
+        };
+        traverse::<DIST, O>(&self.leaf, ray, &pre, query, stack, total, obs, visit)
     }
 }
 

@@ -10,8 +10,8 @@
 //! MBVH. [`KernelOptions::distance_stack`] switches it off to measure that effect.
 
 use crate::accel::{
-    cull_distance, fmax, fmin, huge_page_vec, prefetch, Hit, LeafTriangles, Slab, TraversalStack,
-    Traverse,
+    cull_distance, fmax, fmin, huge_page_vec, prefetch, traverse, Hit, LeafTriangles, Slab,
+    TraversalStack, Traverse,
 };
 use crate::bvh2_kernel::check_links;
 use crate::observer::{Observer, Query};
@@ -221,82 +221,48 @@ impl Mbvh4Accel {
         total: &mut RayStats,
         obs: &mut O,
     ) -> Option<Hit> {
-        // Counted in a local (kept in registers), added to `total` once at the end.
-        let mut ray_stats = RayStats::default();
-        let stats = &mut ray_stats;
         let pre = RayPrecomp::new(ray);
         let slab = Slab::new(&pre, ray.t_min);
         let nodes = &self.nodes;
-        obs.begin(ray, query);
-        stats.rays += 1;
-        stack.entries.clear();
-        let mut best: Option<Hit> = None;
-        let mut best_t = ray.t_max;
-        // A ray with a NaN or infinite origin or direction hits nothing (the slab test
-        // assumes finite values; a NaN would make every box, even an empty slot, "hit").
-        let finite = geom::is_finite3(ray.origin) && geom::is_finite3(ray.dir);
-        let mut cur = finite.then_some(ChildRef::inner(0));
-        while let Some(c) = cur {
-            if c.is_leaf() {
-                let stop = self.leaf.intersect(
-                    c.index,
-                    c.count,
-                    &pre,
-                    ray.t_min,
-                    query,
-                    &mut best,
-                    &mut best_t,
-                    stats,
-                    obs,
-                );
-                if stop {
-                    break;
+        let visit = |index: u32,
+                     best_t: f32,
+                     stack: &mut TraversalStack,
+                     stats: &mut RayStats,
+                     obs: &mut O| {
+            let node = &nodes[index as usize].0;
+            let (dist, mask, valid) = test4(&slab, node, cull_distance(best_t));
+            let kids = &node.children;
+            stats.node_visits += 1;
+            stats.box_tests += POPCOUNT4[valid as usize & 15] as u64;
+            obs.node(index, valid, mask);
+            match POPCOUNT4[mask as usize & 15] {
+                0 => None,
+                1 => Some(kids[mask.trailing_zeros() as usize & 3]),
+                2 => {
+                    // Two hits need one comparison, not the whole network.
+                    let a = mask.trailing_zeros() as usize & 3;
+                    let b = (7 - (mask.leading_zeros() as usize)) & 3;
+                    let (near, far) = if dist[b] < dist[a] { (b, a) } else { (a, b) };
+                    self.prefetch_child(kids[far]);
+                    stack.push(kids[far], dist[far], &self.leaf, stats, obs);
+                    Some(kids[near])
                 }
-            } else {
-                let node = &nodes[c.index as usize].0;
-                let (dist, mask, valid) = test4(&slab, node, cull_distance(best_t));
-                let kids = &node.children;
-                stats.node_visits += 1;
-                stats.box_tests += POPCOUNT4[valid as usize & 15] as u64;
-                obs.node(c.index, valid, mask);
-                match POPCOUNT4[mask as usize & 15] {
-                    0 => {}
-                    1 => {
-                        cur = Some(kids[mask.trailing_zeros() as usize & 3]);
-                        continue;
+                hits => {
+                    let hits = hits as usize;
+                    let mut keys = child_keys(&dist, mask);
+                    sort4(&mut keys);
+                    // Push the far ones far-to-near so the nearest of them pops first.
+                    for k in (1..hits).rev() {
+                        let slot = (keys[k] & 3) as usize;
+                        let child = kids[slot];
+                        self.prefetch_child(child);
+                        stack.push(child, dist[slot], &self.leaf, stats, obs);
                     }
-                    2 => {
-                        // Two hits need one comparison, not the whole network.
-                        let a = mask.trailing_zeros() as usize & 3;
-                        let b = (7 - (mask.leading_zeros() as usize)) & 3;
-                        let (near, far) = if dist[b] < dist[a] { (b, a) } else { (a, b) };
-                        self.prefetch_child(kids[far]);
-                        stack.push(kids[far], dist[far], &self.leaf, stats, obs);
-                        cur = Some(kids[near]);
-                        continue;
-                    }
-                    hits => {
-                        let hits = hits as usize;
-                        let mut keys = child_keys(&dist, mask);
-                        sort4(&mut keys);
-                        // Push the far ones far-to-near so the nearest of them pops first.
-                        for k in (1..hits).rev() {
-                            let slot = (keys[k] & 3) as usize;
-                            let child = kids[slot];
-                            self.prefetch_child(child);
-                            stack.push(child, dist[slot], &self.leaf, stats, obs);
-                        }
-                        cur = Some(kids[(keys[0] & 3) as usize]);
-                        continue;
-                    }
+                    Some(kids[(keys[0] & 3) as usize])
                 }
             }
-            cur = stack.pop(DIST, best_t, stats, obs);
-        }
-        stats.hits += best.is_some() as u64;
-        total.add(stats);
-        obs.end(best.as_ref());
-        best
+        };
+        traverse::<DIST, O>(&self.leaf, ray, &pre, query, stack, total, obs, visit)
     }
 }
 

@@ -12,7 +12,8 @@
 //! the other kernels (child masks of eight bits).
 
 use crate::accel::{
-    cull_distance, huge_page_vec, prefetch, Hit, LeafTriangles, Slab, TraversalStack, Traverse,
+    cull_distance, huge_page_vec, prefetch, traverse, Hit, LeafTriangles, Slab, TraversalStack,
+    Traverse,
 };
 use crate::bvh2_kernel::check_links;
 use crate::observer::{Observer, Query};
@@ -308,99 +309,68 @@ impl Mbvh8Accel {
         total: &mut RayStats,
         obs: &mut O,
     ) -> Option<Hit> {
-        let mut ray_stats = RayStats::default();
-        let stats = &mut ray_stats;
         let pre = RayPrecomp::new(ray);
         let slab = Slab::new(&pre, ray.t_min);
         let nodes = &self.nodes;
-        obs.begin(ray, query);
-        stats.rays += 1;
-        stack.entries.clear();
-        let mut best: Option<Hit> = None;
-        let mut best_t = ray.t_max;
-        let finite = geom::is_finite3(ray.origin) && geom::is_finite3(ray.dir);
-        let mut cur = finite.then_some(ChildRef::inner(0));
-        while let Some(c) = cur {
-            if c.is_leaf() {
-                let stop = self.leaf.intersect(
-                    c.index,
-                    c.count,
-                    &pre,
-                    ray.t_min,
-                    query,
-                    &mut best,
-                    &mut best_t,
-                    stats,
-                    obs,
-                );
-                if stop {
-                    break;
-                }
+        let visit = |index: u32,
+                     best_t: f32,
+                     stack: &mut TraversalStack,
+                     stats: &mut RayStats,
+                     obs: &mut O| {
+            let node = &nodes[index as usize];
+            #[cfg(target_arch = "x86_64")]
+            let (dist, mask, valid) = if AVX {
+                // SAFETY: `AVX` is only set by `run_avx`, which runs with AVX enabled
+                // (and is only called where the CPU has it).
+                unsafe { test8_avx(&slab, node, cull_distance(best_t)) }
             } else {
-                let node = &nodes[c.index as usize];
-                #[cfg(target_arch = "x86_64")]
-                let (dist, mask, valid) = if AVX {
-                    // SAFETY: `AVX` is only set by `run_avx`, which runs with AVX enabled
-                    // (and is only called where the CPU has it).
-                    unsafe { test8_avx(&slab, node, cull_distance(best_t)) }
-                } else {
-                    test8(&slab, node, cull_distance(best_t))
-                };
-                #[cfg(not(target_arch = "x86_64"))]
-                let (dist, mask, valid) = test8(&slab, node, cull_distance(best_t));
-                let kids = &node.children;
-                stats.node_visits += 1;
-                stats.box_tests += POPCOUNT8[valid as usize] as u64;
-                obs.node(c.index, valid, mask);
-                match POPCOUNT8[mask as usize] {
-                    0 => {}
-                    1 => {
-                        cur = Some(kids[mask.trailing_zeros() as usize & 7]);
-                        continue;
-                    }
-                    2 => {
-                        let a = mask.trailing_zeros() as usize & 7;
-                        let b = (7 - mask.leading_zeros() as usize) & 7;
-                        let (near, far) = if dist[b] < dist[a] { (b, a) } else { (a, b) };
-                        self.prefetch_child(kids[far]);
-                        stack.push(kids[far], dist[far], &self.leaf, stats, obs);
-                        cur = Some(kids[near]);
-                        continue;
-                    }
-                    hits => {
-                        // Insertion sort of the hit children's keys (at most eight).
-                        let mut keys = [0u32; WIDTH8];
-                        let mut n = 0;
-                        let mut m = mask;
-                        while m != 0 {
-                            let slot = m.trailing_zeros() as usize;
-                            m &= m - 1;
-                            let k = key(dist[slot], slot);
-                            let mut j = n;
-                            while j > 0 && keys[j - 1] > k {
-                                keys[j] = keys[j - 1];
-                                j -= 1;
-                            }
-                            keys[j] = k;
-                            n += 1;
+                test8(&slab, node, cull_distance(best_t))
+            };
+            #[cfg(not(target_arch = "x86_64"))]
+            let (dist, mask, valid) = test8(&slab, node, cull_distance(best_t));
+            let kids = &node.children;
+            stats.node_visits += 1;
+            stats.box_tests += POPCOUNT8[valid as usize] as u64;
+            obs.node(index, valid, mask);
+            match POPCOUNT8[mask as usize] {
+                0 => None,
+                1 => Some(kids[mask.trailing_zeros() as usize & 7]),
+                2 => {
+                    let a = mask.trailing_zeros() as usize & 7;
+                    let b = (7 - mask.leading_zeros() as usize) & 7;
+                    let (near, far) = if dist[b] < dist[a] { (b, a) } else { (a, b) };
+                    self.prefetch_child(kids[far]);
+                    stack.push(kids[far], dist[far], &self.leaf, stats, obs);
+                    Some(kids[near])
+                }
+                hits => {
+                    // Insertion sort of the hit children's keys (at most eight).
+                    let mut keys = [0u32; WIDTH8];
+                    let mut n = 0;
+                    let mut m = mask;
+                    while m != 0 {
+                        let slot = m.trailing_zeros() as usize;
+                        m &= m - 1;
+                        let k = key(dist[slot], slot);
+                        let mut j = n;
+                        while j > 0 && keys[j - 1] > k {
+                            keys[j] = keys[j - 1];
+                            j -= 1;
                         }
-                        debug_assert_eq!(n, hits as usize);
-                        for &k in keys[1..n].iter().rev() {
-                            let slot = (k & 7) as usize;
-                            self.prefetch_child(kids[slot]);
-                            stack.push(kids[slot], dist[slot], &self.leaf, stats, obs);
-                        }
-                        cur = Some(kids[(keys[0] & 7) as usize]);
-                        continue;
+                        keys[j] = k;
+                        n += 1;
                     }
+                    debug_assert_eq!(n, hits as usize);
+                    for &k in keys[1..n].iter().rev() {
+                        let slot = (k & 7) as usize;
+                        self.prefetch_child(kids[slot]);
+                        stack.push(kids[slot], dist[slot], &self.leaf, stats, obs);
+                    }
+                    Some(kids[(keys[0] & 7) as usize])
                 }
             }
-            cur = stack.pop(DIST, best_t, stats, obs);
-        }
-        stats.hits += best.is_some() as u64;
-        total.add(stats);
-        obs.end(best.as_ref());
-        best
+        };
+        traverse::<DIST, O>(&self.leaf, ray, &pre, query, stack, total, obs, visit)
     }
 }
 

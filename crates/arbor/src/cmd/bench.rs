@@ -30,6 +30,61 @@ pub fn run(args: &BenchArgs, ui: &Ui) -> anyhow::Result<()> {
     }
 }
 
+/// The circumstances of one benchmark run, at the head of every `arbor bench` document.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct RunInfo {
+    /// When the run started (UTC, ISO 8601).
+    pub started_utc: String,
+    /// `/proc/loadavg` (1, 5, 15 minutes) at the start (null where it does not exist).
+    pub load_average_start: Option<[f64; 3]>,
+    /// At the end.
+    pub load_average_end: Option<[f64; 3]>,
+    /// Hardware threads available to the process.
+    pub cpus: usize,
+    /// The command line.
+    pub command: String,
+}
+
+impl RunInfo {
+    /// Taken when a run starts (the end load average is left unknown).
+    pub fn start() -> Self {
+        Self {
+            started_utc: utc_now(),
+            load_average_start: load_average(),
+            load_average_end: None,
+            cpus: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            command: std::env::args().collect::<Vec<_>>().join(" "),
+        }
+    }
+
+    /// The same, with the load average at the end of the run.
+    pub fn finish(self) -> Self {
+        Self {
+            load_average_end: load_average(),
+            ..self
+        }
+    }
+
+    /// Two lines for a report's preamble: the command, and when, where and under what load.
+    pub fn lines(&self) -> [String; 2] {
+        let la = |l: Option<[f64; 3]>| {
+            l.map_or("unknown".to_string(), |l| {
+                format!("{:.2} {:.2} {:.2}", l[0], l[1], l[2])
+            })
+        };
+        [
+            format!("command: {}", self.command),
+            format!(
+                "started {} on {} hardware threads; load average {} at the start, {} at the end",
+                self.started_utc,
+                self.cpus,
+                la(self.load_average_start),
+                la(self.load_average_end)
+            ),
+        ]
+    }
+}
+
 /// `/proc/loadavg`'s three averages, where the file exists.
 pub fn load_average() -> Option<[f64; 3]> {
     let s = std::fs::read_to_string("/proc/loadavg").ok()?;

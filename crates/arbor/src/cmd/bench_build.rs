@@ -20,7 +20,7 @@
 //!
 //! The goals of issue 3 are evaluated from the same rows and printed after the table.
 
-use super::bench::{load_average, utc_now};
+use super::bench::RunInfo;
 use super::build::{builder, mesh_aabbs, BuildConfig, SAH_REFERENCE_MAX_TRIANGLES};
 use super::{open_scene, thousands, SceneArgs};
 use crate::alloc::{peak_bytes, reset_peak, PeakMeter};
@@ -283,16 +283,9 @@ pub struct Goal {
 pub struct BenchJson {
     /// `"arbor.bench.build.v1"`.
     pub schema: &'static str,
-    /// When the run started (UTC, ISO 8601).
-    pub started_utc: String,
-    /// `/proc/loadavg` (1, 5, 15 minutes) at the start and at the end (null elsewhere).
-    pub load_average_start: Option<[f64; 3]>,
-    /// At the end.
-    pub load_average_end: Option<[f64; 3]>,
-    /// Hardware threads available to the process.
-    pub cpus: usize,
-    /// The command line.
-    pub command: String,
+    /// When, where and how it ran (flattened into the document).
+    #[serde(flatten)]
+    pub run: RunInfo,
     /// Runs per measurement.
     pub runs: usize,
     /// Whether the Embree rows could run (feature `embree`).
@@ -532,8 +525,7 @@ pub fn run(args: &BenchBuildArgs, ui: &Ui) -> anyhow::Result<()> {
     } else {
         args.scenes.clone()
     };
-    let started_utc = utc_now();
-    let load_average_start = load_average();
+    let run = RunInfo::start();
     let mut notes = Vec::new();
     if !EMBREE {
         notes.push(
@@ -633,11 +625,7 @@ pub fn run(args: &BenchBuildArgs, ui: &Ui) -> anyhow::Result<()> {
     let goals = goals(&rows);
     let doc = BenchJson {
         schema: "arbor.bench.build.v1",
-        started_utc,
-        load_average_start,
-        load_average_end: load_average(),
-        cpus: std::thread::available_parallelism().map_or(1, |n| n.get()),
-        command: std::env::args().collect::<Vec<_>>().join(" "),
+        run: run.finish(),
         runs: args.runs,
         embree: EMBREE,
         notes,
@@ -835,27 +823,13 @@ const HEADERS: [&str; 12] = [
 
 /// The run's circumstances, one line each.
 fn preamble(d: &BenchJson) -> Vec<String> {
-    let la = |l: Option<[f64; 3]>| {
-        l.map_or("unknown".to_string(), |l| {
-            format!("{:.2} {:.2} {:.2}", l[0], l[1], l[2])
-        })
-    };
-    let mut v = vec![
-        format!("command: {}", d.command),
-        format!(
-            "started {} on {} hardware threads; load average {} at the start, {} at the end",
-            d.started_utc,
-            d.cpus,
-            la(d.load_average_start),
-            la(d.load_average_end)
-        ),
-        format!(
-            "best of {} runs; SAH with the thesis weights (a 4-wide node costs 2 C_i), over \
+    let mut v = d.run.lines().to_vec();
+    v.push(format!(
+        "best of {} runs; SAH with the thesis weights (a 4-wide node costs 2 C_i), over \
              Arbor's sweep SAH tree; throughput ratios over Embree at the same thread count; \
              memory ratio = (input + peak) / (input + output)",
-            d.runs
-        ),
-    ];
+        d.runs
+    ));
     v.extend(d.notes.iter().cloned());
     v
 }
@@ -1070,11 +1044,13 @@ mod tests {
         rows[1].scene = "../x/dragon.ply".into();
         let d = BenchJson {
             schema: "arbor.bench.build.v1",
-            started_utc: utc_now(),
-            load_average_start: Some([1.0, 2.0, 3.0]),
-            load_average_end: None,
-            cpus: 2,
-            command: "arbor bench build".into(),
+            run: RunInfo {
+                started_utc: super::super::bench::utc_now(),
+                load_average_start: Some([1.0, 2.0, 3.0]),
+                load_average_end: None,
+                cpus: 2,
+                command: "arbor bench build".into(),
+            },
             runs: 3,
             embree: false,
             notes: vec!["a note".into()],

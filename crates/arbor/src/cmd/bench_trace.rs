@@ -15,7 +15,7 @@
 //! The issue's goal is evaluated from the same rows: Arbor's best kernel at least 0.7x of
 //! Embree's single-ray throughput on incoherent rays.
 
-use super::bench::{load_average, utc_now};
+use super::bench::RunInfo;
 pub use super::bench_build::Format;
 use super::report::{view_camera, write_atomic, SHARED_SCENES};
 use super::{open_scene, thousands, SceneArgs};
@@ -90,16 +90,9 @@ pub struct Goal {
 pub struct BenchTraceJson {
     /// `"arbor.bench.trace.v1"`.
     pub schema: &'static str,
-    /// When the run started (UTC).
-    pub started_utc: String,
-    /// `/proc/loadavg` at the start.
-    pub load_average_start: Option<[f64; 3]>,
-    /// At the end.
-    pub load_average_end: Option<[f64; 3]>,
-    /// Hardware threads available.
-    pub cpus: usize,
-    /// The command line.
-    pub command: String,
+    /// When, where and how it ran (flattened into the document).
+    #[serde(flatten)]
+    pub run: RunInfo,
     /// Rounds per measurement.
     pub rounds: usize,
     /// Render size of the ray sets.
@@ -198,8 +191,7 @@ pub fn run(a: &BenchTraceArgs, ui: &Ui) -> anyhow::Result<()> {
     if let Some(dir) = &a.out {
         anyhow::ensure!(!dir.is_file(), "--out {}: is a file", dir.display());
     }
-    let started_utc = utc_now();
-    let load_average_start = load_average();
+    let run_info = RunInfo::start();
     let mut notes = Vec::new();
     if !EMBREE {
         notes.push(
@@ -242,11 +234,7 @@ pub fn run(a: &BenchTraceArgs, ui: &Ui) -> anyhow::Result<()> {
     let goals = goals(&rows);
     let doc = BenchTraceJson {
         schema: "arbor.bench.trace.v1",
-        started_utc,
-        load_average_start,
-        load_average_end: load_average(),
-        cpus: std::thread::available_parallelism().map_or(1, |n| n.get()),
-        command: std::env::args().collect::<Vec<_>>().join(" "),
+        run: run_info.finish(),
         rounds: a.rounds,
         width: a.width,
         height: a.height,
@@ -277,27 +265,13 @@ pub fn run(a: &BenchTraceArgs, ui: &Ui) -> anyhow::Result<()> {
 }
 
 fn preamble(d: &BenchTraceJson) -> Vec<String> {
-    let la = |l: Option<[f64; 3]>| {
-        l.map_or("unknown".to_string(), |l| {
-            format!("{:.2} {:.2} {:.2}", l[0], l[1], l[2])
-        })
-    };
-    let mut v = vec![
-        format!("command: {}", d.command),
-        format!(
-            "started {} on {} hardware threads; load average {} at the start, {} at the end",
-            d.started_utc,
-            d.cpus,
-            la(d.load_average_start),
-            la(d.load_average_end)
-        ),
-        format!(
-            "rays of {}x{} renders (primary; diffuse bounces); best of {} rounds; Mrays/s per wall \
+    let mut v = d.run.lines().to_vec();
+    v.push(format!(
+        "rays of {}x{} renders (primary; diffuse bounces); best of {} rounds; Mrays/s per wall \
              second and per worker CPU second; ratios over Embree's rtcIntersect1 (MEDIUM) at the \
              same thread count; agreement: hits equal to Arbor's",
-            d.width, d.height, d.rounds
-        ),
-    ];
+        d.width, d.height, d.rounds
+    ));
     v.extend(d.notes.iter().cloned());
     v
 }

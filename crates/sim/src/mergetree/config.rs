@@ -645,6 +645,11 @@ mod tests {
             c.set("morton_bits", "32"),
             Err(ConfigError::BadValue { .. })
         ));
+        assert_eq!(c.morton_grid, MortonGrid::Box);
+        c.set("morton_grid", "cube").unwrap();
+        assert_eq!(c.morton_grid, MortonGrid::Cube);
+        let e = c.set("morton_grid", "sphere").unwrap_err();
+        assert!(e.to_string().contains("box or cube"), "{e}");
         assert!(c.set_pair("m").is_err());
         c.set("m", "1002").unwrap();
         assert!(c.validate().is_err());
