@@ -85,6 +85,67 @@ impl RunInfo {
     }
 }
 
+/// A table as aligned text: each column padded to its widest cell (header included), two
+/// spaces apart, one line per row with trailing spaces trimmed; `right(k)` right-aligns
+/// column `k` (numbers), the others are left-aligned.
+pub fn aligned_table(
+    headers: &[&str],
+    rows: &[Vec<String>],
+    right: impl Fn(usize) -> bool,
+) -> String {
+    let mut width: Vec<usize> = headers.iter().map(|h| h.chars().count()).collect();
+    for r in rows {
+        for (w, c) in width.iter_mut().zip(r) {
+            *w = (*w).max(c.chars().count());
+        }
+    }
+    let line = |cells: &mut dyn Iterator<Item = &str>| {
+        let mut l = String::new();
+        for (k, (v, &w)) in cells.zip(&width).enumerate() {
+            if right(k) {
+                l += &format!("{v:>w$}  ");
+            } else {
+                l += &format!("{v:<w$}  ");
+            }
+        }
+        l.trim_end().to_string() + "\n"
+    };
+    let mut s = line(&mut headers.iter().copied());
+    for r in rows {
+        s += &line(&mut r.iter().map(String::as_str));
+    }
+    s
+}
+
+/// A benchmark report in Markdown: the preamble as a list, the measurement table (`align`
+/// is its separator row), and, when there are goals, the goal table whose last column is
+/// named `goal_last` (each goal line already `a | b | ...`).
+pub fn markdown_report(
+    preamble: &[String],
+    headers: &[&str],
+    align: &str,
+    rows: &[Vec<String>],
+    goal_last: &str,
+    goals: &[String],
+) -> String {
+    let mut s = String::new();
+    for l in preamble {
+        s += &format!("- {l}\n");
+    }
+    s += &format!("\n| {} |\n{align}\n", headers.join(" | "));
+    for r in rows {
+        s += &format!("| {} |\n", r.join(" | "));
+    }
+    if !goals.is_empty() {
+        s += &format!("\n| goal | scene | threads | value | target | met | {goal_last} |\n");
+        s += "|---|---|---:|---:|---:|---|---|\n";
+        for l in goals {
+            s += &format!("| {l} |\n");
+        }
+    }
+    s
+}
+
 /// `/proc/loadavg`'s three averages, where the file exists.
 pub fn load_average() -> Option<[f64; 3]> {
     let s = std::fs::read_to_string("/proc/loadavg").ok()?;

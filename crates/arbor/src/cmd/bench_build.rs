@@ -20,7 +20,7 @@
 //!
 //! The goals of issue 3 are evaluated from the same rows and printed after the table.
 
-use super::bench::RunInfo;
+use super::bench::{aligned_table, markdown_report, RunInfo};
 use super::build::{builder, mesh_aabbs, BuildConfig, SAH_REFERENCE_MAX_TRIANGLES};
 use super::{open_scene, thousands, SceneArgs};
 use crate::alloc::{peak_bytes, reset_peak, PeakMeter};
@@ -859,29 +859,9 @@ fn text(d: &BenchJson) -> String {
         s += &format!("{l}\n");
     }
     s += "\n";
-    let rows: Vec<[String; 12]> = d.rows.iter().map(cells).collect();
-    let mut width = HEADERS.map(str::len);
-    for r in &rows {
-        for (w, c) in width.iter_mut().zip(r) {
-            *w = (*w).max(c.chars().count());
-        }
-    }
-    let line = |c: &[String]| {
-        let mut l = String::new();
-        for (k, (v, w)) in c.iter().zip(width).enumerate() {
-            // Text columns left-aligned, numbers right-aligned.
-            if k == 0 || k == 2 {
-                l += &format!("{v:<w$}  ");
-            } else {
-                l += &format!("{v:>w$}  ");
-            }
-        }
-        l.trim_end().to_string() + "\n"
-    };
-    s += &line(&HEADERS.map(String::from));
-    for r in &rows {
-        s += &line(r);
-    }
+    let rows: Vec<Vec<String>> = d.rows.iter().map(|r| cells(r).to_vec()).collect();
+    // Text columns left-aligned, numbers right-aligned.
+    s += &aligned_table(&HEADERS, &rows, |k| k != 0 && k != 2);
     if !d.goals.is_empty() {
         s += "\ngoals (goal | scene | threads | value | target | met | detail):\n";
         for l in goal_lines(d) {
@@ -893,24 +873,15 @@ fn text(d: &BenchJson) -> String {
 
 /// Markdown tables: the measurements and the goals.
 fn markdown(d: &BenchJson) -> String {
-    let mut s = String::new();
-    for l in preamble(d) {
-        s += &format!("- {l}\n");
-    }
-    s += "\n| ";
-    s += &HEADERS.join(" | ");
-    s += " |\n|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n";
-    for r in &d.rows {
-        s += &format!("| {} |\n", cells(r).join(" | "));
-    }
-    if !d.goals.is_empty() {
-        s += "\n| goal | scene | threads | value | target | met | detail |\n";
-        s += "|---|---|---:|---:|---:|---|---|\n";
-        for l in goal_lines(d) {
-            s += &format!("| {l} |\n");
-        }
-    }
-    s
+    let rows: Vec<Vec<String>> = d.rows.iter().map(|r| cells(r).to_vec()).collect();
+    markdown_report(
+        &preamble(d),
+        &HEADERS,
+        "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
+        &rows,
+        "detail",
+        &goal_lines(d),
+    )
 }
 
 /// One CSV line per row, with a header; numbers unrounded.

@@ -15,7 +15,7 @@
 //! The goal is evaluated from the same rows: Arbor's best kernel at least 0.7x of
 //! Embree's single-ray throughput on incoherent rays.
 
-use super::bench::RunInfo;
+use super::bench::{aligned_table, markdown_report, RunInfo};
 pub use super::bench_build::Format;
 use super::report::{view_camera, write_atomic, SHARED_SCENES};
 use super::{open_scene, thousands, SceneArgs};
@@ -327,28 +327,8 @@ fn text(d: &BenchTraceJson) -> String {
     for l in preamble(d) {
         s += &format!("{l}\n");
     }
-    let table: Vec<[String; 10]> = d.rows.iter().map(cells).collect();
-    let mut width = HEADERS.map(str::len);
-    for row in &table {
-        for (w, c) in width.iter_mut().zip(row) {
-            *w = (*w).max(c.chars().count());
-        }
-    }
-    let line = |cols: &[String]| {
-        cols.iter()
-            .zip(width)
-            .map(|(c, w)| format!("{c:<w$}"))
-            .collect::<Vec<_>>()
-            .join("  ")
-            .trim_end()
-            .to_string()
-    };
-    s += &line(&HEADERS.map(String::from));
-    s += "\n";
-    for row in &table {
-        s += &line(row);
-        s += "\n";
-    }
+    let rows: Vec<Vec<String>> = d.rows.iter().map(|r| cells(r).to_vec()).collect();
+    s += &aligned_table(&HEADERS, &rows, |_| false);
     for g in goal_lines(d) {
         s += &format!("goal: {}\n", g.replace(" | ", "; "));
     }
@@ -356,24 +336,15 @@ fn text(d: &BenchTraceJson) -> String {
 }
 
 fn markdown(d: &BenchTraceJson) -> String {
-    let mut s = String::new();
-    for l in preamble(d) {
-        s += &format!("- {l}\n");
-    }
-    s += "\n| ";
-    s += &HEADERS.join(" | ");
-    s += " |\n|---|---|---|---:|---:|---:|---:|---:|---:|---:|\n";
-    for r in &d.rows {
-        s += &format!("| {} |\n", cells(r).join(" | "));
-    }
-    if !d.goals.is_empty() {
-        s += "\n| goal | scene | threads | value | target | met | kernel |\n";
-        s += "|---|---|---:|---:|---:|---|---|\n";
-        for l in goal_lines(d) {
-            s += &format!("| {l} |\n");
-        }
-    }
-    s
+    let rows: Vec<Vec<String>> = d.rows.iter().map(|r| cells(r).to_vec()).collect();
+    markdown_report(
+        &preamble(d),
+        &HEADERS,
+        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|",
+        &rows,
+        "kernel",
+        &goal_lines(d),
+    )
 }
 
 fn csv(d: &BenchTraceJson) -> String {
