@@ -108,26 +108,9 @@ pub struct RenderArgs {
 pub struct BounceJson {
     /// Bounce number (0 = primary rays), or null for the total.
     pub bounce: Option<usize>,
-    /// Rays traced.
-    pub rays: u64,
-    /// Rays that hit.
-    pub hits: u64,
-    /// Inner-node visits.
-    pub node_visits: u64,
-    /// Ray/box tests.
-    pub box_tests: u64,
-    /// Ray/triangle tests.
-    pub tri_tests: u64,
-    /// Leaves visited.
-    pub leaf_visits: u64,
-    /// Stack pushes.
-    pub pushes: u64,
-    /// Stack pops that were traversed.
-    pub pops: u64,
-    /// Stack pops skipped by the distance stack.
-    pub culled_pops: u64,
-    /// Deepest stack.
-    pub max_stack_depth: u64,
+    /// The tracer's counters (flattened: `rays`, `hits`, `node_visits`, ...).
+    #[serde(flatten)]
+    pub counters: RayStats,
     /// Node visits per ray.
     pub node_visits_per_ray: f64,
     /// Box tests per ray.
@@ -140,16 +123,7 @@ impl BounceJson {
     fn new(bounce: Option<usize>, s: &RayStats) -> Self {
         Self {
             bounce,
-            rays: s.rays,
-            hits: s.hits,
-            node_visits: s.node_visits,
-            box_tests: s.box_tests,
-            tri_tests: s.tri_tests,
-            leaf_visits: s.leaf_visits,
-            pushes: s.pushes,
-            pops: s.pops,
-            culled_pops: s.culled_pops,
-            max_stack_depth: s.max_stack_depth,
+            counters: *s,
             node_visits_per_ray: s.per_ray(s.node_visits),
             box_tests_per_ray: s.per_ray(s.box_tests),
             tri_tests_per_ray: s.per_ray(s.tri_tests),
@@ -776,12 +750,12 @@ fn print_text(j: &RenderJson) {
         let label = b.bounce.map_or("total".to_string(), |i| i.to_string());
         println!(
             "              {label:>6} {:>10} {:>9} {:>10.2} {:>10.2} {:>10.2} {:>10}",
-            b.rays,
-            b.hits,
+            b.counters.rays,
+            b.counters.hits,
             b.node_visits_per_ray,
             b.box_tests_per_ray,
             b.tri_tests_per_ray,
-            b.max_stack_depth
+            b.counters.max_stack_depth
         );
     }
     println!(
