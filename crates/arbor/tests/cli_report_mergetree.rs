@@ -102,12 +102,16 @@ fn tiny_procedural_scenes_on_dramsim3() {
         .map(|k| num(&t6[0], k))
         .sum();
     assert!((split - num(&t6[0], "mergetree_mb")).abs() < 1e-2);
-    // The cube-grid run (no leaf limit): its own traffic, leaves of at least one triangle,
-    // no thesis value to compare with.
+    // MiB beside MB, leaves of at least one triangle, and the box-grid run (leaves of at
+    // most 8); no thesis value to compare with.
     for r in &t6 {
-        assert!(num(r, "cube_grid_mib") > 0.0);
-        assert!(num(r, "cube_grid_leaf_size") >= 1.0);
-        assert!(r["cube_grid_diff_pct_mib"].is_empty());
+        let mib = num(r, "mergetree_mib");
+        assert!((mib * (1u64 << 20) as f64 / 1e6 - num(r, "mergetree_mb")).abs() < 1e-2);
+        assert!(num(r, "leaf_size") >= 1.0);
+        assert!(num(r, "box_grid_mb") > 0.0);
+        let box_leaf = num(r, "box_grid_leaf_size");
+        assert!((1.0..=8.0).contains(&box_leaf), "{box_leaf}");
+        assert!(r["mergetree_diff_pct_mib"].is_empty() && r["box_grid_diff_pct"].is_empty());
     }
     let md = std::fs::read_to_string(d.join("report.md")).unwrap();
     assert!(md.contains("Table III analogue") && md.contains("Table VI analogue"));
@@ -138,9 +142,10 @@ fn a_shared_scene_gets_the_thesis_columns() {
     let t6 = csv(&dir.path().join("table6.csv"));
     assert_eq!(t6[0]["thesis_mergetree_mb"], "10.6");
     assert_eq!(t6[0]["thesis_gpu_hlbvh_mb"], "27");
-    // Codes on a cube grid, no leaf-size limit, Table VI read as MiB: Bunny's 10.6.
-    let d = num(&t6[0], "cube_grid_diff_pct_mib");
-    assert!(d.abs() < 0.5, "cube grid: {d}% from Table VI");
+    // The preset (codes on a cube grid, no leaf-size limit), Table VI read as MiB: Bunny's
+    // 10.6.
+    let d = num(&t6[0], "mergetree_diff_pct_mib");
+    assert!(d.abs() < 0.5, "preset p2: {d}% from Table VI");
     let sah = csv(&dir.path().join("sah.csv"));
     assert_eq!(sah[0]["thesis_pct"], "122");
     for f in ["table3.svg", "speedup.svg", "table6.svg"] {

@@ -17,11 +17,14 @@ use geom::Aabb;
 use serde::Serialize;
 
 /// The LBVH of \[P3\] §5.2: the streaming MergeTree emitter (30-bit Morton codes) with
-/// "large leafs when multiple primitives share the same Morton code" (no size limit).
+/// "large leafs when multiple primitives share the same Morton code" (no size limit), with
+/// codes on a cube grid as in the MergeTree presets (the grid that gives \[P3\] Table 2's
+/// leaf sizes, `docs/mergetree-vs-thesis.md`).
 pub fn paper_lbvh() -> HlbvhBuilder {
     HlbvhBuilder {
         combine_identical: true,
         max_leaf_size: u32::MAX,
+        grid: geom::MortonGrid::Cube,
         ..HlbvhBuilder::default()
     }
 }

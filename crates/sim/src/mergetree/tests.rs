@@ -111,6 +111,11 @@ fn identical_codes_match_software() {
         let a = clustered_boxes(n, distinct);
         check(&a, &small(256, 4, 3));
         check(&a, &MergeTreeConfig::p2());
+        // The software builder's default grid and a leaf limit (the presets use neither).
+        let mut boxed = MergeTreeConfig::p2();
+        boxed.morton_grid = geom::MortonGrid::Box;
+        boxed.max_leaf_size = 8;
+        check(&a, &boxed);
         let mut split = small(128, 4, 2);
         split.combine_identical = false;
         check(&a, &split);
