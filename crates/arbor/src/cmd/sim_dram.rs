@@ -254,9 +254,10 @@ fn print_text(o: &DramJson) {
     }
     if let (Some(e), Some(pj_bit)) = (s.energy_pj, o.energy_pj_per_bit) {
         println!(
-            "  energy    {:.1} nJ ({:.2} pJ/bit): ACT+PRE {:.1}, RD {:.1}, WR {:.1}, REF {:.1}, background {:.1} nJ",
+            "  energy    {:.1} nJ ({:.2} pJ/bit), {:.1} nJ above idle: ACT+PRE {:.1}, RD {:.1}, WR {:.1}, REF {:.1}, background {:.1} nJ",
             e.total_pj() / 1e3,
             pj_bit,
+            e.above_idle_pj() / 1e3,
             e.act_pre_pj / 1e3,
             e.read_pj / 1e3,
             e.write_pj / 1e3,

@@ -266,6 +266,14 @@ fn print_text(
         r.bytes_written as f64 / 1e6,
         r.bus_utilization * 100.0
     );
+    if let Some(e) = r.memory.energy_pj {
+        println!(
+            "DRAM energy {:.3} mJ, {:.3} mJ above an idle memory ([P2] 6.2: idle standby and \
+             refresh subtracted)",
+            e.total_pj() * 1e-9,
+            e.above_idle_pj() * 1e-9
+        );
+    }
     for p in &r.phases {
         println!(
             "  {:<24} cycles {:>12}  read {:>9.2} MB  written {:>9.2} MB  read latency {:>6.1} cycles",

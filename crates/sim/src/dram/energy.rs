@@ -213,12 +213,17 @@ pub fn energy(
         + counts.precharged_rank_cycles as f64 * spec.precharged_standby_mw())
         * tck_ns
         * dies;
+    let refresh_pj = counts.refresh as f64 * spec.refresh_pj() * dies;
+    // An idle memory over the same rank-cycles: every bank precharged, same refreshes.
+    let rank_cycles = (counts.active_rank_cycles + counts.precharged_rank_cycles) as f64;
+    let idle_pj = rank_cycles * spec.precharged_standby_mw() * tck_ns * dies + refresh_pj;
     DramEnergy {
         act_pre_pj: (counts.act as f64 * spec.act_pj() + counts.pre as f64 * spec.pre_pj()) * dies,
         read_pj: counts.read as f64 * spec.read_burst_pj() * dies,
         write_pj: counts.write as f64 * spec.write_burst_pj() * dies,
-        refresh_pj: counts.refresh as f64 * spec.refresh_pj() * dies,
+        refresh_pj,
         background_pj,
+        idle_pj,
     }
 }
 
@@ -321,5 +326,45 @@ mod tests {
             e.background_pj
         );
         assert_eq!(e.act_pre_pj + e.read_pj + e.write_pj + e.refresh_pj, 0.0);
+    }
+
+    #[test]
+    fn idle_term_is_precharged_standby_and_refresh() {
+        let s = MICRON_4GB_LPDDR3_1600_X32;
+        // 800 + 800 clocks of one die with 2 refreshes: idle = 2 us at 49.2 mW + 2 REF.
+        let counts = CommandCounts {
+            active_rank_cycles: 800,
+            precharged_rank_cycles: 800,
+            refresh: 2,
+            act: 3,
+            pre: 3,
+            read: 10,
+            ..Default::default()
+        };
+        let e = energy(&s, &counts, 1, 1.25);
+        let idle = 2.0 * 49_200.0 + 2.0 * s.refresh_pj();
+        assert!(close(e.idle_pj, idle, 1e-3), "{} vs {idle}", e.idle_pj);
+        // Above idle: the commands and the active-standby surplus, nothing else.
+        let want = 3.0 * (s.act_pj() + s.pre_pj())
+            + 10.0 * s.read_burst_pj()
+            + 800.0 * 1.25 * (s.active_standby_mw() - s.precharged_standby_mw());
+        assert!(
+            close(e.above_idle_pj(), want, 1e-9),
+            "{}",
+            e.above_idle_pj()
+        );
+        // An idle run (all precharged, refresh only) adds nothing over idle.
+        let idle_run = energy(
+            &s,
+            &CommandCounts {
+                precharged_rank_cycles: 1600,
+                refresh: 2,
+                ..Default::default()
+            },
+            2,
+            1.25,
+        );
+        assert!(idle_run.above_idle_pj().abs() < 1e-6);
+        assert!(idle_run.total_pj() > 0.0);
     }
 }

@@ -280,12 +280,24 @@ pub struct DramEnergy {
     pub refresh_pj: f64,
     /// Background (standby) power integrated over the run.
     pub background_pj: f64,
+    /// What an idle memory draws over the same time: precharged standby on every rank
+    /// plus the same refreshes. Part of the components above, not in addition to them.
+    /// \[P2\] §6.2 subtracts this "static power term computed from an idle memory
+    /// transaction trace" from all its memory power figures; [`Self::above_idle_pj`] is
+    /// that figure.
+    pub idle_pj: f64,
 }
 
 impl DramEnergy {
     /// Sum of all components.
     pub fn total_pj(&self) -> f64 {
         self.act_pre_pj + self.read_pj + self.write_pj + self.refresh_pj + self.background_pj
+    }
+
+    /// The energy the traffic added over an idle memory (\[P2\] §6.2): the total less
+    /// [`Self::idle_pj`].
+    pub fn above_idle_pj(&self) -> f64 {
+        (self.total_pj() - self.idle_pj).max(0.0)
     }
 }
 
