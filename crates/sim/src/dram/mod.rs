@@ -364,6 +364,14 @@ pub trait MemoryPort {
     /// Completed responses not yet popped.
     fn completed_waiting(&self) -> usize;
 
+    /// True when a refused [`Self::send`] can only be accepted after some request has
+    /// completed (a response is waiting): then a unit that was refused and waits for
+    /// nothing else may skip cycles until the next response. False (the safe default) for
+    /// backends whose queues drain without a response, such as DRAMsim3's staging.
+    fn refusals_lift_only_with_responses(&self) -> bool {
+        false
+    }
+
     /// Advances one unit clock cycle, as [`Self::tick`], and returns
     /// [`Self::completed_waiting`]: a unit that calls this can skip [`Self::pop_response`]
     /// in the cycles nothing completed (one call through a `dyn MemoryPort` instead of

@@ -118,6 +118,11 @@ impl MemoryPort for SimpleDram {
         self.config.peak_bytes_per_s as f64 * self.config.unit_period_fs as f64 * 1e-15
     }
 
+    fn refusals_lift_only_with_responses(&self) -> bool {
+        // The queue is the requests in flight; one leaves only when it completes.
+        true
+    }
+
     fn send(&mut self, request: MemRequest) -> Result<(), MemRequest> {
         assert!(request.bytes > 0, "memory request of zero bytes");
         if self.in_flight.len() >= self.config.queue_capacity {

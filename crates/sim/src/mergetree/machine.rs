@@ -669,6 +669,13 @@ impl<'a> Machine<'a> {
         for (a, b) in after.iter_mut().zip(&self.snap_before) {
             *a -= b;
         }
+        // A request refused in the probe cycle may be accepted in a later one without any
+        // response arriving (DRAMsim3's staging drains into its controller): then the
+        // cycles to come need not repeat the probe cycle, so none is skipped.
+        if after[6] > 0 && !self.port.refusals_lift_only_with_responses() {
+            self.snap_after = after;
+            return;
+        }
         let win_busy = self.presort_busy_now;
         let deadline = self.wake_at;
         // Nothing is sent or popped while skipping, so the count outstanding stays fixed.

@@ -318,3 +318,94 @@ fn the_tree_check_detects_a_difference() {
     r.highlevel.order.swap(0, 1);
     assert!(!tree_matches_software(&r, &a).unwrap());
 }
+
+/// Bytes of whole bursts of `burst` covering `bytes` from an aligned start.
+fn whole(bytes: u64, burst: u64) -> u64 {
+    bytes.div_ceil(burst) * burst
+}
+
+#[test]
+fn traffic_is_the_formula_of_a_build_of_at_most_one_pass() {
+    // [P2] §4.2 / Table I with one multi-merge pass (or none): the input read once (32 N), the
+    // partial-sort runs written and read back once (2 x 32 Npad), the leaf table (4 N),
+    // 64 B per inner node and the 32-byte root record, each region to whole bursts
+    // (regions start on 4 KiB).
+    for (n, seed, combine) in [(3000usize, 3u64, true), (5000, 4, false), (777, 5, true)] {
+        let a = if combine {
+            clustered_boxes(n, 300)
+        } else {
+            random_boxes(n, seed)
+        };
+        let mut cfg = small(1024, 8, 4);
+        cfg.combine_identical = combine;
+        let r = check(&a, &cfg);
+        let n = n as u64;
+        // One block (777 < M) needs no merge pass: no runs in DRAM at all.
+        let passes = u64::from(n > 1024);
+        assert_eq!(r.merge_passes as u64, passes);
+        let npad = n.div_ceil(8) * 8;
+        let burst = 64;
+        assert_eq!(
+            r.bytes_read,
+            whole(32 * n, burst) + passes * 32 * npad,
+            "n={n}"
+        );
+        assert_eq!(
+            r.bytes_written,
+            passes * 32 * npad
+                + whole(64 * r.nodes, burst)
+                + whole(4 * n, burst)
+                + whole(32, burst),
+            "n={n}"
+        );
+        assert_eq!((r.leaf_entries, r.highlevel_roots), (n, 1));
+        if !combine {
+            assert_eq!(r.nodes, n - 1);
+        } else {
+            assert!(r.nodes < n - 1);
+        }
+    }
+}
+
+#[test]
+fn fast_forward_is_exact_on_dramsim3() {
+    let a = random_boxes(3000, 17);
+    for system in ["lpddr3-1600-1x64", "lpddr3-1333-4x64"] {
+        let mut cfg = small(512, 8, 3);
+        let period = cfg.period_fs();
+        let open = || crate::dram::open(system, period).unwrap();
+        let fast = simulate(&a, &cfg, open()).unwrap();
+        cfg.fast_forward = false;
+        let slow = simulate(&a, &cfg, open()).unwrap();
+        assert_eq!(fast.cycles, slow.cycles, "{system}");
+        assert_eq!(fast.stalls, slow.stalls, "{system}");
+        assert_eq!(fast.phases, slow.phases, "{system}");
+        assert_eq!(fast.memory, slow.memory, "{system}");
+        assert!(fast.fast_forward_cycles > 0, "{system}");
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(8))]
+    /// The random-configuration test on the cycle-accurate DRAM path.
+    #[test]
+    fn any_small_configuration_builds_the_software_tree_on_dramsim3(
+        n in 1usize..500,
+        seed in 0u64..1000,
+        b_log in 0u32..4,
+        fan_log in 1u32..3,
+        presorters in 1u32..5,
+        clustered in any::<bool>(),
+        system in 0usize..4,
+    ) {
+        let a = if clustered { clustered_boxes(n, 1 + seed as usize % 9) } else { random_boxes(n, seed) };
+        let b = 1 << b_log;
+        let mut c = small((2 * b) << fan_log, b, presorters);
+        c.emit_fifo = 1 + (seed % 8) as u32;
+        let name = crate::dram::MEMORY_SYSTEMS[system].0;
+        let port = crate::dram::open(name, c.period_fs()).unwrap();
+        let r = simulate(&a, &c, port).unwrap();
+        prop_assert!(tree_matches_software(&r, &a).unwrap());
+        prop_assert!(r.cycles > 0 && r.memory.unit_cycles == r.cycles);
+    }
+}
