@@ -551,6 +551,68 @@ fn median_split<'a>(t: Task<'a>, coincident: bool) -> (Task<'a>, Task<'a>) {
         },
     )
 }
+
+/// Benchmark hook for [`sorted_split`] (issue 17; not a stable API): the primitive
+/// references of `aabbs`, carrying the input indices `first_index..`, cut into nodes of
+/// `node_size` (2..=[`MAX_BINS`]) consecutive references, each with its box and centroid
+/// box, prepared once so that [`SortedSplitBench::run`] times the split search alone.
+#[doc(hidden)]
+pub struct SortedSplitBench {
+    cfg: BinnedSahBuilder,
+    pristine: Vec<PrimRef>,
+    refs: Vec<PrimRef>,
+    nodes: Vec<(Aabb, Aabb)>,
+}
+
+impl SortedSplitBench {
+    /// Prepares the nodes (`first_index + aabbs.len()` must not exceed `2^31`).
+    pub fn new(aabbs: &[Aabb], first_index: u32, node_size: usize) -> Self {
+        assert!((2..=MAX_BINS).contains(&node_size));
+        assert!(first_index as usize + aabbs.len() <= 1 << 31);
+        let pristine: Vec<PrimRef> = (aabbs.iter().enumerate())
+            .map(|(i, b)| prim_ref(b, first_index + i as u32))
+            .collect();
+        let nodes = pristine
+            .chunks(node_size)
+            .map(|c| {
+                c.iter().fold((Aabb::EMPTY, Aabb::EMPTY), |(b, cb), r| {
+                    (b.union(r.aabb()), cb.grow(r.centroid()))
+                })
+            })
+            .collect();
+        Self {
+            cfg: BinnedSahBuilder {
+                bins: node_size,
+                ..Default::default()
+            },
+            refs: pristine.clone(),
+            pristine,
+            nodes,
+        }
+    }
+
+    /// Runs the split search of every node (on a fresh copy of the references, since it
+    /// reorders them) and returns the sum of the best costs.
+    pub fn run(&mut self) -> f64 {
+        self.refs.copy_from_slice(&self.pristine);
+        let ctx = Ctx { cfg: &self.cfg };
+        let mut sum = 0.0;
+        let size = self.cfg.bins;
+        for (k, (chunk, &(bounds, cbounds))) in
+            self.refs.chunks_mut(size).zip(&self.nodes).enumerate()
+        {
+            let mut t = Task {
+                refs: chunk,
+                first: k * size,
+                bounds,
+                cbounds,
+            };
+            sum += sorted_split(&ctx, &mut t).map_or(0.0, |s| s.cost as f64);
+        }
+        sum
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -31,6 +31,8 @@ mod tree;
 mod validate;
 
 pub use atrbvh::{optimize, AtrbvhBuilder, AtrbvhConfig, MAX_TREELET_SIZE, MIN_GAIN};
+#[doc(hidden)]
+pub use binned_sah::SortedSplitBench;
 pub use binned_sah::{BinnedSahBuilder, MAX_BINS};
 pub use bvh2::{Bvh2, TreeStats};
 pub use collapse::{collapse, Collapse, CollapseError, WideBvh, WideNode};
