@@ -31,6 +31,8 @@ mod tree;
 mod validate;
 
 pub use atrbvh::{optimize, AtrbvhBuilder, AtrbvhConfig, MAX_TREELET_SIZE, MIN_GAIN};
+#[doc(hidden)]
+pub use binned_sah::SortedSplitBench;
 pub use binned_sah::{BinnedSahBuilder, MAX_BINS};
 pub use bvh2::{Bvh2, TreeStats};
 pub use collapse::{collapse, Collapse, CollapseError, WideBvh, WideNode};
@@ -98,6 +100,34 @@ pub(crate) fn centroid(b: &Aabb) -> Vec3 {
     b.min * 0.5 + b.max * 0.5
 }
 
+/// Bit 30 of an f32, the top bit of its exponent (see [`index_lane`]).
+const LANE_TAG: u32 = 1 << 30;
+
+/// The value a primitive index takes in the spare `w` lane of a SIMD box (the binned SAH
+/// and top-down MBVH4 builders' primitive references), read back by [`lane_index`].
+///
+/// That lane goes through the same SIMD arithmetic as x, y and z (box extents, area
+/// products, centroids), so its float value matters: the raw index bits are a subnormal
+/// for every index below 2^23, and Intel cores take a microcode assist for each subnormal
+/// operand or result, which made those builders 2x slower there (issue 17). So the lane
+/// holds the index with bit 30 forced on and the index's own bit 30 moved to the sign bit:
+/// the exponent is at least 128, so for every index below 2^31
+/// ([`MAX_PRIMITIVES`](crate::MAX_PRIMITIVES) < 2^31) the lane is a float of magnitude at
+/// least 2 (or an infinity or NaN from index 0x3F80_0000 on), never zero or subnormal, and
+/// products with box extents do not underflow.
+#[inline(always)]
+pub(crate) fn index_lane(index: u32) -> f32 {
+    debug_assert!(index < 1 << 31);
+    f32::from_bits(index | LANE_TAG | ((index & LANE_TAG) << 1))
+}
+
+/// The index stored by [`index_lane`].
+#[inline(always)]
+pub(crate) fn lane_index(w: f32) -> u32 {
+    let b = w.to_bits();
+    (b & !(LANE_TAG | 1 << 31)) | ((b >> 1) & LANE_TAG)
+}
+
 /// A float mapped to an unsigned integer with the same order (for sorting keys).
 #[inline]
 pub(crate) fn ordered_bits(f: f32) -> u32 {
@@ -133,6 +163,35 @@ mod tests {
                 vertices: 4
             })
         );
+    }
+
+    /// Every index a builder can see round-trips through the `w` lane, and the lane is
+    /// never zero or subnormal (issue 17), so no arithmetic on it takes a subnormal assist.
+    #[test]
+    fn index_lane_round_trips_and_is_never_subnormal() {
+        let edges = [
+            0,
+            1,
+            2,
+            1 << 22,
+            (1 << 23) - 1,
+            1 << 23,
+            0x3F7F_FFFF,
+            0x3F80_0000,
+        ];
+        let edges = edges
+            .into_iter()
+            .chain([0x3FFF_FFFF, 1 << 30, (1 << 30) + 1]);
+        let edges = edges.chain([(1 << 30) + (1 << 23), MAX_PRIMITIVES as u32 - 1]);
+        let all = (0..1 << 16)
+            .chain((0..1 << 16).map(|i| i * 32_749))
+            .chain(edges);
+        for i in all {
+            let w = index_lane(i);
+            assert_eq!(lane_index(w), i);
+            assert!(!w.is_subnormal() && w != 0.0, "{i:#x}: lane {w:e}");
+            assert!(w.abs() >= 2.0 || !w.is_finite(), "{i:#x}: lane {w:e}");
+        }
     }
 
     #[test]

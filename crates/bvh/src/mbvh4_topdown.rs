@@ -28,7 +28,7 @@ use crate::error::{check_input, in_pool, BuildError};
 use crate::mbvh4::{Mbvh4, Node4, MBVH_WIDTH};
 use crate::node::ChildRef;
 use crate::sah::SahParams;
-use crate::{ordered_bits, MAX_BINS, MAX_SAH_DEPTH, PARALLEL_MIN_PRIMS};
+use crate::{index_lane, lane_index, ordered_bits, MAX_BINS, MAX_SAH_DEPTH, PARALLEL_MIN_PRIMS};
 use geom::{Aabb, Vec4};
 use rayon::prelude::*;
 
@@ -56,7 +56,9 @@ impl Default for Mbvh4TopDownBuilder {
     }
 }
 
-/// A primitive reference: its box with the input index in the bits of `min.w`.
+/// A primitive reference: its box with the input index in `min.w`, stored by
+/// [`index_lane`] so that the lane, which the SIMD centroid and binning arithmetic compute
+/// along with x, y and z, is never subnormal (issue 17).
 #[derive(Clone, Copy)]
 struct Ref {
     min: Vec4,
@@ -64,9 +66,18 @@ struct Ref {
 }
 
 impl Ref {
+    /// The reference of input primitive `index`.
+    #[inline]
+    fn new(b: &Aabb, index: u32) -> Ref {
+        Ref {
+            min: b.min.extend(index_lane(index)),
+            max: b.max.extend(0.0),
+        }
+    }
+
     #[inline(always)]
     fn index(&self) -> u32 {
-        self.min.w.to_bits()
+        lane_index(self.min.w)
     }
 
     /// Centroid (lane w meaningless), computed without overflow.
@@ -585,10 +596,7 @@ impl Mbvh4TopDownBuilder {
         let mut refs: Vec<Ref> = aabbs
             .par_iter()
             .enumerate()
-            .map(|(i, b)| Ref {
-                min: b.min.extend(f32::from_bits(i as u32)),
-                max: b.max.extend(0.0),
-            })
+            .map(|(i, b)| Ref::new(b, i as u32))
             .collect();
         let (bounds, cbounds) = bounds_of(&refs);
         let mut root = Cand {
@@ -620,13 +628,30 @@ impl Mbvh4TopDownBuilder {
 mod tests {
     use super::*;
     use crate::mbvh4::validate_mbvh4;
-    use crate::testutil::{adversarial, proc_scene, soup};
+    use crate::testutil::{adversarial, proc_scene, soup, subnormal_simd_lane};
     use crate::{collapse, BinnedSahBuilder, SweepSahBuilder};
     use geom::Vec3;
 
     fn assert_valid(name: &str, t: &Mbvh4, prims: &[Aabb], max: u32) {
         if let Err(e) = validate_mbvh4(t, prims, max) {
             panic!("{name}: invalid 4-wide tree: {e}");
+        }
+    }
+
+    /// Issue 17: for small input indices, no lane of a reference, of its SIMD extent, area
+    /// products or centroid, or of the binning arithmetic `(centroid - lo) * k` is
+    /// subnormal.
+    #[test]
+    fn simd_lanes_of_refs_are_never_subnormal() {
+        let boxes = soup(4096, 2.0, 5);
+        let (lo4, k4) = (Vec4::new(1.0, 2.0, 3.0, 0.0), Vec4::new(0.1, 0.2, 0.3, 0.0));
+        for (i, b) in boxes.iter().enumerate() {
+            let r = Ref::new(b, i as u32);
+            assert_eq!(r.index(), i as u32);
+            let bad = subnormal_simd_lane(r.min, r.max);
+            assert!(bad.is_none(), "index {i}: {}", bad.unwrap());
+            let f = (r.centroid() - lo4) * k4;
+            assert!(!f.to_array().iter().any(|x| x.is_subnormal()), "{i}: {f:?}");
         }
     }
 

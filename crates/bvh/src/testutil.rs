@@ -1,6 +1,6 @@
 //! Test inputs shared by the builder tests: random soups and adversarial primitive sets.
 
-use geom::{Aabb, Triangle, Vec3};
+use geom::{Aabb, Triangle, Vec3, Vec4};
 
 /// A small deterministic RNG (xorshift64*), so tests need no extra crates.
 pub struct Rng(u64);
@@ -134,4 +134,27 @@ pub fn real_scenes() -> Option<Vec<(String, Vec<Aabb>)>> {
         out.push((name, boxes));
     }
     Some(out)
+}
+
+/// Issue 17: the first lane of the SIMD box arithmetic on `(min, max)` that holds a
+/// subnormal, as a description, or `None`. The compiler computes all four lanes (the `w`
+/// lane, where the builders keep a primitive index, included) of the box's lanes, its
+/// extent `max - min`, every product of the extent with one of its own lanes (what the
+/// vectorized half area multiplies) and the centroid `min * 0.5 + max * 0.5`; a subnormal
+/// in any of them costs a microcode assist on Intel cores.
+pub fn subnormal_simd_lane(min: Vec4, max: Vec4) -> Option<String> {
+    let e = max - min;
+    let mut named = vec![
+        ("min".to_string(), min),
+        ("max".to_string(), max),
+        ("max - min".to_string(), e),
+        ("centroid".to_string(), min * 0.5 + max * 0.5),
+    ];
+    for k in 0..4 {
+        named.push((format!("extent * extent[{k}]"), e * Vec4::splat(e[k])));
+    }
+    named.into_iter().find_map(|(name, v)| {
+        let lane = v.to_array().iter().position(|x| x.is_subnormal())?;
+        Some(format!("{name} = {v:?}: lane {lane} subnormal"))
+    })
 }
