@@ -1,0 +1,1 @@
+//! Kernel-level tests: skipping equals stepping every cycle.
