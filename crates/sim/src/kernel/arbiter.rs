@@ -23,6 +23,8 @@ pub struct RoundRobin {
     max_grants: usize,
     grants: Vec<u64>,
     refusals: Vec<u64>,
+    /// Requester `i`'s last offer was refused (a refusal episode is open).
+    refusing: Vec<bool>,
 }
 
 impl RoundRobin {
@@ -42,6 +44,7 @@ impl RoundRobin {
             max_grants,
             grants: vec![0; n],
             refusals: vec![0; n],
+            refusing: vec![false; n],
         })
     }
 
@@ -56,6 +59,7 @@ impl RoundRobin {
         for _ in 0..n {
             match try_requester(i) {
                 Offer::Granted => {
+                    self.refusing[i] = false;
                     self.grants[i] += 1;
                     granted += 1;
                     last = Some(i);
@@ -63,8 +67,11 @@ impl RoundRobin {
                         break;
                     }
                 }
-                Offer::Refused => self.refusals[i] += 1,
-                Offer::Nothing => {}
+                Offer::Refused => {
+                    self.refusals[i] += !self.refusing[i] as u64;
+                    self.refusing[i] = true;
+                }
+                Offer::Nothing => self.refusing[i] = false,
             }
             i += 1;
             if i == n {
@@ -96,7 +103,9 @@ impl RoundRobin {
 pub struct ArbiterStats {
     /// Grants per requester.
     pub grants: Vec<u64>,
-    /// Offers per requester whose request the destination refused.
+    /// Refusal episodes per requester: offers whose request the destination refused,
+    /// counting consecutive refused offers once (so the figure does not depend on how
+    /// often a stalled arbiter is stepped).
     pub refusals: Vec<u64>,
 }
 
@@ -119,6 +128,7 @@ mod tests {
     #[test]
     fn grants_rotate_and_skip_idle_and_refused_requesters() {
         let mut a = RoundRobin::new(4, 1).unwrap();
+        // Requester 3 is refused every time: one episode.
         let mut order = Vec::new();
         for _ in 0..8 {
             a.arbitrate(|i| {
@@ -135,8 +145,23 @@ mod tests {
         assert_eq!(order, vec![0, 1, 0, 1, 0, 1, 0, 1]);
         let s = a.stats();
         assert_eq!(s.grants, vec![4, 4, 0, 0]);
-        // Requester 3 is offered after each grant to 1 (4 times).
-        assert_eq!(s.refusals, vec![0, 0, 0, 4]);
+        assert_eq!(s.refusals, vec![0, 0, 0, 1]);
+        // An accepted offer ends the episode.
+        a.arbitrate(|i| {
+            if i == 3 {
+                Offer::Granted
+            } else {
+                Offer::Nothing
+            }
+        });
+        a.arbitrate(|i| {
+            if i == 3 {
+                Offer::Refused
+            } else {
+                Offer::Nothing
+            }
+        });
+        assert_eq!(a.stats().refusals, vec![0, 0, 0, 2]);
     }
 
     #[test]

@@ -575,3 +575,599 @@ impl<T: Copy> Cache<T> {
         self.valid.iter().filter(|v| **v).count()
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::kernel::tests::Rng;
+    use proptest::prelude::*;
+
+    fn cfg(size: u64, ways: u32, line: u32, banks: u32, policy: WritePolicy) -> CacheConfig {
+        CacheConfig {
+            name: "test".into(),
+            size_bytes: size,
+            ways,
+            line_bytes: line,
+            banks,
+            mshrs: 4,
+            targets_per_mshr: 2,
+            hit_latency: 2,
+            write_policy: policy,
+        }
+    }
+
+    const WB: WritePolicy = WritePolicy::WriteBackAllocate;
+    const WT: WritePolicy = WritePolicy::WriteThroughNoAllocate;
+
+    #[test]
+    fn bad_configurations_are_errors_not_panics() {
+        let good = cfg(4096, 4, 64, 2, WB);
+        assert_eq!(good.validate(), Ok(16));
+        let cases: Vec<(CacheConfig, &str)> = vec![
+            (
+                CacheConfig {
+                    size_bytes: 0,
+                    ..good.clone()
+                },
+                "size",
+            ),
+            (
+                CacheConfig {
+                    ways: 0,
+                    ..good.clone()
+                },
+                "ways",
+            ),
+            (
+                CacheConfig {
+                    line_bytes: 48,
+                    ..good.clone()
+                },
+                "power of two",
+            ),
+            (
+                CacheConfig {
+                    line_bytes: 0,
+                    ..good.clone()
+                },
+                "power of two",
+            ),
+            (
+                CacheConfig {
+                    ways: 3,
+                    ..good.clone()
+                },
+                "multiple",
+            ),
+            (
+                CacheConfig {
+                    size_bytes: 3 * 4 * 64,
+                    ..good.clone()
+                },
+                "sets",
+            ),
+            (
+                CacheConfig {
+                    banks: 0,
+                    ..good.clone()
+                },
+                "banks",
+            ),
+            (
+                CacheConfig {
+                    banks: 3,
+                    ..good.clone()
+                },
+                "banks",
+            ),
+            (
+                CacheConfig {
+                    mshrs: 0,
+                    ..good.clone()
+                },
+                "MSHR",
+            ),
+            (
+                CacheConfig {
+                    targets_per_mshr: 0,
+                    ..good.clone()
+                },
+                "MSHR",
+            ),
+        ];
+        for (c, word) in cases {
+            let e = Cache::<u32>::new(c.clone()).err().unwrap().to_string();
+            assert!(e.contains(word) && e.contains("cache test"), "{c:?}: {e}");
+        }
+    }
+
+    #[test]
+    fn miss_fill_hit_and_secondary_misses_merge() {
+        let mut c = Cache::new(cfg(1024, 2, 64, 1, WB)).unwrap();
+        assert_eq!(
+            c.access(0x100, 8, AccessKind::Read, Some(1), 0),
+            Access::Miss {
+                fetch: [Some(0x100), None]
+            }
+        );
+        assert_eq!(
+            c.access(0x108, 8, AccessKind::Read, Some(2), 1),
+            Access::MergedMiss
+        );
+        assert_eq!(
+            c.access(0x110, 8, AccessKind::Read, Some(3), 2),
+            Access::Refused(Refusal::TargetsFull)
+        );
+        let mut ready = Vec::new();
+        assert!(c.fill(0x200, 5, &mut ready).is_err());
+        assert_eq!(c.fill(0x100, 10, &mut ready), Ok(None));
+        assert_eq!(
+            ready,
+            vec![
+                Ready {
+                    tag: 1,
+                    ready_at: 10
+                },
+                Ready {
+                    tag: 2,
+                    ready_at: 10
+                }
+            ]
+        );
+        assert_eq!(
+            c.access(0x110, 8, AccessKind::Read, Some(3), 11),
+            Access::Hit { ready_at: 13 }
+        );
+        let s = c.stats();
+        assert_eq!(
+            (s.hits, s.misses, s.merges, s.refused_targets_full),
+            (1, 1, 1, 1)
+        );
+        assert!((s.hit_rate() - 1.0 / 3.0).abs() < 1e-12);
+    }
+
+    #[test]
+    fn split_requests_wait_for_both_lines_and_banks_conflict() {
+        // Two banks: a 48-byte request at 0x30 covers lines 0x00 (bank 0) and 0x40 (bank 1).
+        let mut c = Cache::new(cfg(2048, 2, 64, 2, WB)).unwrap();
+        assert_eq!(
+            c.access(0x30, 48, AccessKind::Read, Some(7), 0),
+            Access::Miss {
+                fetch: [Some(0x00), Some(0x40)]
+            }
+        );
+        // Both banks taken in cycle 0.
+        assert_eq!(
+            c.access(0x80, 4, AccessKind::Read, Some(8), 0),
+            Access::Refused(Refusal::BankBusy)
+        );
+        let mut ready = Vec::new();
+        c.fill(0x40, 3, &mut ready).unwrap();
+        assert!(ready.is_empty(), "one line still missing");
+        c.fill(0x00, 6, &mut ready).unwrap();
+        assert_eq!(
+            ready,
+            vec![Ready {
+                tag: 7,
+                ready_at: 6
+            }]
+        );
+        assert_eq!(c.stats().split_accesses, 1);
+        assert_eq!(c.stats().line_accesses, 2);
+        // One bank: both lines in the same bank, read over two cycles.
+        let mut c = Cache::new(cfg(2048, 2, 64, 1, WB)).unwrap();
+        c.access(0x00, 4, AccessKind::Read, None, 0);
+        c.access(0x40, 4, AccessKind::Read, None, 1);
+        c.fill(0x00, 2, &mut ready).unwrap();
+        c.fill(0x40, 2, &mut ready).unwrap();
+        assert_eq!(
+            c.access(0x30, 48, AccessKind::Read, Some(1), 5),
+            Access::Hit {
+                ready_at: 5 + 2 + 1
+            }
+        );
+        assert_eq!(
+            c.access(0x00, 4, AccessKind::Read, Some(2), 6),
+            Access::Refused(Refusal::BankBusy)
+        );
+        assert!(matches!(
+            c.access(0x00, 4, AccessKind::Read, Some(2), 7),
+            Access::Hit { .. }
+        ));
+        assert_eq!(
+            c.access(0x00, 65, AccessKind::Read, Some(2), 9),
+            Access::Refused(Refusal::TooWide)
+        );
+    }
+
+    #[test]
+    fn tagless_misses_fetch_once_and_the_retry_hits() {
+        let mut c = Cache::<u32>::new(cfg(1024, 2, 64, 1, WB)).unwrap();
+        assert!(matches!(
+            c.access(0, 4, AccessKind::Read, None, 0),
+            Access::Miss { .. }
+        ));
+        // Retries while the line is on its way merge without taking target slots.
+        for t in 1..5 {
+            assert_eq!(
+                c.access(0, 4, AccessKind::Read, None, t),
+                Access::MergedMiss
+            );
+        }
+        let mut ready = Vec::new();
+        c.fill(0, 9, &mut ready).unwrap();
+        assert!(ready.is_empty());
+        assert!(matches!(
+            c.access(0, 4, AccessKind::Read, None, 10),
+            Access::Hit { .. }
+        ));
+        assert_eq!(c.mshr_stats().allocations, 1);
+    }
+
+    #[test]
+    fn dirty_victims_are_written_back_and_write_through_never_allocates() {
+        // Direct-mapped, 2 sets of 64 B: 0x000 and 0x080 share set 0.
+        let mut c = Cache::new(cfg(128, 1, 64, 1, WB)).unwrap();
+        let mut ready = Vec::new();
+        assert!(matches!(
+            c.access(0x000, 4, AccessKind::Write, Some(1), 0),
+            Access::Miss { .. }
+        ));
+        assert_eq!(c.fill(0x000, 3, &mut ready), Ok(None));
+        assert!(matches!(
+            c.access(0x080, 4, AccessKind::Read, Some(2), 4),
+            Access::Miss { .. }
+        ));
+        assert_eq!(c.fill(0x080, 8, &mut ready), Ok(Some(0x000)));
+        let s = c.stats();
+        assert_eq!((s.evictions, s.writebacks), (1, 1));
+
+        let mut c = Cache::new(cfg(128, 1, 64, 1, WT)).unwrap();
+        assert_eq!(
+            c.access(0x000, 4, AccessKind::Write, Some(1), 0),
+            Access::Bypass { ready_at: 2 }
+        );
+        assert!(!c.contains(0));
+        assert!(matches!(
+            c.access(0x000, 4, AccessKind::Read, Some(2), 1),
+            Access::Miss { .. }
+        ));
+        c.fill(0x000, 3, &mut ready).unwrap();
+        assert_eq!(
+            c.access(0x000, 4, AccessKind::Write, Some(3), 4),
+            Access::Hit { ready_at: 6 }
+        );
+        assert!(matches!(
+            c.access(0x080, 4, AccessKind::Read, Some(4), 5),
+            Access::Miss { .. }
+        ));
+        assert_eq!(
+            c.fill(0x080, 8, &mut ready),
+            Ok(None),
+            "write-through lines are clean"
+        );
+        assert_eq!(c.stats().write_throughs, 2);
+    }
+
+    /// The reference: per-set LRU lists (front = least recent), a list of lines being
+    /// fetched, and fills applied when the driver says. With fills applied at once it is
+    /// the plain blocking cache.
+    struct Reference {
+        sets: u64,
+        ways: usize,
+        wt: bool,
+        lru: Vec<Vec<(u64, bool)>>,
+        pending: Vec<(u64, bool)>,
+        stats: CacheStats,
+    }
+
+    #[derive(Clone, Copy, Debug, PartialEq, Eq)]
+    enum RefOutcome {
+        Hit,
+        Miss,
+        Merge,
+        Bypass,
+    }
+
+    impl Reference {
+        fn new(c: &CacheConfig) -> Self {
+            let sets = c.validate().unwrap();
+            Self {
+                sets,
+                ways: c.ways as usize,
+                wt: c.write_policy == WT,
+                lru: vec![Vec::new(); sets as usize],
+                pending: Vec::new(),
+                stats: CacheStats::default(),
+            }
+        }
+
+        fn access(&mut self, line: u64, write: bool) -> RefOutcome {
+            self.stats.line_accesses += 1;
+            let set = &mut self.lru[(line % self.sets) as usize];
+            if let Some(p) = set.iter().position(|e| e.0 == line) {
+                let (l, d) = set.remove(p);
+                set.push((l, d || (write && !self.wt)));
+                self.stats.hits += 1;
+                return RefOutcome::Hit;
+            }
+            if write && self.wt {
+                self.stats.misses += 1;
+                return RefOutcome::Bypass;
+            }
+            if let Some(p) = self.pending.iter_mut().find(|e| e.0 == line) {
+                p.1 |= write;
+                self.stats.merges += 1;
+                return RefOutcome::Merge;
+            }
+            self.pending.push((line, write));
+            self.stats.misses += 1;
+            RefOutcome::Miss
+        }
+
+        fn fill(&mut self, line: u64) {
+            let p = self
+                .pending
+                .iter()
+                .position(|e| e.0 == line)
+                .expect("pending");
+            let (_, dirty) = self.pending.remove(p);
+            let set = &mut self.lru[(line % self.sets) as usize];
+            if set.len() == self.ways {
+                let (_, d) = set.remove(0);
+                self.stats.evictions += 1;
+                self.stats.writebacks += d as u64;
+            }
+            set.push((line, dirty));
+            self.stats.fills += 1;
+        }
+    }
+
+    #[derive(Clone, Copy, Debug)]
+    enum Dist {
+        Uniform,
+        Strided,
+        HotSet,
+        Sequential,
+    }
+
+    /// A stream of (address, bytes, is_write).
+    fn stream(dist: Dist, seed: u64, len: usize, line: u32) -> Vec<(u64, u32, bool)> {
+        let mut r = Rng::new(seed);
+        let sizes: Vec<u32> = [4u32, 16, 32, 48, 64]
+            .into_iter()
+            .filter(|&b| b <= line)
+            .collect();
+        let stride = 4 * (1 + r.below(64));
+        let mut seq = r.below(1 << 16) & !3;
+        (0..len)
+            .map(|i| {
+                let bytes = sizes[r.below(sizes.len() as u64) as usize];
+                let addr = match dist {
+                    Dist::Uniform => r.below(1 << 16) & !3,
+                    Dist::Strided => (i as u64 * stride) % (1 << 15),
+                    Dist::HotSet => {
+                        if r.below(10) < 9 {
+                            r.below(2048) & !3
+                        } else {
+                            r.below(1 << 18) & !3
+                        }
+                    }
+                    Dist::Sequential => {
+                        let a = seq;
+                        seq += bytes as u64;
+                        a
+                    }
+                };
+                (addr, bytes, r.below(10) < 3)
+            })
+            .collect()
+    }
+
+    fn configs() -> impl Strategy<Value = CacheConfig> {
+        (
+            prop::sample::select(vec![512u64, 1024, 2048, 4096, 16384]),
+            prop::sample::select(vec![1u32, 2, 4, 8]),
+            prop::sample::select(vec![16u32, 32, 64]),
+            prop::sample::select(vec![1u32, 2, 4]),
+            2u32..9,
+            1u32..4,
+            0u64..4,
+            any::<bool>(),
+        )
+            .prop_map(
+                |(size, ways, line, banks, mshrs, targets, lat, wt)| CacheConfig {
+                    name: "prop".into(),
+                    size_bytes: size,
+                    ways,
+                    line_bytes: line,
+                    banks,
+                    mshrs,
+                    targets_per_mshr: targets,
+                    hit_latency: lat,
+                    write_policy: if wt { WT } else { WB },
+                },
+            )
+            .prop_filter("valid", |c| c.validate().is_ok())
+    }
+
+    fn dists() -> impl Strategy<Value = Dist> {
+        prop::sample::select(vec![
+            Dist::Uniform,
+            Dist::Strided,
+            Dist::HotSet,
+            Dist::Sequential,
+        ])
+    }
+
+    /// Feeds an accepted access's lines to the reference, in ascending line order, and
+    /// checks the cache's outcome agrees.
+    fn feed(
+        rf: &mut Reference,
+        c: &CacheConfig,
+        addr: u64,
+        bytes: u32,
+        write: bool,
+        got: Access,
+    ) -> Result<(), TestCaseError> {
+        let shift = c.line_bytes.trailing_zeros();
+        let (first, last) = (addr >> shift, (addr + bytes as u64 - 1) >> shift);
+        let outs: Vec<RefOutcome> = (first..=last).map(|l| rf.access(l, write)).collect();
+        let expect_fetch: Vec<u64> = (first..=last)
+            .zip(&outs)
+            .filter(|(_, o)| **o == RefOutcome::Miss)
+            .map(|(l, _)| l << shift)
+            .collect();
+        match got {
+            Access::Hit { .. } => prop_assert!(outs.iter().all(|o| *o == RefOutcome::Hit)),
+            Access::Bypass { .. } => {
+                prop_assert!(outs.contains(&RefOutcome::Bypass));
+                prop_assert!(
+                    !outs.contains(&RefOutcome::Miss) && !outs.contains(&RefOutcome::Merge)
+                );
+            }
+            Access::MergedMiss => {
+                prop_assert!(
+                    outs.contains(&RefOutcome::Merge) && !outs.contains(&RefOutcome::Miss)
+                );
+            }
+            Access::Miss { fetch } => {
+                let f: Vec<u64> = fetch.iter().flatten().copied().collect();
+                prop_assert_eq!(f, expect_fetch);
+            }
+            Access::Refused(r) => prop_assert!(false, "refused {:?}", r),
+        }
+        Ok(())
+    }
+
+    fn same_counts(a: &CacheStats, b: &CacheStats) -> Result<(), TestCaseError> {
+        prop_assert_eq!(
+            (
+                a.line_accesses,
+                a.hits,
+                a.misses,
+                a.merges,
+                a.fills,
+                a.evictions,
+                a.writebacks
+            ),
+            (
+                b.line_accesses,
+                b.hits,
+                b.misses,
+                b.merges,
+                b.fills,
+                b.evictions,
+                b.writebacks
+            )
+        );
+        Ok(())
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+
+        /// Fills applied at once: the hit/miss sequence and every count equal the plain
+        /// blocking LRU reference, access by access.
+        #[test]
+        fn immediate_fills_equal_the_reference(
+            c in configs(), dist in dists(), seed in any::<u64>(),
+        ) {
+            let mut cache = Cache::new(c.clone()).unwrap();
+            let mut rf = Reference::new(&c);
+            let mut ready = Vec::new();
+            let mut now = 0;
+            for (i, &(addr, bytes, write)) in stream(dist, seed, 400, c.line_bytes).iter().enumerate() {
+                let kind = if write { AccessKind::Write } else { AccessKind::Read };
+                now += 2; // banks always free
+                let got = cache.access(addr, bytes, kind, Some(i), now);
+                feed(&mut rf, &c, addr, bytes, write, got)?;
+                if let Access::Miss { fetch } = got {
+                    for l in fetch.iter().flatten() {
+                        let wb = cache.fill(*l, now, &mut ready).unwrap();
+                        let before = rf.stats.writebacks;
+                        rf.fill(l >> c.line_bytes.trailing_zeros());
+                        prop_assert_eq!(wb.is_some(), rf.stats.writebacks > before);
+                    }
+                }
+                prop_assert_eq!(cache.stats().merges, 0);
+                same_counts(cache.stats(), &rf.stats)?;
+            }
+            cache.check_invariants().map_err(TestCaseError::fail)?;
+        }
+
+        /// Fills after random delays, several accesses per cycle (bank conflicts), refusals
+        /// retried: the counts equal the reference fed the same accepted order and fill
+        /// order; every access completes exactly once; the structure stays sound.
+        #[test]
+        fn delayed_fills_keep_the_invariants(
+            c in configs(), dist in dists(), seed in any::<u64>(), max_delay in 1u64..60,
+        ) {
+            let mut cache = Cache::new(c.clone()).unwrap();
+            let mut rf = Reference::new(&c);
+            let mut rng = Rng::new(seed ^ 0x5555);
+            let work = stream(dist, seed, 300, c.line_bytes);
+            let capacity_lines = (c.size_bytes / c.line_bytes as u64) as usize;
+            // (due cycle, line address), kept sorted by due cycle (stable).
+            let mut fills: Vec<(Cycle, u64)> = Vec::new();
+            let mut done: Vec<Option<Cycle>> = vec![None; work.len()];
+            let mut issued_at = vec![0; work.len()];
+            let mut ready: Vec<Ready<usize>> = Vec::new();
+            let mut next = 0;
+            let mut now: Cycle = 0;
+            while next < work.len() || !fills.is_empty() {
+                // Fills due now, in order.
+                while fills.first().is_some_and(|f| f.0 <= now) {
+                    let (_, l) = fills.remove(0);
+                    ready.clear();
+                    cache.fill(l, now, &mut ready).unwrap();
+                    rf.fill(l >> c.line_bytes.trailing_zeros());
+                    for r in &ready {
+                        prop_assert!(done[r.tag].is_none(), "completed twice");
+                        prop_assert!(r.ready_at >= now && r.ready_at >= issued_at[r.tag]);
+                        done[r.tag] = Some(r.ready_at);
+                    }
+                    cache.check_invariants().map_err(TestCaseError::fail)?;
+                }
+                // Up to three accesses this cycle; stop at the first refusal (in order).
+                for _ in 0..1 + rng.below(3) {
+                    if next == work.len() {
+                        break;
+                    }
+                    let (addr, bytes, write) = work[next];
+                    let kind = if write { AccessKind::Write } else { AccessKind::Read };
+                    let got = cache.access(addr, bytes, kind, Some(next), now);
+                    if let Access::Refused(_) = got {
+                        break;
+                    }
+                    feed(&mut rf, &c, addr, bytes, write, got)?;
+                    issued_at[next] = now;
+                    match got {
+                        Access::Hit { ready_at } | Access::Bypass { ready_at } => {
+                            done[next] = Some(ready_at);
+                        }
+                        Access::Miss { fetch } => {
+                            for l in fetch.iter().flatten() {
+                                let due = now + 1 + rng.below(max_delay);
+                                let at = fills.partition_point(|f| f.0 <= due);
+                                fills.insert(at, (due, *l));
+                            }
+                        }
+                        _ => {}
+                    }
+                    next += 1;
+                }
+                same_counts(cache.stats(), &rf.stats)?;
+                prop_assert!(cache.lines_held() <= capacity_lines);
+                prop_assert!(cache.mshrs_in_use() <= c.mshrs as usize);
+                now += 1;
+            }
+            prop_assert!(done.iter().all(|d| d.is_some()), "an access never completed");
+            let s = cache.stats();
+            prop_assert_eq!(s.accesses, work.len() as u64);
+            prop_assert_eq!(s.hits + s.misses + s.merges, s.line_accesses);
+            prop_assert_eq!(cache.mshrs_in_use(), 0);
+            cache.check_invariants().map_err(TestCaseError::fail)?;
+        }
+    }
+}

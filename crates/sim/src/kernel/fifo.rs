@@ -35,6 +35,8 @@ pub struct LatencyFifo<T> {
     pushes: u64,
     pops: u64,
     refused: u64,
+    /// The last push was refused (a refusal episode is open).
+    refusing: bool,
     peak: usize,
     /// Sum over cycles of the occupancy, up to `area_since`.
     area: u128,
@@ -76,6 +78,7 @@ impl<T> LatencyFifo<T> {
             pushes: 0,
             pops: 0,
             refused: 0,
+            refusing: false,
             peak: 0,
             area: 0,
             area_since: 0,
@@ -110,9 +113,11 @@ impl<T> LatencyFifo<T> {
     pub fn push(&mut self, cx: &mut Ctx, item: T) -> Result<(), T> {
         let now = cx.now;
         if self.occupancy(now) >= self.capacity {
-            self.refused += 1;
+            self.refused += !self.refusing as u64;
+            self.refusing = true;
             return Err(item);
         }
+        self.refusing = false;
         self.account(now);
         let at = now + self.latency;
         if self.items.is_empty() {
@@ -120,7 +125,9 @@ impl<T> LatencyFifo<T> {
         }
         self.items.push_back((at, item));
         self.pushes += 1;
-        self.peak = self.peak.max(self.items.len());
+        // The occupancy the producer sees (slots popped this cycle are not yet free): the
+        // start-of-cycle occupancy plus this cycle's pushes, whatever the step order.
+        self.peak = self.peak.max(self.occupancy(now));
         Ok(())
     }
 
@@ -229,9 +236,14 @@ pub struct LatencyFifoStats {
     pub pushes: u64,
     /// Pops.
     pub pops: u64,
-    /// Pushes refused because the FIFO was full (one per attempt).
+    /// Refusal episodes: pushes refused because the FIFO was full, counting a run of
+    /// refused pushes without an accepted one in between once (a producer retrying every
+    /// cycle counts as often as one that sleeps until a slot frees, so the figure does not
+    /// depend on how often the producer is stepped).
     pub refused_pushes: u64,
-    /// Highest number of items held at once (the figure FIFO sizing needs).
+    /// Highest occupancy: the most slots in use in one cycle, counting a slot popped in a
+    /// cycle as used until the cycle ends (it is free only from the next cycle). This is
+    /// the storage FIFO sizing needs, and it does not depend on the step order.
     pub peak: usize,
     /// Occupancy-time integral: the sum over cycles of the items held (in flight included).
     pub occupancy_cycles: u64,
@@ -317,7 +329,8 @@ mod tests {
         assert!(!f.is_full(&cx));
         f.push(&mut cx, 3).unwrap();
         let s = f.stats(6);
-        assert_eq!((s.pushes, s.refused_pushes, s.peak), (3, 2, 2));
+        // The refusals at cycles 0 and 5, with no accepted push between, are one episode.
+        assert_eq!((s.pushes, s.refused_pushes, s.peak), (3, 1, 2));
     }
 
     #[test]

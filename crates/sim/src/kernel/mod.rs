@@ -28,7 +28,7 @@ pub mod tags;
 pub mod unit;
 
 #[cfg(test)]
-mod tests;
+pub(crate) mod tests;
 
 pub use arbiter::{ArbiterStats, Offer, RoundRobin};
 pub use cache::{Access, Cache, CacheConfig, CacheStats, Refusal, WritePolicy};
