@@ -87,7 +87,7 @@ impl CacheConfig {
             ));
         }
         let set_bytes = self.ways as u64 * self.line_bytes as u64;
-        if self.size_bytes % set_bytes != 0 {
+        if !self.size_bytes.is_multiple_of(set_bytes) {
             return bad(format!(
                 "size {} is not a multiple of ways x line = {set_bytes} bytes",
                 self.size_bytes

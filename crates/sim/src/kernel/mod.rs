@@ -8,12 +8,12 @@
 //! One concept per file:
 //! - [`unit`]: the [`Unit`] trait, [`Wake`], [`UnitId`], the step context [`Ctx`];
 //! - [`scheduler`]: [`Scheduler`], [`World`], [`Options`], [`RunReport`], [`KernelError`];
-//! - [`fifo`]: [`LatencyFifo`];
-//! - [`arbiter`]: [`RoundRobin`];
-//! - [`tags`]: [`TagPool`], [`MshrFile`];
-//! - [`cache`]: [`Cache`] and its [`CacheConfig`];
-//! - [`stats`]: [`State`] and [`Activity`];
-//! - [`memory`]: [`Memory`], the world's memory port.
+//! - [`fifo`]: the latency FIFO [`LatencyFifo`];
+//! - [`arbiter`]: the round-robin arbiter [`RoundRobin`];
+//! - [`tags`]: tag pools [`TagPool`] and MSHRs [`MshrFile`];
+//! - [`cache`]: the [`Cache`] and its [`CacheConfig`];
+//! - [`stats`]: unit [`State`]s and [`Activity`];
+//! - [`memory`]: the world's memory port, [`Memory`].
 //!
 //! `docs/sim-kernel.md` describes the model of time, the step order and visibility rules,
 //! how to write a unit, the cache's semantics and every statistic.

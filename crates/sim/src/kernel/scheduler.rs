@@ -246,8 +246,8 @@ impl<W: World> Scheduler<W> {
             stepped_cycles += any as u64;
             // 3. The next cycle anything is due.
             let mut next = NEVER;
-            for i in 0..n {
-                next = next.min(wake[i]).min(cx.ev[i]);
+            for (w, e) in wake.iter().zip(&cx.ev) {
+                next = next.min(*w).min(*e);
             }
             if let Some(&std::cmp::Reverse((t, _))) = cx.overflow.peek() {
                 next = next.min(t);

@@ -370,7 +370,7 @@ fn run_pipe(c: &PipeConfig, skip: bool) -> PipeRun {
     };
     let mut producers: Vec<Box<dyn Unit<Pipe>>> = (0..n)
         .map(|p| {
-            let mut rng = Rng::new(c.seed ^ (p as u64 + 1) * 0x1234_5678_9abc);
+            let mut rng = Rng::new(c.seed ^ ((p as u64 + 1) * 0x1234_5678_9abc));
             let first = rng.below(c.max_service);
             Box::new(Producer {
                 p,
@@ -576,10 +576,12 @@ fn a_run_that_never_settles_hits_the_cycle_limit() {
 
 // ---- Memory through the kernel ----
 
+/// (unit, tag, completed cycle, cycle the unit saw it) per response.
+type ResponseLog = Vec<(u32, u64, Cycle, Cycle)>;
+
 struct MemWorld {
     mem: Memory,
-    /// (unit, tag, completed cycle, cycle the unit saw it).
-    log: Vec<(u32, u64, Cycle, Cycle)>,
+    log: ResponseLog,
 }
 
 impl World for MemWorld {
@@ -655,7 +657,7 @@ impl Unit<MemWorld> for Reader {
     }
 }
 
-fn run_readers(seed: u64, n: u64, skip: bool) -> (RunReport, Vec<(u32, u64, Cycle, Cycle)>, u64) {
+fn run_readers(seed: u64, n: u64, skip: bool) -> (RunReport, ResponseLog, u64) {
     let port = dram::open("simple:lpddr3-1600-1x64", 1_000_000).unwrap();
     let mut w = MemWorld {
         mem: Memory::new(port),
