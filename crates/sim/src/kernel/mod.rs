@@ -39,6 +39,12 @@ pub use stats::{Activity, StallTime, State};
 pub use tags::{MshrFile, MshrRefusal, MshrStats, TagPool, TagPoolStats};
 pub use unit::{Ctx, Unit, UnitId, Wake, NEVER};
 
+/// The code in `docs/sim-kernel.md`, compiled and run as a doctest
+/// (`cargo test -p sim --doc`).
+#[cfg(doctest)]
+#[doc = include_str!("../../../../docs/sim-kernel.md")]
+pub struct SimKernelDoc;
+
 /// A cycle number of the kernel's clock.
 pub type Cycle = u64;
 

@@ -261,7 +261,8 @@ impl<W: World> Scheduler<W> {
                 return self.finish(world, &cx, &last, end, steps, stepped_cycles);
             }
             // 2. The memory, up to the next cycle.
-            let target = if skip { next } else { now + 1 };
+            // (Never past the cycle limit: a jump there is reported, not ticked through.)
+            let target = if skip { next } else { now + 1 }.min(self.options.max_cycles);
             now = match world.memory() {
                 None => target,
                 Some(m) => {
@@ -281,7 +282,7 @@ impl<W: World> Scheduler<W> {
                         if t >= target {
                             break t;
                         }
-                        if target == NEVER && t - cx.now > self.options.memory_timeout_cycles {
+                        if next == NEVER && t - cx.now > self.options.memory_timeout_cycles {
                             return Err(self.deadlock(world, &cx, &last, t));
                         }
                     }

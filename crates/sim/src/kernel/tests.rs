@@ -850,6 +850,41 @@ fn kernel_throughput() {
         extra_expected: 0,
         reversed: false,
     };
+    // The scheduler alone: units that only count and ask for the next cycle.
+    struct Tick(u64);
+    impl Unit<Pipe> for Tick {
+        fn name(&self) -> &str {
+            "tick"
+        }
+        fn step(&mut self, _: &mut Pipe, cx: &mut Ctx) -> Wake {
+            self.0 += 1;
+            if self.0 == 2_000_000 {
+                return Wake::Done;
+            }
+            cx.set_state(State::Busy);
+            Wake::Next
+        }
+    }
+    let mut s: Scheduler<Pipe> = Scheduler::new(Options::default());
+    for _ in 0..8 {
+        s.add(Box::new(Tick(0)));
+    }
+    let mut w = Pipe {
+        inputs: vec![],
+        to_mem: LatencyFifo::new("m", 1, 1, UnitId::EXTERNAL, UnitId::EXTERNAL).unwrap(),
+        to_sink: LatencyFifo::new("s", 1, 1, UnitId::EXTERNAL, UnitId::EXTERNAL).unwrap(),
+        log: vec![],
+    };
+    let t = std::time::Instant::now();
+    let r = s.run(&mut w).unwrap();
+    let secs = t.elapsed().as_secs_f64();
+    println!(
+        "empty units: {} cycles x {} units in {:.3} s: {:.1} M unit cycles/s",
+        r.cycles,
+        r.units.len(),
+        secs,
+        (r.cycles * r.units.len() as u64) as f64 / secs / 1e6
+    );
     let t = std::time::Instant::now();
     let r = run_pipe(&c, true).result.unwrap();
     let secs = t.elapsed().as_secs_f64();
@@ -863,5 +898,80 @@ fn kernel_throughput() {
         secs,
         unit_cycles as f64 / secs / 1e6,
         steps as f64 / secs / 1e6
+    );
+}
+
+/// A memory that accepts requests and never answers.
+struct BlackHole {
+    cycle: u64,
+    held: usize,
+}
+
+impl dram::MemoryPort for BlackHole {
+    fn name(&self) -> String {
+        "black hole".into()
+    }
+    fn burst_bytes(&self) -> u32 {
+        64
+    }
+    fn peak_bytes_per_unit_cycle(&self) -> f64 {
+        1.0
+    }
+    fn send(&mut self, _: MemRequest) -> Result<(), MemRequest> {
+        self.held += 1;
+        Ok(())
+    }
+    fn tick(&mut self) {
+        self.cycle += 1;
+    }
+    fn pop_response(&mut self) -> Option<dram::MemResponse> {
+        None
+    }
+    fn cycle(&self) -> u64 {
+        self.cycle
+    }
+    fn outstanding(&self) -> usize {
+        self.held
+    }
+    fn stats(&self) -> dram::MemStats {
+        dram::MemStats::default()
+    }
+    fn completed_waiting(&self) -> usize {
+        0
+    }
+}
+
+#[test]
+fn a_memory_that_never_answers_is_a_deadlock_not_a_hang() {
+    let mut w = MemWorld {
+        mem: Memory::new(Box::new(BlackHole { cycle: 0, held: 0 })),
+        log: Vec::new(),
+    };
+    let mut s = Scheduler::new(Options {
+        memory_timeout_cycles: 5_000,
+        ..Options::default()
+    });
+    s.add(Box::new(Reader {
+        id: 0,
+        rng: Rng::new(1),
+        n: 1,
+        sent: 0,
+        received: 0,
+        next_at: 0,
+    }));
+    let err = s.run(&mut w).unwrap_err();
+    let KernelError::Deadlock {
+        cycle,
+        units,
+        world,
+    } = &err
+    else {
+        panic!("{err}");
+    };
+    assert!(*cycle > 5_000 && *cycle < 5_010, "{cycle}");
+    assert_eq!(units[0].state, "stalled on waiting for data");
+    assert!(
+        world.contains("black hole") && world.contains("1 in flight"),
+        "{world}"
     );
 }
