@@ -1020,7 +1020,7 @@ impl CacheClient {
     fn addr(i: u32) -> u64 {
         // A hot set of 192 primitives (9 KiB) beside a cold stream.
         let h = (i as u64).wrapping_mul(0x9e37_79b9) >> 7;
-        if h % 4 != 0 {
+        if !h.is_multiple_of(4) {
             (h % 192) * 48
         } else {
             0x10_0000 + i as u64 * 48
