@@ -6,7 +6,8 @@
 //! busy/stall interval statistics, and the memory port reached through the kernel.
 //!
 //! One concept per file:
-//! - [`unit`]: the [`Unit`] trait, [`Wake`], [`UnitId`], the step context [`Ctx`];
+//! - [`unit`]: the [`Unit`] trait, [`Wake`], [`UnitId`], the step context [`Ctx`],
+//!   [`WaitList`] for resources that do not notify;
 //! - [`scheduler`]: [`Scheduler`], [`World`], [`Options`], [`RunReport`], [`KernelError`];
 //! - [`fifo`]: the latency FIFO [`LatencyFifo`];
 //! - [`arbiter`]: the round-robin arbiter [`RoundRobin`];
@@ -37,7 +38,7 @@ pub use memory::Memory;
 pub use scheduler::{KernelError, Options, RunReport, Scheduler, UnitDump, UnitReport, World};
 pub use stats::{Activity, StallTime, State};
 pub use tags::{MshrFile, MshrRefusal, MshrStats, TagPool, TagPoolStats};
-pub use unit::{Ctx, Unit, UnitId, Wake, NEVER};
+pub use unit::{Ctx, Unit, UnitId, WaitList, Wake, NEVER};
 
 /// The code in `docs/sim-kernel.md`, compiled and run as a doctest
 /// (`cargo test -p sim --doc`).

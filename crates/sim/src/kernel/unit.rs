@@ -173,9 +173,87 @@ impl Ctx {
     }
 }
 
+/// Units waiting on a shared resource that does not notify by itself (a cache whose MSHRs
+/// are full, a pool out of tags): a refused unit joins with [`Self::wait`] and answers
+/// [`Wake::OnEvent`]; whoever frees the resource calls [`Self::wake_all`], which notifies
+/// every waiter for the next cycle and empties the list.
+///
+/// For exactness a waiter must not retry while it is still on the list: on each step it
+/// checks [`Self::is_waiting`] first and, if so, changes nothing and answers `OnEvent`
+/// again (in the no-skip mode it is stepped every cycle). Then both modes retry in the
+/// same cycle, and attempt-counting statistics (a cache's refusals) agree.
+#[derive(Clone, Debug, Default)]
+pub struct WaitList {
+    waiting: Vec<UnitId>,
+    member: Vec<bool>,
+}
+
+impl WaitList {
+    /// An empty list.
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Adds the stepping unit (once).
+    pub fn wait(&mut self, cx: &Ctx) {
+        let i = cx.me.index();
+        if i >= self.member.len() {
+            self.member.resize(i + 1, false);
+        }
+        if !self.member[i] {
+            self.member[i] = true;
+            self.waiting.push(cx.me);
+        }
+    }
+
+    /// True when `unit` is on the list.
+    #[inline]
+    pub fn is_waiting(&self, unit: UnitId) -> bool {
+        self.member.get(unit.index()).copied().unwrap_or(false)
+    }
+
+    /// Notifies every waiter for the next cycle, in the order they joined, and empties the
+    /// list.
+    pub fn wake_all(&mut self, cx: &mut Ctx) {
+        for u in self.waiting.drain(..) {
+            self.member[u.index()] = false;
+            cx.notify(u, cx.now + 1);
+        }
+    }
+
+    /// Number of waiters.
+    pub fn len(&self) -> usize {
+        self.waiting.len()
+    }
+
+    /// True when nobody waits.
+    pub fn is_empty(&self) -> bool {
+        self.waiting.is_empty()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn wait_list_wakes_each_waiter_once_for_the_next_cycle() {
+        let mut cx = Ctx::new(3);
+        let mut wl = WaitList::new();
+        cx.set_now(4, UnitId(2));
+        wl.wait(&cx);
+        wl.wait(&cx);
+        cx.set_now(5, UnitId(0));
+        wl.wait(&cx);
+        assert_eq!(wl.len(), 2);
+        assert!(wl.is_waiting(UnitId(2)) && !wl.is_waiting(UnitId(1)));
+        cx.set_now(9, UnitId(1));
+        wl.wake_all(&mut cx);
+        assert!(wl.is_empty() && !wl.is_waiting(UnitId(2)));
+        assert_eq!(cx.pending_event(UnitId(0)), Some(10));
+        assert_eq!(cx.pending_event(UnitId(2)), Some(10));
+        assert_eq!(cx.pending_event(UnitId(1)), None);
+    }
 
     #[test]
     fn notifications_keep_every_distinct_time() {
