@@ -31,6 +31,9 @@ pub struct Options {
     /// With every unit asleep and requests in the memory, report a deadlock after this many
     /// cycles without a response (a memory that stopped answering).
     pub memory_timeout_cycles: Cycle,
+    /// Also report each unit's activity per window of this many cycles (0: not), for
+    /// utilization-over-time plots.
+    pub window_cycles: Cycle,
 }
 
 impl Default for Options {
@@ -39,6 +42,7 @@ impl Default for Options {
             skip: true,
             max_cycles: Cycle::MAX - 1,
             memory_timeout_cycles: 1_000_000,
+            window_cycles: 0,
         }
     }
 }
@@ -97,6 +101,9 @@ pub struct UnitReport {
     pub name: String,
     /// Where its cycles went.
     pub activity: Activity,
+    /// The same per window of [`Options::window_cycles`] (empty without windows; the last
+    /// window may be shorter).
+    pub windows: Vec<Activity>,
     /// Its own counters ([`Unit::counters`]).
     pub counters: Vec<(&'static str, u64)>,
 }
@@ -193,7 +200,7 @@ impl<W: World> Scheduler<W> {
         cx.activity = self
             .units
             .iter()
-            .map(|u| Tracker::new(u.stall_reasons().len()))
+            .map(|u| Tracker::with_windows(u.stall_reasons().len(), self.options.window_cycles))
             .collect();
         if let Some(m) = world.memory() {
             if m.cycle() != 0 {
@@ -308,10 +315,14 @@ impl<W: World> Scheduler<W> {
             .units
             .iter()
             .zip(&cx.activity)
-            .map(|(u, t)| UnitReport {
-                name: u.name().to_string(),
-                activity: t.report(end, u.stall_reasons()),
-                counters: u.counters(),
+            .map(|(u, t)| {
+                let (activity, windows) = t.report(end, u.stall_reasons());
+                UnitReport {
+                    name: u.name().to_string(),
+                    activity,
+                    windows,
+                    counters: u.counters(),
+                }
             })
             .collect();
         Ok(RunReport {

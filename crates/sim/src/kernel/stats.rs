@@ -34,21 +34,33 @@ impl State {
     }
 }
 
-/// The kernel's accumulator for one unit: the open interval and the closed totals.
+/// The kernel's accumulator for one unit: the open interval and the closed totals, and
+/// optionally the totals per window of `window` cycles (for utilization plots over time).
 #[derive(Clone, Debug)]
 pub(crate) struct Tracker {
     state: State,
     since: Cycle,
     /// Cycles per state slot (see [`State::slot`]).
     totals: Vec<u64>,
+    /// Window length in cycles (0: no windows).
+    window: Cycle,
+    /// Cycles per state slot in each window.
+    windows: Vec<Vec<u64>>,
 }
 
 impl Tracker {
     pub(crate) fn new(reasons: usize) -> Self {
+        Self::with_windows(reasons, 0)
+    }
+
+    /// A tracker that also splits the run into windows of `window` cycles (0: none).
+    pub(crate) fn with_windows(reasons: usize, window: Cycle) -> Self {
         Self {
             state: State::Idle,
             since: 0,
             totals: vec![0; 2 + reasons],
+            window,
+            windows: Vec::new(),
         }
     }
 
@@ -69,6 +81,23 @@ impl Tracker {
             self.totals.resize(slot + 1, 0);
         }
         self.totals[slot] += now - self.since;
+        if self.window > 0 {
+            // Split the interval at window boundaries (one step per window it covers).
+            let mut t = self.since;
+            while t < now {
+                let k = (t / self.window) as usize;
+                let end = ((k as Cycle + 1) * self.window).min(now);
+                if k >= self.windows.len() {
+                    self.windows.resize_with(k + 1, Vec::new);
+                }
+                let w = &mut self.windows[k];
+                if slot >= w.len() {
+                    w.resize(slot.max(1) + 1, 0);
+                }
+                w[slot] += end - t;
+                t = end;
+            }
+        }
         self.since = now;
     }
 
@@ -76,24 +105,36 @@ impl Tracker {
         self.state
     }
 
-    /// The totals over `[0, end)`, with the stall reasons named by `names`.
-    pub(crate) fn report(&self, end: Cycle, names: &[&'static str]) -> Activity {
+    /// The totals over `[0, end)`, with the stall reasons named by `names`, and the
+    /// totals per window (empty without windows).
+    pub(crate) fn report(&self, end: Cycle, names: &[&'static str]) -> (Activity, Vec<Activity>) {
         let mut t = self.clone();
         t.close_at(end.max(t.since));
-        let stalled = t.totals[2..]
-            .iter()
-            .enumerate()
-            .map(|(r, &c)| StallTime {
-                reason: names.get(r).copied().unwrap_or("unnamed"),
-                cycles: c,
-            })
-            .collect();
-        Activity {
-            cycles: end,
-            idle_cycles: t.totals[0],
-            busy_cycles: t.totals[1],
-            stalled,
+        let slots = t.totals.len();
+        let activity = |totals: &[u64], cycles: Cycle| {
+            let stalled = (2..slots)
+                .map(|s| StallTime {
+                    reason: names.get(s - 2).copied().unwrap_or("unnamed"),
+                    cycles: totals.get(s).copied().unwrap_or(0),
+                })
+                .collect();
+            Activity {
+                cycles,
+                idle_cycles: totals.first().copied().unwrap_or(0),
+                busy_cycles: totals.get(1).copied().unwrap_or(0),
+                stalled,
+            }
+        };
+        let mut windows = Vec::new();
+        if t.window > 0 {
+            let n = end.div_ceil(t.window) as usize;
+            for k in 0..n {
+                let start = k as Cycle * t.window;
+                let len = t.window.min(end - start);
+                windows.push(activity(t.windows.get(k).map_or(&[][..], |w| w), len));
+            }
         }
+        (activity(&t.totals, end), windows)
     }
 }
 
@@ -174,7 +215,7 @@ mod tests {
         t.set(State::Stalled(1), 10);
         t.set(State::Idle, 12);
         t.set(State::Stalled(0), 20);
-        let a = t.report(25, &["in", "out"]);
+        let (a, _) = t.report(25, &["in", "out"]);
         assert_eq!(a.idle_cycles, 3 + 8);
         assert_eq!(a.busy_cycles, 7);
         assert_eq!(
@@ -200,8 +241,30 @@ mod tests {
         // An undeclared reason still gets its cycles.
         let mut t = Tracker::new(0);
         t.set(State::Stalled(3), 1);
-        let a = t.report(4, &[]);
+        let (a, _) = t.report(4, &[]);
         assert_eq!(a.stalled_cycles(), 3);
         assert_eq!(a.accounted_cycles(), 4);
+    }
+
+    #[test]
+    fn windows_split_intervals_at_their_boundaries() {
+        let mut t = Tracker::with_windows(1, 10);
+        t.set(State::Busy, 5);
+        t.set(State::Stalled(0), 27); // busy 5..27 covers three windows
+        t.set(State::Idle, 31);
+        let (total, w) = t.report(34, &["x"]);
+        assert_eq!(w.len(), 4);
+        let busy: Vec<u64> = w.iter().map(|a| a.busy_cycles).collect();
+        assert_eq!(busy, vec![5, 10, 7, 0]);
+        assert_eq!(w[2].stalled[0].cycles, 3);
+        assert_eq!(w[3].stalled[0].cycles, 1);
+        assert_eq!(w[3].cycles, 4);
+        for a in &w {
+            assert_eq!(a.accounted_cycles(), a.cycles);
+        }
+        assert_eq!(
+            w.iter().map(|a| a.busy_cycles).sum::<u64>(),
+            total.busy_cycles
+        );
     }
 }

@@ -304,6 +304,8 @@ struct PipeConfig {
     extra_expected: u32,
     /// Register the units in reverse order (consumer first).
     reversed: bool,
+    /// Activity windows (0: none).
+    window: Cycle,
 }
 
 fn pipe_configs() -> impl Strategy<Value = PipeConfig> {
@@ -316,7 +318,7 @@ fn pipe_configs() -> impl Strategy<Value = PipeConfig> {
         1usize..3,
         (1usize..4, 1u64..4, 1u64..20, 1usize..5),
         (1usize..4, 1u64..4),
-        (0u64..60, 1u64..30),
+        (0u64..60, 1u64..30, 0u64..100),
     )
         .prop_map(
             |(seed, producers, items, max_service, inp, grants, mem, sink, stall)| PipeConfig {
@@ -337,6 +339,7 @@ fn pipe_configs() -> impl Strategy<Value = PipeConfig> {
                 max_stall: stall.1,
                 extra_expected: 0,
                 reversed: false,
+                window: stall.2,
             },
         )
 }
@@ -351,6 +354,7 @@ fn run_pipe(c: &PipeConfig, skip: bool) -> PipeRun {
     let mut s: Scheduler<Pipe> = Scheduler::new(Options {
         skip,
         max_cycles: 10_000_000,
+        window_cycles: c.window,
         ..Options::default()
     });
     let n = c.producers;
@@ -461,6 +465,21 @@ fn check_fractions(r: &RunReport) -> Result<(), TestCaseError> {
                 .map(|s| s.cycles as f64 / a.cycles as f64)
                 .sum::<f64>();
         prop_assert!((sum - 1.0).abs() < 1e-9, "{}: {}", u.name, sum);
+        // Windows cover the run and add up to the totals.
+        if !u.windows.is_empty() {
+            prop_assert_eq!(u.windows.iter().map(|w| w.cycles).sum::<u64>(), r.cycles);
+            for w in &u.windows {
+                prop_assert_eq!(w.accounted_cycles(), w.cycles);
+            }
+            prop_assert_eq!(
+                u.windows.iter().map(|w| w.busy_cycles).sum::<u64>(),
+                a.busy_cycles
+            );
+            prop_assert_eq!(
+                u.windows.iter().map(|w| w.idle_cycles).sum::<u64>(),
+                a.idle_cycles
+            );
+        }
     }
     Ok(())
 }
@@ -529,6 +548,7 @@ fn deadlock_is_an_error_with_every_units_state() {
         max_stall: 5,
         extra_expected: 1,
         reversed: false,
+        window: 0,
     };
     for skip in [true, false] {
         let r = run_pipe(&c, skip);
@@ -851,6 +871,7 @@ fn kernel_throughput() {
         max_stall: 1,
         extra_expected: 0,
         reversed: false,
+        window: 0,
     };
     // The scheduler alone: units that only count and ask for the next cycle.
     struct Tick(u64);
