@@ -81,22 +81,24 @@ impl Tracker {
             self.totals.resize(slot + 1, 0);
         }
         self.totals[slot] += now - self.since;
-        if self.window > 0 {
-            // Split the interval at window boundaries (one step per window it covers).
-            let mut t = self.since;
-            while t < now {
-                let k = (t / self.window) as usize;
-                let end = ((k as Cycle + 1) * self.window).min(now);
-                if k >= self.windows.len() {
-                    self.windows.resize_with(k + 1, Vec::new);
-                }
-                let w = &mut self.windows[k];
-                if slot >= w.len() {
-                    w.resize(slot.max(1) + 1, 0);
-                }
-                w[slot] += end - t;
-                t = end;
+        // Split the interval at window boundaries (one step per window it covers; no
+        // windows when `window` is 0).
+        let mut t = self.since;
+        while t < now {
+            let Some(k) = t.checked_div(self.window) else {
+                break;
+            };
+            let k = k as usize;
+            let end = ((k as Cycle + 1) * self.window).min(now);
+            if k >= self.windows.len() {
+                self.windows.resize_with(k + 1, Vec::new);
             }
+            let w = &mut self.windows[k];
+            if slot >= w.len() {
+                w.resize(slot.max(1) + 1, 0);
+            }
+            w[slot] += end - t;
+            t = end;
         }
         self.since = now;
     }
