@@ -275,16 +275,26 @@ impl<W: World> Scheduler<W> {
                 Some(m) => {
                     let mut t = now;
                     let mut target = target;
+                    let mut routed = false;
                     loop {
                         if m.in_flight() == 0 {
-                            // Nothing can complete: jump (target is finite here, since
-                            // either a unit is due or a response was just routed).
+                            if next == NEVER && !routed {
+                                // A port whose requests vanished without a response (not
+                                // a contract-abiding backend): settle here.
+                                if t == now {
+                                    m.tick_many(1);
+                                    t += 1;
+                                }
+                                break t;
+                            }
+                            // Nothing can complete: jump to the next unit's cycle.
                             m.tick_many(target - t);
                             break target;
                         }
                         t += 1;
                         if m.tick_and_route(&mut cx) {
                             target = target.min(t);
+                            routed = true;
                         }
                         if t >= target {
                             break t;
