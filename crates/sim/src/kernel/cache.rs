@@ -1065,7 +1065,7 @@ mod tests {
     }
 
     proptest! {
-        #![proptest_config(ProptestConfig::with_cases(64))]
+        #![proptest_config(ProptestConfig::with_cases(128))]
 
         /// Fills applied at once: the hit/miss sequence and every count equal the plain
         /// blocking LRU reference, access by access.

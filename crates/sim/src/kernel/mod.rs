@@ -6,7 +6,7 @@
 //! busy/stall interval statistics, and the memory port reached through the kernel.
 //!
 //! One concept per file:
-//! - [`unit`]: the [`Unit`] trait, [`Wake`], [`UnitId`], the step context [`Ctx`],
+//! - [`unit`](mod@unit): the [`Unit`] trait, [`Wake`], [`UnitId`], the step context [`Ctx`],
 //!   [`WaitList`] for resources that do not notify;
 //! - [`scheduler`]: [`Scheduler`], [`World`], [`Options`], [`RunReport`], [`KernelError`];
 //! - [`fifo`]: the latency FIFO [`LatencyFifo`];

@@ -485,7 +485,7 @@ fn check_fractions(r: &RunReport) -> Result<(), TestCaseError> {
 }
 
 proptest! {
-    #![proptest_config(ProptestConfig::with_cases(96))]
+    #![proptest_config(ProptestConfig::with_cases(256))]
 
     /// Skipping idle cycles gives the same cycle count, per-unit activity and counters,
     /// FIFO statistics and output sequence as stepping every unit every cycle.
