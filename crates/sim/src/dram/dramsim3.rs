@@ -47,13 +47,12 @@ use std::collections::{HashMap, VecDeque};
 use std::ffi::{c_void, CString};
 
 use super::energy::{self, CommandCounts, MemSpec};
-use super::{bursts_of, AccessKind, DramError, MemRequest, MemResponse, MemStats, MemoryPort};
+use super::lpddr::AddressMap;
+use super::port::{Backend, BurstPort};
+use super::{DramError, MemStats};
 use crate::clock::{period_fs_from_ns, ClockCrossing, PeriodFs};
 
-/// Bursts the port may hold before DRAMsim3 takes them; beyond this, [`MemoryPort::send`]
-/// refuses. Small next to DRAMsim3's 32-entry transaction queue per channel, so the
-/// controller, not the port, decides how much is in flight.
-pub const STAGING_BURSTS: usize = 16;
+pub use super::port::STAGING_BURSTS;
 
 mod ffi {
     use std::ffi::{c_char, c_double, c_int, c_void};
@@ -155,13 +154,6 @@ pub fn system(name: &str) -> Option<&'static SystemConfig> {
     SYSTEMS.iter().find(|s| s.name == name)
 }
 
-/// One accepted request whose bursts are not all back.
-#[derive(Clone, Copy, Debug)]
-struct Slot {
-    response: MemResponse,
-    bursts_left: u64,
-}
-
 /// Running totals of DRAMsim3's statistics, taken at `at_dram_cycle`.
 #[derive(Clone, Copy, Debug, Default)]
 struct Snapshot {
@@ -170,41 +162,37 @@ struct Snapshot {
     row_hits: u64,
 }
 
-/// The DRAMsim3 memory port. See the module documentation.
-pub struct Dramsim3Port {
+/// The DRAMsim3 memory port: DRAMsim3 behind the shared [`BurstPort`]. See the module
+/// documentation.
+pub type Dramsim3Port = BurstPort<Dramsim3System>;
+
+/// A DRAMsim3 memory system as a [`Backend`] of the shared memory port: ticks every DRAM
+/// cycle and matches DRAMsim3's completions (by address) to the bursts given to it.
+pub struct Dramsim3System {
     sys: *mut c_void,
     /// Completions `(address, is_write)` written by the callback during `ds3_tick`.
     sink: Box<UnsafeCell<Vec<(u64, bool)>>>,
     dir: tempfile::TempDir,
     config: &'static SystemConfig,
-    crossing: ClockCrossing,
+    map: AddressMap,
+    channels: usize,
     tck_ns: f64,
-    burst_bytes: u32,
-    peak_bytes_per_unit_cycle: f64,
     dies_per_rank: u32,
-    cycle: u64,
     dram_cycle: u64,
-    /// Bursts not yet in DRAMsim3: (aligned address, is_write, slot).
-    staged: VecDeque<(u64, bool, usize)>,
-    slots: Vec<Option<Slot>>,
-    free_slots: Vec<usize>,
     /// Bursts in DRAMsim3 by (address, is_write), in the order they entered.
-    waiting: HashMap<(u64, bool), VecDeque<usize>>,
-    in_flight: usize,
-    done: VecDeque<MemResponse>,
-    stats: MemStats,
+    waiting: HashMap<(u64, bool), VecDeque<u32>>,
     snapshot: RefCell<Snapshot>,
 }
 
 extern "C" fn on_complete(data: *mut c_void, addr: u64, is_write: bool) {
-    // SAFETY: `data` is the port's `sink` (a live, boxed vector), and DRAMsim3 calls this
-    // only from inside `ds3_tick`, which the port calls while holding `&mut self` and
-    // without any other reference into `sink`.
+    // SAFETY: `data` is the system's `sink` (a live, boxed vector), and DRAMsim3 calls
+    // this only from inside `ds3_tick`, which the system calls while holding `&mut self`
+    // and without any other reference into `sink`.
     let sink = unsafe { &mut *(data as *mut Vec<(u64, bool)>) };
     sink.push((addr, is_write));
 }
 
-impl Dramsim3Port {
+impl BurstPort<Dramsim3System> {
     /// Opens the shipped system `name` driven by a unit clock of period `unit_period_fs`.
     pub fn open(name: &str, unit_period_fs: PeriodFs) -> Result<Self, DramError> {
         let config = system(name).ok_or_else(|| DramError::UnknownSystem {
@@ -229,6 +217,45 @@ impl Dramsim3Port {
         if unit_period_fs == 0 {
             return Err(DramError::Config("unit clock period of zero".into()));
         }
+        let system = Dramsim3System::new(config)?;
+        let channels = config.int("channels")?;
+        let bus_bits = config.int("bus_width")?;
+        let bl = config.int("BL")?;
+        let tck_ns = system.tck_ns;
+        // Two transfers per clock on each channel.
+        let peak_bytes_per_ns = channels as f64 * bus_bits as f64 / 8.0 * 2.0 / tck_ns;
+        Ok(BurstPort::new(
+            system,
+            ClockCrossing::new(unit_period_fs, period_fs_from_ns(tck_ns)),
+            (bus_bits / 8 * bl) as u32,
+            peak_bytes_per_ns * unit_period_fs as f64 * 1e-6,
+        ))
+    }
+
+    /// The configuration this port runs.
+    pub fn config(&self) -> &'static SystemConfig {
+        self.backend.config
+    }
+
+    /// DRAM clock period in nanoseconds.
+    pub fn tck_ns(&self) -> f64 {
+        self.backend.tck_ns
+    }
+
+    /// The directory DRAMsim3 writes into (removed when the port is dropped).
+    pub fn output_dir(&self) -> &std::path::Path {
+        self.backend.dir.path()
+    }
+
+    /// Command counts and row hits so far, read from DRAMsim3 (see the module docs).
+    pub fn command_counts(&self) -> (CommandCounts, u64) {
+        self.backend.command_counts()
+    }
+}
+
+impl Dramsim3System {
+    /// Creates DRAMsim3's memory system for `config`.
+    pub fn new(config: &'static SystemConfig) -> Result<Self, DramError> {
         // Check what DRAMsim3 would otherwise reject by exiting the process.
         let channels = config.int("channels")?;
         let bus_bits = config.int("bus_width")?;
@@ -245,6 +272,7 @@ impl Dramsim3Port {
                 config.name
             )));
         }
+        let map = AddressMap::from_config(config)?;
         let dir = tempfile::Builder::new()
             .prefix("arbor-dramsim3-")
             .tempdir()
@@ -283,51 +311,19 @@ impl Dramsim3Port {
         };
         debug_assert!((got_tck - tck_ns).abs() < 1e-12);
         debug_assert_eq!((got_bus as u64, got_bl as u64), (bus_bits, bl));
-        let burst_bytes = (bus_bits / 8 * bl) as u32;
-        let dram_period_fs = period_fs_from_ns(tck_ns);
-        // Two transfers per clock on each channel.
-        let peak_bytes_per_ns = channels as f64 * bus_bits as f64 / 8.0 * 2.0 / tck_ns;
         Ok(Self {
             sys,
             sink,
             dir,
             config,
-            crossing: ClockCrossing::new(unit_period_fs, dram_period_fs),
+            map,
+            channels: channels as usize,
             tck_ns,
-            burst_bytes,
-            peak_bytes_per_unit_cycle: peak_bytes_per_ns * unit_period_fs as f64 * 1e-6,
             dies_per_rank: (bus_bits / device_bits) as u32,
-            cycle: 0,
             dram_cycle: 0,
-            staged: VecDeque::new(),
-            slots: Vec::new(),
-            free_slots: Vec::new(),
             waiting: HashMap::new(),
-            in_flight: 0,
-            done: VecDeque::new(),
-            stats: MemStats::default(),
             snapshot: RefCell::new(Snapshot::default()),
         })
-    }
-
-    /// The configuration this port runs.
-    pub fn config(&self) -> &'static SystemConfig {
-        self.config
-    }
-
-    /// DRAM clock period in nanoseconds.
-    pub fn tck_ns(&self) -> f64 {
-        self.tck_ns
-    }
-
-    /// DRAM clock cycles simulated so far.
-    pub fn dram_cycle(&self) -> u64 {
-        self.dram_cycle
-    }
-
-    /// The directory DRAMsim3 writes into (removed when the port is dropped).
-    pub fn output_dir(&self) -> &std::path::Path {
-        self.dir.path()
     }
 
     /// Command counts and row hits so far, read from DRAMsim3 (see the module docs).
@@ -348,7 +344,6 @@ impl Dramsim3Port {
         }
         (snap.counts, snap.row_hits)
     }
-
     /// Writes, parses and resets DRAMsim3's counters: the counts since the last call.
     fn read_dramsim3_stats(&self) -> (CommandCounts, u64) {
         // SAFETY: `sys` is live. PrintStats writes files into our temporary directory;
@@ -385,197 +380,118 @@ impl Dramsim3Port {
         }
         (counts, hits)
     }
-
-    /// One DRAM clock: moves staged bursts into DRAMsim3 while it accepts them, then ticks.
-    fn dram_tick(&mut self) {
-        while let Some(&(addr, is_write, slot)) = self.staged.front() {
-            // SAFETY: `sys` is live.
-            if !unsafe { ffi::ds3_can_add(self.sys, addr, is_write) } {
-                break;
-            }
-            // SAFETY: as above; `can_add` said yes.
-            let added = unsafe { ffi::ds3_add(self.sys, addr, is_write) };
-            debug_assert!(added);
-            self.staged.pop_front();
-            self.waiting
-                .entry((addr, is_write))
-                .or_default()
-                .push_back(slot);
-        }
-        // SAFETY: `sys` is live; the callback writes only into `sink`, which nothing else
-        // borrows now.
-        unsafe { ffi::ds3_tick(self.sys) };
-        self.dram_cycle += 1;
-    }
-
-    /// Hands the bursts DRAMsim3 returned to their requests.
-    fn retire(&mut self) {
-        if self.sink.get_mut().is_empty() {
-            return;
-        }
-        let mut completed = std::mem::take(self.sink.get_mut());
-        for &(addr, is_write) in &completed {
-            let Some(queue) = self.waiting.get_mut(&(addr, is_write)) else {
-                panic!("DRAMsim3 returned {addr:#x} that was never sent");
-            };
-            let slot = queue
-                .pop_front()
-                .expect("waiting queue is never left empty");
-            if queue.is_empty() {
-                self.waiting.remove(&(addr, is_write));
-            }
-            if is_write {
-                self.stats.write_bursts += 1;
-            } else {
-                self.stats.read_bursts += 1;
-            }
-            let entry = self.slots[slot].as_mut().expect("live slot");
-            entry.bursts_left -= 1;
-            if entry.bursts_left == 0 {
-                let mut response = entry.response;
-                response.completed_cycle = self.cycle;
-                self.slots[slot] = None;
-                self.free_slots.push(slot);
-                self.in_flight -= 1;
-                self.done.push_back(response);
-            }
-        }
-        // Give the buffer back to the sink to keep its allocation.
-        completed.clear();
-        *self.sink.get_mut() = completed;
-    }
 }
 
-// SAFETY: the port owns its DRAMsim3 instance exclusively (nothing else holds `sys`), the
-// callback's pointer targets the boxed sink, whose heap address does not change when the
-// port moves, and DRAMsim3 keeps no thread-local state. Moving the port to another thread
+// SAFETY: the system owns its DRAMsim3 instance exclusively (nothing else holds `sys`),
+// the callback's pointer targets the boxed sink, whose heap address does not change when
+// the system moves, and DRAMsim3 keeps no thread-local state. Moving it to another thread
 // is therefore sound; sharing it is not offered (it is not Sync).
-unsafe impl Send for Dramsim3Port {}
+unsafe impl Send for Dramsim3System {}
 
-impl Drop for Dramsim3Port {
+impl Drop for Dramsim3System {
     fn drop(&mut self) {
         // SAFETY: `sys` is live and dropped exactly once, before `sink` and `dir`.
         unsafe { ffi::ds3_drop(self.sys) };
     }
 }
 
-impl MemoryPort for Dramsim3Port {
+impl Backend for Dramsim3System {
     fn name(&self) -> String {
         format!("dramsim3({})", self.config.name)
     }
 
-    fn burst_bytes(&self) -> u32 {
-        self.burst_bytes
+    fn channels(&self) -> usize {
+        self.channels
     }
 
-    fn peak_bytes_per_unit_cycle(&self) -> f64 {
-        self.peak_bytes_per_unit_cycle
+    fn channel_of(&self, addr: u64) -> usize {
+        self.map.channel(addr)
     }
 
-    fn send(&mut self, request: MemRequest) -> Result<(), MemRequest> {
-        assert!(request.bytes > 0, "memory request of zero bytes");
-        if self.staged.len() >= STAGING_BURSTS {
-            return Err(request);
-        }
-        let b = self.burst_bytes as u64;
-        let bursts = bursts_of(request.addr, request.bytes, self.burst_bytes);
-        let is_write = request.kind == AccessKind::Write;
-        let slot = self.free_slots.pop().unwrap_or_else(|| {
-            self.slots.push(None);
-            self.slots.len() - 1
-        });
-        self.slots[slot] = Some(Slot {
-            response: MemResponse {
-                tag: request.tag,
-                kind: request.kind,
-                accepted_cycle: self.cycle,
-                completed_cycle: 0,
-            },
-            bursts_left: bursts,
-        });
-        let first = request.addr / b * b;
-        for i in 0..bursts {
-            self.staged.push_back((first + i * b, is_write, slot));
-        }
-        self.in_flight += 1;
-        match request.kind {
-            AccessKind::Read => {
-                self.stats.read_requests += 1;
-                self.stats.bytes_read += bursts * b;
+    fn can_add(&self, channel: usize, is_write: bool) -> bool {
+        // DRAMsim3's answer depends on the channel and direction only; any address of
+        // the channel asks it.
+        let _ = channel;
+        debug_assert!(channel < self.channels);
+        // SAFETY: `sys` is live.
+        unsafe { ffi::ds3_can_add(self.sys, self.channel_base(channel), is_write) }
+    }
+
+    fn add(&mut self, channel: usize, addr: u64, is_write: bool, token: u32) {
+        debug_assert_eq!(self.map.channel(addr), channel);
+        // SAFETY: `sys` is live; `can_add` said yes.
+        let added = unsafe { ffi::ds3_add(self.sys, addr, is_write) };
+        debug_assert!(added);
+        self.waiting
+            .entry((addr, is_write))
+            .or_default()
+            .push_back(token);
+    }
+
+    fn now(&self) -> u64 {
+        self.dram_cycle
+    }
+
+    fn next_event(&self) -> u64 {
+        self.dram_cycle
+    }
+
+    fn run_until(&mut self, to: u64, done: &mut Vec<u32>) {
+        while self.dram_cycle < to {
+            // SAFETY: `sys` is live; the callback writes only into `sink`, which nothing
+            // else borrows now.
+            unsafe { ffi::ds3_tick(self.sys) };
+            self.dram_cycle += 1;
+            let sink = self.sink.get_mut();
+            if sink.is_empty() {
+                continue;
             }
-            AccessKind::Write => {
-                self.stats.write_requests += 1;
-                self.stats.bytes_written += bursts * b;
+            for &(addr, is_write) in sink.iter() {
+                let Some(queue) = self.waiting.get_mut(&(addr, is_write)) else {
+                    panic!("DRAMsim3 returned {addr:#x} that was never sent");
+                };
+                done.push(
+                    queue
+                        .pop_front()
+                        .expect("waiting queue is never left empty"),
+                );
+                if queue.is_empty() {
+                    self.waiting.remove(&(addr, is_write));
+                }
             }
-        }
-        Ok(())
-    }
-
-    fn tick(&mut self) {
-        self.cycle += 1;
-        for _ in 0..self.crossing.step() {
-            self.dram_tick();
-        }
-        self.retire();
-    }
-
-    fn tick_many(&mut self, cycles: u64) {
-        if self.in_flight == 0 {
-            // Nothing can complete: run the DRAM clock (refresh goes on) without per-unit
-            // bookkeeping. Equal to `cycles` ticks.
-            for _ in 0..self.crossing.step_many(cycles) {
-                self.dram_tick();
-            }
-            self.cycle += cycles;
-            debug_assert!(self.sink.get_mut().is_empty());
-        } else {
-            for _ in 0..cycles {
-                self.tick();
-            }
+            sink.clear();
         }
     }
 
-    fn pop_response(&mut self) -> Option<MemResponse> {
-        self.done.pop_front()
-    }
-
-    fn cycle(&self) -> u64 {
-        self.cycle
-    }
-
-    fn outstanding(&self) -> usize {
-        self.in_flight + self.done.len()
-    }
-
-    fn completed_waiting(&self) -> usize {
-        self.done.len()
-    }
-
-    fn stats(&self) -> MemStats {
+    fn fill_stats(&self, s: &mut MemStats) {
         let (counts, row_hits) = self.command_counts();
-        MemStats {
-            row_hits,
-            row_misses: (counts.read + counts.write).saturating_sub(row_hits),
-            act_commands: counts.act,
-            read_commands: counts.read,
-            write_commands: counts.write,
-            refresh_commands: counts.refresh,
-            unit_cycles: self.cycle,
-            dram_cycles: self.dram_cycle,
-            energy_pj: Some(energy::energy(
-                self.config.memspec,
-                &counts,
-                self.dies_per_rank,
-                self.tck_ns,
-            )),
-            ..self.stats.clone()
-        }
+        s.row_hits = row_hits;
+        s.row_misses = (counts.read + counts.write).saturating_sub(row_hits);
+        s.act_commands = counts.act;
+        s.read_commands = counts.read;
+        s.write_commands = counts.write;
+        s.refresh_commands = counts.refresh;
+        s.energy_pj = Some(energy::energy(
+            self.config.memspec,
+            &counts,
+            self.dies_per_rank,
+            self.tck_ns,
+        ));
+    }
+}
+
+impl Dramsim3System {
+    /// The lowest address of `channel` (DRAMsim3 picks the controller from the address).
+    fn channel_base(&self, channel: usize) -> u64 {
+        let (pos, _) = self.map.ch_field();
+        ((channel as u64) << pos) << self.map.shift()
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::dram::{bursts_of, AccessKind, MemRequest, MemResponse, MemoryPort};
 
     const GHZ: PeriodFs = 1_000_000;
 

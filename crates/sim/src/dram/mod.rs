@@ -17,8 +17,12 @@
 //! gives the simple model with NAME's peak bandwidth; `simple:bw=BYTES_PER_S,lat=NS` (with
 //! optional `burst=BYTES` and `queue=REQUESTS`) a simple model of any bandwidth.
 
+#[cfg(test)]
+mod crosscheck;
 pub mod dramsim3;
 pub mod energy;
+pub mod lpddr;
+pub mod port;
 pub mod simple;
 
 use serde::Serialize;
