@@ -189,3 +189,60 @@ fn tick_many_and_ticks_agree_on_the_model() {
     assert_eq!(ra, rb);
     assert_eq!(a.stats(), b.stats());
 }
+
+/// Deterministic pseudo-random boxes in a 100-unit cube.
+fn boxes(n: usize, seed: u64) -> Vec<geom::Aabb> {
+    let mut s = seed;
+    let mut next = move || (lcg(&mut s) >> 24) as f32 / (1u64 << 24) as f32;
+    (0..n)
+        .map(|_| {
+            let c = geom::Vec3::new(next(), next(), next()) * 100.0;
+            let e = geom::Vec3::new(next(), next(), next()) + geom::Vec3::splat(0.01);
+            geom::Aabb::new(c - e, c + e)
+        })
+        .collect()
+}
+
+/// Closed loop: the MergeTree model (small inputs, presets p1 to p3, the CBVH stream
+/// output) on every LPDDR3 system takes the same cycles and moves the same commands on
+/// both backends.
+#[test]
+fn mergetree_runs_are_identical_on_both_backends() {
+    use crate::mergetree::{simulate, MergeTreeConfig, OutputMode};
+    let configs = [
+        MergeTreeConfig {
+            m: 512,
+            ..MergeTreeConfig::p1()
+        },
+        MergeTreeConfig {
+            m: 1024,
+            ..MergeTreeConfig::p2()
+        },
+        MergeTreeConfig {
+            m: 512,
+            output: OutputMode::CbvhStream,
+            ..MergeTreeConfig::p3()
+        },
+    ];
+    for (k, cfg) in configs.iter().enumerate() {
+        let boxes = boxes(6000 + 2000 * k, 40 + k as u64);
+        for (name, _, _) in super::MEMORY_SYSTEMS {
+            let a = simulate(
+                &boxes,
+                cfg,
+                Box::new(Dramsim3Port::open(name, cfg.period_fs()).unwrap()),
+            )
+            .unwrap();
+            let b = simulate(
+                &boxes,
+                cfg,
+                Box::new(LpddrPort::open(name, cfg.period_fs()).unwrap()),
+            )
+            .unwrap();
+            assert_eq!(a.cycles, b.cycles, "{name} config {k}");
+            assert_eq!(a.memory, b.memory, "{name} config {k}");
+            assert_eq!(a.phases, b.phases, "{name} config {k}");
+            println!("{name} config {k}: {} cycles on both", a.cycles);
+        }
+    }
+}
