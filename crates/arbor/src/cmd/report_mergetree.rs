@@ -45,7 +45,8 @@ pub struct ReportMergetreeArgs {
     #[arg(long, value_name = "DIR", default_value = SHARED_SCENES)]
     scene_dir: PathBuf,
     /// Memory systems, slowest first (speed-ups are over the first), comma separated.
-    /// Default: the slow, medium and fast systems of [P2] 6.2 on DRAMsim3; `simple:NAME`
+    /// Default: the slow, medium and fast systems of [P2] 6.2 on Arbor's model of DRAMsim3's
+    /// controller (`dramsim3:NAME` runs DRAMsim3 itself); `simple:NAME`
     /// selects the quick bandwidth-plus-latency model.
     #[arg(
         long,

@@ -1,17 +1,19 @@
 //! The cycle-accurate backend: DRAMsim3 (through the `dramsim3` crate) behind the
-//! [`MemoryPort`] interface.
+//! [`super::MemoryPort`] interface.
 //!
 //! DRAMsim3 (umd-memsys, a standard cycle-accurate DRAM simulator) models each channel's
-//! controller, banks, row buffers, command timing and refresh. This port adds what a unit
-//! sees (`shared/DESIGN.md`):
+//! controller, banks, row buffers, command timing and refresh. It is the reference that
+//! Arbor's own, faster controller model ([`super::lpddr`], the default for bare system
+//! names) is checked against; `dram::open("dramsim3:NAME", ..)` selects it. What a unit
+//! sees is the shared memory port ([`super::port::BurstPort`], `shared/DESIGN.md`):
 //! - requests of any size are split into DRAMsim3 transactions of one burst each
-//!   (`bus_width / 8 * BL` bytes, 64 B on a 64-bit LPDDR3 channel) and staged in a small
-//!   in-order queue of [`STAGING_BURSTS`] bursts; a burst enters DRAMsim3 when its
-//!   controller accepts it (`can_add`), and the port refuses new requests while the staging
-//!   queue is full, so back-pressure comes from DRAMsim3's transaction queues;
+//!   (`bus_width / 8 * BL` bytes, 64 B on a 64-bit LPDDR3 channel) and staged per channel
+//!   and direction ([`STAGING_BURSTS`] each); a burst enters DRAMsim3 when its controller
+//!   accepts it (`can_add`), and the port refuses a request whose bursts do not fit in the
+//!   staging queues they go to, so back-pressure comes from DRAMsim3's transaction queues;
 //! - each unit cycle advances DRAMsim3 by exactly the DRAM cycles that fit in it
 //!   ([`ClockCrossing`], integer femtoseconds, no rounding drift: 1 GHz against 800 MHz is
-//!   0, 1, 1, 1, 1, ... DRAM cycles per unit cycle);
+//!   0, 1, 1, 1, 1, ... DRAM cycles per unit cycle); DRAMsim3 ticks every DRAM cycle;
 //! - a request completes at the unit cycle in which DRAMsim3 returned its last burst.
 //!   DRAMsim3 posts writes: a write returns one DRAM cycle after its controller buffered
 //!   it, and its DRAM time shows in the bandwidth and latency of what follows. A read of an
@@ -22,7 +24,7 @@
 //! crate's C entry points (`ds3_*`, compiled into the crate's static library) itself and,
 //! beside them, DRAMsim3's own `MemorySystem::PrintStats` and `MemorySystem::ResetStats`
 //! (by their Itanium C++ ABI symbol names, which is how g++ and clang export them on the
-//! platforms CI uses). [`Dramsim3Port::stats`] asks DRAMsim3 to write its per-channel
+//! platforms CI uses). `MemoryPort::stats` on the port asks DRAMsim3 to write its per-channel
 //! statistics JSON into the port's private temporary directory, parses the command counts
 //! (`num_act_cmds`, `num_pre_cmds`, `num_read_cmds`, `num_write_cmds`, `num_ref_cmds`,
 //! `num_read_row_hits`, `num_write_row_hits`) and the per-rank cycle split
@@ -491,6 +493,7 @@ impl Dramsim3System {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::dram::lpddr::LpddrPort;
     use crate::dram::{bursts_of, AccessKind, MemRequest, MemResponse, MemoryPort};
 
     const GHZ: PeriodFs = 1_000_000;
@@ -506,7 +509,7 @@ mod tests {
 
     /// Sends `requests` as fast as the port takes them and ticks until all are back.
     /// Returns the responses in completion order.
-    fn run(port: &mut Dramsim3Port, requests: &[MemRequest]) -> Vec<MemResponse> {
+    fn run(port: &mut dyn MemoryPort, requests: &[MemRequest]) -> Vec<MemResponse> {
         let mut next = 0;
         let mut out = Vec::with_capacity(requests.len());
         while out.len() < requests.len() {
@@ -555,10 +558,9 @@ mod tests {
         *state >> 16
     }
 
-    #[test]
-    fn sequential_read_stream_reaches_90_percent_of_peak_on_every_lpddr3_system() {
+    fn sequential_read_stream_reaches_90_percent_of_peak_on_every_lpddr3_system<P: Open>() {
         for (name, _, _) in crate::dram::MEMORY_SYSTEMS {
-            let mut port = Dramsim3Port::open(name, GHZ).unwrap();
+            let mut port = P::open_(name, GHZ).unwrap();
             let bytes = 1 << 20;
             let responses = run(&mut port, &sequential_reads(bytes));
             let s = port.stats();
@@ -579,7 +581,7 @@ mod tests {
 
     /// Latency in unit cycles (ns at 1 GHz) of isolated reads at `addrs`, one at a time
     /// with `gap` idle unit cycles after each.
-    fn isolated_latencies(port: &mut Dramsim3Port, addrs: &[u64], gap: u64) -> Vec<u64> {
+    fn isolated_latencies(port: &mut dyn MemoryPort, addrs: &[u64], gap: u64) -> Vec<u64> {
         addrs
             .iter()
             .enumerate()
@@ -602,10 +604,9 @@ mod tests {
         v[v.len() / 2]
     }
 
-    #[test]
-    fn isolated_reads_see_the_closed_row_conflict_and_row_hit_latencies() {
+    fn isolated_reads_see_the_closed_row_conflict_and_row_hit_latencies<P: Open>() {
         let cfg = system("lpddr3-1600-1x64").unwrap();
-        let mut port = Dramsim3Port::with_config(cfg, GHZ).unwrap();
+        let mut port = P::with_(cfg, GHZ).unwrap();
         let t = |k: &str| cfg.int(k).unwrap() as f64;
         let tck = cfg.tck_ns().unwrap();
         // Address map rorabgbacoch on one 64-bit channel: 64-B bursts, 128 columns
@@ -657,27 +658,25 @@ mod tests {
         assert_eq!(s.row_misses, 42, "{s:?}");
     }
 
-    #[test]
-    fn refresh_runs_every_trefi_and_costs_about_trfc_over_trefi() {
+    fn refresh_runs_every_trefi_and_costs_about_trfc_over_trefi<P: Open>() {
         let cfg = system("lpddr3-1600-1x64").unwrap();
         let trefi = cfg.int("tREFI").unwrap();
         let trfc = cfg.int("tRFC").unwrap();
         // Idle: DRAMsim3 asks for a refresh at every DRAM cycle k * tREFI (k >= 1) and
         // issues it at once when the banks are closed.
-        let mut port = Dramsim3Port::with_config(cfg, GHZ).unwrap();
+        let mut port = P::with_(cfg, GHZ).unwrap();
         let k = 20;
         let dram_cycles = k * trefi + 100;
         // 1 GHz unit, 800 MHz DRAM: 5 unit cycles per 4 DRAM cycles.
         port.tick_many(dram_cycles * 5 / 4);
-        assert_eq!(port.dram_cycle(), dram_cycles);
+        assert_eq!(port.dram(), dram_cycles);
         assert_eq!(port.stats().refresh_commands, k);
 
         // Loaded: the same stream with and without refresh.
         let stream = sequential_reads(1 << 20);
-        let mut with = Dramsim3Port::with_config(cfg, GHZ).unwrap();
+        let mut with = P::with_(cfg, GHZ).unwrap();
         let t_with = run(&mut with, &stream).last().unwrap().completed_cycle;
-        let mut without =
-            Dramsim3Port::with_config(variant(cfg, "tREFI", "2000000000"), GHZ).unwrap();
+        let mut without = P::with_(variant(cfg, "tREFI", "2000000000"), GHZ).unwrap();
         let t_without = run(&mut without, &stream).last().unwrap().completed_cycle;
         assert_eq!(without.stats().refresh_commands, 0);
         let loss = 1.0 - t_without as f64 / t_with as f64;
@@ -713,11 +712,10 @@ mod tests {
             .collect()
     }
 
-    #[test]
-    fn runs_are_deterministic() {
+    fn runs_are_deterministic<P: Open>() {
         let work = mixed_workload(3000, 11);
         let go = || {
-            let mut port = Dramsim3Port::open("lpddr3-1600-2x64", GHZ).unwrap();
+            let mut port = P::open_("lpddr3-1600-2x64", GHZ).unwrap();
             let responses = run(&mut port, &work);
             (responses, port.stats())
         };
@@ -728,9 +726,8 @@ mod tests {
         assert_eq!(ra.len(), work.len());
     }
 
-    #[test]
-    fn full_port_refuses_and_returns_the_request() {
-        let mut port = Dramsim3Port::open("lpddr3-1600-1x64", GHZ).unwrap();
+    fn full_port_refuses_and_returns_the_request<P: Open>() {
+        let mut port = P::open_("lpddr3-1600-1x64", GHZ).unwrap();
         let mut accepted = 0;
         let refused = loop {
             let r = req(accepted, accepted * 4096, 64, AccessKind::Read);
@@ -767,10 +764,9 @@ mod tests {
         assert!(peak > 32, "the flood never filled the queues: {peak}");
     }
 
-    #[test]
-    fn bytes_bursts_and_commands_add_up() {
+    fn bytes_bursts_and_commands_add_up<P: Open>() {
         let work = mixed_workload(2000, 5);
-        let mut port = Dramsim3Port::open("lpddr3-1600-2x32", GHZ).unwrap();
+        let mut port = P::open_("lpddr3-1600-2x32", GHZ).unwrap();
         run(&mut port, &work);
         let s = port.stats();
         let b = port.burst_bytes() as u64;
@@ -807,31 +803,25 @@ mod tests {
         assert!(e.background_pj > 0.0);
     }
 
-    #[test]
-    fn clock_crossing_is_exact_at_one_ghz() {
+    fn clock_crossing_is_exact_at_one_ghz<P: Open>() {
         for (name, dram_per_unit) in [("lpddr3-1600-1x64", (4, 5)), ("lpddr3-1333-4x64", (2, 3))] {
-            let mut a = Dramsim3Port::open(name, GHZ).unwrap();
-            let mut b = Dramsim3Port::open(name, GHZ).unwrap();
+            let mut a = P::open_(name, GHZ).unwrap();
+            let mut b = P::open_(name, GHZ).unwrap();
             let unit = 30_000;
             a.tick_many(unit);
             for _ in 0..unit {
                 b.tick();
             }
-            assert_eq!(
-                a.dram_cycle(),
-                unit * dram_per_unit.0 / dram_per_unit.1,
-                "{name}"
-            );
-            assert_eq!(a.dram_cycle(), b.dram_cycle());
+            assert_eq!(a.dram(), unit * dram_per_unit.0 / dram_per_unit.1, "{name}");
+            assert_eq!(a.dram(), b.dram());
             assert_eq!(a.stats(), b.stats());
         }
     }
 
-    #[test]
-    fn tick_many_equals_ticks_under_load() {
+    fn tick_many_equals_ticks_under_load<P: Open>() {
         let work = mixed_workload(300, 3);
-        let mut a = Dramsim3Port::open("lpddr3-1333-4x64", GHZ).unwrap();
-        let mut b = Dramsim3Port::open("lpddr3-1333-4x64", GHZ).unwrap();
+        let mut a = P::open_("lpddr3-1333-4x64", GHZ).unwrap();
+        let mut b = P::open_("lpddr3-1333-4x64", GHZ).unwrap();
         for (i, r) in work.iter().enumerate() {
             let (ra, rb) = (a.send(*r), b.send(*r));
             assert_eq!(ra.is_ok(), rb.is_ok());
@@ -851,14 +841,13 @@ mod tests {
         assert_eq!(a.stats(), b.stats());
     }
 
-    #[test]
-    fn a_port_can_move_to_another_thread() {
+    fn a_port_can_move_to_another_thread<P: Open>() {
         let work = mixed_workload(200, 9);
-        let mut here = Dramsim3Port::open("lpddr3-1600-2x64", GHZ).unwrap();
+        let mut here = P::open_("lpddr3-1600-2x64", GHZ).unwrap();
         let there = std::thread::spawn({
             let work = work.clone();
             move || {
-                let mut p = Dramsim3Port::open("lpddr3-1600-2x64", GHZ).unwrap();
+                let mut p = P::open_("lpddr3-1600-2x64", GHZ).unwrap();
                 let r = run(&mut p, &work);
                 (p, r)
             }
@@ -879,9 +868,8 @@ mod tests {
         assert!(!dir.exists());
     }
 
-    #[test]
-    fn stats_can_be_read_repeatedly_without_double_counting() {
-        let mut port = Dramsim3Port::open("lpddr3-1600-1x64", GHZ).unwrap();
+    fn stats_can_be_read_repeatedly_without_double_counting<P: Open>() {
+        let mut port = P::open_("lpddr3-1600-1x64", GHZ).unwrap();
         run(&mut port, &sequential_reads(64 * 100));
         let a = port.stats();
         let b = port.stats();
@@ -903,5 +891,63 @@ mod tests {
             let trefi = s.int("tREFI").unwrap() as f64 * s.tck_ns().unwrap();
             assert!((trefi - 3900.0).abs() < 5.0, "{}: tREFI {trefi} ns", s.name);
         }
+    }
+
+    /// The two cycle-accurate ports, for tests that must pass on both.
+    trait Open: MemoryPort + Send + Sized + 'static {
+        fn open_(name: &str, unit: PeriodFs) -> Result<Self, DramError>;
+        fn with_(cfg: &'static SystemConfig, unit: PeriodFs) -> Result<Self, DramError>;
+        fn dram(&self) -> u64;
+    }
+
+    impl Open for Dramsim3Port {
+        fn open_(name: &str, unit: PeriodFs) -> Result<Self, DramError> {
+            Dramsim3Port::open(name, unit)
+        }
+        fn with_(cfg: &'static SystemConfig, unit: PeriodFs) -> Result<Self, DramError> {
+            Dramsim3Port::with_config(cfg, unit)
+        }
+        fn dram(&self) -> u64 {
+            self.dram_cycle()
+        }
+    }
+
+    impl Open for LpddrPort {
+        fn open_(name: &str, unit: PeriodFs) -> Result<Self, DramError> {
+            LpddrPort::open(name, unit)
+        }
+        fn with_(cfg: &'static SystemConfig, unit: PeriodFs) -> Result<Self, DramError> {
+            LpddrPort::with_config(cfg, unit)
+        }
+        fn dram(&self) -> u64 {
+            self.dram_cycle()
+        }
+    }
+
+    /// Each test above as two tests: on DRAMsim3 and on Arbor's model.
+    macro_rules! on_both {
+        ($($name:ident => $ds3:ident, $model:ident;)*) => {$(
+            #[test]
+            fn $ds3() {
+                $name::<Dramsim3Port>();
+            }
+            #[test]
+            fn $model() {
+                $name::<LpddrPort>();
+            }
+        )*};
+    }
+
+    on_both! {
+        sequential_read_stream_reaches_90_percent_of_peak_on_every_lpddr3_system => sequential_read_stream_reaches_90_percent_of_peak_on_every_lpddr3_system_on_dramsim3, sequential_read_stream_reaches_90_percent_of_peak_on_every_lpddr3_system_on_the_model;
+        isolated_reads_see_the_closed_row_conflict_and_row_hit_latencies => isolated_reads_see_the_closed_row_conflict_and_row_hit_latencies_on_dramsim3, isolated_reads_see_the_closed_row_conflict_and_row_hit_latencies_on_the_model;
+        refresh_runs_every_trefi_and_costs_about_trfc_over_trefi => refresh_runs_every_trefi_and_costs_about_trfc_over_trefi_on_dramsim3, refresh_runs_every_trefi_and_costs_about_trfc_over_trefi_on_the_model;
+        runs_are_deterministic => runs_are_deterministic_on_dramsim3, runs_are_deterministic_on_the_model;
+        full_port_refuses_and_returns_the_request => full_port_refuses_and_returns_the_request_on_dramsim3, full_port_refuses_and_returns_the_request_on_the_model;
+        bytes_bursts_and_commands_add_up => bytes_bursts_and_commands_add_up_on_dramsim3, bytes_bursts_and_commands_add_up_on_the_model;
+        clock_crossing_is_exact_at_one_ghz => clock_crossing_is_exact_at_one_ghz_on_dramsim3, clock_crossing_is_exact_at_one_ghz_on_the_model;
+        tick_many_equals_ticks_under_load => tick_many_equals_ticks_under_load_on_dramsim3, tick_many_equals_ticks_under_load_on_the_model;
+        a_port_can_move_to_another_thread => a_port_can_move_to_another_thread_on_dramsim3, a_port_can_move_to_another_thread_on_the_model;
+        stats_can_be_read_repeatedly_without_double_counting => stats_can_be_read_repeatedly_without_double_counting_on_dramsim3, stats_can_be_read_repeatedly_without_double_counting_on_the_model;
     }
 }
