@@ -257,6 +257,9 @@ impl Params {
         } else {
             channel_size / megs_per_rank
         };
+        if banks > 32 {
+            return Err(bad(format!("{banks} banks (at most 32 are modelled)")));
+        }
         if ranks != 1 {
             return Err(bad(format!(
                 "{ranks} ranks per channel (only 1 is modelled)"
@@ -421,6 +424,12 @@ struct Channel {
     rr: usize,
     read_q: Vec<Entry>,
     write_q: Vec<Entry>,
+    /// Transactions per bank in the read queue and the write buffer, and bit `b` set when
+    /// there are any (`[read, write]`).
+    waiting_per_bank: [Vec<u16>; 2],
+    waiting_mask: [u32; 2],
+    /// Bit `b` set when bank `b`'s command queue is full.
+    full_mask: u32,
     draining: i64,
     pending_rd: Vec<Pending>,
     pending_wr: Vec<u64>,
@@ -458,6 +467,9 @@ impl Channel {
             rr: 0,
             read_q: Vec::with_capacity(p.trans_queue_size),
             write_q: Vec::with_capacity(p.trans_queue_size),
+            waiting_per_bank: [vec![0; banks], vec![0; banks]],
+            waiting_mask: [0; 2],
+            full_mask: 0,
             draining: 0,
             pending_rd: Vec::new(),
             pending_wr: Vec::new(),
@@ -500,6 +512,7 @@ impl Channel {
             if !buffered {
                 self.pending_wr.push(addr);
                 let e = self.entry(addr, true);
+                self.count_waiting(e.bank, true, true);
                 self.write_q.push(e);
             }
             self.push_return(at, addr, token, seq, false);
@@ -511,10 +524,37 @@ impl Channel {
             self.pending_rd.push(Pending { addr, token, seq });
             if !joins {
                 let e = self.entry(addr, false);
+                self.count_waiting(e.bank, false, true);
                 self.read_q.push(e);
             }
         }
         self.next_event = self.now;
+    }
+
+    /// Keeps the per-bank counts of the read queue or write buffer.
+    #[inline]
+    fn count_waiting(&mut self, bank: u16, is_write: bool, added: bool) {
+        let w = is_write as usize;
+        let n = &mut self.waiting_per_bank[w][bank as usize];
+        if added {
+            *n += 1;
+            self.waiting_mask[w] |= 1 << bank;
+        } else {
+            *n -= 1;
+            if *n == 0 {
+                self.waiting_mask[w] &= !(1 << bank);
+            }
+        }
+    }
+
+    /// Keeps `full_mask` for bank `bank`'s command queue.
+    #[inline]
+    fn note_queue(&mut self, bank: usize) {
+        if self.queues[bank].len() >= self.p.cmd_queue_size {
+            self.full_mask |= 1 << bank;
+        } else {
+            self.full_mask &= !(1 << bank);
+        }
     }
 
     fn push_return(&mut self, at: u64, addr: u64, token: u32, seq: u64, is_read: bool) {
@@ -646,17 +686,17 @@ impl Channel {
         (closed_ready == self.banks.len()).then_some((0, REF))
     }
 
-    /// Earliest cycle at or after `now` at which a command may become legal, unless an
-    /// event comes first.
-    fn next_command_time(&self) -> u64 {
-        let mut t = u64::MAX;
+    /// Earliest cycle at or after `now` at which a command may become legal, or `bound`
+    /// if that is earlier.
+    fn next_command_time(&self, bound: u64) -> u64 {
+        let mut t = bound;
         if self.refresh_due > 0 {
             if self.open_banks > 0 {
                 for b in self.banks.iter().filter(|b| b.open) {
                     t = t.min(b.ready[PRE]);
                 }
             } else {
-                t = self.banks.iter().map(|b| b.ready[REF]).max().unwrap_or(0);
+                t = t.min(self.banks.iter().map(|b| b.ready[REF]).max().unwrap_or(0));
             }
         } else if self.queued > 0 {
             for (q, queue) in self.queues.iter().enumerate() {
@@ -672,11 +712,14 @@ impl Channel {
                     }
                     if at < t && self.allowed(q, j, kind) {
                         t = at;
+                        if t <= self.now {
+                            return self.now;
+                        }
                     }
                 }
             }
         }
-        t.max(self.now)
+        t.min(bound).max(self.now)
     }
 
     /// The transaction scheduler's choice for a cycle starting in draining state `d`.
@@ -686,6 +729,13 @@ impl Channel {
             d = wlen as i64;
         }
         let writes = d > 0;
+        if self.waiting_mask[writes as usize] & !self.full_mask == 0 {
+            // Every waiting transaction's command queue is full (or none waits).
+            return Decision {
+                moved: None,
+                draining: d.max(0),
+            };
+        }
         let q = if writes { &self.write_q } else { &self.read_q };
         for (i, e) in q.iter().enumerate() {
             if self.queues[e.bank as usize].len() < self.p.cmd_queue_size {
@@ -724,6 +774,7 @@ impl Channel {
         match kind {
             RD | WR => {
                 let e = self.queues[bank].remove(j);
+                self.note_queue(bank);
                 self.queued -= 1;
                 if kind == RD {
                     self.counts.read += 1;
@@ -857,7 +908,9 @@ impl Channel {
             } else {
                 self.read_q.remove(i)
             };
+            self.count_waiting(e.bank, writes, false);
             self.queues[e.bank as usize].push(e);
+            self.note_queue(e.bank as usize);
             self.queued += 1;
         }
         self.now = c + 1;
@@ -868,6 +921,10 @@ impl Channel {
     /// later are all known from the state, whether or not the tick was busy.
     fn plan(&mut self) {
         self.next_event = self.now;
+        let bound = self.next_return.min(self.next_refresh());
+        if bound <= self.now {
+            return;
+        }
         let d1 = self.draining;
         let first = self.decide(d1);
         if first.moved.is_some() {
@@ -882,10 +939,7 @@ impl Channel {
         }
         self.drain_cycle = [d1, d2];
         self.drain_base = self.now;
-        self.next_event = self
-            .next_command_time()
-            .min(self.next_return)
-            .min(self.next_refresh());
+        self.next_event = self.next_command_time(bound);
     }
 
     /// Advances quiet cycles up to `to` (no event before it).
