@@ -24,7 +24,10 @@ fn dram_json(args: &[&str]) -> Value {
 fn sequential_reads_run_near_peak_and_random_reads_do_not() {
     let seq = dram_json(&["--system", "lpddr3-1600-1x64", "--bytes", "262144"]);
     assert_eq!(seq["schema"], "arbor.sim.dram.v1");
-    assert_eq!(seq["backend"], "dramsim3(lpddr3-1600-1x64)");
+    assert_eq!(seq["backend"], "lpddr(lpddr3-1600-1x64)");
+    let reference = dram_json(&["--system", "dramsim3:lpddr3-1600-1x64", "--bytes", "262144"]);
+    assert_eq!(reference["backend"], "dramsim3(lpddr3-1600-1x64)");
+    assert_eq!(reference["stats"], seq["stats"]);
     assert_eq!(seq["stats"]["bytes_read"], 262144);
     assert_eq!(seq["requests"], 4096);
     let util = seq["utilization"].as_f64().unwrap();

@@ -1,4 +1,5 @@
-//! Simulation speed of the memory backends, in simulated unit cycles per second (1 GHz unit
+//! Simulation speed of the memory backends (Arbor's controller model under the bare names,
+//! DRAMsim3 under `dramsim3:`, the simple model under `simple:`), in simulated unit cycles per second (1 GHz unit
 //! clock, one core). Throughput is reported in unit cycles ("elem/s"); the DRAM clock runs
 //! at 0.8 (LPDDR3-1600), 0.667 (LPDDR3-1333) or 1.6 (LPDDR4-3200) cycles per unit cycle.
 //!
@@ -47,6 +48,8 @@ fn bench(c: &mut Criterion) {
         "lpddr3-1333-4x64",
         "lpddr3-1600-2x32",
         "lpddr4-3200-4x16",
+        "dramsim3:lpddr3-1600-1x64",
+        "dramsim3:lpddr3-1333-4x64",
         "simple:lpddr3-1600-1x64",
     ] {
         // The cycle count is deterministic: measure it once for the throughput.
@@ -68,6 +71,7 @@ fn bench(c: &mut Criterion) {
     for name in [
         "lpddr3-1600-1x64",
         "lpddr3-1333-4x64",
+        "dramsim3:lpddr3-1600-1x64",
         "simple:lpddr3-1600-1x64",
     ] {
         let mut port = open(name, GHZ).unwrap();

@@ -8,10 +8,10 @@
 //!   backtracking steps sequential DRAM reads and writes (pessimistic);
 //! - `M4`: streaming with modulo coordinates and depth-4 treelets.
 //!
-//! All on `lpddr3-1600-2x32` (DRAMsim3) by default, \[P3\] §5.3's dual-channel 32-bit
-//! LPDDR3-1600. `BVH` is not run separately: it is the build phase of the `TD` run, which
-//! ends exactly when a plain build ends (the pass starts once every write is done; a test
-//! in `sim` checks the cycle counts are equal).
+//! All on `lpddr3-1600-2x32` (DRAMsim3's timing, from Arbor's model of its controller) by
+//! default, \[P3\] §5.3's dual-channel 32-bit LPDDR3-1600. `BVH` is not run separately: it
+//! is the build phase of the `TD` run, which ends exactly when a plain build ends (the pass
+//! starts once every write is done; a test in `sim` checks the cycle counts are equal).
 //!
 //! Two what-ifs explain the backtracking cost: `R` with `cbvh_flush_before_backtrack =
 //! false` (a backtracking read goes to DRAM even while its line waits in the unit's write
@@ -113,7 +113,7 @@ pub struct RunRow {
     pub bytes: u64,
     /// Bytes of the build phases (all but the top-down pass).
     pub build_bytes: u64,
-    /// Bytes of DRAM RD/WR commands (DRAMsim3; reads answered from the controller's write
+    /// Bytes of DRAM RD/WR commands (DRAMsim3 timing; reads answered from the controller's write
     /// queue move no data on the bus).
     pub dram_command_bytes: u64,
     /// Backtracking steps.

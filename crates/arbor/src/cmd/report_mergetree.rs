@@ -2,9 +2,10 @@
 //! written as CSV, Markdown and SVG into one folder, each of our numbers beside the
 //! thesis's where we share the scene (`sim::thesis`), with the difference in percent:
 //! - `table3.csv`: MergeTree (preset `p2`) on the slow, medium and fast memory systems of
-//!   \[P2\] §6.2 (DRAMsim3 by default): cycles, build time, speed-up over the slow system,
-//!   bus utilization, traffic, DRAM energy, and whether the tree matched the software
-//!   HLBVH builder node for node (\[P2\] Table III, time columns);
+//!   \[P2\] §6.2 (DRAMsim3's timing by default, from Arbor's model of its controller):
+//!   cycles, build time, speed-up over the slow system, bus utilization, traffic, DRAM
+//!   energy, and whether the tree matched the software HLBVH builder node for node
+//!   (\[P2\] Table III, time columns);
 //! - `sah.csv`: SAH relative to a full sweep SAH build for `hlbvh`, `hlbvh+sah`,
 //!   `hlbvh+atrbvh` and `binned-sah`, and the time of MergeTree's toplevel binned SAH unit
 //!   (\[P2\] Table III, SAH columns and the "HW Binned SAH topl." row);
@@ -45,7 +46,8 @@ pub struct ReportMergetreeArgs {
     #[arg(long, value_name = "DIR", default_value = SHARED_SCENES)]
     scene_dir: PathBuf,
     /// Memory systems, slowest first (speed-ups are over the first), comma separated.
-    /// Default: the slow, medium and fast systems of [P2] 6.2 on DRAMsim3; `simple:NAME`
+    /// Default: the slow, medium and fast systems of [P2] 6.2 on Arbor's model of DRAMsim3's
+    /// controller (`dramsim3:NAME` runs DRAMsim3 itself); `simple:NAME`
     /// selects the quick bandwidth-plus-latency model.
     #[arg(
         long,

@@ -27,7 +27,8 @@ pub struct MergetreeArgs {
     #[arg(long)]
     preset: Option<String>,
     /// Memory system: lpddr3-1600-1x64 (slow), lpddr3-1600-2x64 (medium),
-    /// lpddr3-1333-4x64 (fast), lpddr3-1600-2x32; prefix `simple:` for the simple model.
+    /// lpddr3-1333-4x64 (fast), lpddr3-1600-2x32 (Arbor's model of DRAMsim3's controller); prefix
+    /// `dramsim3:` for DRAMsim3 itself, `simple:` for the simple model.
     /// Default: lpddr3-1600-1x64, or lpddr3-1600-2x32 with --cbvh (thesis P3 5.3).
     #[arg(long)]
     dram: Option<String>,

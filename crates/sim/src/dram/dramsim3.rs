@@ -1,17 +1,19 @@
 //! The cycle-accurate backend: DRAMsim3 (through the `dramsim3` crate) behind the
-//! [`MemoryPort`] interface.
+//! [`super::MemoryPort`] interface.
 //!
 //! DRAMsim3 (umd-memsys, a standard cycle-accurate DRAM simulator) models each channel's
-//! controller, banks, row buffers, command timing and refresh. This port adds what a unit
-//! sees (`shared/DESIGN.md`):
+//! controller, banks, row buffers, command timing and refresh. It is the reference that
+//! Arbor's own, faster controller model ([`super::lpddr`], the default for bare system
+//! names) is checked against; `dram::open("dramsim3:NAME", ..)` selects it. What a unit
+//! sees is the shared memory port ([`super::port::BurstPort`], `shared/DESIGN.md`):
 //! - requests of any size are split into DRAMsim3 transactions of one burst each
-//!   (`bus_width / 8 * BL` bytes, 64 B on a 64-bit LPDDR3 channel) and staged in a small
-//!   in-order queue of [`STAGING_BURSTS`] bursts; a burst enters DRAMsim3 when its
-//!   controller accepts it (`can_add`), and the port refuses new requests while the staging
-//!   queue is full, so back-pressure comes from DRAMsim3's transaction queues;
+//!   (`bus_width / 8 * BL` bytes, 64 B on a 64-bit LPDDR3 channel) and staged per channel
+//!   and direction ([`STAGING_BURSTS`] each); a burst enters DRAMsim3 when its controller
+//!   accepts it (`can_add`), and the port refuses a request whose bursts do not fit in the
+//!   staging queues they go to, so back-pressure comes from DRAMsim3's transaction queues;
 //! - each unit cycle advances DRAMsim3 by exactly the DRAM cycles that fit in it
 //!   ([`ClockCrossing`], integer femtoseconds, no rounding drift: 1 GHz against 800 MHz is
-//!   0, 1, 1, 1, 1, ... DRAM cycles per unit cycle);
+//!   0, 1, 1, 1, 1, ... DRAM cycles per unit cycle); DRAMsim3 ticks every DRAM cycle;
 //! - a request completes at the unit cycle in which DRAMsim3 returned its last burst.
 //!   DRAMsim3 posts writes: a write returns one DRAM cycle after its controller buffered
 //!   it, and its DRAM time shows in the bandwidth and latency of what follows. A read of an
@@ -22,7 +24,7 @@
 //! crate's C entry points (`ds3_*`, compiled into the crate's static library) itself and,
 //! beside them, DRAMsim3's own `MemorySystem::PrintStats` and `MemorySystem::ResetStats`
 //! (by their Itanium C++ ABI symbol names, which is how g++ and clang export them on the
-//! platforms CI uses). [`Dramsim3Port::stats`] asks DRAMsim3 to write its per-channel
+//! platforms CI uses). `MemoryPort::stats` on the port asks DRAMsim3 to write its per-channel
 //! statistics JSON into the port's private temporary directory, parses the command counts
 //! (`num_act_cmds`, `num_pre_cmds`, `num_read_cmds`, `num_write_cmds`, `num_ref_cmds`,
 //! `num_read_row_hits`, `num_write_row_hits`) and the per-rank cycle split
@@ -47,13 +49,12 @@ use std::collections::{HashMap, VecDeque};
 use std::ffi::{c_void, CString};
 
 use super::energy::{self, CommandCounts, MemSpec};
-use super::{bursts_of, AccessKind, DramError, MemRequest, MemResponse, MemStats, MemoryPort};
+use super::lpddr::AddressMap;
+use super::port::{Backend, BurstPort};
+use super::{DramError, MemStats};
 use crate::clock::{period_fs_from_ns, ClockCrossing, PeriodFs};
 
-/// Bursts the port may hold before DRAMsim3 takes them; beyond this, [`MemoryPort::send`]
-/// refuses. Small next to DRAMsim3's 32-entry transaction queue per channel, so the
-/// controller, not the port, decides how much is in flight.
-pub const STAGING_BURSTS: usize = 16;
+pub use super::port::STAGING_BURSTS;
 
 mod ffi {
     use std::ffi::{c_char, c_double, c_int, c_void};
@@ -155,13 +156,6 @@ pub fn system(name: &str) -> Option<&'static SystemConfig> {
     SYSTEMS.iter().find(|s| s.name == name)
 }
 
-/// One accepted request whose bursts are not all back.
-#[derive(Clone, Copy, Debug)]
-struct Slot {
-    response: MemResponse,
-    bursts_left: u64,
-}
-
 /// Running totals of DRAMsim3's statistics, taken at `at_dram_cycle`.
 #[derive(Clone, Copy, Debug, Default)]
 struct Snapshot {
@@ -170,41 +164,37 @@ struct Snapshot {
     row_hits: u64,
 }
 
-/// The DRAMsim3 memory port. See the module documentation.
-pub struct Dramsim3Port {
+/// The DRAMsim3 memory port: DRAMsim3 behind the shared [`BurstPort`]. See the module
+/// documentation.
+pub type Dramsim3Port = BurstPort<Dramsim3System>;
+
+/// A DRAMsim3 memory system as a [`Backend`] of the shared memory port: ticks every DRAM
+/// cycle and matches DRAMsim3's completions (by address) to the bursts given to it.
+pub struct Dramsim3System {
     sys: *mut c_void,
     /// Completions `(address, is_write)` written by the callback during `ds3_tick`.
     sink: Box<UnsafeCell<Vec<(u64, bool)>>>,
     dir: tempfile::TempDir,
     config: &'static SystemConfig,
-    crossing: ClockCrossing,
+    map: AddressMap,
+    channels: usize,
     tck_ns: f64,
-    burst_bytes: u32,
-    peak_bytes_per_unit_cycle: f64,
     dies_per_rank: u32,
-    cycle: u64,
     dram_cycle: u64,
-    /// Bursts not yet in DRAMsim3: (aligned address, is_write, slot).
-    staged: VecDeque<(u64, bool, usize)>,
-    slots: Vec<Option<Slot>>,
-    free_slots: Vec<usize>,
     /// Bursts in DRAMsim3 by (address, is_write), in the order they entered.
-    waiting: HashMap<(u64, bool), VecDeque<usize>>,
-    in_flight: usize,
-    done: VecDeque<MemResponse>,
-    stats: MemStats,
+    waiting: HashMap<(u64, bool), VecDeque<u32>>,
     snapshot: RefCell<Snapshot>,
 }
 
 extern "C" fn on_complete(data: *mut c_void, addr: u64, is_write: bool) {
-    // SAFETY: `data` is the port's `sink` (a live, boxed vector), and DRAMsim3 calls this
-    // only from inside `ds3_tick`, which the port calls while holding `&mut self` and
-    // without any other reference into `sink`.
+    // SAFETY: `data` is the system's `sink` (a live, boxed vector), and DRAMsim3 calls
+    // this only from inside `ds3_tick`, which the system calls while holding `&mut self`
+    // and without any other reference into `sink`.
     let sink = unsafe { &mut *(data as *mut Vec<(u64, bool)>) };
     sink.push((addr, is_write));
 }
 
-impl Dramsim3Port {
+impl BurstPort<Dramsim3System> {
     /// Opens the shipped system `name` driven by a unit clock of period `unit_period_fs`.
     pub fn open(name: &str, unit_period_fs: PeriodFs) -> Result<Self, DramError> {
         let config = system(name).ok_or_else(|| DramError::UnknownSystem {
@@ -229,6 +219,45 @@ impl Dramsim3Port {
         if unit_period_fs == 0 {
             return Err(DramError::Config("unit clock period of zero".into()));
         }
+        let system = Dramsim3System::new(config)?;
+        let channels = config.int("channels")?;
+        let bus_bits = config.int("bus_width")?;
+        let bl = config.int("BL")?;
+        let tck_ns = system.tck_ns;
+        // Two transfers per clock on each channel.
+        let peak_bytes_per_ns = channels as f64 * bus_bits as f64 / 8.0 * 2.0 / tck_ns;
+        Ok(BurstPort::new(
+            system,
+            ClockCrossing::new(unit_period_fs, period_fs_from_ns(tck_ns)),
+            (bus_bits / 8 * bl) as u32,
+            peak_bytes_per_ns * unit_period_fs as f64 * 1e-6,
+        ))
+    }
+
+    /// The configuration this port runs.
+    pub fn config(&self) -> &'static SystemConfig {
+        self.backend.config
+    }
+
+    /// DRAM clock period in nanoseconds.
+    pub fn tck_ns(&self) -> f64 {
+        self.backend.tck_ns
+    }
+
+    /// The directory DRAMsim3 writes into (removed when the port is dropped).
+    pub fn output_dir(&self) -> &std::path::Path {
+        self.backend.dir.path()
+    }
+
+    /// Command counts and row hits so far, read from DRAMsim3 (see the module docs).
+    pub fn command_counts(&self) -> (CommandCounts, u64) {
+        self.backend.command_counts()
+    }
+}
+
+impl Dramsim3System {
+    /// Creates DRAMsim3's memory system for `config`.
+    pub fn new(config: &'static SystemConfig) -> Result<Self, DramError> {
         // Check what DRAMsim3 would otherwise reject by exiting the process.
         let channels = config.int("channels")?;
         let bus_bits = config.int("bus_width")?;
@@ -245,6 +274,7 @@ impl Dramsim3Port {
                 config.name
             )));
         }
+        let map = AddressMap::from_config(config)?;
         let dir = tempfile::Builder::new()
             .prefix("arbor-dramsim3-")
             .tempdir()
@@ -283,51 +313,19 @@ impl Dramsim3Port {
         };
         debug_assert!((got_tck - tck_ns).abs() < 1e-12);
         debug_assert_eq!((got_bus as u64, got_bl as u64), (bus_bits, bl));
-        let burst_bytes = (bus_bits / 8 * bl) as u32;
-        let dram_period_fs = period_fs_from_ns(tck_ns);
-        // Two transfers per clock on each channel.
-        let peak_bytes_per_ns = channels as f64 * bus_bits as f64 / 8.0 * 2.0 / tck_ns;
         Ok(Self {
             sys,
             sink,
             dir,
             config,
-            crossing: ClockCrossing::new(unit_period_fs, dram_period_fs),
+            map,
+            channels: channels as usize,
             tck_ns,
-            burst_bytes,
-            peak_bytes_per_unit_cycle: peak_bytes_per_ns * unit_period_fs as f64 * 1e-6,
             dies_per_rank: (bus_bits / device_bits) as u32,
-            cycle: 0,
             dram_cycle: 0,
-            staged: VecDeque::new(),
-            slots: Vec::new(),
-            free_slots: Vec::new(),
             waiting: HashMap::new(),
-            in_flight: 0,
-            done: VecDeque::new(),
-            stats: MemStats::default(),
             snapshot: RefCell::new(Snapshot::default()),
         })
-    }
-
-    /// The configuration this port runs.
-    pub fn config(&self) -> &'static SystemConfig {
-        self.config
-    }
-
-    /// DRAM clock period in nanoseconds.
-    pub fn tck_ns(&self) -> f64 {
-        self.tck_ns
-    }
-
-    /// DRAM clock cycles simulated so far.
-    pub fn dram_cycle(&self) -> u64 {
-        self.dram_cycle
-    }
-
-    /// The directory DRAMsim3 writes into (removed when the port is dropped).
-    pub fn output_dir(&self) -> &std::path::Path {
-        self.dir.path()
     }
 
     /// Command counts and row hits so far, read from DRAMsim3 (see the module docs).
@@ -348,7 +346,6 @@ impl Dramsim3Port {
         }
         (snap.counts, snap.row_hits)
     }
-
     /// Writes, parses and resets DRAMsim3's counters: the counts since the last call.
     fn read_dramsim3_stats(&self) -> (CommandCounts, u64) {
         // SAFETY: `sys` is live. PrintStats writes files into our temporary directory;
@@ -385,197 +382,119 @@ impl Dramsim3Port {
         }
         (counts, hits)
     }
-
-    /// One DRAM clock: moves staged bursts into DRAMsim3 while it accepts them, then ticks.
-    fn dram_tick(&mut self) {
-        while let Some(&(addr, is_write, slot)) = self.staged.front() {
-            // SAFETY: `sys` is live.
-            if !unsafe { ffi::ds3_can_add(self.sys, addr, is_write) } {
-                break;
-            }
-            // SAFETY: as above; `can_add` said yes.
-            let added = unsafe { ffi::ds3_add(self.sys, addr, is_write) };
-            debug_assert!(added);
-            self.staged.pop_front();
-            self.waiting
-                .entry((addr, is_write))
-                .or_default()
-                .push_back(slot);
-        }
-        // SAFETY: `sys` is live; the callback writes only into `sink`, which nothing else
-        // borrows now.
-        unsafe { ffi::ds3_tick(self.sys) };
-        self.dram_cycle += 1;
-    }
-
-    /// Hands the bursts DRAMsim3 returned to their requests.
-    fn retire(&mut self) {
-        if self.sink.get_mut().is_empty() {
-            return;
-        }
-        let mut completed = std::mem::take(self.sink.get_mut());
-        for &(addr, is_write) in &completed {
-            let Some(queue) = self.waiting.get_mut(&(addr, is_write)) else {
-                panic!("DRAMsim3 returned {addr:#x} that was never sent");
-            };
-            let slot = queue
-                .pop_front()
-                .expect("waiting queue is never left empty");
-            if queue.is_empty() {
-                self.waiting.remove(&(addr, is_write));
-            }
-            if is_write {
-                self.stats.write_bursts += 1;
-            } else {
-                self.stats.read_bursts += 1;
-            }
-            let entry = self.slots[slot].as_mut().expect("live slot");
-            entry.bursts_left -= 1;
-            if entry.bursts_left == 0 {
-                let mut response = entry.response;
-                response.completed_cycle = self.cycle;
-                self.slots[slot] = None;
-                self.free_slots.push(slot);
-                self.in_flight -= 1;
-                self.done.push_back(response);
-            }
-        }
-        // Give the buffer back to the sink to keep its allocation.
-        completed.clear();
-        *self.sink.get_mut() = completed;
-    }
 }
 
-// SAFETY: the port owns its DRAMsim3 instance exclusively (nothing else holds `sys`), the
-// callback's pointer targets the boxed sink, whose heap address does not change when the
-// port moves, and DRAMsim3 keeps no thread-local state. Moving the port to another thread
+// SAFETY: the system owns its DRAMsim3 instance exclusively (nothing else holds `sys`),
+// the callback's pointer targets the boxed sink, whose heap address does not change when
+// the system moves, and DRAMsim3 keeps no thread-local state. Moving it to another thread
 // is therefore sound; sharing it is not offered (it is not Sync).
-unsafe impl Send for Dramsim3Port {}
+unsafe impl Send for Dramsim3System {}
 
-impl Drop for Dramsim3Port {
+impl Drop for Dramsim3System {
     fn drop(&mut self) {
         // SAFETY: `sys` is live and dropped exactly once, before `sink` and `dir`.
         unsafe { ffi::ds3_drop(self.sys) };
     }
 }
 
-impl MemoryPort for Dramsim3Port {
+impl Backend for Dramsim3System {
     fn name(&self) -> String {
         format!("dramsim3({})", self.config.name)
     }
 
-    fn burst_bytes(&self) -> u32 {
-        self.burst_bytes
+    fn channels(&self) -> usize {
+        self.channels
     }
 
-    fn peak_bytes_per_unit_cycle(&self) -> f64 {
-        self.peak_bytes_per_unit_cycle
+    fn channel_of(&self, addr: u64) -> usize {
+        self.map.channel(addr)
     }
 
-    fn send(&mut self, request: MemRequest) -> Result<(), MemRequest> {
-        assert!(request.bytes > 0, "memory request of zero bytes");
-        if self.staged.len() >= STAGING_BURSTS {
-            return Err(request);
-        }
-        let b = self.burst_bytes as u64;
-        let bursts = bursts_of(request.addr, request.bytes, self.burst_bytes);
-        let is_write = request.kind == AccessKind::Write;
-        let slot = self.free_slots.pop().unwrap_or_else(|| {
-            self.slots.push(None);
-            self.slots.len() - 1
-        });
-        self.slots[slot] = Some(Slot {
-            response: MemResponse {
-                tag: request.tag,
-                kind: request.kind,
-                accepted_cycle: self.cycle,
-                completed_cycle: 0,
-            },
-            bursts_left: bursts,
-        });
-        let first = request.addr / b * b;
-        for i in 0..bursts {
-            self.staged.push_back((first + i * b, is_write, slot));
-        }
-        self.in_flight += 1;
-        match request.kind {
-            AccessKind::Read => {
-                self.stats.read_requests += 1;
-                self.stats.bytes_read += bursts * b;
+    fn can_add(&self, channel: usize, is_write: bool) -> bool {
+        // DRAMsim3's answer depends on the channel and direction only; any address of
+        // the channel asks it.
+        let _ = channel;
+        debug_assert!(channel < self.channels);
+        // SAFETY: `sys` is live.
+        unsafe { ffi::ds3_can_add(self.sys, self.channel_base(channel), is_write) }
+    }
+
+    fn add(&mut self, channel: usize, addr: u64, is_write: bool, token: u32) {
+        debug_assert_eq!(self.map.channel(addr), channel);
+        // SAFETY: `sys` is live; `can_add` said yes.
+        let added = unsafe { ffi::ds3_add(self.sys, addr, is_write) };
+        debug_assert!(added);
+        self.waiting
+            .entry((addr, is_write))
+            .or_default()
+            .push_back(token);
+    }
+
+    fn now(&self) -> u64 {
+        self.dram_cycle
+    }
+
+    fn next_event(&self) -> u64 {
+        self.dram_cycle
+    }
+
+    fn run_until(&mut self, to: u64, done: &mut Vec<u32>) {
+        while self.dram_cycle < to {
+            // SAFETY: `sys` is live; the callback writes only into `sink`, which nothing
+            // else borrows now.
+            unsafe { ffi::ds3_tick(self.sys) };
+            self.dram_cycle += 1;
+            let sink = self.sink.get_mut();
+            if sink.is_empty() {
+                continue;
             }
-            AccessKind::Write => {
-                self.stats.write_requests += 1;
-                self.stats.bytes_written += bursts * b;
+            for &(addr, is_write) in sink.iter() {
+                let Some(queue) = self.waiting.get_mut(&(addr, is_write)) else {
+                    panic!("DRAMsim3 returned {addr:#x} that was never sent");
+                };
+                done.push(
+                    queue
+                        .pop_front()
+                        .expect("waiting queue is never left empty"),
+                );
+                if queue.is_empty() {
+                    self.waiting.remove(&(addr, is_write));
+                }
             }
-        }
-        Ok(())
-    }
-
-    fn tick(&mut self) {
-        self.cycle += 1;
-        for _ in 0..self.crossing.step() {
-            self.dram_tick();
-        }
-        self.retire();
-    }
-
-    fn tick_many(&mut self, cycles: u64) {
-        if self.in_flight == 0 {
-            // Nothing can complete: run the DRAM clock (refresh goes on) without per-unit
-            // bookkeeping. Equal to `cycles` ticks.
-            for _ in 0..self.crossing.step_many(cycles) {
-                self.dram_tick();
-            }
-            self.cycle += cycles;
-            debug_assert!(self.sink.get_mut().is_empty());
-        } else {
-            for _ in 0..cycles {
-                self.tick();
-            }
+            sink.clear();
         }
     }
 
-    fn pop_response(&mut self) -> Option<MemResponse> {
-        self.done.pop_front()
-    }
-
-    fn cycle(&self) -> u64 {
-        self.cycle
-    }
-
-    fn outstanding(&self) -> usize {
-        self.in_flight + self.done.len()
-    }
-
-    fn completed_waiting(&self) -> usize {
-        self.done.len()
-    }
-
-    fn stats(&self) -> MemStats {
+    fn fill_stats(&self, s: &mut MemStats) {
         let (counts, row_hits) = self.command_counts();
-        MemStats {
-            row_hits,
-            row_misses: (counts.read + counts.write).saturating_sub(row_hits),
-            act_commands: counts.act,
-            read_commands: counts.read,
-            write_commands: counts.write,
-            refresh_commands: counts.refresh,
-            unit_cycles: self.cycle,
-            dram_cycles: self.dram_cycle,
-            energy_pj: Some(energy::energy(
-                self.config.memspec,
-                &counts,
-                self.dies_per_rank,
-                self.tck_ns,
-            )),
-            ..self.stats.clone()
-        }
+        s.row_hits = row_hits;
+        s.row_misses = (counts.read + counts.write).saturating_sub(row_hits);
+        s.act_commands = counts.act;
+        s.read_commands = counts.read;
+        s.write_commands = counts.write;
+        s.refresh_commands = counts.refresh;
+        s.energy_pj = Some(energy::energy(
+            self.config.memspec,
+            &counts,
+            self.dies_per_rank,
+            self.tck_ns,
+        ));
+    }
+}
+
+impl Dramsim3System {
+    /// The lowest address of `channel` (DRAMsim3 picks the controller from the address).
+    fn channel_base(&self, channel: usize) -> u64 {
+        let (pos, _) = self.map.ch_field();
+        ((channel as u64) << pos) << self.map.shift()
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::dram::lpddr::LpddrPort;
+    use crate::dram::{bursts_of, AccessKind, MemRequest, MemResponse, MemoryPort};
 
     const GHZ: PeriodFs = 1_000_000;
 
@@ -590,7 +509,7 @@ mod tests {
 
     /// Sends `requests` as fast as the port takes them and ticks until all are back.
     /// Returns the responses in completion order.
-    fn run(port: &mut Dramsim3Port, requests: &[MemRequest]) -> Vec<MemResponse> {
+    fn run(port: &mut dyn MemoryPort, requests: &[MemRequest]) -> Vec<MemResponse> {
         let mut next = 0;
         let mut out = Vec::with_capacity(requests.len());
         while out.len() < requests.len() {
@@ -639,10 +558,9 @@ mod tests {
         *state >> 16
     }
 
-    #[test]
-    fn sequential_read_stream_reaches_90_percent_of_peak_on_every_lpddr3_system() {
+    fn sequential_read_stream_reaches_90_percent_of_peak_on_every_lpddr3_system<P: Open>() {
         for (name, _, _) in crate::dram::MEMORY_SYSTEMS {
-            let mut port = Dramsim3Port::open(name, GHZ).unwrap();
+            let mut port = P::open_(name, GHZ).unwrap();
             let bytes = 1 << 20;
             let responses = run(&mut port, &sequential_reads(bytes));
             let s = port.stats();
@@ -663,7 +581,7 @@ mod tests {
 
     /// Latency in unit cycles (ns at 1 GHz) of isolated reads at `addrs`, one at a time
     /// with `gap` idle unit cycles after each.
-    fn isolated_latencies(port: &mut Dramsim3Port, addrs: &[u64], gap: u64) -> Vec<u64> {
+    fn isolated_latencies(port: &mut dyn MemoryPort, addrs: &[u64], gap: u64) -> Vec<u64> {
         addrs
             .iter()
             .enumerate()
@@ -686,10 +604,9 @@ mod tests {
         v[v.len() / 2]
     }
 
-    #[test]
-    fn isolated_reads_see_the_closed_row_conflict_and_row_hit_latencies() {
+    fn isolated_reads_see_the_closed_row_conflict_and_row_hit_latencies<P: Open>() {
         let cfg = system("lpddr3-1600-1x64").unwrap();
-        let mut port = Dramsim3Port::with_config(cfg, GHZ).unwrap();
+        let mut port = P::with_(cfg, GHZ).unwrap();
         let t = |k: &str| cfg.int(k).unwrap() as f64;
         let tck = cfg.tck_ns().unwrap();
         // Address map rorabgbacoch on one 64-bit channel: 64-B bursts, 128 columns
@@ -741,27 +658,25 @@ mod tests {
         assert_eq!(s.row_misses, 42, "{s:?}");
     }
 
-    #[test]
-    fn refresh_runs_every_trefi_and_costs_about_trfc_over_trefi() {
+    fn refresh_runs_every_trefi_and_costs_about_trfc_over_trefi<P: Open>() {
         let cfg = system("lpddr3-1600-1x64").unwrap();
         let trefi = cfg.int("tREFI").unwrap();
         let trfc = cfg.int("tRFC").unwrap();
         // Idle: DRAMsim3 asks for a refresh at every DRAM cycle k * tREFI (k >= 1) and
         // issues it at once when the banks are closed.
-        let mut port = Dramsim3Port::with_config(cfg, GHZ).unwrap();
+        let mut port = P::with_(cfg, GHZ).unwrap();
         let k = 20;
         let dram_cycles = k * trefi + 100;
         // 1 GHz unit, 800 MHz DRAM: 5 unit cycles per 4 DRAM cycles.
         port.tick_many(dram_cycles * 5 / 4);
-        assert_eq!(port.dram_cycle(), dram_cycles);
+        assert_eq!(port.dram(), dram_cycles);
         assert_eq!(port.stats().refresh_commands, k);
 
         // Loaded: the same stream with and without refresh.
         let stream = sequential_reads(1 << 20);
-        let mut with = Dramsim3Port::with_config(cfg, GHZ).unwrap();
+        let mut with = P::with_(cfg, GHZ).unwrap();
         let t_with = run(&mut with, &stream).last().unwrap().completed_cycle;
-        let mut without =
-            Dramsim3Port::with_config(variant(cfg, "tREFI", "2000000000"), GHZ).unwrap();
+        let mut without = P::with_(variant(cfg, "tREFI", "2000000000"), GHZ).unwrap();
         let t_without = run(&mut without, &stream).last().unwrap().completed_cycle;
         assert_eq!(without.stats().refresh_commands, 0);
         let loss = 1.0 - t_without as f64 / t_with as f64;
@@ -797,11 +712,10 @@ mod tests {
             .collect()
     }
 
-    #[test]
-    fn runs_are_deterministic() {
+    fn runs_are_deterministic<P: Open>() {
         let work = mixed_workload(3000, 11);
         let go = || {
-            let mut port = Dramsim3Port::open("lpddr3-1600-2x64", GHZ).unwrap();
+            let mut port = P::open_("lpddr3-1600-2x64", GHZ).unwrap();
             let responses = run(&mut port, &work);
             (responses, port.stats())
         };
@@ -812,9 +726,8 @@ mod tests {
         assert_eq!(ra.len(), work.len());
     }
 
-    #[test]
-    fn full_port_refuses_and_returns_the_request() {
-        let mut port = Dramsim3Port::open("lpddr3-1600-1x64", GHZ).unwrap();
+    fn full_port_refuses_and_returns_the_request<P: Open>() {
+        let mut port = P::open_("lpddr3-1600-1x64", GHZ).unwrap();
         let mut accepted = 0;
         let refused = loop {
             let r = req(accepted, accepted * 4096, 64, AccessKind::Read);
@@ -851,10 +764,9 @@ mod tests {
         assert!(peak > 32, "the flood never filled the queues: {peak}");
     }
 
-    #[test]
-    fn bytes_bursts_and_commands_add_up() {
+    fn bytes_bursts_and_commands_add_up<P: Open>() {
         let work = mixed_workload(2000, 5);
-        let mut port = Dramsim3Port::open("lpddr3-1600-2x32", GHZ).unwrap();
+        let mut port = P::open_("lpddr3-1600-2x32", GHZ).unwrap();
         run(&mut port, &work);
         let s = port.stats();
         let b = port.burst_bytes() as u64;
@@ -891,31 +803,25 @@ mod tests {
         assert!(e.background_pj > 0.0);
     }
 
-    #[test]
-    fn clock_crossing_is_exact_at_one_ghz() {
+    fn clock_crossing_is_exact_at_one_ghz<P: Open>() {
         for (name, dram_per_unit) in [("lpddr3-1600-1x64", (4, 5)), ("lpddr3-1333-4x64", (2, 3))] {
-            let mut a = Dramsim3Port::open(name, GHZ).unwrap();
-            let mut b = Dramsim3Port::open(name, GHZ).unwrap();
+            let mut a = P::open_(name, GHZ).unwrap();
+            let mut b = P::open_(name, GHZ).unwrap();
             let unit = 30_000;
             a.tick_many(unit);
             for _ in 0..unit {
                 b.tick();
             }
-            assert_eq!(
-                a.dram_cycle(),
-                unit * dram_per_unit.0 / dram_per_unit.1,
-                "{name}"
-            );
-            assert_eq!(a.dram_cycle(), b.dram_cycle());
+            assert_eq!(a.dram(), unit * dram_per_unit.0 / dram_per_unit.1, "{name}");
+            assert_eq!(a.dram(), b.dram());
             assert_eq!(a.stats(), b.stats());
         }
     }
 
-    #[test]
-    fn tick_many_equals_ticks_under_load() {
+    fn tick_many_equals_ticks_under_load<P: Open>() {
         let work = mixed_workload(300, 3);
-        let mut a = Dramsim3Port::open("lpddr3-1333-4x64", GHZ).unwrap();
-        let mut b = Dramsim3Port::open("lpddr3-1333-4x64", GHZ).unwrap();
+        let mut a = P::open_("lpddr3-1333-4x64", GHZ).unwrap();
+        let mut b = P::open_("lpddr3-1333-4x64", GHZ).unwrap();
         for (i, r) in work.iter().enumerate() {
             let (ra, rb) = (a.send(*r), b.send(*r));
             assert_eq!(ra.is_ok(), rb.is_ok());
@@ -935,14 +841,13 @@ mod tests {
         assert_eq!(a.stats(), b.stats());
     }
 
-    #[test]
-    fn a_port_can_move_to_another_thread() {
+    fn a_port_can_move_to_another_thread<P: Open>() {
         let work = mixed_workload(200, 9);
-        let mut here = Dramsim3Port::open("lpddr3-1600-2x64", GHZ).unwrap();
+        let mut here = P::open_("lpddr3-1600-2x64", GHZ).unwrap();
         let there = std::thread::spawn({
             let work = work.clone();
             move || {
-                let mut p = Dramsim3Port::open("lpddr3-1600-2x64", GHZ).unwrap();
+                let mut p = P::open_("lpddr3-1600-2x64", GHZ).unwrap();
                 let r = run(&mut p, &work);
                 (p, r)
             }
@@ -963,9 +868,8 @@ mod tests {
         assert!(!dir.exists());
     }
 
-    #[test]
-    fn stats_can_be_read_repeatedly_without_double_counting() {
-        let mut port = Dramsim3Port::open("lpddr3-1600-1x64", GHZ).unwrap();
+    fn stats_can_be_read_repeatedly_without_double_counting<P: Open>() {
+        let mut port = P::open_("lpddr3-1600-1x64", GHZ).unwrap();
         run(&mut port, &sequential_reads(64 * 100));
         let a = port.stats();
         let b = port.stats();
@@ -987,5 +891,63 @@ mod tests {
             let trefi = s.int("tREFI").unwrap() as f64 * s.tck_ns().unwrap();
             assert!((trefi - 3900.0).abs() < 5.0, "{}: tREFI {trefi} ns", s.name);
         }
+    }
+
+    /// The two cycle-accurate ports, for tests that must pass on both.
+    trait Open: MemoryPort + Send + Sized + 'static {
+        fn open_(name: &str, unit: PeriodFs) -> Result<Self, DramError>;
+        fn with_(cfg: &'static SystemConfig, unit: PeriodFs) -> Result<Self, DramError>;
+        fn dram(&self) -> u64;
+    }
+
+    impl Open for Dramsim3Port {
+        fn open_(name: &str, unit: PeriodFs) -> Result<Self, DramError> {
+            Dramsim3Port::open(name, unit)
+        }
+        fn with_(cfg: &'static SystemConfig, unit: PeriodFs) -> Result<Self, DramError> {
+            Dramsim3Port::with_config(cfg, unit)
+        }
+        fn dram(&self) -> u64 {
+            self.dram_cycle()
+        }
+    }
+
+    impl Open for LpddrPort {
+        fn open_(name: &str, unit: PeriodFs) -> Result<Self, DramError> {
+            LpddrPort::open(name, unit)
+        }
+        fn with_(cfg: &'static SystemConfig, unit: PeriodFs) -> Result<Self, DramError> {
+            LpddrPort::with_config(cfg, unit)
+        }
+        fn dram(&self) -> u64 {
+            self.dram_cycle()
+        }
+    }
+
+    /// Each test above as two tests: on DRAMsim3 and on Arbor's model.
+    macro_rules! on_both {
+        ($($name:ident => $ds3:ident, $model:ident;)*) => {$(
+            #[test]
+            fn $ds3() {
+                $name::<Dramsim3Port>();
+            }
+            #[test]
+            fn $model() {
+                $name::<LpddrPort>();
+            }
+        )*};
+    }
+
+    on_both! {
+        sequential_read_stream_reaches_90_percent_of_peak_on_every_lpddr3_system => sequential_read_stream_reaches_90_percent_of_peak_on_every_lpddr3_system_on_dramsim3, sequential_read_stream_reaches_90_percent_of_peak_on_every_lpddr3_system_on_the_model;
+        isolated_reads_see_the_closed_row_conflict_and_row_hit_latencies => isolated_reads_see_the_closed_row_conflict_and_row_hit_latencies_on_dramsim3, isolated_reads_see_the_closed_row_conflict_and_row_hit_latencies_on_the_model;
+        refresh_runs_every_trefi_and_costs_about_trfc_over_trefi => refresh_runs_every_trefi_and_costs_about_trfc_over_trefi_on_dramsim3, refresh_runs_every_trefi_and_costs_about_trfc_over_trefi_on_the_model;
+        runs_are_deterministic => runs_are_deterministic_on_dramsim3, runs_are_deterministic_on_the_model;
+        full_port_refuses_and_returns_the_request => full_port_refuses_and_returns_the_request_on_dramsim3, full_port_refuses_and_returns_the_request_on_the_model;
+        bytes_bursts_and_commands_add_up => bytes_bursts_and_commands_add_up_on_dramsim3, bytes_bursts_and_commands_add_up_on_the_model;
+        clock_crossing_is_exact_at_one_ghz => clock_crossing_is_exact_at_one_ghz_on_dramsim3, clock_crossing_is_exact_at_one_ghz_on_the_model;
+        tick_many_equals_ticks_under_load => tick_many_equals_ticks_under_load_on_dramsim3, tick_many_equals_ticks_under_load_on_the_model;
+        a_port_can_move_to_another_thread => a_port_can_move_to_another_thread_on_dramsim3, a_port_can_move_to_another_thread_on_the_model;
+        stats_can_be_read_repeatedly_without_double_counting => stats_can_be_read_repeatedly_without_double_counting_on_dramsim3, stats_can_be_read_repeatedly_without_double_counting_on_the_model;
     }
 }

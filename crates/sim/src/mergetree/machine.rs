@@ -1131,8 +1131,9 @@ impl<'a> Machine<'a> {
                     return true;
                 }
                 Some(Err(())) => {
+                    // Refused (its staging queue is full): try the next ready requester.
                     self.port_refusals += 1;
-                    return false;
+                    who += 1;
                 }
             }
         }
