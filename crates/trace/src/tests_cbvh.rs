@@ -96,7 +96,9 @@ fn path_traced_renders_are_watertight() {
             checked += w.box_tests;
         }
     }
-    assert!(checked > 900_000, "{checked} box tests checked");
+    // About 867K with the cube-grid paper LBVH (the box grid gave more): enough that the
+    // check is not vacuous.
+    assert!(checked > 800_000, "{checked} box tests checked");
 }
 
 /// The check is not vacuous: against original boxes grown by 10% of their size (boxes the
