@@ -6,6 +6,8 @@
 //!
 //! - [`clock`]: exact crossing between two clock domains of any periods.
 //! - [`fifo`]: the bounded FIFO that connects units, with occupancy statistics.
+//! - [`kernel`]: the simulation kernel: units with wake times, the skipping scheduler,
+//!   latency FIFOs, arbiter, tag pools and MSHRs, caches, interval statistics.
 //! - [`dram`]: the memory-port interface and its backends.
 //! - [`analytic`]: analytic models of the builders MergeTree is compared with.
 //! - [`mergetree`]: the MergeTree HLBVH builder of \[P1\] and \[P2\].
@@ -16,5 +18,6 @@ pub mod analytic;
 pub mod clock;
 pub mod dram;
 pub mod fifo;
+pub mod kernel;
 pub mod mergetree;
 pub mod thesis;
