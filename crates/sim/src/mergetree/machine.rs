@@ -100,7 +100,7 @@ impl MemoryLayout {
 /// The sort element of primitive `i` of `aabbs` (padding past the end): its box,
 /// reference and the Morton code of its centroid on `quant`'s grid with `bits` bits.
 #[inline]
-fn elem_of(aabbs: &[Aabb], quant: &MortonQuantizer, bits: u32, i: u64) -> Elem {
+pub(super) fn elem_of(aabbs: &[Aabb], quant: &MortonQuantizer, bits: u32, i: u64) -> Elem {
     let Some(&a) = aabbs.get(i as usize) else {
         return Elem::pad(i);
     };
@@ -166,18 +166,27 @@ impl WriteBuffer {
     /// The write request ready to go, if any: the rest of the current chunk once it is
     /// full, or what is there when flushing.
     #[inline]
-    fn ready(&self) -> Option<(u64, u32)> {
+    pub(super) fn ready(&self) -> Option<(u64, u32)> {
+        self.ready_with(self.pending, self.flush)
+    }
+
+    /// [`Self::ready`] as if `pending` bytes were held and the flush flag were `flush`.
+    #[inline]
+    pub(super) fn ready_with(&self, pending: u64, flush: bool) -> Option<(u64, u32)> {
         let room = self.chunk - (self.next_addr - self.base) % self.chunk;
-        if self.pending >= room
-            || ((self.flush || self.next_addr < self.flush_until) && self.pending > 0)
-        {
-            Some((self.next_addr, self.pending.min(room) as u32))
+        if pending >= room || ((flush || self.next_addr < self.flush_until) && pending > 0) {
+            Some((self.next_addr, pending.min(room) as u32))
         } else {
             None
         }
     }
 
-    fn issued(&mut self, bytes: u32) {
+    /// Capacity in bytes.
+    pub(super) fn capacity(&self) -> u64 {
+        self.capacity
+    }
+
+    pub(super) fn issued(&mut self, bytes: u32) {
         self.pending -= bytes as u64;
         self.next_addr += bytes as u64;
         self.written += bytes as u64;

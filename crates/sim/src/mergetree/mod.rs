@@ -29,6 +29,7 @@ pub mod cbvh_unit;
 pub mod config;
 pub mod emitter;
 pub mod heap;
+mod kmachine;
 pub mod machine;
 pub mod merge;
 pub mod presort;
@@ -224,8 +225,101 @@ pub fn simulate_with_progress<'a>(
         highlevel,
         top_tree,
         cbvh,
+        units: Vec::new(),
     };
     Ok(report)
+}
+
+/// [`simulate`] on the simulation kernel ([`crate::kernel`]): the same units split into
+/// kernel units (see `kmachine`). Plain BVH output only for now; the CBVH output modes are
+/// an input error here.
+pub fn simulate_kernel(
+    aabbs: &[Aabb],
+    cfg: &MergeTreeConfig,
+    port: Box<dyn MemoryPort>,
+) -> Result<MergeTreeReport, MergeTreeError> {
+    if cfg.output.is_cbvh() {
+        return Err(MergeTreeError::Input(
+            "the CBVH output modes do not run on the kernel machine yet".into(),
+        ));
+    }
+    if aabbs.is_empty() {
+        return simulate(aabbs, cfg, port);
+    }
+    cfg.validate()?;
+    if aabbs.len() >= u32::MAX as usize / 2 {
+        return Err(MergeTreeError::Input(format!(
+            "{} primitives exceed the 32-bit references",
+            aabbs.len()
+        )));
+    }
+    if let Some(i) = aabbs.iter().position(|a| !a.is_finite() || a.is_empty()) {
+        return Err(MergeTreeError::Input(format!(
+            "primitive {i} has a non-finite or inverted box"
+        )));
+    }
+    let cb = centroid_bounds(aabbs);
+    let k = kmachine::run(aabbs, &cb, cfg, port)?;
+    let cycles = k.cycles;
+    let stalls = k.stalls;
+    let partial_cycles: u64 = k
+        .phases
+        .iter()
+        .filter(|p| p.name == "partial_sort" || p.name == "sort_and_emit")
+        .map(|p| p.end_cycle - p.start_cycle)
+        .sum();
+    let (toplevel_sweeps, toplevel_cycles, top_tree) = match &k.top {
+        Some(t) => (
+            t.sweeps.len() as u64,
+            k.phases
+                .iter()
+                .find(|p| p.name == "toplevel_sah")
+                .map_or(0, |p| p.end_cycle - p.start_cycle),
+            Some(t.tree.clone()),
+        ),
+        None => (0, 0, None),
+    };
+    let highlevel = bvh::Highlevel {
+        nodes: k.nodes,
+        roots: k.roots,
+        order: k.order,
+    };
+    let mem = k.mem;
+    Ok(MergeTreeReport {
+        triangles: aabbs.len() as u64,
+        config: cfg.clone(),
+        dram: k.dram,
+        cycles,
+        ms: cycles as f64 / (cfg.clock_mhz as f64 * 1e3),
+        bytes_read: mem.bytes_read,
+        bytes_written: mem.bytes_written,
+        bus_utilization: (mem.bytes_read + mem.bytes_written) as f64 / (k.peak * cycles as f64),
+        peak_bytes_per_cycle: k.peak,
+        partial_sort_blocks: (aabbs.len() as u64).div_ceil(cfg.m as u64),
+        merge_passes: k.passes_total,
+        phases: k.phases,
+        presort_busy_fraction: if partial_cycles == 0 {
+            0.0
+        } else {
+            stalls.presort_busy_cycles as f64 / (cfg.presorters as f64 * partial_cycles as f64)
+        },
+        merge_elements_per_cycle: stalls.merge_outputs as f64 / cycles as f64,
+        stalls,
+        nodes: highlevel.nodes.len() as u64,
+        leaf_entries: highlevel.order.len() as u64,
+        highlevel_roots: highlevel.roots.len() as u64,
+        max_stack_depth: k.max_stack_depth,
+        toplevel_sweeps,
+        toplevel_cycles,
+        fast_forward_cycles: k.run.cycles - k.run.stepped_cycles,
+        layout: k.layout,
+        memory: mem,
+        trace: k.trace,
+        highlevel,
+        top_tree,
+        cbvh: None,
+        units: k.run.units,
+    })
 }
 
 /// The CBVH the unit wrote, with its counts, in the CBVH output modes.
@@ -364,3 +458,5 @@ pub fn tree_matches_software(
 mod tests;
 #[cfg(test)]
 mod tests_cbvh;
+#[cfg(test)]
+mod tests_kernel;

@@ -115,7 +115,7 @@ impl Presorter {
     }
 
     /// Takes the next delivered element from the ring, in request order.
-    fn take(&mut self, b: u32) -> Option<Elem> {
+    pub fn take(&mut self, b: u32) -> Option<Elem> {
         if self.used == 0 || !self.slot_valid[self.head as usize] {
             return None;
         }
@@ -124,6 +124,7 @@ impl Presorter {
         self.head_pos += 1;
         if self.head_pos == self.slot_count[h] {
             self.head_pos = 0;
+            self.slot_valid[h] = false;
             self.head = if self.head + 1 == self.slots() {
                 0
             } else {
@@ -149,7 +150,7 @@ impl Presorter {
     }
 
     /// Starts inserting the next element, if it has arrived.
-    fn insert_next(&mut self, cycle: u64, b: u32) -> bool {
+    pub fn insert_next(&mut self, cycle: u64, b: u32) -> bool {
         let Some(e) = self.take(b) else {
             self.starved_cycles += 1;
             return false;

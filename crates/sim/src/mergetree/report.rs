@@ -146,6 +146,9 @@ pub struct MergeTreeReport {
     pub top_tree: Option<bvh::Bvh2>,
     /// The CBVH output (\[P3\] §5.3), in the CBVH output modes.
     pub cbvh: Option<CbvhRunReport>,
+    /// Busy / stalled / idle cycles and counters of every unit (the kernel machine).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub units: Vec<crate::kernel::UnitReport>,
 }
 
 /// What the CBVH output of a run did (\[P3\] §5.3).
