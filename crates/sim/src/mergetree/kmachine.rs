@@ -50,6 +50,8 @@ use std::collections::VecDeque;
 
 use geom::{Aabb, MortonQuantizer};
 
+use super::cbvh_unit::{StreamUnitStats, TopdownStats};
+use super::config::OutputMode;
 use super::config::{MergeTreeConfig, ELEM_BYTES, HIGHLEVEL_BYTES, LEAF_ENTRY_BYTES, NODE_BYTES};
 use super::emitter::{EmitPorts, EmitStatus, EmitUnit, EmitterStalls};
 use super::machine::{elem_of, MemoryLayout, WriteBuffer};
@@ -72,7 +74,9 @@ const MERGER: UnitId = UnitId(3);
 const READER: UnitId = UnitId(4);
 const RUN_WRITER: UnitId = UnitId(5);
 const ARBITER: UnitId = UnitId(6);
-const PRESORTER0: u32 = 7;
+const STREAM: UnitId = UnitId(7);
+const TOPDOWN: UnitId = UnitId(8);
+const PRESORTER0: u32 = 9;
 
 /// Scratchpad closed to the presorters (no block may be copied in).
 const CLOSED: u64 = u64::MAX;
@@ -146,6 +150,8 @@ pub(super) struct KBuf {
     freed: u64,
     freed_at: Cycle,
     flush: Reg<bool>,
+    /// Write out partial chunks until every byte below this address is written.
+    flush_until: Reg<u64>,
     producers: [UnitId; 2],
 }
 
@@ -158,6 +164,7 @@ impl KBuf {
             freed: 0,
             freed_at: 0,
             flush: Reg::new(false),
+            flush_until: Reg::new(0),
             producers,
         }
     }
@@ -184,8 +191,10 @@ impl KBuf {
     #[inline]
     fn ready(&self, now: Cycle) -> Option<(u64, u32)> {
         let fresh = if self.fresh_at == now { self.fresh } else { 0 };
+        let pending = self.wb.pending() - fresh;
+        let until = self.flush_until.get(now);
         self.wb
-            .ready_with(self.wb.pending() - fresh, self.flush.get(now))
+            .ready_with(pending, self.flush.get(now) || self.wb.next_addr() < until)
     }
 
     fn issued(&mut self, cx: &mut Ctx, bytes: u32) {
@@ -201,11 +210,22 @@ impl KBuf {
         }
     }
 
+    /// The first address not yet written out, at the start of cycle `now`.
+    fn start_next_addr(&self, now: Cycle) -> u64 {
+        let freed = if self.freed_at == now { self.freed } else { 0 };
+        self.wb.next_addr() - freed
+    }
+
     /// Bytes held at the start of cycle `now`.
     fn start_pending(&self, now: Cycle) -> u64 {
         let fresh = if self.fresh_at == now { self.fresh } else { 0 };
         let freed = if self.freed_at == now { self.freed } else { 0 };
         self.wb.pending() + freed - fresh
+    }
+
+    fn flush_through(&mut self, cx: &mut Ctx, addr: u64) {
+        self.flush_until.set(cx.now(), addr);
+        cx.notify(ARBITER, cx.now() + 1);
     }
 
     fn set_flush(&mut self, cx: &mut Ctx, on: bool) {
@@ -238,6 +258,8 @@ enum Dest {
     Merge(Fetch),
     Run { elems: u32 },
     Buffer,
+    Backtrack,
+    Topdown { j: u64 },
 }
 
 /// A memory request waiting for the arbiter.
@@ -314,6 +336,9 @@ struct Outputs {
     max_stack_depth: usize,
     top: Option<TopUnit>,
     fault: Option<cbvh::CbvhError>,
+    cbvh_ids: Option<Vec<u32>>,
+    stream: Option<(cbvh::bottomup::StreamEncoder, StreamUnitStats)>,
+    topdown: Option<TopdownStats>,
 }
 
 /// The world of the kernel-based machine: channels, shared resources, outputs.
@@ -344,6 +369,19 @@ pub(super) struct KWorld<'a> {
     nodes: KBuf,
     leaves: KBuf,
     hl: KBuf,
+    /// Emitter -> streaming CBVH encoder.
+    enc_fifo: LatencyFifo<cbvh::bottomup::InputNode>,
+    /// Streaming encoder's and top-down pass's requests to the arbiter.
+    req_cbvh: LatencyFifo<Req>,
+    /// Arbiter -> streaming encoder: a backtracking read's latency.
+    bt_data: LatencyFifo<u64>,
+    /// Arbiter -> top-down pass: stream position and latency of each node read.
+    td_data: LatencyFifo<(u64, u64)>,
+    stream_done: LatencyFifo<()>,
+    td_start: LatencyFifo<()>,
+    td_done: LatencyFifo<()>,
+    /// The emitter has output its last node (for the streaming encoder).
+    emit_finished: Reg<bool>,
     /// Partial-sort block whose sub-blocks the presorters may copy into the scratchpad.
     scratch_open: Reg<u64>,
     /// The emitter consumes the merge output (the final merge has started).
@@ -419,6 +457,7 @@ enum Phase {
     Fence(u32),
     Emit,
     Toplevel,
+    Topdown,
     Done,
 }
 
@@ -431,6 +470,7 @@ struct Control {
     pass_run_len: u64,
     pass_runs: u64,
     draining: bool,
+    stream_done: bool,
     phase_start: Cycle,
     snap: [u64; 4],
 }
@@ -448,6 +488,7 @@ impl Control {
                 }
             }
             Phase::Toplevel => "toplevel_sah".into(),
+            Phase::Topdown => "topdown_compress".into(),
             Phase::Done => "done".into(),
         }
     }
@@ -604,14 +645,26 @@ impl<'a> Unit<KWorld<'a>> for Control {
             Phase::Emit => {
                 // The final merge's done token is not needed: the emitter ends the phase.
                 let _ = w.merge_done.pop(cx);
+                let streaming = w.cfg.output == OutputMode::CbvhStream;
                 if !self.draining {
                     if w.emit_done.pop(cx).is_none() {
                         return Wake::OnEvent;
                     }
                     self.draining = true;
-                    w.nodes.set_flush(cx, true);
+                    // The streaming encoder writes node pairs until it is done.
+                    if !streaming {
+                        w.nodes.set_flush(cx, true);
+                    }
                     w.leaves.set_flush(cx, true);
                     w.hl.set_flush(cx, true);
+                    return Wake::Next;
+                }
+                if streaming && !self.stream_done {
+                    if w.stream_done.pop(cx).is_none() {
+                        return Wake::OnEvent;
+                    }
+                    self.stream_done = true;
+                    w.nodes.set_flush(cx, true);
                     return Wake::Next;
                 }
                 if !Self::drained(w, now) {
@@ -619,11 +672,24 @@ impl<'a> Unit<KWorld<'a>> for Control {
                 }
                 self.draining = false;
                 self.end_phase(w, now);
-                w.build_cycles = now;
+                w.build_cycles = now + 1;
                 if w.cfg.toplevel_sah && w.out.roots.len() > 1 {
                     w.top_start.push(cx, ()).expect("one start");
                     w.hl.set_flush(cx, false);
                     self.set_phase(w, now, Phase::Toplevel);
+                    return Wake::OnEvent;
+                }
+                if w.cfg.output == OutputMode::CbvhTopdown {
+                    w.nodes = KBuf::new(
+                        WriteBuffer::new(
+                            w.layout.cbvh,
+                            w.cfg.node_buffer_bytes as u64,
+                            w.cfg.write_chunk_bytes as u64,
+                        ),
+                        [TOPDOWN, TOPDOWN],
+                    );
+                    w.td_start.push(cx, ()).expect("one start");
+                    self.set_phase(w, now, Phase::Topdown);
                     return Wake::OnEvent;
                 }
                 self.set_phase(w, now, Phase::Done);
@@ -637,6 +703,23 @@ impl<'a> Unit<KWorld<'a>> for Control {
                     }
                     self.draining = true;
                     w.hl.set_flush(cx, true);
+                    return Wake::Next;
+                }
+                if !Self::drained(w, now) {
+                    return Wake::Next;
+                }
+                self.end_phase(w, now);
+                self.set_phase(w, now, Phase::Done);
+                cx.set_state(State::Idle);
+                Wake::Done
+            }
+            Phase::Topdown => {
+                if !self.draining {
+                    if w.td_done.pop(cx).is_none() {
+                        return Wake::OnEvent;
+                    }
+                    self.draining = true;
+                    w.nodes.set_flush(cx, true);
                     return Wake::Next;
                 }
                 if !Self::drained(w, now) {
@@ -674,6 +757,7 @@ const EMIT_ENCODER_FULL: u8 = 2;
 struct KPorts<'c, 'w> {
     cx: &'c mut Ctx,
     input: &'w mut LatencyFifo<Elem>,
+    enc: Option<&'w mut LatencyFifo<cbvh::bottomup::InputNode>>,
     nodes: &'w mut KBuf,
     leaves: &'w mut KBuf,
     hl: &'w mut KBuf,
@@ -692,11 +776,14 @@ impl EmitPorts for KPorts<'_, '_> {
     }
     #[inline]
     fn encoder_attached(&self) -> bool {
-        false
+        self.enc.is_some()
     }
     #[inline]
     fn node_room(&self) -> bool {
-        self.nodes.has_room(self.cx.now(), NODE_BYTES)
+        match &self.enc {
+            Some(f) => !f.is_full(self.cx),
+            None => self.nodes.has_room(self.cx.now(), NODE_BYTES),
+        }
     }
     #[inline]
     fn leaf_room(&self) -> bool {
@@ -710,8 +797,11 @@ impl EmitPorts for KPorts<'_, '_> {
     fn add_node(&mut self) {
         self.nodes.add(self.cx, NODE_BYTES);
     }
-    fn push_encoder(&mut self, _n: cbvh::bottomup::InputNode) {
-        unreachable!("no CBVH encoder on the kernel machine")
+    fn push_encoder(&mut self, n: cbvh::bottomup::InputNode) {
+        let f = self.enc.as_mut().expect("an encoder attached");
+        if f.push(self.cx, n).is_err() {
+            unreachable!("room in the encoder FIFO was checked before the step");
+        }
     }
     #[inline]
     fn add_leaf(&mut self) {
@@ -737,8 +827,10 @@ impl<'a> Unit<KWorld<'a>> for Emitter {
         if !w.emit_active.get(now) {
             return Wake::Done;
         }
+        let streaming = w.cfg.output == OutputMode::CbvhStream;
         let KWorld {
             emit_fifo,
+            enc_fifo,
             nodes,
             leaves,
             hl,
@@ -747,6 +839,7 @@ impl<'a> Unit<KWorld<'a>> for Emitter {
         let mut io = KPorts {
             cx: &mut *cx,
             input: emit_fifo,
+            enc: streaming.then_some(enc_fifo),
             nodes,
             leaves,
             hl,
@@ -764,6 +857,9 @@ impl<'a> Unit<KWorld<'a>> for Emitter {
                     w.out.roots = std::mem::take(&mut self.e.roots);
                     w.out.order = std::mem::take(&mut self.e.order);
                     w.out.max_stack_depth = self.e.max_stack_depth();
+                    w.out.cbvh_ids = self.e.cbvh_ids.take();
+                    w.emit_finished.set(now, true);
+                    cx.notify(STREAM, now + 1);
                     w.emit_done.push(cx, ()).expect("one done token");
                     cx.set_state(State::Idle);
                     return Wake::Done;
@@ -1195,11 +1291,11 @@ impl<'a> Unit<KWorld<'a>> for RunWriter {
 // Memory arbiter
 
 /// Requesters of the arbiter, in round-robin order.
-const REQUESTERS: usize = 5;
+const REQUESTERS: usize = 6;
 
 struct Arbiter {
     rr: RoundRobin,
-    slab: Vec<Dest>,
+    slab: Vec<(Dest, u32)>,
     free: Vec<u32>,
     inflight: u64,
     burst: u32,
@@ -1222,7 +1318,8 @@ impl Arbiter {
             1 => buf(&w.nodes),
             2 => buf(&w.leaves),
             3 => buf(&w.hl),
-            _ => w.req_read.peek(cx).copied(),
+            4 => w.req_read.peek(cx).copied(),
+            _ => w.req_cbvh.peek(cx).copied(),
         }
     }
 }
@@ -1240,35 +1337,38 @@ impl<'a> Unit<KWorld<'a>> for Arbiter {
         let now = cx.now();
         while let Some(r) = w.mem.pop(cx) {
             self.inflight -= 1;
-            let d = self.slab[r.tag as usize];
+            let (d, bytes) = self.slab[r.tag as usize];
             self.free.push(r.tag as u32);
             let latency = r.completed_cycle - r.accepted_cycle;
-            let bytes = match d {
-                Dest::Run { elems } => {
-                    w.acc.run_acked.add(now, elems as u64);
-                    elems as u64 * ELEM_BYTES
-                }
-                Dest::Buffer => 0,
+            if r.kind == AccessKind::Read {
+                w.acc.reads.add(now, 1);
+                w.acc.read_latency.add(now, latency);
+            }
+            match d {
+                Dest::Run { elems } => w.acc.run_acked.add(now, elems as u64),
+                Dest::Buffer => {}
                 Dest::Presort { p, read } => {
-                    w.acc.reads.add(now, 1);
-                    w.acc.read_latency.add(now, latency);
                     if w.ps_data[p as usize].push(cx, read).is_err() {
                         unreachable!("one entry per ring slot");
                     }
-                    (w.n.min(read.src + read.count as u64) - read.src) * ELEM_BYTES
                 }
                 Dest::Merge(f) => {
-                    w.acc.reads.add(now, 1);
-                    w.acc.read_latency.add(now, latency);
                     if w.fill.push(cx, f).is_err() {
                         unreachable!("one entry per buffer half");
                     }
-                    f.count as u64 * ELEM_BYTES
                 }
-            };
-            if bytes > 0 {
-                w.trace.row(now).bus_bytes += bytes;
+                Dest::Backtrack => {
+                    if w.bt_data.push(cx, latency).is_err() {
+                        unreachable!("one backtracking read at a time");
+                    }
+                }
+                Dest::Topdown { j } => {
+                    if w.td_data.push(cx, (j, latency)).is_err() {
+                        unreachable!("one entry per node");
+                    }
+                }
             }
+            w.trace.row(now).bus_bytes += bytes as u64;
         }
         let Arbiter {
             rr,
@@ -1284,11 +1384,11 @@ impl<'a> Unit<KWorld<'a>> for Arbiter {
             };
             let tag = match free.pop() {
                 Some(t) => {
-                    slab[t as usize] = req.dest;
+                    slab[t as usize] = (req.dest, req.bytes);
                     t
                 }
                 None => {
-                    slab.push(req.dest);
+                    slab.push((req.dest, req.bytes));
                     (slab.len() - 1) as u32
                 }
             };
@@ -1311,8 +1411,11 @@ impl<'a> Unit<KWorld<'a>> for Arbiter {
                 1 => w.nodes.issued(cx, req.bytes),
                 2 => w.leaves.issued(cx, req.bytes),
                 3 => w.hl.issued(cx, req.bytes),
-                _ => {
+                4 => {
                     w.req_read.pop(cx);
+                }
+                _ => {
+                    w.req_cbvh.pop(cx);
                 }
             }
             let bb = *burst;
@@ -1351,6 +1454,285 @@ impl<'a> Unit<KWorld<'a>> for Arbiter {
 
     fn describe(&self, _w: &KWorld<'a>) -> String {
         format!("{} requests in flight", self.inflight)
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Streaming CBVH encoder (see [`super::cbvh_unit`] for the model)
+
+struct Stream {
+    enc: Option<cbvh::bottomup::StreamEncoder>,
+    ops: VecDeque<cbvh::bottomup::MemOp>,
+    awaiting_read: bool,
+    flushing: bool,
+    ended: bool,
+    done: bool,
+    stats: StreamUnitStats,
+    flush_before_read: bool,
+}
+
+const ST_STARVED: u8 = 0;
+const ST_READ_WAIT: u8 = 1;
+const ST_FLUSH_WAIT: u8 = 2;
+const ST_WRITE_FULL: u8 = 3;
+const ST_REQ_FULL: u8 = 4;
+
+impl Stream {
+    fn read_returned(&mut self, latency: u64) {
+        self.awaiting_read = false;
+        self.stats.backtrack_read_latency_cycles += latency;
+        let bucket = (63 - latency.max(1).leading_zeros()) as usize;
+        let h = &mut self.stats.backtrack_read_latency_log2;
+        if h.len() <= bucket {
+            h.resize(bucket + 1, 0);
+        }
+        h[bucket] += 1;
+    }
+
+    fn step_inner(&mut self, w: &mut KWorld, cx: &mut Ctx) -> Result<Wake, cbvh::CbvhError> {
+        use cbvh::bottomup::MemOp;
+        let now = cx.now();
+        while let Some(lat) = w.bt_data.pop(cx) {
+            self.read_returned(lat);
+        }
+        if self.done {
+            return Ok(Wake::Done);
+        }
+        if self.awaiting_read {
+            cx.set_state(State::Stalled(ST_READ_WAIT));
+            return Ok(Wake::OnEvent);
+        }
+        let enc = self.enc.as_mut().expect("encoder until done");
+        match self.ops.front().copied() {
+            Some(MemOp::WritePair { bytes, .. }) => {
+                if !w.nodes.has_room(now, bytes as u64) {
+                    cx.set_state(State::Stalled(ST_WRITE_FULL));
+                    return Ok(Wake::OnEvent);
+                }
+                w.nodes.add(cx, bytes as u64);
+                self.ops.pop_front();
+                self.stats.pairs_written += 1;
+                cx.set_state(State::Busy);
+                Ok(Wake::Next)
+            }
+            Some(MemOp::BacktrackRead {
+                addr_bytes, bytes, ..
+            }) => {
+                // A line with bytes still in the write buffer is written out first.
+                let pending = self.flush_before_read
+                    && w.nodes.start_pending(now) > 0
+                    && w.nodes.start_next_addr(now) < addr_bytes + bytes as u64;
+                if pending {
+                    if !self.flushing {
+                        self.flushing = true;
+                        self.stats.backtrack_flushes += 1;
+                        w.nodes.flush_through(cx, addr_bytes + bytes as u64);
+                    }
+                    cx.set_state(State::Stalled(ST_FLUSH_WAIT));
+                    return Ok(Wake::OnEvent); // the buffer's writes wake us
+                }
+                let req = Req {
+                    addr: addr_bytes,
+                    bytes,
+                    kind: AccessKind::Read,
+                    dest: Dest::Backtrack,
+                };
+                if w.req_cbvh.push(cx, req).is_err() {
+                    cx.set_state(State::Stalled(ST_REQ_FULL));
+                    return Ok(Wake::OnEvent);
+                }
+                self.ops.pop_front();
+                self.awaiting_read = true;
+                self.flushing = false;
+                self.stats.backtrack_reads += 1;
+                cx.set_state(State::Stalled(ST_READ_WAIT));
+                Ok(Wake::OnEvent)
+            }
+            Some(MemOp::BacktrackWrite {
+                addr_bytes, bytes, ..
+            }) => {
+                let req = Req {
+                    addr: addr_bytes,
+                    bytes,
+                    kind: AccessKind::Write,
+                    dest: Dest::Buffer,
+                };
+                if w.req_cbvh.push(cx, req).is_err() {
+                    cx.set_state(State::Stalled(ST_REQ_FULL));
+                    return Ok(Wake::OnEvent);
+                }
+                self.ops.pop_front();
+                self.stats.backtrack_writes += 1;
+                cx.set_state(State::Busy);
+                Ok(Wake::Next)
+            }
+            None => {
+                if let Some(n) = w.enc_fifo.pop(cx) {
+                    enc.push(n)?;
+                    self.ops.extend(enc.drain_ops());
+                    self.stats.nodes_in += 1;
+                    cx.set_state(State::Busy);
+                    Ok(Wake::Next)
+                } else if w.emit_finished.get(now) && !self.ended {
+                    // The root's treelet (or the root itself) is written last.
+                    enc.end_stream()?;
+                    self.ops.extend(enc.drain_ops());
+                    self.ended = true;
+                    cx.set_state(State::Busy);
+                    Ok(Wake::Next)
+                } else if self.ended {
+                    self.done = true;
+                    w.out.stream = Some((self.enc.take().expect("once"), self.stats.clone()));
+                    w.stream_done.push(cx, ()).expect("one done token");
+                    cx.set_state(State::Idle);
+                    Ok(Wake::Done)
+                } else {
+                    cx.set_state(State::Stalled(ST_STARVED));
+                    Ok(Wake::OnEvent)
+                }
+            }
+        }
+    }
+}
+
+impl<'a> Unit<KWorld<'a>> for Stream {
+    fn name(&self) -> &str {
+        "cbvh encoder"
+    }
+
+    fn stall_reasons(&self) -> &'static [&'static str] {
+        &[
+            "input empty",
+            "read wait",
+            "flush wait",
+            "write buffer full",
+            "request slot full",
+        ]
+    }
+
+    fn step(&mut self, w: &mut KWorld<'a>, cx: &mut Ctx) -> Wake {
+        if self.enc.is_none() && !self.done {
+            return Wake::Done; // not attached
+        }
+        match self.step_inner(w, cx) {
+            Ok(wake) => wake,
+            Err(e) => {
+                w.out.fault = Some(e);
+                self.done = true;
+                w.stream_done.push(cx, ()).expect("one done token");
+                Wake::Done
+            }
+        }
+    }
+
+    fn describe(&self, _w: &KWorld<'a>) -> String {
+        format!(
+            "{} nodes in, {} ops queued (front {:?}), awaiting read {}, ended {}, done {}",
+            self.stats.nodes_in,
+            self.ops.len(),
+            self.ops.front(),
+            self.awaiting_read,
+            self.ended,
+            self.done
+        )
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Top-down CBVH pass (see [`super::cbvh_unit`] for the model)
+
+struct Topdown {
+    started: bool,
+    nodes: u64,
+    next_read: u64,
+    arrived: Vec<bool>,
+    next_encode: u64,
+    pairs: u64,
+    pair_bytes: u64,
+    stats: TopdownStats,
+}
+
+const TD_READ_WAIT: u8 = 0;
+const TD_WRITE_FULL: u8 = 1;
+
+impl<'a> Unit<KWorld<'a>> for Topdown {
+    fn name(&self) -> &str {
+        "topdown pass"
+    }
+
+    fn stall_reasons(&self) -> &'static [&'static str] {
+        &["read wait", "write buffer full"]
+    }
+
+    fn step(&mut self, w: &mut KWorld<'a>, cx: &mut Ctx) -> Wake {
+        let now = cx.now();
+        if !self.started {
+            if w.td_start.pop(cx).is_none() {
+                return Wake::Done;
+            }
+            self.started = true;
+            self.nodes = w.out.nodes.len() as u64;
+            self.arrived = vec![false; self.nodes as usize];
+            self.pairs = self.nodes.max(1);
+            w.td_data = fifo("arbiter->topdown", self.nodes as usize, ARBITER, TOPDOWN);
+        }
+        if self.next_encode == self.pairs {
+            return Wake::Done;
+        }
+        while let Some((j, lat)) = w.td_data.pop(cx) {
+            self.arrived[j as usize] = true;
+            self.stats.read_latency_cycles += lat;
+        }
+        // One node read offered per cycle, from the end of the node array backwards.
+        let mut issued = false;
+        if self.next_read < self.nodes && !w.req_cbvh.is_full(cx) {
+            let k = self.nodes - 1 - self.next_read;
+            let req = Req {
+                addr: w.layout.nodes + k * NODE_BYTES,
+                bytes: NODE_BYTES as u32,
+                kind: AccessKind::Read,
+                dest: Dest::Topdown { j: self.next_read },
+            };
+            if w.req_cbvh.push(cx, req).is_err() {
+                unreachable!("checked");
+            }
+            self.next_read += 1;
+            self.stats.node_reads += 1;
+            issued = true;
+        }
+        // A tree that is one leaf has no node to read: its box is the root record.
+        let here = self.nodes == 0 || self.arrived[self.next_encode as usize];
+        let wake = if !here {
+            cx.set_state(State::Stalled(TD_READ_WAIT));
+            Wake::OnEvent
+        } else if !w.nodes.has_room(now, self.pair_bytes) {
+            cx.set_state(State::Stalled(TD_WRITE_FULL));
+            Wake::OnEvent
+        } else {
+            w.nodes.add(cx, self.pair_bytes);
+            self.next_encode += 1;
+            self.stats.pairs_written += 1;
+            cx.set_state(State::Busy);
+            if self.next_encode == self.pairs {
+                w.out.topdown = Some(self.stats.clone());
+                w.td_done.push(cx, ()).expect("one done token");
+                cx.set_state(State::Idle);
+                return Wake::Done;
+            }
+            Wake::Next
+        };
+        if issued || (self.next_read < self.nodes && !w.req_cbvh.is_full(cx)) {
+            Wake::Next
+        } else {
+            wake
+        }
+    }
+
+    fn describe(&self, _w: &KWorld<'a>) -> String {
+        format!(
+            "{}/{} read, {}/{} encoded",
+            self.next_read, self.nodes, self.next_encode, self.pairs
+        )
     }
 }
 
@@ -1487,6 +1869,10 @@ pub(super) struct KRun {
     pub order: Vec<u32>,
     pub max_stack_depth: usize,
     pub top: Option<TopUnit>,
+    pub cbvh_ids: Option<Vec<u32>>,
+    pub stream: Option<(cbvh::bottomup::StreamEncoder, StreamUnitStats)>,
+    pub topdown: Option<TopdownStats>,
+    pub build_cycles: u64,
     pub passes_total: u32,
     pub layout: MemoryLayout,
     pub mem: crate::dram::MemStats,
@@ -1519,6 +1905,7 @@ pub(super) fn run(
     let slots = cfg.presort_slots as usize;
     let presorter = |p: u32| UnitId(PRESORTER0 + p);
     let region_len = |needed: bool| if needed { npad as usize } else { 0 };
+    let streaming = cfg.output == OutputMode::CbvhStream;
     let wb = |base: u64, cap: u32| WriteBuffer::new(base, cap as u64, cfg.write_chunk_bytes as u64);
     let mut w = KWorld {
         cfg: cfg.clone(),
@@ -1558,12 +1945,34 @@ pub(super) fn run(
             .collect(),
         req_read: fifo("reader->arbiter", 2, READER, ARBITER),
         req_run: fifo("run writer->arbiter", 2, RUN_WRITER, ARBITER),
-        nodes: KBuf::new(wb(layout.nodes, cfg.node_buffer_bytes), [EMITTER, EMITTER]),
+        nodes: if streaming {
+            KBuf::new(wb(layout.cbvh, cfg.node_buffer_bytes), [STREAM, STREAM])
+        } else {
+            KBuf::new(wb(layout.nodes, cfg.node_buffer_bytes), [EMITTER, EMITTER])
+        },
         leaves: KBuf::new(wb(layout.leaves, cfg.leaf_buffer_bytes), [EMITTER, EMITTER]),
         hl: KBuf::new(
             wb(layout.highlevel, cfg.node_buffer_bytes),
             [EMITTER, TOPLEVEL],
         ),
+        enc_fifo: fifo(
+            "emitter->cbvh encoder",
+            cfg.cbvh_fifo as usize,
+            EMITTER,
+            STREAM,
+        ),
+        req_cbvh: fifo(
+            "cbvh->arbiter",
+            2,
+            if streaming { STREAM } else { TOPDOWN },
+            ARBITER,
+        ),
+        bt_data: fifo("arbiter->cbvh encoder", 1, ARBITER, STREAM),
+        td_data: fifo("arbiter->topdown", 1, ARBITER, TOPDOWN),
+        stream_done: fifo("cbvh encoder->control", 1, STREAM, CONTROL),
+        td_start: fifo("control->topdown", 1, CONTROL, TOPDOWN),
+        td_done: fifo("topdown->control", 1, TOPDOWN, CONTROL),
+        emit_finished: Reg::new(false),
         scratch_open: Reg::new(0),
         emit_active: Reg::new(blocks == 1),
         scratch: vec![Elem::PAD; cfg.m as usize],
@@ -1597,6 +2006,7 @@ pub(super) fn run(
         pass_run_len: m,
         pass_runs: blocks,
         draining: false,
+        stream_done: false,
         phase_start: 0,
         snap: [0; 4],
     }));
@@ -1606,7 +2016,7 @@ pub(super) fn run(
             cfg.highlevel_threshold,
             cfg.combine_identical,
             cfg.max_leaf_size,
-            false,
+            streaming,
         ),
     }));
     s.add(Box::new(Toplevel {
@@ -1641,6 +2051,31 @@ pub(super) fn run(
         free: Vec::with_capacity(64),
         inflight: 0,
         burst: w.mem.port().burst_bytes(),
+    }));
+    let enc = if streaming {
+        Some(cbvh::StreamEncoder::new(cfg.stream_config(layout.cbvh))?)
+    } else {
+        None
+    };
+    s.add(Box::new(Stream {
+        enc,
+        ops: VecDeque::new(),
+        awaiting_read: false,
+        flushing: false,
+        ended: false,
+        done: false,
+        stats: StreamUnitStats::default(),
+        flush_before_read: cfg.cbvh_flush_before_backtrack,
+    }));
+    s.add(Box::new(Topdown {
+        started: false,
+        nodes: 0,
+        next_read: 0,
+        arrived: Vec::new(),
+        next_encode: 0,
+        pairs: 0,
+        pair_bytes: cbvh::format::pair_bytes(cfg.cbvh_bits) as u64,
+        stats: TopdownStats::default(),
     }));
     for p in 0..cfg.presorters {
         let mut ps = Presorter::new(cfg.presort_slots, cfg.b, p as u64);
@@ -1692,6 +2127,23 @@ pub(super) fn run(
         order: std::mem::take(&mut w.out.order),
         max_stack_depth: w.out.max_stack_depth,
         top: w.out.top.take(),
+        cbvh_ids: w.out.cbvh_ids.take(),
+        stream: w.out.stream.take().map(|(e, mut st)| {
+            let a = &rep.units[STREAM.index()];
+            st.busy_cycles = a.activity.busy_cycles;
+            st.starved_cycles = stalled(a, ST_STARVED as usize);
+            st.read_wait_cycles = stalled(a, ST_READ_WAIT as usize);
+            st.flush_wait_cycles = stalled(a, ST_FLUSH_WAIT as usize);
+            st.write_full_cycles = stalled(a, ST_WRITE_FULL as usize);
+            (e, st)
+        }),
+        topdown: w.out.topdown.take().map(|mut t| {
+            let a = &rep.units[TOPDOWN.index()];
+            t.read_wait_cycles = stalled(a, TD_READ_WAIT as usize);
+            t.write_full_cycles = stalled(a, TD_WRITE_FULL as usize);
+            t
+        }),
+        build_cycles: w.build_cycles,
         passes_total,
         layout,
         mem: port.stats(),

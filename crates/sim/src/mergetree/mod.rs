@@ -132,8 +132,22 @@ pub fn simulate(
     simulate_with_progress(aabbs, cfg, port, None)
 }
 
-/// [`simulate`] with a callback `(elements done, total)` called once per trace window.
+/// [`simulate`] with a callback `(elements done, total)`.
 pub fn simulate_with_progress<'a>(
+    aabbs: &'a [Aabb],
+    cfg: &MergeTreeConfig,
+    port: Box<dyn MemoryPort>,
+    progress: Option<&'a mut dyn FnMut(u64, u64)>,
+) -> Result<MergeTreeReport, MergeTreeError> {
+    let r = simulate_kernel(aabbs, cfg, port)?;
+    if let Some(h) = progress {
+        h(1, 1);
+    }
+    Ok(r)
+}
+
+/// The old hand-wired cycle loop ([`machine`]), kept while the kernel machine replaces it.
+pub fn simulate_loop<'a>(
     aabbs: &'a [Aabb],
     cfg: &MergeTreeConfig,
     port: Box<dyn MemoryPort>,
@@ -238,13 +252,8 @@ pub fn simulate_kernel(
     cfg: &MergeTreeConfig,
     port: Box<dyn MemoryPort>,
 ) -> Result<MergeTreeReport, MergeTreeError> {
-    if cfg.output.is_cbvh() {
-        return Err(MergeTreeError::Input(
-            "the CBVH output modes do not run on the kernel machine yet".into(),
-        ));
-    }
     if aabbs.is_empty() {
-        return simulate(aabbs, cfg, port);
+        return simulate_loop(aabbs, cfg, port, None);
     }
     cfg.validate()?;
     if aabbs.len() >= u32::MAX as usize / 2 {
@@ -259,7 +268,17 @@ pub fn simulate_kernel(
         )));
     }
     let cb = centroid_bounds(aabbs);
-    let k = kmachine::run(aabbs, &cb, cfg, port)?;
+    if cfg.output.is_cbvh() {
+        cbvh::bottomup::check_stream(1, aabbs.len())?;
+    }
+    let mut k = kmachine::run(aabbs, &cb, cfg, port)?;
+    let out = KernelCbvh {
+        stream: k.stream.take(),
+        ids: k.cbvh_ids.take(),
+        topdown: k.topdown.take(),
+        build_cycles: k.build_cycles,
+        cycles: k.cycles,
+    };
     let cycles = k.cycles;
     let stalls = k.stalls;
     let partial_cycles: u64 = k
@@ -280,10 +299,11 @@ pub fn simulate_kernel(
         None => (0, 0, None),
     };
     let highlevel = bvh::Highlevel {
-        nodes: k.nodes,
-        roots: k.roots,
-        order: k.order,
+        nodes: std::mem::take(&mut k.nodes),
+        roots: std::mem::take(&mut k.roots),
+        order: std::mem::take(&mut k.order),
     };
+    let cbvh = kernel_cbvh_result(out, &highlevel, cfg)?;
     let mem = k.mem;
     Ok(MergeTreeReport {
         triangles: aabbs.len() as u64,
@@ -317,9 +337,66 @@ pub fn simulate_kernel(
         trace: k.trace,
         highlevel,
         top_tree,
-        cbvh: None,
+        cbvh,
         units: k.run.units,
     })
+}
+
+/// What the kernel machine's CBVH units left behind.
+struct KernelCbvh {
+    stream: Option<(cbvh::bottomup::StreamEncoder, cbvh_unit::StreamUnitStats)>,
+    ids: Option<Vec<u32>>,
+    topdown: Option<cbvh_unit::TopdownStats>,
+    build_cycles: u64,
+    cycles: u64,
+}
+
+/// The CBVH the kernel machine wrote, with its counts, in the CBVH output modes.
+fn kernel_cbvh_result(
+    mut k: KernelCbvh,
+    hl: &bvh::Highlevel,
+    cfg: &MergeTreeConfig,
+) -> Result<Option<CbvhRunReport>, MergeTreeError> {
+    let pair_bytes = cbvh::format::pair_bytes(cfg.cbvh_bits) as u64;
+    let build_cycles = if hl.order.is_empty() {
+        0
+    } else {
+        k.build_cycles
+    };
+    let (tree, encode, stream, topdown) = match cfg.output {
+        OutputMode::Bvh => return Ok(None),
+        OutputMode::CbvhStream => match k.stream.take() {
+            Some((enc, stats)) if !hl.order.is_empty() => {
+                let ids = k.ids.take().unwrap_or_default();
+                let (tree, encode) = enc.finish(ids)?;
+                (tree, encode, Some(stats), None)
+            }
+            _ => {
+                let (tree, encode) = cbvh::compress_hlbvh(hl, &cfg.stream_config(0))?;
+                (tree, encode, None, None)
+            }
+        },
+        OutputMode::CbvhTopdown => {
+            let (tree, encode) = cbvh::compress_topdown(&hl.to_bvh2(), &cfg.cbvh_params())?;
+            (tree, encode, None, k.topdown.take())
+        }
+    };
+    Ok(Some(CbvhRunReport {
+        mode: cfg.output,
+        params: cfg.cbvh_params(),
+        treelet_depth: cfg.cbvh_treelet_depth,
+        node_pairs: tree.pairs.len() as u64,
+        pair_bytes,
+        backtrack_steps: encode.backtrack_steps,
+        backtrack_depth_hist: encode.backtrack_depth_hist.clone(),
+        build_cycles,
+        build_ms: build_cycles as f64 / (cfg.clock_mhz as f64 * 1e3),
+        compress_cycles: k.cycles - build_cycles,
+        stream,
+        topdown,
+        encode,
+        tree,
+    }))
 }
 
 /// The CBVH the unit wrote, with its counts, in the CBVH output modes.

@@ -140,7 +140,7 @@ fn kernel_cycles_stay_close_to_the_old_machine() {
     let a = random_boxes(6000, 5);
     for gbps in [3, 13, 43] {
         let cfg = small(512, 8, 3);
-        let old = simulate(&a, &cfg, port(gbps)).unwrap();
+        let old = simulate_loop(&a, &cfg, port(gbps), None).unwrap();
         let new = simulate_kernel(&a, &cfg, port(gbps)).unwrap();
         // The same traffic; a few cycles more per hand-off through a latency-1 FIFO.
         assert_eq!(old.bytes_read, new.bytes_read);
