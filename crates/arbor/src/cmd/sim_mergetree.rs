@@ -132,12 +132,7 @@ pub fn simulate(
     );
     let start = Instant::now();
     let mut hook = |done: u64, total: u64| bar.update(done, total);
-    // Measurement switch while the kernel machine is not the default (plain BVH output).
-    let r = if std::env::var_os("ARBOR_MERGETREE_KERNEL").is_some() {
-        mergetree::simulate_kernel(aabbs, cfg, port)
-    } else {
-        mergetree::simulate_with_progress(aabbs, cfg, port, Some(&mut hook))
-    };
+    let r = mergetree::simulate_with_progress(aabbs, cfg, port, Some(&mut hook));
     bar.finish();
     let r = r.context("MergeTree simulation failed")?;
     Ok((r, ms(start.elapsed())))

@@ -19,10 +19,7 @@
 use bvh::{EmittedNode, Emitter, HighlevelRoot, Prim, Step};
 use cbvh::bottomup::{input_of_emitted, input_of_root, InputNode};
 
-use super::config::{HIGHLEVEL_BYTES, LEAF_ENTRY_BYTES, NODE_BYTES};
-use super::machine::WriteBuffer;
 use super::Elem;
-use crate::fifo::Fifo;
 
 /// Why the emitter did not step in a cycle.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
@@ -33,14 +30,6 @@ pub struct EmitterStalls {
     pub write_full_cycles: u64,
     /// Cycles the streaming CBVH encoder's input FIFO was full.
     pub encoder_full_cycles: u64,
-}
-
-/// Where the emitter's inner nodes go.
-pub(super) enum NodeSink<'a> {
-    /// 64-byte single-precision nodes into the node write buffer.
-    Bvh(&'a mut WriteBuffer),
-    /// Encoder inputs into the streaming CBVH encoder's FIFO.
-    Cbvh(&'a mut Fifo<InputNode>),
 }
 
 /// The hierarchy emitter unit and the tree it has produced so far.
@@ -107,23 +96,6 @@ impl EmitUnit {
     /// Deepest stack seen.
     pub fn max_stack_depth(&self) -> usize {
         self.em.max_stack_depth()
-    }
-
-    /// One cycle. Returns true when a step was performed.
-    pub fn tick(
-        &mut self,
-        input: &mut Fifo<Elem>,
-        nodes_out: NodeSink<'_>,
-        leaves_out: &mut WriteBuffer,
-        highlevel_out: &mut WriteBuffer,
-    ) -> bool {
-        let mut io = OldPorts {
-            input,
-            nodes: nodes_out,
-            leaves: leaves_out,
-            hl: highlevel_out,
-        };
-        self.tick_with(&mut io) == EmitStatus::Stepped
     }
 
     /// One cycle with the channels behind `io`: what the emitter did.
@@ -262,58 +234,6 @@ pub(super) trait EmitPorts {
     fn add_leaf(&mut self);
     /// Adds a high-level record's bytes.
     fn add_highlevel(&mut self);
-}
-
-/// The old machine's channels: latency-free FIFOs and plain write buffers.
-struct OldPorts<'a, 'b> {
-    input: &'a mut Fifo<Elem>,
-    nodes: NodeSink<'b>,
-    leaves: &'a mut WriteBuffer,
-    hl: &'a mut WriteBuffer,
-}
-
-impl EmitPorts for OldPorts<'_, '_> {
-    fn drop_padding(&mut self) {
-        while self.input.front().is_some_and(|e| e.is_pad()) {
-            self.input.pop();
-        }
-    }
-    fn pop(&mut self) -> Option<Elem> {
-        self.input.pop()
-    }
-    fn encoder_attached(&self) -> bool {
-        matches!(self.nodes, NodeSink::Cbvh(_))
-    }
-    fn node_room(&self) -> bool {
-        match &self.nodes {
-            NodeSink::Bvh(wb) => wb.has_room(NODE_BYTES),
-            NodeSink::Cbvh(f) => !f.is_full(),
-        }
-    }
-    fn leaf_room(&self) -> bool {
-        self.leaves.has_room(LEAF_ENTRY_BYTES)
-    }
-    fn highlevel_room(&self) -> bool {
-        self.hl.has_room(HIGHLEVEL_BYTES)
-    }
-    fn add_node(&mut self) {
-        if let NodeSink::Bvh(wb) = &mut self.nodes {
-            wb.add(NODE_BYTES);
-        }
-    }
-    fn push_encoder(&mut self, n: InputNode) {
-        if let NodeSink::Cbvh(f) = &mut self.nodes {
-            if f.push(n).is_err() {
-                unreachable!("room in the encoder FIFO was checked before the step");
-            }
-        }
-    }
-    fn add_leaf(&mut self) {
-        self.leaves.add(LEAF_ENTRY_BYTES);
-    }
-    fn add_highlevel(&mut self) {
-        self.hl.add(HIGHLEVEL_BYTES);
-    }
 }
 
 /// [`input_of_emitted`] over the emitter's id array.

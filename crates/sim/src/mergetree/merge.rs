@@ -23,7 +23,6 @@ use std::collections::VecDeque;
 
 use super::heap::{MergeHeap, INF_KEY};
 use super::Elem;
-use crate::fifo::Fifo;
 
 /// One double-buffered queue of the scratchpad.
 #[derive(Clone, Copy, Debug, Default)]
@@ -194,13 +193,6 @@ impl Merger {
         q.valid[h] = true;
     }
 
-    /// One cycle. Elements leave into `out`; refills of consumed buffer halves are queued
-    /// to `refill`. Returns true when an operation was performed.
-    #[inline]
-    pub fn tick(&mut self, cycle: u64, out: &mut Fifo<Elem>, refill: &mut VecDeque<u32>) -> bool {
-        self.tick_with(cycle, &mut FifoOut { out, refill }) == Slot::Worked
-    }
-
     /// One cycle with the outputs behind `out`: what happened in the operation slot.
     #[inline]
     pub fn tick_with(&mut self, cycle: u64, out: &mut impl MergeOut) -> Slot {
@@ -309,25 +301,4 @@ pub(super) trait MergeOut {
     fn push(&mut self, e: Elem);
     /// Buffer half `buf` was used up and its run has more: refill it.
     fn refill(&mut self, buf: u32);
-}
-
-/// The outputs of the old machine: a latency-free FIFO and the refill queue.
-struct FifoOut<'a> {
-    out: &'a mut Fifo<Elem>,
-    refill: &'a mut VecDeque<u32>,
-}
-
-impl MergeOut for FifoOut<'_> {
-    #[inline]
-    fn is_full(&self) -> bool {
-        self.out.is_full()
-    }
-    #[inline]
-    fn push(&mut self, e: Elem) {
-        let _ = self.out.push(e);
-    }
-    #[inline]
-    fn refill(&mut self, buf: u32) {
-        self.refill.push_back(buf);
-    }
 }

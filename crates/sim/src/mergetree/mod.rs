@@ -29,7 +29,6 @@ pub mod cbvh_unit;
 pub mod config;
 pub mod emitter;
 pub mod heap;
-mod kmachine;
 pub mod machine;
 pub mod merge;
 pub mod presort;
@@ -139,122 +138,19 @@ pub fn simulate_with_progress<'a>(
     port: Box<dyn MemoryPort>,
     progress: Option<&'a mut dyn FnMut(u64, u64)>,
 ) -> Result<MergeTreeReport, MergeTreeError> {
-    let r = simulate_kernel(aabbs, cfg, port)?;
+    let r = run_machine(aabbs, cfg, port)?;
     if let Some(h) = progress {
         h(1, 1);
     }
     Ok(r)
 }
 
-/// The old hand-wired cycle loop ([`machine`]), kept while the kernel machine replaces it.
-pub fn simulate_loop<'a>(
-    aabbs: &'a [Aabb],
-    cfg: &MergeTreeConfig,
-    port: Box<dyn MemoryPort>,
-    progress: Option<&'a mut dyn FnMut(u64, u64)>,
-) -> Result<MergeTreeReport, MergeTreeError> {
-    cfg.validate()?;
-    if aabbs.len() >= u32::MAX as usize / 2 {
-        return Err(MergeTreeError::Input(format!(
-            "{} primitives exceed the 32-bit references",
-            aabbs.len()
-        )));
-    }
-    if let Some(i) = aabbs.iter().position(|a| !a.is_finite() || a.is_empty()) {
-        return Err(MergeTreeError::Input(format!(
-            "primitive {i} has a non-finite or inverted box"
-        )));
-    }
-    let cb = centroid_bounds(aabbs);
-    if cfg.output.is_cbvh() {
-        cbvh::bottomup::check_stream(1, aabbs.len())?;
-    }
-    let mut m = machine::Machine::new(aabbs, &cb, cfg, port, progress)?;
-    let cycles = m.run()?;
-    let mem = m.port().stats();
-    let peak = m.port().peak_bytes_per_unit_cycle();
-    let stalls = m.stall_report();
-    let partial_cycles: u64 = m
-        .phases
-        .iter()
-        .filter(|p| p.name == "partial_sort" || p.name == "sort_and_emit")
-        .map(|p| p.end_cycle - p.start_cycle)
-        .sum();
-    let (toplevel_sweeps, toplevel_cycles, top_tree) = match m.toplevel() {
-        Some(t) => (
-            t.sweeps.len() as u64,
-            m.phases
-                .iter()
-                .find(|p| p.name == "toplevel_sah")
-                .map_or(0, |p| p.end_cycle - p.start_cycle),
-            Some(t.tree.clone()),
-        ),
-        None => (0, 0, None),
-    };
-    let blocks = (aabbs.len() as u64).div_ceil(cfg.m as u64);
-    let highlevel = bvh::Highlevel {
-        nodes: std::mem::take(&mut m.emit.nodes),
-        roots: std::mem::take(&mut m.emit.roots),
-        order: std::mem::take(&mut m.emit.order),
-    };
-    let cbvh = cbvh_result(&mut m, &highlevel, cfg, cycles)?;
-    let report = MergeTreeReport {
-        triangles: aabbs.len() as u64,
-        config: cfg.clone(),
-        dram: m.port().name(),
-        cycles,
-        ms: cycles as f64 / (cfg.clock_mhz as f64 * 1e3),
-        bytes_read: mem.bytes_read,
-        bytes_written: mem.bytes_written,
-        bus_utilization: if cycles == 0 {
-            0.0
-        } else {
-            (mem.bytes_read + mem.bytes_written) as f64 / (peak * cycles as f64)
-        },
-        peak_bytes_per_cycle: peak,
-        partial_sort_blocks: blocks,
-        merge_passes: m.passes_total,
-        phases: std::mem::take(&mut m.phases),
-        presort_busy_fraction: if partial_cycles == 0 {
-            0.0
-        } else {
-            stalls.presort_busy_cycles as f64 / (cfg.presorters as f64 * partial_cycles as f64)
-        },
-        merge_elements_per_cycle: if cycles == 0 {
-            0.0
-        } else {
-            stalls.merge_outputs as f64 / cycles as f64
-        },
-        stalls,
-        nodes: highlevel.nodes.len() as u64,
-        leaf_entries: highlevel.order.len() as u64,
-        highlevel_roots: highlevel.roots.len() as u64,
-        max_stack_depth: m.emit.max_stack_depth(),
-        toplevel_sweeps,
-        toplevel_cycles,
-        fast_forward_cycles: m.skipped_cycles,
-        layout: m.layout,
-        memory: mem,
-        trace: std::mem::take(&mut m.trace),
-        highlevel,
-        top_tree,
-        cbvh,
-        units: Vec::new(),
-    };
-    Ok(report)
-}
-
-/// [`simulate`] on the simulation kernel ([`crate::kernel`]): the same units split into
-/// kernel units (see `kmachine`). Plain BVH output only for now; the CBVH output modes are
-/// an input error here.
-pub fn simulate_kernel(
+/// Checks the input, runs the [`machine`] and assembles its report.
+fn run_machine(
     aabbs: &[Aabb],
     cfg: &MergeTreeConfig,
     port: Box<dyn MemoryPort>,
 ) -> Result<MergeTreeReport, MergeTreeError> {
-    if aabbs.is_empty() {
-        return simulate_loop(aabbs, cfg, port, None);
-    }
     cfg.validate()?;
     if aabbs.len() >= u32::MAX as usize / 2 {
         return Err(MergeTreeError::Input(format!(
@@ -271,7 +167,7 @@ pub fn simulate_kernel(
     if cfg.output.is_cbvh() {
         cbvh::bottomup::check_stream(1, aabbs.len())?;
     }
-    let mut k = kmachine::run(aabbs, &cb, cfg, port)?;
+    let mut k = machine::run(aabbs, &cb, cfg, port)?;
     let out = KernelCbvh {
         stream: k.stream.take(),
         ids: k.cbvh_ids.take(),
@@ -392,57 +288,6 @@ fn kernel_cbvh_result(
         build_cycles,
         build_ms: build_cycles as f64 / (cfg.clock_mhz as f64 * 1e3),
         compress_cycles: k.cycles - build_cycles,
-        stream,
-        topdown,
-        encode,
-        tree,
-    }))
-}
-
-/// The CBVH the unit wrote, with its counts, in the CBVH output modes.
-fn cbvh_result(
-    m: &mut machine::Machine<'_>,
-    hl: &bvh::Highlevel,
-    cfg: &MergeTreeConfig,
-    cycles: u64,
-) -> Result<Option<CbvhRunReport>, MergeTreeError> {
-    let pair_bytes = cbvh::format::pair_bytes(cfg.cbvh_bits) as u64;
-    let build_cycles = if hl.order.is_empty() {
-        0
-    } else {
-        m.build_cycles
-    };
-    let (tree, encode, stream, topdown) = match cfg.output {
-        OutputMode::Bvh => return Ok(None),
-        OutputMode::CbvhStream => match m.stream.take() {
-            Some(unit) if !hl.order.is_empty() => {
-                let stats = unit.stats.clone();
-                let ids = m.emit.cbvh_ids.take().unwrap_or_default();
-                let (tree, encode) = unit.into_encoder().finish(ids)?;
-                (tree, encode, Some(stats), None)
-            }
-            // An empty scene: nothing ran; the encoder's tree of no primitives.
-            _ => {
-                let (tree, encode) = cbvh::compress_hlbvh(hl, &cfg.stream_config(0))?;
-                (tree, encode, None, None)
-            }
-        },
-        OutputMode::CbvhTopdown => {
-            let (tree, encode) = cbvh::compress_topdown(&hl.to_bvh2(), &cfg.cbvh_params())?;
-            (tree, encode, None, m.td.take().map(|t| t.stats))
-        }
-    };
-    Ok(Some(CbvhRunReport {
-        mode: cfg.output,
-        params: cfg.cbvh_params(),
-        treelet_depth: cfg.cbvh_treelet_depth,
-        node_pairs: tree.pairs.len() as u64,
-        pair_bytes,
-        backtrack_steps: encode.backtrack_steps,
-        backtrack_depth_hist: encode.backtrack_depth_hist.clone(),
-        build_cycles,
-        build_ms: build_cycles as f64 / (cfg.clock_mhz as f64 * 1e3),
-        compress_cycles: cycles - build_cycles,
         stream,
         topdown,
         encode,
