@@ -366,6 +366,9 @@ impl KBuf {
     /// The write ready at `now` (bytes added this cycle excluded).
     #[inline]
     fn ready(&self, now: Cycle) -> Option<(u64, u32)> {
+        if self.wb.pending() == 0 {
+            return None;
+        }
         let fresh = if self.fresh_at == now { self.fresh } else { 0 };
         let pending = self.wb.pending() - fresh;
         let until = self.flush_until.get(now);
@@ -1475,6 +1478,9 @@ struct Arbiter {
     free: Vec<u32>,
     inflight: u64,
     burst: u32,
+    /// The port accepts a refused request only after a response (then a refused arbiter
+    /// sleeps until one arrives: the memory wakes it).
+    lift_only_with_responses: bool,
 }
 
 impl Arbiter {
@@ -1552,6 +1558,7 @@ impl<'a> Unit<KWorld<'a>> for Arbiter {
             free,
             inflight,
             burst,
+            ..
         } = self;
         let mut refused = false;
         let granted = rr.arbitrate(|i| {
@@ -1610,8 +1617,11 @@ impl<'a> Unit<KWorld<'a>> for Arbiter {
         } else {
             State::Idle
         });
-        // After a grant, step once more to end the busy cycle.
-        if granted > 0 || (0..REQUESTERS).any(|i| Self::head(w, cx, i).is_some()) {
+        // After a grant, step once more to end the busy cycle. Refused with nothing granted:
+        // retry in the next cycle, or, when only a response can make room, at the response.
+        if granted == 0 && refused && self.lift_only_with_responses {
+            Wake::OnEvent
+        } else if granted > 0 || (0..REQUESTERS).any(|i| Self::head(w, cx, i).is_some()) {
             Wake::Next
         } else if self.inflight > 0 {
             Wake::OnEvent
@@ -2256,6 +2266,7 @@ pub(super) fn run(
         free: Vec::with_capacity(64),
         inflight: 0,
         burst: w.mem.port().burst_bytes(),
+        lift_only_with_responses: w.mem.port().refusals_lift_only_with_responses(),
     }));
     let enc = if streaming {
         Some(cbvh::StreamEncoder::new(cfg.stream_config(layout.cbvh))?)

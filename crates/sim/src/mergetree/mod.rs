@@ -4,8 +4,10 @@
 //! The unit sorts the primitives' AABBs by the Morton codes of their centroids with an
 //! external multi-merge sort and streams the sorted AABBs into the hierarchy emitter:
 //! - [`config`]: parameters and the presets `p1` and `p2`;
-//! - input (in [`machine`]): 32-byte AABBs read in bursts of B, Morton codes computed as
-//!   they stream in (\[P2\] §5.1);
+//! - [`machine`]: the units on the simulation kernel ([`crate::kernel`]): the control FSM,
+//!   the reader (32-byte AABBs read in bursts of B, Morton codes computed as they stream in,
+//!   \[P2\] §5.1; refills of the merge queues), the run writer, the write buffers and the
+//!   round-robin memory arbiter, each a kernel unit or channel, plus the DRAM layout;
 //! - [`presort`]: the insertion presorters of the partial-sort mode (\[P2\] §5.5);
 //! - [`heap`]: the pipelined merge heap (\[P2\] §5.2);
 //! - [`merge`]: the multi-merge unit, its double-buffered scratchpad and the even/odd
@@ -131,7 +133,8 @@ pub fn simulate(
     simulate_with_progress(aabbs, cfg, port, None)
 }
 
-/// [`simulate`] with a callback `(elements done, total)`.
+/// [`simulate`] with a callback `(elements done, total)`, called when the run has finished
+/// (the kernel machine reports no progress while it runs).
 pub fn simulate_with_progress<'a>(
     aabbs: &'a [Aabb],
     cfg: &MergeTreeConfig,
