@@ -25,14 +25,19 @@
 //! # Units (in step order: their [`UnitId`]s)
 //! | id | unit | owns | reads | writes |
 //! |---|---|---|---|---|
-//! | 0 | control FSM (\[P1\] Fig. 2) | phase, block / pass / group counters | `sub_ready`, `merge_done`, `emit_done`, `top_done`; the arbiter's totals and the write buffers' levels (polled while draining) | `cmd`, `top_start`; registers `scratch_open`, `emit_active`, the buffers' flush flags |
-//! | 1 | hierarchy emitter | [`EmitUnit`] | `emit_fifo` | node / leaf / high-level write buffers, `emit_done` |
-//! | 2 | toplevel SAH unit | [`TopUnit`] | `top_start`, the published cell roots | high-level write buffer, `top_done` |
-//! | 3 | multi-merge unit | [`Merger`] (heap, queues, its scratchpad) | `cmd`, `fill` | `emit_fifo` or `run_fifo`, `refill`, `merge_done` |
-//! | 4 | reader | input position, ring credits | `ps_credit[p]`, `refill` | `req_read` |
-//! | 5 | run writer | its B-element write register | `run_fifo` | `req_run`, run regions (functional) |
-//! | 6 | memory arbiter | [`RoundRobin`] over the 5 requesters, read descriptors | `req_run`, the three write buffers, `req_read`, memory responses | the port, `ps_data[p]`, `fill`, its totals |
-//! | 7.. | presorter `p` | [`Presorter`] (ring, sort buffer) | `ps_data[p]`, `scratch_open` | the scratchpad's write side (one shared write port), `ps_credit[p]`, `sub_ready` |
+//! | 0 | control FSM (\[P1\] Fig. 2) | phase, block / pass / group counters | `sub_ready`, `merge_done`, `emit_done`, `stream_done`, `top_done`, `td_done`; the arbiter's totals and the write buffers' levels (polled while a phase drains) | `cmd`, `top_start`, `td_start`; registers `scratch_open`, `emit_active`, the buffers' flush flags |
+//! | 1 | hierarchy emitter | [`EmitUnit`] | `emit_fifo` | node (or `enc_fifo`) / leaf / high-level write buffers, `emit_done`, register `emit_finished` |
+//! | 2 | multi-merge unit | [`Merger`] (heap, queues, its scratchpad) | `cmd`, `fill` | `emit_fifo` or `run_fifo`, `refill`, `merge_done` |
+//! | 3 | reader | input position, ring credits | `ps_credit[p]`, `refill` | `req_read` |
+//! | 4 | run writer | its B-element write register | `run_fifo` | `req_run`, run regions (functional) |
+//! | 5 | memory arbiter | [`RoundRobin`] over 6 requesters (run writer, node / leaf / high-level buffers, reader, CBVH unit), read descriptors | their requests, memory responses | the port, `ps_data[p]`, `fill`, `bt_data`, `td_data`, its totals |
+//! | 6.. | presorter `p` | [`Presorter`] (ring, sort buffer) | `ps_data[p]`, `scratch_open` | the scratchpad's write side (one write port shared in id order), `ps_credit[p]`, `sub_ready` |
+//! | then | toplevel SAH unit (with `toplevel_sah`) | [`TopUnit`] | `top_start`, the published cell roots | high-level write buffer, `top_done` |
+//! | then | streaming CBVH encoder (`cbvh-stream`) | the encoder, its queued accesses | `enc_fifo`, `bt_data`, `emit_finished` | node-pair write buffer, `req_cbvh`, `stream_done` |
+//! | then | top-down CBVH pass (`cbvh-topdown`) | read / encode positions | `td_start`, `td_data` | node-pair write buffer, `req_cbvh`, `td_done` |
+//!
+//! Units a configuration does not use are not added. The control reads the arbiter's totals
+//! and the buffers' levels only as they were at the start of the cycle.
 //!
 //! A new unit is one more [`Unit`] added to the scheduler with its channels in the world;
 //! the scheduler does not change.
@@ -40,10 +45,12 @@
 //! # FIFOs and latencies
 //! Every FIFO has latency 1: one register stage between the units, the pipeline register
 //! of a hardware FIFO's output. An item pushed in cycle t is used from t + 1; the old
-//! machine handed some of them over within the cycle (merge output to the emitter, read
-//! data to the presorters and the merge queues, refill requests to the reader), which is
-//! where its cycle counts differ from this one by a few cycles per hand-off that was on the
-//! critical path.
+//! hand-wired loop (before the kernel) handed some of them over within the cycle (merge
+//! output to the emitter, read data to the presorters and the merge queues, refill
+//! requests to the reader, control commands), which is where its cycle counts differ from
+//! this machine's: 0.1-1.1% more cycles on the shared scenes. The run writer stages B
+//! elements in its write register before its request goes to the arbiter (the old loop
+//! wrote straight from the run FIFO), so that path holds B elements more.
 //!
 //! | channel | capacity | from -> to |
 //! |---|---|---|
@@ -55,7 +62,11 @@
 //! | `ps_credit[p]` | `presort_slots` | presorter p -> reader (ring slots freed) |
 //! | `req_read`, `req_run` | 2 | reader / run writer -> arbiter |
 //! | `cmd` | 1 | control -> merger |
-//! | `sub_ready`, `merge_done`, `emit_done`, `top_start`, `top_done` | - | handshakes |
+//! | `enc_fifo` | `cbvh_fifo` | emitter -> streaming encoder |
+//! | `req_cbvh` | 2 | CBVH unit -> arbiter |
+//! | `bt_data` | 1 | arbiter -> streaming encoder (backtracking read done) |
+//! | `td_data` | nodes | arbiter -> top-down pass (node reads done) |
+//! | `sub_ready`, `merge_done`, `emit_done`, `stream_done`, `top_start`, `top_done`, `td_start`, `td_done` | - | handshakes |
 //!
 //! The write buffers ([`KBuf`]) follow the same rule at byte granularity: bytes added in
 //! cycle t may be written out from t + 1; bytes written out in cycle t free room from
@@ -245,14 +256,20 @@ impl WriteBuffer {
 
 const CONTROL: UnitId = UnitId(0);
 const EMITTER: UnitId = UnitId(1);
-const TOPLEVEL: UnitId = UnitId(2);
-const MERGER: UnitId = UnitId(3);
-const READER: UnitId = UnitId(4);
-const RUN_WRITER: UnitId = UnitId(5);
-const ARBITER: UnitId = UnitId(6);
-const STREAM: UnitId = UnitId(7);
-const TOPDOWN: UnitId = UnitId(8);
-const PRESORTER0: u32 = 9;
+const MERGER: UnitId = UnitId(2);
+const READER: UnitId = UnitId(3);
+const RUN_WRITER: UnitId = UnitId(4);
+const ARBITER: UnitId = UnitId(5);
+const PRESORTER0: u32 = 6;
+
+/// Ids of the units a configuration may leave out (added after the presorters when they
+/// are used; [`UnitId::EXTERNAL`] otherwise, whose notifications go nowhere).
+#[derive(Clone, Copy, Debug)]
+struct Optional {
+    toplevel: UnitId,
+    stream: UnitId,
+    topdown: UnitId,
+}
 
 /// Scratchpad closed to the presorters (no block may be copied in).
 const CLOSED: u64 = u64::MAX;
@@ -561,6 +578,7 @@ pub(super) struct KWorld<'a> {
     td_done: LatencyFifo<()>,
     /// The emitter has output its last node (for the streaming encoder).
     emit_finished: Reg<bool>,
+    ids: Optional,
     /// Partial-sort block whose sub-blocks the presorters may copy into the scratchpad.
     scratch_open: Reg<u64>,
     /// The emitter consumes the merge output (the final merge has started).
@@ -865,7 +883,7 @@ impl<'a> Unit<KWorld<'a>> for Control {
                             w.cfg.node_buffer_bytes as u64,
                             w.cfg.write_chunk_bytes as u64,
                         ),
-                        [TOPDOWN, TOPDOWN],
+                        [w.ids.topdown, w.ids.topdown],
                     );
                     w.td_start.push(cx, ()).expect("one start");
                     self.set_phase(w, now, Phase::Topdown);
@@ -1038,7 +1056,7 @@ impl<'a> Unit<KWorld<'a>> for Emitter {
                     w.out.max_stack_depth = self.e.max_stack_depth();
                     w.out.cbvh_ids = self.e.cbvh_ids.take();
                     w.emit_finished.set(now, true);
-                    cx.notify(STREAM, now + 1);
+                    cx.notify(w.ids.stream, now + 1);
                     w.emit_done.push(cx, ()).expect("one done token");
                     cx.set_state(State::Idle);
                     return Wake::Done;
@@ -1860,7 +1878,12 @@ impl<'a> Unit<KWorld<'a>> for Topdown {
             self.nodes = w.out.nodes.len() as u64;
             self.arrived = vec![false; self.nodes as usize];
             self.pairs = self.nodes.max(1);
-            w.td_data = fifo("arbiter->topdown", self.nodes as usize, ARBITER, TOPDOWN);
+            w.td_data = fifo(
+                "arbiter->topdown",
+                self.nodes as usize,
+                ARBITER,
+                w.ids.topdown,
+            );
         }
         if self.next_encode == self.pairs {
             return Wake::Done;
@@ -2119,6 +2142,21 @@ pub(super) fn run(
     let np = cfg.presorters as usize;
     let slots = cfg.presort_slots as usize;
     let presorter = |p: u32| UnitId(PRESORTER0 + p);
+    let mut next = PRESORTER0 + cfg.presorters;
+    let mut take = |used: bool| {
+        if used {
+            next += 1;
+            UnitId(next - 1)
+        } else {
+            UnitId::EXTERNAL
+        }
+    };
+    let ids = Optional {
+        toplevel: take(cfg.toplevel_sah),
+        stream: take(cfg.output == OutputMode::CbvhStream),
+        topdown: take(cfg.output == OutputMode::CbvhTopdown),
+    };
+    let (toplevel, stream, topdown) = (ids.toplevel, ids.stream, ids.topdown);
     let region_len = |needed: bool| if needed { npad as usize } else { 0 };
     let streaming = cfg.output == OutputMode::CbvhStream;
     let wb = |base: u64, cap: u32| WriteBuffer::new(base, cap as u64, cfg.write_chunk_bytes as u64);
@@ -2141,8 +2179,8 @@ pub(super) fn run(
             CONTROL,
         ),
         emit_done: fifo("emitter->control", 1, EMITTER, CONTROL),
-        top_start: fifo("control->toplevel", 1, CONTROL, TOPLEVEL),
-        top_done: fifo("toplevel->control", 1, TOPLEVEL, CONTROL),
+        top_start: fifo("control->toplevel", 1, CONTROL, toplevel),
+        top_done: fifo("toplevel->control", 1, toplevel, CONTROL),
         emit_fifo: fifo("merge->emitter", cfg.emit_fifo as usize, MERGER, EMITTER),
         run_fifo: fifo(
             "merge->run writer",
@@ -2161,33 +2199,34 @@ pub(super) fn run(
         req_read: fifo("reader->arbiter", 2, READER, ARBITER),
         req_run: fifo("run writer->arbiter", 2, RUN_WRITER, ARBITER),
         nodes: if streaming {
-            KBuf::new(wb(layout.cbvh, cfg.node_buffer_bytes), [STREAM, STREAM])
+            KBuf::new(wb(layout.cbvh, cfg.node_buffer_bytes), [stream, stream])
         } else {
             KBuf::new(wb(layout.nodes, cfg.node_buffer_bytes), [EMITTER, EMITTER])
         },
         leaves: KBuf::new(wb(layout.leaves, cfg.leaf_buffer_bytes), [EMITTER, EMITTER]),
         hl: KBuf::new(
             wb(layout.highlevel, cfg.node_buffer_bytes),
-            [EMITTER, TOPLEVEL],
+            [EMITTER, toplevel],
         ),
         enc_fifo: fifo(
             "emitter->cbvh encoder",
             cfg.cbvh_fifo as usize,
             EMITTER,
-            STREAM,
+            stream,
         ),
         req_cbvh: fifo(
             "cbvh->arbiter",
             2,
-            if streaming { STREAM } else { TOPDOWN },
+            if streaming { stream } else { topdown },
             ARBITER,
         ),
-        bt_data: fifo("arbiter->cbvh encoder", 1, ARBITER, STREAM),
-        td_data: fifo("arbiter->topdown", 1, ARBITER, TOPDOWN),
-        stream_done: fifo("cbvh encoder->control", 1, STREAM, CONTROL),
-        td_start: fifo("control->topdown", 1, CONTROL, TOPDOWN),
-        td_done: fifo("topdown->control", 1, TOPDOWN, CONTROL),
+        bt_data: fifo("arbiter->cbvh encoder", 1, ARBITER, stream),
+        td_data: fifo("arbiter->topdown", 1, ARBITER, topdown),
+        stream_done: fifo("cbvh encoder->control", 1, stream, CONTROL),
+        td_start: fifo("control->topdown", 1, CONTROL, topdown),
+        td_done: fifo("topdown->control", 1, topdown, CONTROL),
         emit_finished: Reg::new(false),
+        ids,
         scratch_open: Reg::new(0),
         emit_active: Reg::new(blocks == 1),
         scratch: vec![Elem::PAD; cfg.m as usize],
@@ -2234,11 +2273,6 @@ pub(super) fn run(
             streaming,
         ),
     }));
-    s.add(Box::new(Toplevel {
-        t: None,
-        busy: 0,
-        busy_until: 0,
-    }));
     s.add(Box::new(MergeUnit {
         m: Merger::new(cfg.m, cfg.b),
         active: false,
@@ -2268,31 +2302,6 @@ pub(super) fn run(
         burst: w.mem.port().burst_bytes(),
         lift_only_with_responses: w.mem.port().refusals_lift_only_with_responses(),
     }));
-    let enc = if streaming {
-        Some(cbvh::StreamEncoder::new(cfg.stream_config(layout.cbvh))?)
-    } else {
-        None
-    };
-    s.add(Box::new(Stream {
-        enc,
-        ops: VecDeque::new(),
-        awaiting_read: false,
-        flushing: false,
-        ended: false,
-        done: false,
-        stats: StreamUnitStats::default(),
-        flush_before_read: cfg.cbvh_flush_before_backtrack,
-    }));
-    s.add(Box::new(Topdown {
-        started: false,
-        nodes: 0,
-        next_read: 0,
-        arrived: Vec::new(),
-        next_encode: 0,
-        pairs: 0,
-        pair_bytes: cbvh::format::pair_bytes(cfg.cbvh_bits) as u64,
-        stats: TopdownStats::default(),
-    }));
     for p in 0..cfg.presorters {
         let mut ps = Presorter::new(cfg.presort_slots, cfg.b, p as u64);
         if (p as u64) < subs {
@@ -2311,6 +2320,45 @@ pub(super) fn run(
             count: cfg.presorters as u64,
         }));
         debug_assert_eq!(id, presorter(p));
+    }
+    if cfg.toplevel_sah {
+        let id = s.add(Box::new(Toplevel {
+            t: None,
+            busy: 0,
+            busy_until: 0,
+        }));
+        debug_assert_eq!(id, toplevel);
+    }
+    let enc = if streaming {
+        Some(cbvh::StreamEncoder::new(cfg.stream_config(layout.cbvh))?)
+    } else {
+        None
+    };
+    if let Some(enc) = enc {
+        let id = s.add(Box::new(Stream {
+            enc: Some(enc),
+            ops: VecDeque::new(),
+            awaiting_read: false,
+            flushing: false,
+            ended: false,
+            done: false,
+            stats: StreamUnitStats::default(),
+            flush_before_read: cfg.cbvh_flush_before_backtrack,
+        }));
+        debug_assert_eq!(id, stream);
+    }
+    if cfg.output == OutputMode::CbvhTopdown {
+        let id = s.add(Box::new(Topdown {
+            started: false,
+            nodes: 0,
+            next_read: 0,
+            arrived: Vec::new(),
+            next_encode: 0,
+            pairs: 0,
+            pair_bytes: cbvh::format::pair_bytes(cfg.cbvh_bits) as u64,
+            stats: TopdownStats::default(),
+        }));
+        debug_assert_eq!(id, topdown);
     }
     let rep = s
         .run(&mut w)
@@ -2345,7 +2393,7 @@ pub(super) fn run(
         top: w.out.top.take(),
         cbvh_ids: w.out.cbvh_ids.take(),
         stream: w.out.stream.take().map(|(e, mut st)| {
-            let a = &rep.units[STREAM.index()];
+            let a = &rep.units[w.ids.stream.index()];
             st.busy_cycles = a.activity.busy_cycles;
             st.starved_cycles = stalled(a, ST_STARVED as usize);
             st.read_wait_cycles = stalled(a, ST_READ_WAIT as usize);
@@ -2354,7 +2402,7 @@ pub(super) fn run(
             (e, st)
         }),
         topdown: w.out.topdown.take().map(|mut t| {
-            let a = &rep.units[TOPDOWN.index()];
+            let a = &rep.units[w.ids.topdown.index()];
             t.read_wait_cycles = stalled(a, TD_READ_WAIT as usize);
             t.write_full_cycles = stalled(a, TD_WRITE_FULL as usize);
             t
@@ -2388,7 +2436,7 @@ fn stalled(u: &crate::kernel::UnitReport, r: usize) -> u64 {
 /// - `fifos`: the merge output FIFOs.
 fn stall_report(rep: &RunReport, w: &KWorld) -> StallReport {
     let u = &rep.units;
-    let ps = &u[PRESORTER0 as usize..];
+    let ps = &u[PRESORTER0 as usize..(PRESORTER0 + w.cfg.presorters) as usize];
     let merge = &u[MERGER.index()];
     let emit = &u[EMITTER.index()];
     let fs = |f: &LatencyFifo<Elem>| {
