@@ -21,7 +21,8 @@ use cbvh::bottomup::{input_of_emitted, input_of_root, InputNode};
 
 use super::Elem;
 
-/// Why the emitter did not step in a cycle.
+/// Why the emitter did not step in a cycle: its stall cycles by reason, from its activity
+/// intervals (the machine fills it in).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct EmitterStalls {
     /// Cycles it needed an input and its FIFO was empty.
@@ -55,8 +56,6 @@ pub(super) struct EmitUnit {
     pub done: bool,
     /// Steps performed.
     pub steps: u64,
-    /// Stall counters.
-    pub stalls: EmitterStalls,
     /// With the CBVH encoder attached: the primitive-id array (the leaf table with each
     /// leaf's last entry flagged).
     pub cbvh_ids: Option<Vec<u32>>,
@@ -87,7 +86,6 @@ impl EmitUnit {
             order: Vec::with_capacity(total as usize),
             done: false,
             steps: 0,
-            stalls: EmitterStalls::default(),
             cbvh_ids: cbvh.then(|| Vec::with_capacity(total as usize)),
             fault: None,
         }
@@ -110,21 +108,17 @@ impl EmitUnit {
         // Room for whatever this step may write.
         if io.encoder_attached() {
             if !io.node_room() {
-                self.stalls.encoder_full_cycles += 1;
                 return EmitStatus::EncoderFull;
             }
         } else if !io.node_room() {
-            self.stalls.write_full_cycles += 1;
             return EmitStatus::WriteFull;
         }
         if !io.leaf_room() || !io.highlevel_room() {
-            self.stalls.write_full_cycles += 1;
             return EmitStatus::WriteFull;
         }
         let mut prim = None;
         if self.em.needs_input() && self.consumed < self.total {
             let Some(e) = io.pop() else {
-                self.stalls.starved_cycles += 1;
                 return EmitStatus::Starved;
             };
             debug_assert!(!e.is_pad(), "padding before the end of the scene");

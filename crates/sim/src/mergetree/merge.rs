@@ -60,7 +60,8 @@ pub(super) enum MergeState {
     Done,
 }
 
-/// Why the multi-merge unit did not output an element in an operation slot.
+/// Why the multi-merge unit did not output an element in an operation slot: its stall
+/// cycles by reason, from its activity intervals (the machine fills it in).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct MergeStalls {
     /// Operation slots lost because the successor's buffer half had not arrived.
@@ -92,8 +93,6 @@ pub(super) struct Merger {
     pub outputs: u64,
     /// Heap operations (inserts and replaces).
     pub ops: u64,
-    /// Stall counters.
-    pub stalls: MergeStalls,
 }
 
 impl Merger {
@@ -110,7 +109,6 @@ impl Merger {
             b,
             outputs: 0,
             ops: 0,
-            stalls: MergeStalls::default(),
         }
     }
 
@@ -218,7 +216,6 @@ impl Merger {
                     return Slot::Worked;
                 }
                 if !q.valid[0] {
-                    self.stalls.init_wait_cycles += 1;
                     return Slot::InitWait;
                 }
                 let key = self.scratch[q.base[0] as usize].key();
@@ -240,7 +237,6 @@ impl Merger {
                 } else if q.consumed + 1 < q.run_len {
                     let other = 1 - q.cur;
                     if !q.valid[other] {
-                        self.stalls.queue_dry_cycles += 1;
                         return Slot::QueueDry;
                     }
                     self.scratch[q.base[other] as usize].key()
@@ -248,7 +244,6 @@ impl Merger {
                     INF_KEY
                 };
                 if out.is_full() {
-                    self.stalls.output_full_cycles += 1;
                     return Slot::OutputFull;
                 }
                 out.push(self.scratch[pos]);
