@@ -31,7 +31,7 @@
 //! | 3 | reader | input position, ring credits | `ps_credit[p]`, `refill` | `req_read` |
 //! | 4 | run writer | its B-element write register | `run_fifo` | `req_run`, run regions (functional) |
 //! | 5 | memory arbiter | [`RoundRobin`] over 6 requesters (run writer, node / leaf / high-level buffers, reader, CBVH unit), read descriptors | their requests, memory responses | the port, `ps_data[p]`, `fill`, `bt_data`, `td_data`, its totals |
-//! | 6.. | presorter `p` | [`Presorter`] (ring, sort buffer) | `ps_data[p]`, `scratch_open` | the scratchpad's write side (one write port shared in id order), `ps_credit[p]`, `sub_ready` |
+//! | 6 | presorter bank: presorters `0..P` (one kernel unit, [`PresortBank`]; each presorter keeps its own intervals) | per presorter a [`Presorter`] (ring, sort buffer) | `ps_data[p]`, `scratch_open` | the scratchpad's write side (one write port, taken in presorter order), `ps_credit[p]`, `sub_ready` |
 //! | then | toplevel SAH unit (with `toplevel_sah`) | [`TopUnit`] | `top_start`, the published cell roots | high-level write buffer, `top_done` |
 //! | then | streaming CBVH encoder (`cbvh-stream`) | the encoder, its queued accesses | `enc_fifo`, `bt_data`, `emit_finished` | node-pair write buffer, `req_cbvh`, `stream_done` |
 //! | then | top-down CBVH pass (`cbvh-topdown`) | read / encode positions | `td_start`, `td_data` | node-pair write buffer, `req_cbvh`, `td_done` |
@@ -74,8 +74,9 @@
 //! The arbiter's totals ([`Count`]) exclude the current cycle's additions.
 //!
 //! # Statistics
-//! Each unit reports busy / stalled (with a reason) / idle intervals to the kernel; the
-//! [`StallReport`] fields are sums of them (see [`stall_report`]).
+//! Each unit reports busy / stalled (with a reason) / idle intervals to the kernel (the
+//! presorter bank also keeps one set per presorter); the [`StallReport`] fields are sums of
+//! them (see [`stall_report`]).
 
 use std::collections::VecDeque;
 
@@ -796,9 +797,7 @@ impl<'a> Unit<KWorld<'a>> for Control {
                         return Wake::Next;
                     }
                     w.scratch_open.set(now, self.fill_block);
-                    for p in 0..w.cfg.presorters {
-                        cx.notify(UnitId(PRESORTER0 + p), now + 1);
-                    }
+                    cx.notify(UnitId(PRESORTER0), now + 1);
                     return Wake::OnEvent;
                 }
                 let nsub = w.subs_of_block(self.fill_block);
@@ -1948,10 +1947,11 @@ impl<'a> Unit<KWorld<'a>> for Topdown {
 // ---------------------------------------------------------------------------------------
 // Presorters
 
+/// One presorter of the bank, with its own busy / stall intervals.
 struct PresortUnit {
     p: u32,
-    name: String,
     ps: Presorter,
+    acct: Acct,
     b: u32,
     subs_per_block: u64,
     total_subs: u64,
@@ -1961,16 +1961,10 @@ struct PresortUnit {
 const PS_STARVED: u8 = 0;
 const PS_WAIT: u8 = 1;
 
-impl<'a> Unit<KWorld<'a>> for PresortUnit {
-    fn name(&self) -> &str {
-        &self.name
-    }
-
-    fn stall_reasons(&self) -> &'static [&'static str] {
-        &["input empty", "scratchpad wait"]
-    }
-
-    fn step(&mut self, w: &mut KWorld<'a>, cx: &mut Ctx) -> Wake {
+impl PresortUnit {
+    /// One presorter's step (the unit contract holds per presorter: a step it did not ask
+    /// for changes nothing).
+    fn step(&mut self, w: &mut KWorld, cx: &mut Ctx) -> Wake {
         let now = cx.now();
         let b = self.b;
         let ps = &mut self.ps;
@@ -1991,7 +1985,7 @@ impl<'a> Unit<KWorld<'a>> for PresortUnit {
         }
         match ps.state {
             PresortState::Finished => {
-                cx.set_state(State::Idle);
+                self.acct.set(now, State::Idle);
                 return Wake::Done;
             }
             PresortState::Sorting => {
@@ -2003,14 +1997,14 @@ impl<'a> Unit<KWorld<'a>> for PresortUnit {
                 } else {
                     let used = ps.used;
                     if !ps.insert_next(now, b) {
-                        cx.set_state(State::Stalled(PS_STARVED));
+                        self.acct.set(now, State::Stalled(PS_STARVED));
                         return Wake::OnEvent;
                     }
                     if ps.used < used && w.ps_credit[self.p as usize].push(cx, ()).is_err() {
                         unreachable!("one credit per ring slot");
                     }
                     w.trace.span(now, ps.busy_until, |r| &mut r.presort_busy);
-                    cx.set_state(State::Busy);
+                    self.acct.set(now, State::Busy);
                     return Wake::At(ps.busy_until);
                 }
             }
@@ -2020,18 +2014,18 @@ impl<'a> Unit<KWorld<'a>> for PresortUnit {
             unreachable!("draining")
         };
         if w.scratch_open.get(now) != ps.block {
-            cx.set_state(State::Stalled(PS_WAIT));
+            self.acct.set(now, State::Stalled(PS_WAIT));
             return Wake::OnEvent; // the control's register change wakes us
         }
         if w.scratch_port == now {
-            cx.set_state(State::Stalled(PS_WAIT));
+            self.acct.set(now, State::Stalled(PS_WAIT));
             return Wake::Next; // the write port is taken this cycle
         }
         w.scratch_port = now;
         let slot = (ps.sub % self.subs_per_block) * 2 * b as u64;
         w.scratch[(slot + pos as u64) as usize] = ps.buf[pos as usize];
         w.trace.row(now).presort_busy += 1;
-        cx.set_state(State::Busy);
+        self.acct.set(now, State::Busy);
         if pos + 1 == ps.sub_len {
             if w.sub_ready.push(cx, ()).is_err() {
                 unreachable!("room for every sub-block");
@@ -2049,7 +2043,7 @@ impl<'a> Unit<KWorld<'a>> for PresortUnit {
         Wake::Next
     }
 
-    fn describe(&self, _w: &KWorld<'a>) -> String {
+    fn describe(&self) -> String {
         let p = &self.ps;
         format!(
             "{:?}, sub-block {} {}/{} inserted, ring {}/{} used",
@@ -2060,6 +2054,126 @@ impl<'a> Unit<KWorld<'a>> for PresortUnit {
             p.used,
             p.slots()
         )
+    }
+}
+
+/// Busy / stall intervals of one presorter (the kernel's interval accounting, per
+/// presorter inside the bank).
+#[derive(Clone, Copy, Debug)]
+struct Acct {
+    state: State,
+    since: Cycle,
+    busy: u64,
+    starved: u64,
+    wait: u64,
+}
+
+impl Acct {
+    fn new() -> Self {
+        Self {
+            state: State::Idle,
+            since: 0,
+            busy: 0,
+            starved: 0,
+            wait: 0,
+        }
+    }
+
+    #[inline]
+    fn set(&mut self, now: Cycle, st: State) {
+        if st == self.state {
+            return;
+        }
+        let d = now - self.since;
+        match self.state {
+            State::Busy => self.busy += d,
+            State::Stalled(PS_STARVED) => self.starved += d,
+            State::Stalled(_) => self.wait += d,
+            State::Idle => {}
+        }
+        self.state = st;
+        self.since = now;
+    }
+}
+
+/// The presorters as one kernel unit (one step for all that are due, fewer units for the
+/// scheduler to scan): busy while any presorter is, else stalled on input while any is,
+/// else waiting for the scratchpad while any is. Each presorter's own intervals are kept
+/// in the bank (presorter-cycles for the stall report; every presorter ends idle, so its
+/// intervals are closed when the run ends).
+struct PresortBank {
+    units: Vec<PresortUnit>,
+}
+
+impl<'a> Unit<KWorld<'a>> for PresortBank {
+    fn name(&self) -> &str {
+        "presorters"
+    }
+
+    fn stall_reasons(&self) -> &'static [&'static str] {
+        &["input empty", "scratchpad wait"]
+    }
+
+    fn step(&mut self, w: &mut KWorld<'a>, cx: &mut Ctx) -> Wake {
+        let now = cx.now();
+        let mut next = crate::kernel::NEVER;
+        let mut all_done = true;
+        let (mut busy, mut starved, mut wait) = (false, false, false);
+        for u in &mut self.units {
+            // Presorters that finished, or are inside an insertion (which nothing can
+            // change before it ends; read data for their rings waits in their FIFO, which
+            // they pop when they next need an element), are not stepped.
+            let wake = match u.ps.state {
+                PresortState::Finished => Wake::Done,
+                PresortState::Sorting if now < u.ps.busy_until => Wake::At(u.ps.busy_until),
+                _ => u.step(w, cx),
+            };
+            match wake {
+                Wake::Next => next = next.min(now + 1),
+                Wake::At(c) => next = next.min(c.max(now + 1)),
+                Wake::OnEvent => all_done = false,
+                Wake::Done => {}
+            }
+            match u.acct.state {
+                State::Busy => busy = true,
+                State::Stalled(PS_STARVED) => starved = true,
+                State::Stalled(_) => wait = true,
+                State::Idle => {}
+            }
+        }
+        cx.set_state(if busy {
+            State::Busy
+        } else if starved {
+            State::Stalled(PS_STARVED)
+        } else if wait {
+            State::Stalled(PS_WAIT)
+        } else {
+            State::Idle
+        });
+        if next != crate::kernel::NEVER {
+            Wake::At(next)
+        } else if all_done {
+            Wake::Done
+        } else {
+            Wake::OnEvent
+        }
+    }
+
+    fn counters(&self) -> Vec<(&'static str, u64)> {
+        let sum = |f: fn(&Acct) -> u64| self.units.iter().map(|u| f(&u.acct)).sum();
+        vec![
+            ("presorter_busy_cycles", sum(|a| a.busy)),
+            ("presorter_starved_cycles", sum(|a| a.starved)),
+            ("presorter_wait_cycles", sum(|a| a.wait)),
+        ]
+    }
+
+    fn describe(&self, _w: &KWorld<'a>) -> String {
+        self.units
+            .iter()
+            .map(|u| format!("presorter {}: {}", u.p, u.describe()))
+            .collect::<Vec<_>>()
+            .join("; ")
     }
 }
 
@@ -2141,8 +2255,9 @@ pub(super) fn run(
     let subs = npad.div_ceil(2 * b);
     let np = cfg.presorters as usize;
     let slots = cfg.presort_slots as usize;
-    let presorter = |p: u32| UnitId(PRESORTER0 + p);
-    let mut next = PRESORTER0 + cfg.presorters;
+    // The presorters are one unit, the bank.
+    let presorter = |_p: u32| UnitId(PRESORTER0);
+    let mut next = PRESORTER0 + 1;
     let mut take = |used: bool| {
         if used {
             next += 1;
@@ -2302,6 +2417,7 @@ pub(super) fn run(
         burst: w.mem.port().burst_bytes(),
         lift_only_with_responses: w.mem.port().refusals_lift_only_with_responses(),
     }));
+    let mut bank = Vec::with_capacity(np);
     for p in 0..cfg.presorters {
         let mut ps = Presorter::new(cfg.presort_slots, cfg.b, p as u64);
         if (p as u64) < subs {
@@ -2310,17 +2426,18 @@ pub(super) fn run(
         } else {
             ps.state = PresortState::Finished;
         }
-        let id = s.add(Box::new(PresortUnit {
+        bank.push(PresortUnit {
             p,
-            name: format!("presorter {p}"),
             ps,
+            acct: Acct::new(),
             b: cfg.b,
             subs_per_block: m / (2 * b),
             total_subs: subs,
             count: cfg.presorters as u64,
-        }));
-        debug_assert_eq!(id, presorter(p));
+        });
     }
+    let id = s.add(Box::new(PresortBank { units: bank }));
+    debug_assert_eq!(id, presorter(0));
     if cfg.toplevel_sah {
         let id = s.add(Box::new(Toplevel {
             t: None,
@@ -2426,7 +2543,8 @@ fn stalled(u: &crate::kernel::UnitReport, r: usize) -> u64 {
 }
 
 /// The [`StallReport`] of a run, from its units' activity intervals and counters:
-/// - `presort_*`: the presorters' busy / "input empty" / "scratchpad wait" cycles, summed;
+/// - `presort_*`: the presorters' busy / "input empty" / "scratchpad wait" cycles, summed
+///   over the presorters of the bank (presorter-cycles, as before);
 /// - `merge`: the merge unit's stall cycles by reason (queue dry, output full, init wait);
 /// - `emitter`: the emitter's "input empty" and "write buffer full" cycles (counted from
 ///   the start of the final merge, when the emitter becomes active);
@@ -2436,7 +2554,7 @@ fn stalled(u: &crate::kernel::UnitReport, r: usize) -> u64 {
 /// - `fifos`: the merge output FIFOs.
 fn stall_report(rep: &RunReport, w: &KWorld) -> StallReport {
     let u = &rep.units;
-    let ps = &u[PRESORTER0 as usize..(PRESORTER0 + w.cfg.presorters) as usize];
+    let ps = &u[PRESORTER0 as usize];
     let merge = &u[MERGER.index()];
     let emit = &u[EMITTER.index()];
     let fs = |f: &LatencyFifo<Elem>| {
@@ -2451,9 +2569,9 @@ fn stall_report(rep: &RunReport, w: &KWorld) -> StallReport {
         }
     };
     StallReport {
-        presort_busy_cycles: ps.iter().map(|x| x.activity.busy_cycles).sum(),
-        presort_starved_cycles: ps.iter().map(|x| stalled(x, PS_STARVED as usize)).sum(),
-        presort_wait_scratchpad_cycles: ps.iter().map(|x| stalled(x, PS_WAIT as usize)).sum(),
+        presort_busy_cycles: counter(ps, "presorter_busy_cycles"),
+        presort_starved_cycles: counter(ps, "presorter_starved_cycles"),
+        presort_wait_scratchpad_cycles: counter(ps, "presorter_wait_cycles"),
         merge: MergeStalls {
             queue_dry_cycles: stalled(merge, MERGE_DRY as usize),
             output_full_cycles: stalled(merge, MERGE_FULL as usize),
