@@ -378,7 +378,14 @@ impl KBuf {
             self.fresh = 0;
         }
         self.fresh += bytes;
-        cx.notify(ARBITER, now + 1);
+        // The arbiter needs to look only once a write is ready (next cycle, when these
+        // bytes are visible); a buffer becomes ready only by adding bytes, a flush flag
+        // (which notifies) or an issue (made by the arbiter itself, which then looks again).
+        let until = self.flush_until.get(now + 1);
+        let flush = self.flush.get(now + 1) || self.wb.next_addr() < until;
+        if self.wb.ready_with(self.wb.pending(), flush).is_some() {
+            cx.notify(ARBITER, now + 1);
+        }
     }
 
     /// The write ready at `now` (bytes added this cycle excluded).
