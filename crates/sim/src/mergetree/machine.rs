@@ -609,6 +609,27 @@ pub(super) struct KWorld<'a> {
     /// Phase names with the cycle each started (for the trace rows).
     phase_log: Vec<(Cycle, String)>,
     build_cycles: Cycle,
+    /// Work done (merge outputs and emitter inputs) and in all, for the progress callback.
+    work: u64,
+    work_total: u64,
+    progress: Option<&'a mut dyn FnMut(u64, u64)>,
+}
+
+/// Work between two calls of the progress callback.
+const PROGRESS_EVERY: u64 = 1 << 16;
+
+impl KWorld<'_> {
+    /// One unit of work done: calls the progress callback every [`PROGRESS_EVERY`].
+    #[inline]
+    fn worked(&mut self, k: u64) {
+        let before = self.work / PROGRESS_EVERY;
+        self.work += k;
+        if self.work / PROGRESS_EVERY != before {
+            if let Some(h) = self.progress.as_mut() {
+                h(self.work.min(self.work_total), self.work_total);
+            }
+        }
+    }
 }
 
 impl World for KWorld<'_> {
@@ -1047,6 +1068,7 @@ impl<'a> Unit<KWorld<'a>> for Emitter {
             leaves,
             hl,
         };
+        let consumed = self.e.consumed;
         let st = self.e.tick_with(&mut io);
         if let Some(f) = self.e.fault.take() {
             w.out.fault = Some(f);
@@ -1055,6 +1077,9 @@ impl<'a> Unit<KWorld<'a>> for Emitter {
             EmitStatus::Stepped => {
                 cx.set_state(State::Busy);
                 w.trace.row(now).emitter_steps += 1;
+                if self.e.consumed > consumed {
+                    w.worked(1);
+                }
                 if self.e.done {
                     w.out.nodes = std::mem::take(&mut self.e.nodes);
                     w.out.roots = std::mem::take(&mut self.e.roots);
@@ -1291,6 +1316,7 @@ impl<'a> Unit<KWorld<'a>> for MergeUnit {
         };
         if self.m.outputs > before {
             w.trace.row(now).merge_outputs += self.m.outputs - before;
+            w.worked(self.m.outputs - before);
         }
         self.push_refills(w, cx);
         if self.m.state == MergeState::Done {
@@ -2211,11 +2237,12 @@ pub(super) struct KRun {
 }
 
 /// Runs the kernel machine on `aabbs` (with at least one primitive; plain BVH output).
-pub(super) fn run(
-    aabbs: &[Aabb],
+pub(super) fn run<'a>(
+    aabbs: &'a [Aabb],
     centroid_bounds: &Aabb,
     cfg: &MergeTreeConfig,
     port: Box<dyn MemoryPort>,
+    progress: Option<&'a mut dyn FnMut(u64, u64)>,
 ) -> Result<KRun, MergeTreeError> {
     let n = aabbs.len() as u64;
     if n == 0 {
@@ -2368,6 +2395,10 @@ pub(super) fn run(
         phases: Vec::new(),
         phase_log: vec![(0, "partial_sort".to_string())],
         build_cycles: 0,
+        work: 0,
+        // Every merge output (partial sorts and passes) and every emitter input.
+        work_total: npad * (passes_total as u64 + 1) + n,
+        progress,
     };
     let mut s: Scheduler<KWorld> = Scheduler::new(Options {
         skip: cfg.fast_forward,

@@ -133,26 +133,23 @@ pub fn simulate(
     simulate_with_progress(aabbs, cfg, port, None)
 }
 
-/// [`simulate`] with a callback `(elements done, total)`, called when the run has finished
-/// (the kernel machine reports no progress while it runs).
+/// [`simulate`] with a callback `(elements done, total)`, called every 65536 elements of
+/// work (merge outputs and emitter inputs).
 pub fn simulate_with_progress<'a>(
     aabbs: &'a [Aabb],
     cfg: &MergeTreeConfig,
     port: Box<dyn MemoryPort>,
     progress: Option<&'a mut dyn FnMut(u64, u64)>,
 ) -> Result<MergeTreeReport, MergeTreeError> {
-    let r = run_machine(aabbs, cfg, port)?;
-    if let Some(h) = progress {
-        h(1, 1);
-    }
-    Ok(r)
+    run_machine(aabbs, cfg, port, progress)
 }
 
 /// Checks the input, runs the [`machine`] and assembles its report.
-fn run_machine(
-    aabbs: &[Aabb],
+fn run_machine<'a>(
+    aabbs: &'a [Aabb],
     cfg: &MergeTreeConfig,
     port: Box<dyn MemoryPort>,
+    progress: Option<&'a mut dyn FnMut(u64, u64)>,
 ) -> Result<MergeTreeReport, MergeTreeError> {
     cfg.validate()?;
     if aabbs.len() >= u32::MAX as usize / 2 {
@@ -170,7 +167,7 @@ fn run_machine(
     if cfg.output.is_cbvh() {
         cbvh::bottomup::check_stream(1, aabbs.len())?;
     }
-    let mut k = machine::run(aabbs, &cb, cfg, port)?;
+    let mut k = machine::run(aabbs, &cb, cfg, port, progress)?;
     let out = KernelCbvh {
         stream: k.stream.take(),
         ids: k.cbvh_ids.take(),
