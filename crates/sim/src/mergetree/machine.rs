@@ -48,7 +48,17 @@
 //! hand-wired loop (before the kernel) handed some of them over within the cycle (merge
 //! output to the emitter, read data to the presorters and the merge queues, refill
 //! requests to the reader, control commands), which is where its cycle counts differ from
-//! this machine's: 0.1-1.1% more cycles on the shared scenes. The run writer stages B
+//! this machine's: 0.1-1.1% more cycles on the shared scenes (preset `p2`, 2026-12-02):
+//!
+//! | scene, memory | hand-wired loop | kernel machine | difference |
+//! |---|---|---|---|
+//! | Bunny, `simple:lpddr3-1600-1x64` | 869,695 | 870,364 | +669 (+0.08%) |
+//! | Bunny, `lpddr3-1600-1x64` (DRAMsim3) | 1,013,098 | 1,014,851 | +1,753 (+0.17%) |
+//! | Crytek Sponza, simple | 2,809,818 | 2,839,623 | +29,805 (+1.06%) |
+//! | Crytek Sponza, DRAMsim3 | 3,261,274 | 3,280,872 | +19,598 (+0.60%) |
+//! | Dragon, simple | 10,232,795 | 10,241,788 | +8,993 (+0.09%) |
+//! | Dragon, DRAMsim3 | 11,946,888 | 11,971,550 | +24,662 (+0.21%) |
+//! The run writer stages B
 //! elements in its write register before its request goes to the arbiter (the old loop
 //! wrote straight from the run FIFO), so that path holds B elements more.
 //!
