@@ -3,11 +3,11 @@
 //! a single-precision build.
 //!
 //! # Streaming encoder (\[P3\] Algorithm 1, §4.3, §5.3)
-//! [`StreamUnit`] consumes the emitter's nodes from a FIFO (`cbvh_fifo` entries; the emitter
+//! The streaming encoder unit (`Stream` in [`super::machine`]) consumes the emitter's nodes from a FIFO (`cbvh_fifo` entries; the emitter
 //! stalls while it is full) and drives the software encoder [`cbvh::StreamEncoder`], so the
 //! CBVH it writes is, bit for bit, the one `cbvh::compress_hlbvh` makes from the same stream.
 //! Each node takes one cycle to encode (the encoder is pipelined, \[P3\] §4.3); the DRAM
-//! accesses the encoder reports for it ([`MemOp`]) are then carried out in order, one at a
+//! accesses the encoder reports for it ([`cbvh::bottomup::MemOp`]) are then carried out in order, one at a
 //! time, before the next node is taken:
 //! - a node-pair write adds the pair's bytes to the tree write buffer (stalling while it is
 //!   full), which writes them out in chunks like the single-precision node writer;
@@ -25,7 +25,7 @@
 //!   the tree is the same (the data comes from the encoder), only the timing changes.
 //!
 //! # Top-down pass (\[P3\] Fig. 2a, §5.3)
-//! [`TopdownUnit`] runs after the single-precision build has written its 64-byte nodes. It
+//! The top-down pass (`Topdown` in [`super::machine`]) runs after the single-precision build has written its 64-byte nodes. It
 //! reads them from the end of the node array backwards (the root was emitted last), so in
 //! its order every parent comes before its children (reverse postorder is a preorder): the
 //! context a node is encoded in is always known by the time the node's data arrives, and

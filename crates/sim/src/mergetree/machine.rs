@@ -1,7 +1,7 @@
 //! The MergeTree machine on the simulation kernel ([`crate::kernel`], `docs/sim-kernel.md`):
 //! the units of \[P2\] Fig. 1 and the control FSM of \[P1\] Fig. 2 / \[P2\] Fig. 3 (partial
 //! sorts, multi-merge passes, hierarchy emission, toplevel SAH, CBVH output) as kernel
-//! [`Unit`]s over one world, [`KWorld`], connected by latency FIFOs and a few explicit
+//! [`Unit`]s over one world, `KWorld`, connected by latency FIFOs and a few explicit
 //! shared resources. The kernel's scheduler steps only the units that are due and jumps
 //! over cycles in which none is (exactly: a run with `fast_forward = false` steps every
 //! unit in every cycle and gives the same results, tested).
@@ -26,13 +26,13 @@
 //! | id | unit | owns | reads | writes |
 //! |---|---|---|---|---|
 //! | 0 | control FSM (\[P1\] Fig. 2) | phase, block / pass / group counters | `sub_ready`, `merge_done`, `emit_done`, `stream_done`, `top_done`, `td_done`; the arbiter's totals and the write buffers' levels (polled while a phase drains) | `cmd`, `top_start`, `td_start`; registers `scratch_open`, `emit_active`, the buffers' flush flags |
-//! | 1 | hierarchy emitter | [`EmitUnit`] | `emit_fifo` | node (or `enc_fifo`) / leaf / high-level write buffers, `emit_done`, register `emit_finished` |
-//! | 2 | multi-merge unit | [`Merger`] (heap, queues, its scratchpad) | `cmd`, `fill` | `emit_fifo` or `run_fifo`, `refill`, `merge_done` |
+//! | 1 | hierarchy emitter | `EmitUnit` | `emit_fifo` | node (or `enc_fifo`) / leaf / high-level write buffers, `emit_done`, register `emit_finished` |
+//! | 2 | multi-merge unit | `Merger` (heap, queues, its scratchpad) | `cmd`, `fill` | `emit_fifo` or `run_fifo`, `refill`, `merge_done` |
 //! | 3 | reader | input position, ring credits | `ps_credit[p]`, `refill` | `req_read` |
 //! | 4 | run writer | its B-element write register | `run_fifo` | `req_run`, run regions (functional) |
 //! | 5 | memory arbiter | [`RoundRobin`] over 6 requesters (run writer, node / leaf / high-level buffers, reader, CBVH unit), read descriptors | their requests, memory responses | the port, `ps_data[p]`, `fill`, `bt_data`, `td_data`, its totals |
-//! | 6 | presorter bank: presorters `0..P` (one kernel unit, [`PresortBank`]; each presorter keeps its own intervals) | per presorter a [`Presorter`] (ring, sort buffer) | `ps_data[p]`, `scratch_open` | the scratchpad's write side (one write port, taken in presorter order), `ps_credit[p]`, `sub_ready` |
-//! | then | toplevel SAH unit (with `toplevel_sah`) | [`TopUnit`] | `top_start`, the published cell roots | high-level write buffer, `top_done` |
+//! | 6 | presorter bank: presorters `0..P` (one kernel unit, `PresortBank`; each presorter keeps its own intervals) | per presorter a `Presorter` (ring, sort buffer) | `ps_data[p]`, `scratch_open` | the scratchpad's write side (one write port, taken in presorter order), `ps_credit[p]`, `sub_ready` |
+//! | then | toplevel SAH unit (with `toplevel_sah`) | `TopUnit` | `top_start`, the published cell roots | high-level write buffer, `top_done` |
 //! | then | streaming CBVH encoder (`cbvh-stream`) | the encoder, its queued accesses | `enc_fifo`, `bt_data`, `emit_finished` | node-pair write buffer, `req_cbvh`, `stream_done` |
 //! | then | top-down CBVH pass (`cbvh-topdown`) | read / encode positions | `td_start`, `td_data` | node-pair write buffer, `req_cbvh`, `td_done` |
 //!
@@ -78,15 +78,15 @@
 //! | `td_data` | nodes | arbiter -> top-down pass (node reads done) |
 //! | `sub_ready`, `merge_done`, `emit_done`, `stream_done`, `top_start`, `top_done`, `td_start`, `td_done` | - | handshakes |
 //!
-//! The write buffers ([`KBuf`]) follow the same rule at byte granularity: bytes added in
+//! The write buffers (`KBuf`) follow the same rule at byte granularity: bytes added in
 //! cycle t may be written out from t + 1; bytes written out in cycle t free room from
-//! t + 1. The control's registers ([`Reg`]) are visible from the cycle after they are set.
-//! The arbiter's totals ([`Count`]) exclude the current cycle's additions.
+//! t + 1. The control's registers (`Reg`) are visible from the cycle after they are set.
+//! The arbiter's totals (`Count`) exclude the current cycle's additions.
 //!
 //! # Statistics
 //! Each unit reports busy / stalled (with a reason) / idle intervals to the kernel (the
 //! presorter bank also keeps one set per presorter); the [`StallReport`] fields are sums of
-//! them (see [`stall_report`]).
+//! them (see `stall_report`).
 
 use std::collections::VecDeque;
 
