@@ -518,16 +518,30 @@ struct Totals {
 struct Trace {
     window: u64,
     rows: Vec<TraceRow>,
+    /// The window of the last row looked up: its first cycle, first cycle after, index.
+    cur: (Cycle, Cycle, usize),
 }
 
 impl Trace {
+    fn new(window: u64) -> Self {
+        Self {
+            window,
+            rows: Vec::new(),
+            cur: (0, 0, 0),
+        }
+    }
+
     #[inline]
     fn row(&mut self, c: Cycle) -> &mut TraceRow {
-        let i = (c / self.window) as usize;
-        if i >= self.rows.len() {
-            self.rows.resize_with(i + 1, TraceRow::default);
+        if c < self.cur.0 || c >= self.cur.1 {
+            let i = (c / self.window) as usize;
+            if i >= self.rows.len() {
+                self.rows.resize_with(i + 1, TraceRow::default);
+            }
+            let start = i as u64 * self.window;
+            self.cur = (start, start + self.window, i);
         }
-        &mut self.rows[i]
+        &mut self.rows[self.cur.2]
     }
 
     #[inline]
@@ -1621,6 +1635,16 @@ impl<'a> Unit<KWorld<'a>> for Arbiter {
             ..
         } = self;
         let mut refused = false;
+        if !(0..REQUESTERS).any(|i| Self::head(w, cx, i).is_some()) {
+            // Nothing to issue: no arbitration.
+            w.inflight.set(now, *inflight);
+            cx.set_state(State::Idle);
+            return if *inflight > 0 {
+                Wake::OnEvent
+            } else {
+                Wake::Done
+            };
+        }
         let granted = rr.arbitrate(|i| {
             let Some(req) = Self::head(w, cx, i) else {
                 return Offer::Nothing;
@@ -2397,10 +2421,7 @@ pub(super) fn run<'a>(
         codes: vec![0; if passes_total > 0 { n as usize } else { 0 }],
         inflight: Reg::new(0),
         acc: Totals::default(),
-        trace: Trace {
-            window: cfg.trace_window_cycles.max(1),
-            rows: Vec::new(),
-        },
+        trace: Trace::new(cfg.trace_window_cycles.max(1)),
         out: Outputs::default(),
         phases: Vec::new(),
         phase_log: vec![(0, "partial_sort".to_string())],
