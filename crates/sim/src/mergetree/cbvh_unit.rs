@@ -3,11 +3,11 @@
 //! a single-precision build.
 //!
 //! # Streaming encoder (\[P3\] Algorithm 1, §4.3, §5.3)
-//! [`StreamUnit`] consumes the emitter's nodes from a FIFO (`cbvh_fifo` entries; the emitter
+//! The streaming encoder unit (`Stream` in [`super::machine`]) consumes the emitter's nodes from a FIFO (`cbvh_fifo` entries; the emitter
 //! stalls while it is full) and drives the software encoder [`cbvh::StreamEncoder`], so the
 //! CBVH it writes is, bit for bit, the one `cbvh::compress_hlbvh` makes from the same stream.
 //! Each node takes one cycle to encode (the encoder is pipelined, \[P3\] §4.3); the DRAM
-//! accesses the encoder reports for it ([`MemOp`]) are then carried out in order, one at a
+//! accesses the encoder reports for it ([`cbvh::bottomup::MemOp`]) are then carried out in order, one at a
 //! time, before the next node is taken:
 //! - a node-pair write adds the pair's bytes to the tree write buffer (stalling while it is
 //!   full), which writes them out in chunks like the single-precision node writer;
@@ -25,7 +25,7 @@
 //!   the tree is the same (the data comes from the encoder), only the timing changes.
 //!
 //! # Top-down pass (\[P3\] Fig. 2a, §5.3)
-//! [`TopdownUnit`] runs after the single-precision build has written its 64-byte nodes. It
+//! The top-down pass (`Topdown` in [`super::machine`]) runs after the single-precision build has written its 64-byte nodes. It
 //! reads them from the end of the node array backwards (the root was emitted last), so in
 //! its order every parent comes before its children (reverse postorder is a preorder): the
 //! context a node is encoded in is always known by the time the node's data arrives, and
@@ -40,16 +40,7 @@
 //! `cbvh::compress_topdown` of the built tree, which numbers the pairs in the tree's own
 //! preorder; the two numberings are the same tree, and only addresses differ.
 
-use std::collections::VecDeque;
-
-use cbvh::bottomup::{InputNode, MemOp, StreamEncoder};
-use cbvh::CbvhError;
 use serde::Serialize;
-
-use super::config::NODE_BYTES;
-use super::machine::WriteBuffer;
-use crate::dram::AccessKind;
-use crate::fifo::Fifo;
 
 /// Counters of the streaming encoder unit.
 #[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
@@ -93,201 +84,6 @@ impl StreamUnitStats {
     }
 }
 
-/// Number of per-cycle counters [`StreamUnit::counters`] returns.
-pub(super) const STREAM_COUNTERS: usize = 4;
-
-/// The streaming bottom-up encoder unit (see the module documentation).
-pub(super) struct StreamUnit {
-    enc: StreamEncoder,
-    /// Nodes from the emitter.
-    pub input: Fifo<InputNode>,
-    /// DRAM accesses of the node being processed, in order.
-    ops: VecDeque<MemOp>,
-    /// A backtracking read is in flight: nothing further may be issued before its data.
-    awaiting_read: bool,
-    /// The write buffer was asked to write out the line at the front of `ops`.
-    flushing: bool,
-    /// `end_stream` has been called.
-    ended: bool,
-    /// Everything has been encoded and handed out.
-    pub done: bool,
-    /// Counters.
-    pub stats: StreamUnitStats,
-    /// Write out a line still in the write buffer before reading it back.
-    flush_before_read: bool,
-}
-
-impl StreamUnit {
-    /// A unit around `enc`, with an input FIFO of `fifo` nodes; `flush_before_read`: see the
-    /// module documentation.
-    pub fn new(enc: StreamEncoder, fifo: u32, flush_before_read: bool) -> Self {
-        Self {
-            flush_before_read,
-            enc,
-            input: Fifo::new("emitter->cbvh encoder", fifo as usize),
-            ops: VecDeque::new(),
-            awaiting_read: false,
-            flushing: false,
-            ended: false,
-            done: false,
-            stats: StreamUnitStats::default(),
-        }
-    }
-
-    /// True when the line of the backtracking read at the front has bytes waiting in `wb`.
-    fn line_pending(&self, wb: &WriteBuffer, line: u64, bytes: u32) -> bool {
-        self.flush_before_read && wb.pending() > 0 && wb.next_addr() < line + bytes as u64
-    }
-
-    /// One cycle. `emitter_done`: the emitter has output its last node. Returns true when
-    /// the unit changed state.
-    pub fn tick(&mut self, wb: &mut WriteBuffer, emitter_done: bool) -> Result<bool, CbvhError> {
-        if self.done {
-            return Ok(false);
-        }
-        if self.awaiting_read {
-            self.stats.read_wait_cycles += 1;
-            return Ok(false);
-        }
-        match self.ops.front().copied() {
-            Some(MemOp::WritePair { bytes, .. }) => {
-                if !wb.has_room(bytes as u64) {
-                    self.stats.write_full_cycles += 1;
-                    return Ok(false);
-                }
-                wb.add(bytes as u64);
-                self.ops.pop_front();
-                self.stats.pairs_written += 1;
-                self.stats.busy_cycles += 1;
-                Ok(true)
-            }
-            Some(MemOp::BacktrackRead {
-                addr_bytes, bytes, ..
-            }) => {
-                if self.line_pending(wb, addr_bytes, bytes) {
-                    self.stats.flush_wait_cycles += 1;
-                    if !self.flushing {
-                        self.flushing = true;
-                        self.stats.backtrack_flushes += 1;
-                        wb.flush_through(addr_bytes + bytes as u64);
-                        return Ok(true);
-                    }
-                }
-                // Otherwise the arbiter issues it ([`Self::request`]).
-                Ok(false)
-            }
-            // Issued by the arbiter once the read is back.
-            Some(MemOp::BacktrackWrite { .. }) => Ok(false),
-            None => {
-                if let Some(n) = self.input.pop() {
-                    self.enc.push(n)?;
-                    self.ops.extend(self.enc.drain_ops());
-                    self.stats.nodes_in += 1;
-                    self.stats.busy_cycles += 1;
-                    Ok(true)
-                } else if emitter_done && !self.ended {
-                    // The root's treelet (or the root itself) is written last.
-                    self.enc.end_stream()?;
-                    self.ops.extend(self.enc.drain_ops());
-                    self.ended = true;
-                    Ok(true)
-                } else if self.ended {
-                    self.done = true;
-                    Ok(true)
-                } else {
-                    self.stats.starved_cycles += 1;
-                    Ok(false)
-                }
-            }
-        }
-    }
-
-    /// The request the unit has ready for the memory arbiter: `(kind, address, bytes)`.
-    #[inline]
-    pub fn request(&self, wb: &WriteBuffer) -> Option<(AccessKind, u64, u32)> {
-        if self.awaiting_read {
-            return None;
-        }
-        match self.ops.front()? {
-            MemOp::BacktrackRead {
-                addr_bytes, bytes, ..
-            } => (!self.line_pending(wb, *addr_bytes, *bytes)).then_some((
-                AccessKind::Read,
-                *addr_bytes,
-                *bytes,
-            )),
-            MemOp::BacktrackWrite {
-                addr_bytes, bytes, ..
-            } => Some((AccessKind::Write, *addr_bytes, *bytes)),
-            MemOp::WritePair { .. } => None,
-        }
-    }
-
-    /// The arbiter issued the request of [`Self::request`].
-    pub fn issued(&mut self) {
-        match self.ops.pop_front() {
-            Some(MemOp::BacktrackRead { .. }) => {
-                self.awaiting_read = true;
-                self.flushing = false;
-                self.stats.backtrack_reads += 1;
-            }
-            Some(MemOp::BacktrackWrite { .. }) => self.stats.backtrack_writes += 1,
-            other => unreachable!("the arbiter issued {other:?}"),
-        }
-    }
-
-    /// A backtracking read's data arrived after `latency` unit cycles.
-    pub fn read_returned(&mut self, latency: u64) {
-        debug_assert!(self.awaiting_read);
-        self.awaiting_read = false;
-        self.stats.backtrack_read_latency_cycles += latency;
-        let bucket = (63 - latency.max(1).leading_zeros()) as usize;
-        let h = &mut self.stats.backtrack_read_latency_log2;
-        if h.len() <= bucket {
-            h.resize(bucket + 1, 0);
-        }
-        h[bucket] += 1;
-    }
-
-    /// The encoder, for its result once the unit is done.
-    pub fn into_encoder(self) -> StreamEncoder {
-        self.enc
-    }
-
-    /// Per-cycle stall counters an idle cycle may increment (for fast-forwarding).
-    pub fn counters(&self) -> [u64; STREAM_COUNTERS] {
-        let s = &self.stats;
-        [
-            s.starved_cycles,
-            s.read_wait_cycles,
-            s.flush_wait_cycles,
-            s.write_full_cycles,
-        ]
-    }
-
-    /// Adds `k` times the counter changes `d` of [`Self::counters`].
-    pub fn add_counters(&mut self, d: &[u64], k: u64) {
-        let s = &mut self.stats;
-        s.starved_cycles += k * d[0];
-        s.read_wait_cycles += k * d[1];
-        s.flush_wait_cycles += k * d[2];
-        s.write_full_cycles += k * d[3];
-    }
-
-    /// A one-line state description for deadlock reports.
-    pub fn state(&self) -> String {
-        format!(
-            "cbvh encoder: {} nodes in, {} ops queued (front {:?}), awaiting read {}, ended {}, done {}; ",
-            self.stats.nodes_in,
-            self.ops.len(),
-            self.ops.front(),
-            self.awaiting_read,
-            self.ended,
-            self.done
-        )
-    }
-}
-
 /// Counters of the top-down compression pass.
 #[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
 pub struct TopdownStats {
@@ -301,117 +97,4 @@ pub struct TopdownStats {
     pub read_wait_cycles: u64,
     /// Cycles the write buffer had no room for a pair.
     pub write_full_cycles: u64,
-}
-
-/// Number of per-cycle counters [`TopdownUnit::counters`] returns.
-pub(super) const TOPDOWN_COUNTERS: usize = 2;
-
-/// The top-down compression pass (see the module documentation).
-pub(super) struct TopdownUnit {
-    /// Nodes in the single-precision tree (emission order).
-    nodes: u64,
-    /// Byte address of emitted node 0.
-    nodes_base: u64,
-    /// Stream position of the next read: node `nodes - 1 - j`.
-    next_read: u64,
-    /// Whether the node at each stream position has arrived.
-    arrived: Vec<bool>,
-    /// Stream position of the next node to encode.
-    next_encode: u64,
-    /// Pairs to write: one per node, or one for a tree that is a single leaf.
-    pairs: u64,
-    pair_bytes: u64,
-    /// Counters.
-    pub stats: TopdownStats,
-}
-
-impl TopdownUnit {
-    /// A pass over `nodes` emitted nodes at `nodes_base`, writing pairs of `pair_bytes`.
-    pub fn new(nodes: u64, nodes_base: u64, pair_bytes: u64) -> Self {
-        Self {
-            nodes,
-            nodes_base,
-            next_read: 0,
-            arrived: vec![false; nodes as usize],
-            next_encode: 0,
-            pairs: nodes.max(1),
-            pair_bytes,
-            stats: TopdownStats::default(),
-        }
-    }
-
-    /// True once every pair has been handed to the write buffer.
-    pub fn done(&self) -> bool {
-        self.next_encode == self.pairs
-    }
-
-    /// One cycle: encodes the next node if its data is here. Returns true on progress.
-    pub fn tick(&mut self, wb: &mut WriteBuffer) -> bool {
-        if self.done() {
-            return false;
-        }
-        // A tree that is one leaf has no node to read: its box is the root record.
-        let here = self.nodes == 0 || self.arrived[self.next_encode as usize];
-        if !here {
-            self.stats.read_wait_cycles += 1;
-            return false;
-        }
-        if !wb.has_room(self.pair_bytes) {
-            self.stats.write_full_cycles += 1;
-            return false;
-        }
-        wb.add(self.pair_bytes);
-        self.next_encode += 1;
-        self.stats.pairs_written += 1;
-        true
-    }
-
-    /// The next node read for the arbiter: `(stream position, address, bytes)`.
-    #[inline]
-    pub fn request(&self) -> Option<(u64, u64, u32)> {
-        (self.next_read < self.nodes).then(|| {
-            let k = self.nodes - 1 - self.next_read;
-            (
-                self.next_read,
-                self.nodes_base + k * NODE_BYTES,
-                NODE_BYTES as u32,
-            )
-        })
-    }
-
-    /// The arbiter issued the read of [`Self::request`].
-    pub fn issued(&mut self) {
-        self.next_read += 1;
-        self.stats.node_reads += 1;
-    }
-
-    /// The node at stream position `j` arrived after `latency` cycles.
-    pub fn arrived(&mut self, j: u64, latency: u64) {
-        self.arrived[j as usize] = true;
-        self.stats.read_latency_cycles += latency;
-    }
-
-    /// Per-cycle stall counters an idle cycle may increment (for fast-forwarding).
-    pub fn counters(&self) -> [u64; TOPDOWN_COUNTERS] {
-        [self.stats.read_wait_cycles, self.stats.write_full_cycles]
-    }
-
-    /// Adds `k` times the counter changes `d` of [`Self::counters`].
-    pub fn add_counters(&mut self, d: &[u64], k: u64) {
-        self.stats.read_wait_cycles += k * d[0];
-        self.stats.write_full_cycles += k * d[1];
-    }
-
-    /// Work done and total, for the progress hook.
-    pub fn progress(&self) -> (u64, u64) {
-        (self.next_encode, self.pairs)
-    }
-
-    /// A one-line state description for deadlock reports.
-    pub fn state(&self) -> String {
-        format!(
-            "top-down pass: {}/{} read, {}/{} encoded; ",
-            self.next_read, self.nodes, self.next_encode, self.pairs
-        )
-    }
 }

@@ -154,7 +154,8 @@ pub struct MergeTreeConfig {
     pub sah_cycles_per_sweep: u32,
     /// Cycles per row of the busy-fraction time series.
     pub trace_window_cycles: u64,
-    /// Skip cycles in which every unit waits for memory (exact; off only to test that).
+    /// Let the simulation kernel skip cycles in which no unit is due (exact; off: every unit
+    /// steps in every cycle, the kernel's reference mode, only to test that).
     pub fast_forward: bool,
     /// What the emitted hierarchy becomes (\[P3\] §5.3).
     pub output: OutputMode,

@@ -19,12 +19,10 @@
 use bvh::{EmittedNode, Emitter, HighlevelRoot, Prim, Step};
 use cbvh::bottomup::{input_of_emitted, input_of_root, InputNode};
 
-use super::config::{HIGHLEVEL_BYTES, LEAF_ENTRY_BYTES, NODE_BYTES};
-use super::machine::WriteBuffer;
 use super::Elem;
-use crate::fifo::Fifo;
 
-/// Why the emitter did not step in a cycle.
+/// Why the emitter did not step in a cycle: its stall cycles by reason, from its activity
+/// intervals (the machine fills it in).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct EmitterStalls {
     /// Cycles it needed an input and its FIFO was empty.
@@ -33,14 +31,6 @@ pub struct EmitterStalls {
     pub write_full_cycles: u64,
     /// Cycles the streaming CBVH encoder's input FIFO was full.
     pub encoder_full_cycles: u64,
-}
-
-/// Where the emitter's inner nodes go.
-pub(super) enum NodeSink<'a> {
-    /// 64-byte single-precision nodes into the node write buffer.
-    Bvh(&'a mut WriteBuffer),
-    /// Encoder inputs into the streaming CBVH encoder's FIFO.
-    Cbvh(&'a mut Fifo<InputNode>),
 }
 
 /// The hierarchy emitter unit and the tree it has produced so far.
@@ -66,8 +56,6 @@ pub(super) struct EmitUnit {
     pub done: bool,
     /// Steps performed.
     pub steps: u64,
-    /// Stall counters.
-    pub stalls: EmitterStalls,
     /// With the CBVH encoder attached: the primitive-id array (the leaf table with each
     /// leaf's last entry flagged).
     pub cbvh_ids: Option<Vec<u32>>,
@@ -98,7 +86,6 @@ impl EmitUnit {
             order: Vec::with_capacity(total as usize),
             done: false,
             steps: 0,
-            stalls: EmitterStalls::default(),
             cbvh_ids: cbvh.then(|| Vec::with_capacity(total as usize)),
             fault: None,
         }
@@ -109,46 +96,30 @@ impl EmitUnit {
         self.em.max_stack_depth()
     }
 
-    /// One cycle. Returns true when a step was performed.
-    pub fn tick(
-        &mut self,
-        input: &mut Fifo<Elem>,
-        mut nodes_out: NodeSink<'_>,
-        leaves_out: &mut WriteBuffer,
-        highlevel_out: &mut WriteBuffer,
-    ) -> bool {
+    /// One cycle with the channels behind `io`: what the emitter did.
+    pub fn tick_with(&mut self, io: &mut impl EmitPorts) -> EmitStatus {
         // Padding sorts after every real element: once the scene is read, drop it.
         if self.consumed == self.total {
-            while input.front().is_some_and(|e| e.is_pad()) {
-                input.pop();
-            }
+            io.drop_padding();
         }
         if self.done {
-            return false;
+            return EmitStatus::Finished;
         }
         // Room for whatever this step may write.
-        let node_room = match &nodes_out {
-            NodeSink::Bvh(wb) => wb.has_room(NODE_BYTES),
-            NodeSink::Cbvh(f) => {
-                if f.is_full() {
-                    self.stalls.encoder_full_cycles += 1;
-                    return false;
-                }
-                true
+        if io.encoder_attached() {
+            if !io.node_room() {
+                return EmitStatus::EncoderFull;
             }
-        };
-        if !node_room
-            || !leaves_out.has_room(LEAF_ENTRY_BYTES)
-            || !highlevel_out.has_room(HIGHLEVEL_BYTES)
-        {
-            self.stalls.write_full_cycles += 1;
-            return false;
+        } else if !io.node_room() {
+            return EmitStatus::WriteFull;
+        }
+        if !io.leaf_room() || !io.highlevel_room() {
+            return EmitStatus::WriteFull;
         }
         let mut prim = None;
         if self.em.needs_input() && self.consumed < self.total {
-            let Some(e) = input.pop() else {
-                self.stalls.starved_cycles += 1;
-                return false;
+            let Some(e) = io.pop() else {
+                return EmitStatus::Starved;
             };
             debug_assert!(!e.is_pad(), "padding before the end of the scene");
             let code = e.code;
@@ -174,7 +145,7 @@ impl EmitUnit {
                 ids.push(e.index);
             }
             self.consumed += 1;
-            leaves_out.add(LEAF_ENTRY_BYTES);
+            io.add_leaf();
             prim = Some(Prim {
                 code,
                 tie,
@@ -185,22 +156,21 @@ impl EmitUnit {
         match self.em.step(prim) {
             Step::Emitted(n) => {
                 self.nodes.push(n);
-                match &mut nodes_out {
-                    NodeSink::Bvh(wb) => wb.add(NODE_BYTES),
-                    NodeSink::Cbvh(f) => {
-                        let n = input_of_emitted_in(&n, &mut self.cbvh_ids);
-                        self.send_to_encoder(f, n)
-                    }
+                if io.encoder_attached() {
+                    let n = input_of_emitted_in(&n, &mut self.cbvh_ids);
+                    self.send_to_encoder(io, n)
+                } else {
+                    io.add_node();
                 }
             }
             Step::Highlevel(r) => {
                 self.roots.push(r);
-                highlevel_out.add(HIGHLEVEL_BYTES);
-                if let NodeSink::Cbvh(f) = &mut nodes_out {
+                io.add_highlevel();
+                if io.encoder_attached() {
                     // A tree that is one leaf: the encoder gets that leaf as a node.
                     let ids = self.cbvh_ids.as_mut().expect("ids with the encoder");
                     match input_of_root(Some(&r), ids) {
-                        Ok(Some(n)) => self.send_to_encoder(f, Ok(n)),
+                        Ok(Some(n)) => self.send_to_encoder(io, Ok(n)),
                         Ok(None) => {}
                         Err(e) => self.fault = Some(e),
                     }
@@ -209,20 +179,55 @@ impl EmitUnit {
             Step::Done => self.done = true,
             Step::Loaded | Step::Combined | Step::Pushed => {}
         }
-        true
+        EmitStatus::Stepped
     }
 
     /// Hands one encoder input to the encoder's FIFO (room was checked before the step).
-    fn send_to_encoder(&mut self, f: &mut Fifo<InputNode>, n: Result<InputNode, cbvh::CbvhError>) {
+    fn send_to_encoder(&mut self, io: &mut impl EmitPorts, n: Result<InputNode, cbvh::CbvhError>) {
         match n {
-            Ok(n) => {
-                if f.push(n).is_err() {
-                    unreachable!("room in the encoder FIFO was checked before the step");
-                }
-            }
+            Ok(n) => io.push_encoder(n),
             Err(e) => self.fault = Some(e),
         }
     }
+}
+
+/// What the emitter did in a cycle.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum EmitStatus {
+    /// One step of the step machine.
+    Stepped,
+    /// It needed an input and the FIFO had none.
+    Starved,
+    /// A write buffer had no room.
+    WriteFull,
+    /// The CBVH encoder's input FIFO was full.
+    EncoderFull,
+    /// The step machine has finished.
+    Finished,
+}
+
+/// The channels around the emitter.
+pub(super) trait EmitPorts {
+    /// Pops the padding elements at the front of the input.
+    fn drop_padding(&mut self);
+    /// The next input element.
+    fn pop(&mut self) -> Option<Elem>;
+    /// Inner nodes go to the streaming CBVH encoder (else to the node write buffer).
+    fn encoder_attached(&self) -> bool;
+    /// Room for one inner node (node buffer bytes, or an encoder FIFO slot).
+    fn node_room(&self) -> bool;
+    /// Room for one leaf-table entry.
+    fn leaf_room(&self) -> bool;
+    /// Room for one high-level record.
+    fn highlevel_room(&self) -> bool;
+    /// Adds a node's bytes to the node write buffer.
+    fn add_node(&mut self);
+    /// Pushes an encoder input (room was checked).
+    fn push_encoder(&mut self, n: InputNode);
+    /// Adds a leaf-table entry's bytes.
+    fn add_leaf(&mut self);
+    /// Adds a high-level record's bytes.
+    fn add_highlevel(&mut self);
 }
 
 /// [`input_of_emitted`] over the emitter's id array.

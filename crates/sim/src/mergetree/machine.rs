@@ -1,6 +1,10 @@
-//! The MergeTree machine: the units of \[P2\] Fig. 1 wired together, the control FSM of
-//! \[P1\] Fig. 2 / \[P2\] Fig. 3 (partial sorts, multi-merge passes, hierarchy emission),
-//! the memory arbiter, and the cycle loop.
+//! The MergeTree machine on the simulation kernel ([`crate::kernel`], `docs/sim-kernel.md`):
+//! the units of \[P2\] Fig. 1 and the control FSM of \[P1\] Fig. 2 / \[P2\] Fig. 3 (partial
+//! sorts, multi-merge passes, hierarchy emission, toplevel SAH, CBVH output) as kernel
+//! [`Unit`]s over one world, `KWorld`, connected by latency FIFOs and a few explicit
+//! shared resources. The kernel's scheduler steps only the units that are due and jumps
+//! over cycles in which none is (exactly: a run with `fast_forward = false` steps every
+//! unit in every cycle and gives the same results, tested).
 //!
 //! # DRAM layout
 //! All regions start on 4 KiB boundaries, in this order:
@@ -16,39 +20,93 @@
 //!   by the streaming encoder (in its write order) or by the top-down pass (in its read
 //!   order; see [`super::cbvh_unit`]). With the streaming encoder, `nodes` stays unused.
 //!
-//! # Memory arbiter
-//! Six requesters share the port: the run writer, the node (or, in the CBVH modes, node-pair)
-//! leaf-table and high-level write buffers, the reader (input reads for the presorters,
-//! refills for the merge queues) and the CBVH unit (backtracking reads and writes of the
-//! streaming encoder, node reads of the top-down pass). One request may be issued per
-//! cycle, granted round robin among the ready requesters; a request refused by a full
-//! controller queue is retried.
+//!
+//!
+//! # Units (in step order: their [`UnitId`]s)
+//! | id | unit | owns | reads | writes |
+//! |---|---|---|---|---|
+//! | 0 | control FSM (\[P1\] Fig. 2) | phase, block / pass / group counters | `sub_ready`, `merge_done`, `emit_done`, `stream_done`, `top_done`, `td_done`; the arbiter's totals and the write buffers' levels (polled while a phase drains) | `cmd`, `top_start`, `td_start`; registers `scratch_open`, `emit_active`, the buffers' flush flags |
+//! | 1 | hierarchy emitter | `EmitUnit` | `emit_fifo` | node (or `enc_fifo`) / leaf / high-level write buffers, `emit_done`, register `emit_finished` |
+//! | 2 | multi-merge unit | `Merger` (heap, queues, its scratchpad) | `cmd`, `fill` | `emit_fifo` or `run_fifo`, `refill`, `merge_done` |
+//! | 3 | reader | input position, ring credits | `ps_credit[p]`, `refill` | `req_read` |
+//! | 4 | run writer | its B-element write register | `run_fifo` | `req_run`, run regions (functional) |
+//! | 5 | memory arbiter | [`RoundRobin`] over 6 requesters (run writer, node / leaf / high-level buffers, reader, CBVH unit), read descriptors | their requests, memory responses | the port, `ps_data[p]`, `fill`, `bt_data`, `td_data`, its totals |
+//! | 6 | presorter bank: presorters `0..P` (one kernel unit, `PresortBank`; each presorter keeps its own intervals) | per presorter a `Presorter` (ring, sort buffer) | `ps_data[p]`, `scratch_open` | the scratchpad's write side (one write port, taken in presorter order), `ps_credit[p]`, `sub_ready` |
+//! | then | toplevel SAH unit (with `toplevel_sah`) | `TopUnit` | `top_start`, the published cell roots | high-level write buffer, `top_done` |
+//! | then | streaming CBVH encoder (`cbvh-stream`) | the encoder, its queued accesses | `enc_fifo`, `bt_data`, `emit_finished` | node-pair write buffer, `req_cbvh`, `stream_done` |
+//! | then | top-down CBVH pass (`cbvh-topdown`) | read / encode positions | `td_start`, `td_data` | node-pair write buffer, `req_cbvh`, `td_done` |
+//!
+//! Units a configuration does not use are not added. The control reads the arbiter's totals
+//! and the buffers' levels only as they were at the start of the cycle.
+//!
+//! A new unit is one more [`Unit`] added to the scheduler with its channels in the world;
+//! the scheduler does not change.
+//!
+//! # FIFOs and latencies
+//! Every FIFO has latency 1: one register stage between the units, the pipeline register
+//! of a hardware FIFO's output. An item pushed in cycle t is used from t + 1; the old
+//! hand-wired loop (before the kernel) handed some of them over within the cycle (merge
+//! output to the emitter, read data to the presorters and the merge queues, refill
+//! requests to the reader, control commands), which is where its cycle counts differ from
+//! this machine's: 0.1-1.1% more cycles on the shared scenes (preset `p2`, 2026-12-02):
+//!
+//! | scene, memory | hand-wired loop | kernel machine | difference |
+//! |---|---|---|---|
+//! | Bunny, `simple:lpddr3-1600-1x64` | 869,695 | 870,364 | +669 (+0.08%) |
+//! | Bunny, `lpddr3-1600-1x64` (DRAMsim3) | 1,013,098 | 1,014,851 | +1,753 (+0.17%) |
+//! | Crytek Sponza, simple | 2,809,818 | 2,839,623 | +29,805 (+1.06%) |
+//! | Crytek Sponza, DRAMsim3 | 3,261,274 | 3,280,872 | +19,598 (+0.60%) |
+//! | Dragon, simple | 10,232,795 | 10,241,788 | +8,993 (+0.09%) |
+//! | Dragon, DRAMsim3 | 11,946,888 | 11,971,550 | +24,662 (+0.21%) |
+//! The run writer stages B
+//! elements in its write register before its request goes to the arbiter (the old loop
+//! wrote straight from the run FIFO), so that path holds B elements more.
+//!
+//! | channel | capacity | from -> to |
+//! |---|---|---|
+//! | `emit_fifo` | `emit_fifo` | merger -> emitter |
+//! | `run_fifo` | `run_write_fifo` | merger -> run writer |
+//! | `refill` | M / B (two halves per queue) | merger -> reader (fetch descriptors) |
+//! | `fill` | M / B | arbiter -> merger (completed run reads) |
+//! | `ps_data[p]` | `presort_slots` | arbiter -> presorter p (completed input reads) |
+//! | `ps_credit[p]` | `presort_slots` | presorter p -> reader (ring slots freed) |
+//! | `req_read`, `req_run` | 2 | reader / run writer -> arbiter |
+//! | `cmd` | 1 | control -> merger |
+//! | `enc_fifo` | `cbvh_fifo` | emitter -> streaming encoder |
+//! | `req_cbvh` | 2 | CBVH unit -> arbiter |
+//! | `bt_data` | 1 | arbiter -> streaming encoder (backtracking read done) |
+//! | `td_data` | nodes | arbiter -> top-down pass (node reads done) |
+//! | `sub_ready`, `merge_done`, `emit_done`, `stream_done`, `top_start`, `top_done`, `td_start`, `td_done` | - | handshakes |
+//!
+//! The write buffers (`KBuf`) follow the same rule at byte granularity: bytes added in
+//! cycle t may be written out from t + 1; bytes written out in cycle t free room from
+//! t + 1. The control's registers (`Reg`) are visible from the cycle after they are set.
+//! The arbiter's totals (`Count`) exclude the current cycle's additions.
+//!
+//! # Statistics
+//! Each unit reports busy / stalled (with a reason) / idle intervals to the kernel (the
+//! presorter bank also keeps one set per presorter); the [`StallReport`] fields are sums of
+//! them (see `stall_report`).
 
 use std::collections::VecDeque;
 
 use geom::{Aabb, MortonQuantizer};
 
-use super::cbvh_unit::{StreamUnit, TopdownUnit, STREAM_COUNTERS, TOPDOWN_COUNTERS};
-use super::config::{MergeTreeConfig, OutputMode, ELEM_BYTES};
-use super::emitter::{EmitUnit, NodeSink};
-use super::merge::{MergeState, Merger};
+use super::cbvh_unit::{StreamUnitStats, TopdownStats};
+use super::config::OutputMode;
+use super::config::{MergeTreeConfig, ELEM_BYTES, HIGHLEVEL_BYTES, LEAF_ENTRY_BYTES, NODE_BYTES};
+use super::emitter::{EmitPorts, EmitStatus, EmitUnit, EmitterStalls};
+use super::merge::{MergeOut, MergeStalls, MergeState, Merger, Slot};
 use super::presort::{PresortState, Presorter};
 use super::report::{PhaseReport, StallReport, TraceRow};
 use super::toplevel::TopUnit;
 use super::{Elem, MergeTreeError};
 use crate::dram::{AccessKind, MemRequest, MemoryPort};
-use crate::fifo::Fifo;
-
-/// Cycles without progress of any unit and with no memory request outstanding after which
-/// the machine reports a deadlock.
-const DEADLOCK_CYCLES: u64 = 10_000;
-
-/// Cycles without any progress, with requests outstanding, after which the memory is taken
-/// to have stopped answering (a backend bug; far above any DRAM latency).
-const MEMORY_TIMEOUT_CYCLES: u64 = 1_000_000;
-
-/// Marks a write in a request tag; the low 32 bits hold the byte count.
-const WRITE_TAG: u64 = 1 << 63;
+use crate::fifo::FifoStats;
+use crate::kernel::{
+    Ctx, Cycle, LatencyFifo, Memory, Offer, Options, RoundRobin, RunReport, Scheduler, State, Unit,
+    UnitId, Wake, World,
+};
 
 /// Alignment of the DRAM regions.
 const REGION_ALIGN: u64 = 4096;
@@ -100,7 +158,7 @@ impl MemoryLayout {
 /// The sort element of primitive `i` of `aabbs` (padding past the end): its box,
 /// reference and the Morton code of its centroid on `quant`'s grid with `bits` bits.
 #[inline]
-fn elem_of(aabbs: &[Aabb], quant: &MortonQuantizer, bits: u32, i: u64) -> Elem {
+pub(super) fn elem_of(aabbs: &[Aabb], quant: &MortonQuantizer, bits: u32, i: u64) -> Elem {
     let Some(&a) = aabbs.get(i as usize) else {
         return Elem::pad(i);
     };
@@ -165,19 +223,25 @@ impl WriteBuffer {
 
     /// The write request ready to go, if any: the rest of the current chunk once it is
     /// full, or what is there when flushing.
+    /// The write request ready to go if `pending` bytes are held and the flush flag is
+    /// `flush`: the rest of the current chunk once it is full, or what is there when
+    /// flushing.
     #[inline]
-    fn ready(&self) -> Option<(u64, u32)> {
+    pub(super) fn ready_with(&self, pending: u64, flush: bool) -> Option<(u64, u32)> {
         let room = self.chunk - (self.next_addr - self.base) % self.chunk;
-        if self.pending >= room
-            || ((self.flush || self.next_addr < self.flush_until) && self.pending > 0)
-        {
-            Some((self.next_addr, self.pending.min(room) as u32))
+        if pending >= room || ((flush || self.next_addr < self.flush_until) && pending > 0) {
+            Some((self.next_addr, pending.min(room) as u32))
         } else {
             None
         }
     }
 
-    fn issued(&mut self, bytes: u32) {
+    /// Capacity in bytes.
+    pub(super) fn capacity(&self) -> u64 {
+        self.capacity
+    }
+
+    pub(super) fn issued(&mut self, bytes: u32) {
         self.pending -= bytes as u64;
         self.next_addr += bytes as u64;
         self.written += bytes as u64;
@@ -201,551 +265,476 @@ impl WriteBuffer {
     }
 }
 
-/// Where a read's data goes.
+const CONTROL: UnitId = UnitId(0);
+const EMITTER: UnitId = UnitId(1);
+const MERGER: UnitId = UnitId(2);
+const READER: UnitId = UnitId(3);
+const RUN_WRITER: UnitId = UnitId(4);
+const ARBITER: UnitId = UnitId(5);
+const PRESORTER0: u32 = 6;
+
+/// Ids of the units a configuration may leave out (added after the presorters when they
+/// are used; [`UnitId::EXTERNAL`] otherwise, whose notifications go nowhere).
 #[derive(Clone, Copy, Debug)]
-enum ReadDest {
-    /// Ring slot `slot` of presorter `p` (input AABBs).
-    Presort { p: u32, slot: u32 },
-    /// Buffer half `buf` of the merge scratchpad (sort runs).
-    Merge { buf: u32 },
-    /// The streaming CBVH encoder's backtracking read.
+struct Optional {
+    toplevel: UnitId,
+    stream: UnitId,
+    topdown: UnitId,
+}
+
+/// Scratchpad closed to the presorters (no block may be copied in).
+const CLOSED: u64 = u64::MAX;
+
+/// A register written by one unit: a value set in cycle t is read from t + 1 on.
+#[derive(Clone, Copy, Debug)]
+pub(super) struct Reg<T: Copy> {
+    cur: T,
+    prev: T,
+    at: Cycle,
+}
+
+impl<T: Copy> Reg<T> {
+    fn new(v: T) -> Self {
+        Self {
+            cur: v,
+            prev: v,
+            at: 0,
+        }
+    }
+
+    #[inline]
+    fn get(&self, now: Cycle) -> T {
+        if now > self.at {
+            self.cur
+        } else {
+            self.prev
+        }
+    }
+
+    #[inline]
+    fn set(&mut self, now: Cycle, v: T) {
+        if self.at != now {
+            self.prev = self.get(now);
+            self.at = now;
+        }
+        self.cur = v;
+    }
+}
+
+/// A running total: additions of cycle t are read from t + 1 on.
+#[derive(Clone, Copy, Debug, Default)]
+pub(super) struct Count {
+    v: u64,
+    fresh: u64,
+    at: Cycle,
+}
+
+impl Count {
+    #[inline]
+    fn add(&mut self, now: Cycle, k: u64) {
+        if self.at != now {
+            self.at = now;
+            self.fresh = 0;
+        }
+        self.v += k;
+        self.fresh += k;
+    }
+
+    #[inline]
+    fn get(&self, now: Cycle) -> u64 {
+        self.v - if self.at == now { self.fresh } else { 0 }
+    }
+}
+
+/// A write-combining buffer as a kernel channel (see the module documentation).
+pub(super) struct KBuf {
+    wb: WriteBuffer,
+    fresh: u64,
+    fresh_at: Cycle,
+    freed: u64,
+    freed_at: Cycle,
+    flush: Reg<bool>,
+    /// Write out partial chunks until every byte below this address is written.
+    flush_until: Reg<u64>,
+    producers: [UnitId; 2],
+}
+
+impl KBuf {
+    fn new(wb: WriteBuffer, producers: [UnitId; 2]) -> Self {
+        Self {
+            wb,
+            fresh: 0,
+            fresh_at: 0,
+            freed: 0,
+            freed_at: 0,
+            flush: Reg::new(false),
+            flush_until: Reg::new(0),
+            producers,
+        }
+    }
+
+    #[inline]
+    fn has_room(&self, now: Cycle, bytes: u64) -> bool {
+        let freed = if self.freed_at == now { self.freed } else { 0 };
+        self.wb.pending() + freed + bytes <= self.wb.capacity()
+    }
+
+    #[inline]
+    fn add(&mut self, cx: &mut Ctx, bytes: u64) {
+        let now = cx.now();
+        self.wb.add(bytes);
+        if self.fresh_at != now {
+            self.fresh_at = now;
+            self.fresh = 0;
+        }
+        self.fresh += bytes;
+        // The arbiter needs to look only once a write is ready (next cycle, when these
+        // bytes are visible); a buffer becomes ready only by adding bytes, a flush flag
+        // (which notifies) or an issue (made by the arbiter itself, which then looks again).
+        let until = self.flush_until.get(now + 1);
+        let flush = self.flush.get(now + 1) || self.wb.next_addr() < until;
+        if self.wb.ready_with(self.wb.pending(), flush).is_some() {
+            cx.notify(ARBITER, now + 1);
+        }
+    }
+
+    /// The write ready at `now` (bytes added this cycle excluded).
+    #[inline]
+    fn ready(&self, now: Cycle) -> Option<(u64, u32)> {
+        if self.wb.pending() == 0 {
+            return None;
+        }
+        let fresh = if self.fresh_at == now { self.fresh } else { 0 };
+        let pending = self.wb.pending() - fresh;
+        let until = self.flush_until.get(now);
+        self.wb
+            .ready_with(pending, self.flush.get(now) || self.wb.next_addr() < until)
+    }
+
+    fn issued(&mut self, cx: &mut Ctx, bytes: u32) {
+        let now = cx.now();
+        self.wb.issued(bytes);
+        if self.freed_at != now {
+            self.freed_at = now;
+            self.freed = 0;
+        }
+        self.freed += bytes as u64;
+        for p in self.producers {
+            cx.notify(p, now + 1);
+        }
+    }
+
+    /// The first address not yet written out, at the start of cycle `now`.
+    fn start_next_addr(&self, now: Cycle) -> u64 {
+        let freed = if self.freed_at == now { self.freed } else { 0 };
+        self.wb.next_addr() - freed
+    }
+
+    /// Bytes held at the start of cycle `now`.
+    fn start_pending(&self, now: Cycle) -> u64 {
+        let fresh = if self.fresh_at == now { self.fresh } else { 0 };
+        let freed = if self.freed_at == now { self.freed } else { 0 };
+        self.wb.pending() + freed - fresh
+    }
+
+    fn flush_through(&mut self, cx: &mut Ctx, addr: u64) {
+        self.flush_until.set(cx.now(), addr);
+        cx.notify(ARBITER, cx.now() + 1);
+    }
+
+    fn set_flush(&mut self, cx: &mut Ctx, on: bool) {
+        self.flush.set(cx.now(), on);
+        cx.notify(ARBITER, cx.now() + 1);
+    }
+}
+
+/// A run read: buffer half `buf` of the merge scratchpad from run region `region`.
+#[derive(Clone, Copy, Debug)]
+struct Fetch {
+    buf: u32,
+    region: u8,
+    pos: u64,
+    count: u32,
+}
+
+/// An input read into ring slot `slot` of a presorter: `count` elements from `src`.
+#[derive(Clone, Copy, Debug)]
+struct InputRead {
+    slot: u32,
+    src: u64,
+    count: u32,
+}
+
+/// Where a request's response goes.
+#[derive(Clone, Copy, Debug)]
+enum Dest {
+    Presort { p: u32, read: InputRead },
+    Merge(Fetch),
+    Run { elems: u32 },
+    Buffer,
     Backtrack,
-    /// Node at stream position `j` of the top-down pass.
     Topdown { j: u64 },
 }
 
-/// An outstanding read.
+/// A memory request waiting for the arbiter.
 #[derive(Clone, Copy, Debug)]
-struct ReadDesc {
-    dest: ReadDest,
-    /// First element (input index or run-region position).
-    src: u64,
-    /// Elements delivered (padding included).
-    count: u32,
-    /// Bytes read.
+struct Req {
+    addr: u64,
     bytes: u32,
+    kind: AccessKind,
+    dest: Dest,
 }
 
-/// Control state (\[P1\] Fig. 2).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-enum Phase {
-    /// Reading, presorting and merging the N / M blocks.
-    PartialSort,
-    /// Multi-merge pass `p` (0-based).
-    MergePass(u32),
-    /// Waiting for the last writes of a phase before the next one reads them.
-    Fence(u32),
-    /// The final merge feeds the emitter; then the last writes drain.
-    Emit,
-    /// The toplevel binned SAH unit.
-    Toplevel,
-    /// The top-down CBVH compression pass.
-    Topdown,
-    /// Finished.
-    Done,
+/// A command of the control FSM to the multi-merge unit.
+#[derive(Clone, Copy, Debug)]
+enum MergeCmd {
+    /// Merge the presorted sub-blocks `first..first + count` now in the scratchpad.
+    Partial {
+        first: u64,
+        count: u64,
+        to_emitter: bool,
+    },
+    /// Merge runs `first..last` of `run_len` elements from run region `src`.
+    Multi {
+        first: u64,
+        last: u64,
+        run_len: u64,
+        src: u8,
+        to_emitter: bool,
+    },
 }
 
-/// Requesters of the memory arbiter.
-const REQUESTERS: usize = 6;
+/// The arbiter's totals, read by the control FSM.
+#[derive(Clone, Copy, Debug, Default)]
+struct Totals {
+    read_bytes: Count,
+    write_bytes: Count,
+    reads: Count,
+    read_latency: Count,
+    run_acked: Count,
+}
 
-/// Number of stall counters [`Machine::snapshot`] records.
-const SNAP: usize = 10 + STREAM_COUNTERS + TOPDOWN_COUNTERS;
+/// The time series, accounted by spans and events (no per-cycle code).
+struct Trace {
+    window: u64,
+    rows: Vec<TraceRow>,
+    /// The window of the last row looked up: its first cycle, first cycle after, index.
+    cur: (Cycle, Cycle, usize),
+}
 
-/// The whole unit. See the module documentation.
-pub(super) struct Machine<'a> {
+impl Trace {
+    fn new(window: u64) -> Self {
+        Self {
+            window,
+            rows: Vec::new(),
+            cur: (0, 0, 0),
+        }
+    }
+
+    #[inline]
+    fn row(&mut self, c: Cycle) -> &mut TraceRow {
+        if c < self.cur.0 || c >= self.cur.1 {
+            let i = (c / self.window) as usize;
+            if i >= self.rows.len() {
+                self.rows.resize_with(i + 1, TraceRow::default);
+            }
+            let start = i as u64 * self.window;
+            self.cur = (start, start + self.window, i);
+        }
+        &mut self.rows[self.cur.2]
+    }
+
+    #[inline]
+    fn span(&mut self, start: Cycle, end: Cycle, f: fn(&mut TraceRow) -> &mut u64) {
+        let mut c = start;
+        while c < end {
+            let e = end.min((c / self.window + 1) * self.window);
+            *f(self.row(c)) += e - c;
+            c = e;
+        }
+    }
+}
+
+/// What units publish when they finish (the functional outputs).
+#[derive(Default)]
+struct Outputs {
+    nodes: Vec<bvh::EmittedNode>,
+    roots: Vec<bvh::HighlevelRoot>,
+    order: Vec<u32>,
+    max_stack_depth: usize,
+    top: Option<TopUnit>,
+    fault: Option<cbvh::CbvhError>,
+    cbvh_ids: Option<Vec<u32>>,
+    stream: Option<(cbvh::bottomup::StreamEncoder, StreamUnitStats)>,
+    topdown: Option<TopdownStats>,
+}
+
+/// The world of the kernel-based machine: channels, shared resources, outputs.
+pub(super) struct KWorld<'a> {
     cfg: MergeTreeConfig,
     aabbs: &'a [Aabb],
     quant: MortonQuantizer,
     n: u64,
     npad: u64,
     blocks: u64,
-    pub passes_total: u32,
-    pub layout: MemoryLayout,
-    port: Box<dyn MemoryPort>,
-    pub cycle: u64,
-    phase: Phase,
-    // Partial sort.
-    presorters: Vec<Presorter>,
-    in_next: u64,
-    /// Presorter of the sub-block at `in_next`, and whether `in_next` is its second half.
-    in_p: u32,
-    in_second_half: bool,
-    fill_block: u64,
-    /// Sub-blocks of `fill_block`.
-    fill_subs: u64,
-    sub_ready: u64,
-    /// Sub-blocks per partial-sort block: M / (2B).
-    subs_per_block: u64,
-    /// Sub-blocks in the scene.
-    total_subs: u64,
-    // Merge.
-    merger: Merger,
-    refill: VecDeque<u32>,
-    emit_fifo: Fifo<Elem>,
-    run_fifo: Fifo<Elem>,
-    to_emitter: bool,
-    run_flush: bool,
-    /// Functional contents of the two run regions: the reference of the element at each
-    /// position (a padding element's is its position). An element read back is rebuilt
-    /// from its reference, its input box and the Morton code computed when it was read
-    /// in (`codes`), which gives exactly the element written.
+    passes_total: u32,
+    layout: MemoryLayout,
+    mem: Memory,
+    cmd: LatencyFifo<MergeCmd>,
+    merge_done: LatencyFifo<()>,
+    sub_ready: LatencyFifo<()>,
+    emit_done: LatencyFifo<()>,
+    top_start: LatencyFifo<()>,
+    top_done: LatencyFifo<()>,
+    emit_fifo: LatencyFifo<Elem>,
+    run_fifo: LatencyFifo<Elem>,
+    refill: LatencyFifo<Fetch>,
+    fill: LatencyFifo<Fetch>,
+    ps_data: Vec<LatencyFifo<InputRead>>,
+    ps_credit: Vec<LatencyFifo<()>>,
+    req_read: LatencyFifo<Req>,
+    req_run: LatencyFifo<Req>,
+    nodes: KBuf,
+    leaves: KBuf,
+    hl: KBuf,
+    /// Emitter -> streaming CBVH encoder.
+    enc_fifo: LatencyFifo<cbvh::bottomup::InputNode>,
+    /// Streaming encoder's and top-down pass's requests to the arbiter.
+    req_cbvh: LatencyFifo<Req>,
+    /// Arbiter -> streaming encoder: a backtracking read's latency.
+    bt_data: LatencyFifo<u64>,
+    /// Arbiter -> top-down pass: stream position and latency of each node read.
+    td_data: LatencyFifo<(u64, u64)>,
+    stream_done: LatencyFifo<()>,
+    td_start: LatencyFifo<()>,
+    td_done: LatencyFifo<()>,
+    /// The emitter has output its last node (for the streaming encoder).
+    emit_finished: Reg<bool>,
+    ids: Optional,
+    /// Partial-sort block whose sub-blocks the presorters may copy into the scratchpad.
+    scratch_open: Reg<u64>,
+    /// The emitter consumes the merge output (the final merge has started).
+    emit_active: Reg<bool>,
+    /// Write side of the scratchpad in the partial sorts (handed to the merger with each
+    /// block: a functional double buffer, the hardware's one scratchpad).
+    scratch: Vec<Elem>,
+    /// Cycle the scratchpad's write port was last used.
+    scratch_port: Cycle,
+    /// Functional contents of the run regions (element references), and the Morton codes
+    /// recorded as the input streams in (see [`super::machine`]).
     region: [Vec<u32>; 2],
-    /// Morton code of each primitive, recorded by the input stage for the run regions.
     codes: Vec<u64>,
-    dst: usize,
-    wr_pos: u64,
-    pass_run_len: u64,
-    pass_runs: u64,
-    group: u64,
-    // Emission.
-    emit_active: bool,
-    pub emit: EmitUnit,
-    nodes_wb: WriteBuffer,
-    leaves_wb: WriteBuffer,
-    hl_wb: WriteBuffer,
-    top: Option<TopUnit>,
-    /// The streaming CBVH encoder (output = cbvh-stream).
-    pub stream: Option<StreamUnit>,
-    /// The top-down pass (output = cbvh-topdown, after the build).
-    pub td: Option<TopdownUnit>,
-    /// Cycle at which the hierarchy (and, streaming, the CBVH) was complete in DRAM.
-    pub build_cycles: u64,
-    // Memory.
-    inflight: Vec<ReadDesc>,
-    free_tags: Vec<u32>,
-    rr: usize,
-    outstanding_writes: u64,
-    pub port_refusals: u64,
-    pub reader_blocked_cycles: u64,
-    // Report.
-    pub phases: Vec<PhaseReport>,
-    phase_start: u64,
-    phase_read: u64,
-    /// Reads completed in the phase and the sum of their latencies (accept to completion).
-    phase_reads: u64,
-    phase_read_latency: u64,
-    phase_written: u64,
-    pub trace: Vec<TraceRow>,
-    win: TraceRow,
-    idle: u64,
-    /// Stall counters at the start of a probe cycle, and their change over it.
-    snap_before: Vec<u64>,
-    snap_after: Vec<u64>,
-    /// The previous cycle was idle: snapshot this one to fast-forward if it is too.
-    probe: bool,
-    /// Presorters busy in the current cycle.
-    presort_busy_now: u64,
-    /// The presorters were frozen (or not in use) in the current cycle.
-    presort_frozen_now: bool,
-    /// An event may have changed a presorter's situation since its last full tick.
-    presort_dirty: bool,
-    /// Earliest end of an insertion at the last full tick.
-    presort_wake: u64,
-    /// Busy, starved and waiting presorters at the last full tick (counts of a frozen cycle).
-    frozen: [u64; 3],
-    /// Starved and waiting presorter-cycles added by frozen cycles (busy ones are counted
-    /// when their insertion starts).
-    frozen_totals: [u64; 2],
-    /// Earliest end of a presorter's insertion in progress (`u64::MAX`: none).
-    wake_at: u64,
-    /// Cycles skipped by fast-forwarding.
-    pub skipped_cycles: u64,
-    /// Responses the port held after the last tick (popped at the next cycle's start).
-    waiting: usize,
-    progress_hook: Option<&'a mut dyn FnMut(u64, u64)>,
+    /// Requests sent and not yet answered, at the start of each cycle.
+    inflight: Reg<u64>,
+    acc: Totals,
+    trace: Trace,
+    out: Outputs,
+    phases: Vec<PhaseReport>,
+    /// Phase names with the cycle each started (for the trace rows).
+    phase_log: Vec<(Cycle, String)>,
+    build_cycles: Cycle,
+    /// Work done (merge outputs and emitter inputs) and in all, for the progress callback.
+    work: u64,
+    work_total: u64,
+    progress: Option<&'a mut dyn FnMut(u64, u64)>,
 }
 
-impl<'a> Machine<'a> {
-    /// A machine ready to sort and emit `aabbs` whose centroids lie in `centroid_bounds`.
-    pub fn new(
-        aabbs: &'a [Aabb],
-        centroid_bounds: &Aabb,
-        cfg: &MergeTreeConfig,
-        port: Box<dyn MemoryPort>,
-        progress_hook: Option<&'a mut dyn FnMut(u64, u64)>,
-    ) -> Result<Self, MergeTreeError> {
-        let n = aabbs.len() as u64;
-        let b = cfg.b as u64;
-        let m = cfg.m as u64;
-        let npad = n.div_ceil(b) * b;
-        let blocks = npad.div_ceil(m).max(1);
-        let fan = cfg.fan_in();
-        let mut passes_total = 0;
-        let mut runs = blocks;
-        while runs > 1 {
-            runs = runs.div_ceil(fan);
-            passes_total += 1;
+/// Work between two calls of the progress callback.
+const PROGRESS_EVERY: u64 = 1 << 16;
+
+impl KWorld<'_> {
+    /// One unit of work done: calls the progress callback every [`PROGRESS_EVERY`].
+    #[inline]
+    fn worked(&mut self, k: u64) {
+        let before = self.work / PROGRESS_EVERY;
+        self.work += k;
+        if self.work / PROGRESS_EVERY != before {
+            if let Some(h) = self.progress.as_mut() {
+                h(self.work.min(self.work_total), self.work_total);
+            }
         }
-        let layout = MemoryLayout::new(n, npad);
-        let subs = npad.div_ceil(2 * b);
-        let presorters = (0..cfg.presorters)
-            .map(|p| {
-                let mut ps = Presorter::new(cfg.presort_slots, cfg.b, p as u64);
-                if (p as u64) < subs {
-                    ps.start(
-                        p as u64,
-                        Self::sub_len(npad, b, p as u64),
-                        p as u64 * 2 * b / m,
-                    );
-                } else {
-                    ps.state = PresortState::Finished;
-                }
-                ps
-            })
-            .collect();
-        // Functional contents of the run regions: region 0 holds the partial-sort runs
-        // when a merge pass follows; region 1 is written only by non-final passes.
-        let region_len = |needed: bool| if needed { npad as usize } else { 0 };
-        let streaming = cfg.output == OutputMode::CbvhStream;
-        let stream = if streaming {
-            let enc = cbvh::StreamEncoder::new(cfg.stream_config(layout.cbvh))?;
-            Some(StreamUnit::new(
-                enc,
-                cfg.cbvh_fifo,
-                cfg.cbvh_flush_before_backtrack,
-            ))
-        } else {
-            None
-        };
-        Ok(Self {
-            cfg: cfg.clone(),
-            aabbs,
-            quant: MortonQuantizer::with_grid(centroid_bounds, cfg.morton_grid),
-            n,
-            npad,
-            blocks,
-            passes_total,
-            layout,
-            port,
-            cycle: 0,
-            phase: Phase::PartialSort,
-            presorters,
-            in_next: 0,
-            in_p: 0,
-            in_second_half: false,
-            fill_block: 0,
-            fill_subs: (npad.min(m)).div_ceil(2 * b),
-            sub_ready: 0,
-            subs_per_block: m / (2 * b),
-            total_subs: subs,
-            merger: Merger::new(cfg.m, cfg.b),
-            refill: VecDeque::with_capacity(2 * fan as usize),
-            emit_fifo: Fifo::new("merge->emitter", cfg.emit_fifo as usize),
-            run_fifo: Fifo::new("merge->run writer", cfg.run_write_fifo as usize),
-            to_emitter: blocks == 1,
-            run_flush: false,
-            region: [
-                vec![0; region_len(passes_total > 0)],
-                vec![0; region_len(passes_total > 1)],
-            ],
-            codes: vec![0; if passes_total > 0 { n as usize } else { 0 }],
-            dst: 0,
-            wr_pos: 0,
-            pass_run_len: m,
-            pass_runs: blocks,
-            group: 0,
-            emit_active: blocks == 1,
-            emit: EmitUnit::new(
-                n,
-                cfg.highlevel_threshold,
-                cfg.combine_identical,
-                cfg.max_leaf_size,
-                streaming,
-            ),
-            nodes_wb: WriteBuffer::new(
-                if streaming { layout.cbvh } else { layout.nodes },
-                cfg.node_buffer_bytes as u64,
-                cfg.write_chunk_bytes as u64,
-            ),
-            leaves_wb: WriteBuffer::new(
-                layout.leaves,
-                cfg.leaf_buffer_bytes as u64,
-                cfg.write_chunk_bytes as u64,
-            ),
-            hl_wb: WriteBuffer::new(
-                layout.highlevel,
-                cfg.node_buffer_bytes as u64,
-                cfg.write_chunk_bytes as u64,
-            ),
-            top: None,
-            stream,
-            td: None,
-            build_cycles: 0,
-            inflight: Vec::with_capacity(64),
-            free_tags: Vec::with_capacity(64),
-            rr: 0,
-            outstanding_writes: 0,
-            port_refusals: 0,
-            reader_blocked_cycles: 0,
-            phases: Vec::new(),
-            phase_start: 0,
-            phase_read: 0,
-            phase_reads: 0,
-            phase_read_latency: 0,
-            phase_written: 0,
-            trace: Vec::new(),
-            win: TraceRow::default(),
-            idle: 0,
-            snap_before: vec![0; SNAP],
-            snap_after: vec![0; SNAP],
-            probe: false,
-            wake_at: u64::MAX,
-            presort_busy_now: 0,
-            presort_dirty: true,
-            presort_frozen_now: true,
-            presort_wake: 0,
-            frozen: [0; 3],
-            frozen_totals: [0; 2],
-            skipped_cycles: 0,
-            waiting: 0,
-            progress_hook,
-        })
+    }
+}
+
+impl World for KWorld<'_> {
+    fn memory(&mut self) -> Option<&mut Memory> {
+        Some(&mut self.mem)
     }
 
-    fn sub_len(npad: u64, b: u64, sub: u64) -> u32 {
-        (npad - sub * 2 * b).min(2 * b) as u32
+    fn describe(&self) -> String {
+        let mut s = String::new();
+        for f in [&self.emit_fifo, &self.run_fifo] {
+            s += &format!("{} {}/{}; ", f.name(), f.len(), f.capacity());
+        }
+        s += &format!(
+            "refill {}, fill {}, read requests {}, run writes {}; write buffers: nodes {}, leaves {}, highlevel {} bytes",
+            self.refill.len(),
+            self.fill.len(),
+            self.req_read.len(),
+            self.req_run.len(),
+            self.nodes.wb.pending(),
+            self.leaves.wb.pending(),
+            self.hl.wb.pending()
+        );
+        s
+    }
+}
+
+impl KWorld<'_> {
+    fn sub_len(&self, sub: u64) -> u32 {
+        let b = self.cfg.b as u64;
+        (self.npad - sub * 2 * b).min(2 * b) as u32
     }
 
-    /// Sub-blocks (presorted queues) of partial-sort block `k`.
     fn subs_of_block(&self, k: u64) -> u64 {
-        let len = (self.npad - k * self.cfg.m as u64).min(self.cfg.m as u64);
+        let m = self.cfg.m as u64;
+        let len = (self.npad - k * m).min(m);
         len.div_ceil(2 * self.cfg.b as u64)
     }
+}
 
-    /// The element for input primitive `i` (padding past the end), with its Morton code
-    /// computed as it streams in (\[P2\] §5.1).
-    fn input_elem(&self, i: u64) -> Elem {
-        elem_of(self.aabbs, &self.quant, self.cfg.morton_bits, i)
-    }
+fn fifo<T>(name: &'static str, cap: usize, from: UnitId, to: UnitId) -> LatencyFifo<T> {
+    LatencyFifo::new(name, cap.max(1), 1, from, to).expect("capacity and latency are positive")
+}
 
-    /// Runs to completion; returns the cycle count.
-    pub fn run(&mut self) -> Result<u64, MergeTreeError> {
-        if self.n == 0 {
-            self.phase = Phase::Done;
-            return Ok(0);
-        }
-        self.win.cycle_start = 0;
-        loop {
-            let probe = self.probe;
-            if probe {
-                let mut snap = std::mem::take(&mut self.snap_before);
-                self.snapshot(&mut snap);
-                self.snap_before = snap;
-            }
-            let mut progress = false;
-            self.wake_at = u64::MAX;
-            while self.waiting > 0 {
-                let Some(r) = self.port.pop_response() else {
-                    break;
-                };
-                self.waiting -= 1;
-                progress = true;
-                let latency = r.completed_cycle - r.accepted_cycle;
-                if r.kind == AccessKind::Read {
-                    self.phase_reads += 1;
-                    self.phase_read_latency += latency;
-                }
-                self.on_response(r.tag, latency);
-            }
-            if self.control() {
-                progress = true;
-                self.presort_dirty = true;
-            }
-            if self.phase == Phase::Done {
-                break;
-            }
-            if self.emit_active {
-                let sink = match &mut self.stream {
-                    Some(st) => NodeSink::Cbvh(&mut st.input),
-                    None => NodeSink::Bvh(&mut self.nodes_wb),
-                };
-                let stepped = self.emit.tick(
-                    &mut self.emit_fifo,
-                    sink,
-                    &mut self.leaves_wb,
-                    &mut self.hl_wb,
-                );
-                if stepped {
-                    self.win.emitter_steps += 1;
-                }
-                progress |= stepped;
-                if let Some(e) = self.emit.fault.take() {
-                    return Err(e.into());
-                }
-                if let Some(st) = &mut self.stream {
-                    progress |= st.tick(&mut self.nodes_wb, self.emit.done)?;
-                }
-            }
-            if let Some(td) = &mut self.td {
-                progress |= td.tick(&mut self.nodes_wb);
-            }
-            if let Some(top) = &mut self.top {
-                progress |= top.tick(&mut self.hl_wb);
-                self.win.toplevel_busy += top.busy as u64;
-            }
-            let out = if self.to_emitter {
-                &mut self.emit_fifo
-            } else {
-                &mut self.run_fifo
-            };
-            let before = self.merger.outputs;
-            progress |= self.merger.tick(self.cycle, out, &mut self.refill);
-            self.win.merge_outputs += self.merger.outputs - before;
-            progress |= self.presort_tick();
-            self.win.presort_busy += self.presort_busy_now;
-            progress |= self.issue();
-            let idle = !progress && self.cycle >= self.merger.next_op;
-            if !idle {
-                self.idle = 0;
-                self.probe = false;
-            } else {
-                self.idle += 1;
-                // Nothing outstanding: no unit can ever progress. Requests outstanding for
-                // far longer than any DRAM latency: the memory has stopped answering.
-                if (self.idle > DEADLOCK_CYCLES && self.port.outstanding() == 0)
-                    || self.idle > MEMORY_TIMEOUT_CYCLES
-                {
-                    return Err(MergeTreeError::Deadlock(self.state_dump()));
-                }
-            }
-            self.advance();
-            if idle && probe && self.cfg.fast_forward {
-                self.fast_forward();
-            }
-            self.probe = idle;
-        }
-        self.close_window();
-        Ok(self.cycle)
-    }
+// ---------------------------------------------------------------------------------------
+// Control
 
-    /// Ends the cycle: the memory and the trace advance.
-    #[inline]
-    fn advance(&mut self) {
-        self.waiting = self.port.tick_and_count();
-        self.cycle += 1;
-        self.win.cycles += 1;
-        if self.win.cycles == self.cfg.trace_window_cycles {
-            self.close_window();
-        }
-    }
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Phase {
+    PartialSort,
+    MergePass(u32),
+    Fence(u32),
+    Emit,
+    Toplevel,
+    Topdown,
+    Done,
+}
 
-    /// The stall counters that an idle cycle with frozen presorters increments, into
-    /// `out`.
-    fn snapshot(&self, out: &mut [u64]) {
-        let m = &self.merger.stalls;
-        let e = &self.emit.stalls;
-        out[..8].copy_from_slice(&[
-            m.queue_dry_cycles,
-            m.output_full_cycles,
-            m.init_wait_cycles,
-            e.starved_cycles,
-            e.write_full_cycles,
-            self.reader_blocked_cycles,
-            self.port_refusals,
-            e.encoder_full_cycles,
-        ]);
-        out[8..10].copy_from_slice(&self.frozen_totals);
-        let (st, td) = out[10..].split_at_mut(STREAM_COUNTERS);
-        if let Some(u) = &self.stream {
-            st.copy_from_slice(&u.counters());
-        }
-        if let Some(u) = &self.td {
-            td.copy_from_slice(&u.counters());
-        }
-    }
+struct Control {
+    phase: Phase,
+    fill_block: u64,
+    subs_in: u64,
+    merging: bool,
+    group: u64,
+    pass_run_len: u64,
+    pass_runs: u64,
+    draining: bool,
+    stream_done: bool,
+    phase_start: Cycle,
+    snap: [u64; 4],
+}
 
-    /// After an idle probe cycle: no unit can change state until a memory response
-    /// arrives or a presorter's insertion ends (`wake_at`): nothing was issued, the merge
-    /// slot is open, the other units wait. Every cycle until then repeats the probe cycle
-    /// exactly; skip them, adding the probe cycle's counts once per skipped cycle.
-    fn fast_forward(&mut self) {
-        // The presorters' own counters are not in the snapshot: skip only after a probe
-        // cycle in which they were frozen (or idle outside the partial sorts).
-        if !self.presort_frozen_now {
-            return;
-        }
-        let mut after = std::mem::take(&mut self.snap_after);
-        self.snapshot(&mut after);
-        for (a, b) in after.iter_mut().zip(&self.snap_before) {
-            *a -= b;
-        }
-        // A request refused in the probe cycle may be accepted in a later one without any
-        // response arriving (DRAMsim3's staging drains into its controller): then the
-        // cycles to come need not repeat the probe cycle, so none is skipped.
-        if after[6] > 0 && !self.port.refusals_lift_only_with_responses() {
-            self.snap_after = after;
-            return;
-        }
-        let win_busy = self.presort_busy_now;
-        let deadline = self.wake_at;
-        // Nothing is sent or popped while skipping, so the count outstanding stays fixed.
-        let outstanding = self.port.outstanding();
-        let mut k = 0u64;
-        while self.waiting == 0
-            && (outstanding > 0 || deadline != u64::MAX)
-            && self.cycle < deadline
-            && self.idle + k < MEMORY_TIMEOUT_CYCLES
-        {
-            self.win.presort_busy += win_busy;
-            self.advance();
-            k += 1;
-        }
-        if k > 0 {
-            let m = &mut self.merger.stalls;
-            m.queue_dry_cycles += k * after[0];
-            m.output_full_cycles += k * after[1];
-            m.init_wait_cycles += k * after[2];
-            let e = &mut self.emit.stalls;
-            e.starved_cycles += k * after[3];
-            e.write_full_cycles += k * after[4];
-            self.reader_blocked_cycles += k * after[5];
-            self.port_refusals += k * after[6];
-            e.encoder_full_cycles += k * after[7];
-            for (t, d) in self.frozen_totals.iter_mut().zip(&after[8..10]) {
-                *t += k * d;
-            }
-            let (st, td) = after[10..].split_at(STREAM_COUNTERS);
-            if let Some(u) = &mut self.stream {
-                u.add_counters(st, k);
-            }
-            if let Some(u) = &mut self.td {
-                u.add_counters(td, k);
-            }
-
-            self.idle += k;
-            self.skipped_cycles += k;
-        }
-        self.snap_after = after;
-    }
-
-    fn close_window(&mut self) {
-        if self.win.cycles > 0 {
-            let mut w = std::mem::take(&mut self.win);
-            w.phase = self.phase_name();
-            self.trace.push(w);
-            if let Some(h) = self.progress_hook.as_mut() {
-                // Work: every merge output (partial sorts and passes) and every emitter read.
-                let (td_done, td_total) = match &self.td {
-                    Some(t) => t.progress(),
-                    None if self.cfg.output == OutputMode::CbvhTopdown => (0, self.n),
-                    None => (0, 0),
-                };
-                let total = self.npad * (self.passes_total as u64 + 1) + self.n + td_total;
-                h(self.emit.consumed + self.merger.outputs + td_done, total);
-            }
-        }
-        self.win.cycle_start = self.cycle;
-    }
-
-    fn phase_name(&self) -> String {
+impl Control {
+    fn phase_name(&self, w: &KWorld) -> String {
         match self.phase {
             Phase::PartialSort => "partial_sort".into(),
             Phase::MergePass(p) | Phase::Fence(p) => format!("merge_pass_{}", p + 1),
             Phase::Emit => {
-                if self.passes_total == 0 {
+                if w.passes_total == 0 {
                     "sort_and_emit".into()
                 } else {
-                    format!("merge_pass_{}_and_emit", self.passes_total)
+                    format!("merge_pass_{}_and_emit", w.passes_total)
                 }
             }
             Phase::Toplevel => "toplevel_sah".into(),
@@ -754,697 +743,1919 @@ impl<'a> Machine<'a> {
         }
     }
 
-    /// Closes the current phase's report row.
-    fn end_phase(&mut self) {
-        self.phases.push(PhaseReport {
-            name: self.phase_name(),
+    fn set_phase(&mut self, w: &mut KWorld, now: Cycle, p: Phase) {
+        self.phase = p;
+        let name = self.phase_name(w);
+        w.phase_log.push((now, name));
+    }
+
+    fn end_phase(&mut self, w: &mut KWorld, now: Cycle) {
+        let a = &w.acc;
+        let t = [
+            a.read_bytes.get(now),
+            a.write_bytes.get(now),
+            a.reads.get(now),
+            a.read_latency.get(now),
+        ];
+        let reads = t[2] - self.snap[2];
+        w.phases.push(PhaseReport {
+            name: self.phase_name(w),
             start_cycle: self.phase_start,
-            end_cycle: self.cycle,
-            bytes_read: self.phase_read,
-            bytes_written: self.phase_written,
-            reads: self.phase_reads,
-            read_latency_mean_cycles: if self.phase_reads == 0 {
+            end_cycle: now,
+            bytes_read: t[0] - self.snap[0],
+            bytes_written: t[1] - self.snap[1],
+            reads,
+            read_latency_mean_cycles: if reads == 0 {
                 0.0
             } else {
-                self.phase_read_latency as f64 / self.phase_reads as f64
+                (t[3] - self.snap[3]) as f64 / reads as f64
             },
         });
-        self.phase_start = self.cycle;
-        self.phase_read = 0;
-        self.phase_reads = 0;
-        self.phase_read_latency = 0;
-        self.phase_written = 0;
+        self.snap = t;
+        self.phase_start = now;
     }
 
-    /// The control FSM. Returns true when it changed state.
-    fn control(&mut self) -> bool {
-        match self.phase {
-            Phase::PartialSort => {
-                if self.merger.state == MergeState::Idle && self.sub_ready == self.fill_subs {
-                    let k = self.fill_block;
-                    let nsub = self.fill_subs;
-                    let first = k * self.cfg.m as u64 / (2 * self.cfg.b as u64);
-                    let (npad, b) = (self.npad, self.cfg.b as u64);
-                    self.merger.setup_partial(
-                        (first..first + nsub).map(|s| Self::sub_len(npad, b, s)),
-                        self.cycle,
-                    );
-                    self.run_flush = false;
-                    return true;
-                }
-                if self.merger.state == MergeState::Done {
-                    self.merger.state = MergeState::Idle;
-                    self.fill_block += 1;
-                    self.sub_ready = 0;
-                    if self.fill_block < self.blocks {
-                        self.fill_subs = self.subs_of_block(self.fill_block);
-                    }
-                    self.run_flush = true;
-                    if self.fill_block == self.blocks {
-                        if self.passes_total == 0 {
-                            self.phase = Phase::Emit;
-                        } else {
-                            self.end_phase();
-                            self.phase = Phase::Fence(0);
-                        }
-                    }
-                    return true;
-                }
-                false
-            }
-            Phase::Fence(p) => {
-                if self.run_fifo.is_empty() && self.outstanding_writes == 0 {
-                    self.start_pass(p);
-                    return true;
-                }
-                false
-            }
-            Phase::MergePass(p) => {
-                if self.merger.state != MergeState::Done {
-                    return false;
-                }
-                self.group += 1;
-                let groups = self.pass_runs.div_ceil(self.cfg.fan_in());
-                if self.group < groups {
-                    self.setup_group();
-                } else {
-                    self.merger.state = MergeState::Idle;
-                    self.run_flush = true;
-                    self.end_phase();
-                    self.phase = Phase::Fence(p + 1);
-                }
-                true
-            }
-            Phase::Emit => {
-                if self.emit.done {
-                    // The streaming encoder writes node pairs until it is done.
-                    let stream_done = self.stream.as_ref().is_none_or(|s| s.done);
-                    self.nodes_wb.flush |= stream_done;
-                    self.leaves_wb.flush = true;
-                    self.hl_wb.flush = true;
-                    if stream_done
-                        && self.nodes_wb.pending() == 0
-                        && self.leaves_wb.pending() == 0
-                        && self.hl_wb.pending() == 0
-                        && self.port.outstanding() == 0
-                    {
-                        self.end_phase();
-                        self.build_cycles = self.cycle;
-                        if self.cfg.toplevel_sah && self.emit.roots.len() > 1 {
-                            self.top = Some(TopUnit::new(&self.emit.roots, &self.cfg));
-                            self.hl_wb.flush = false;
-                            self.phase = Phase::Toplevel;
-                        } else if self.cfg.output == OutputMode::CbvhTopdown {
-                            self.nodes_wb = WriteBuffer::new(
-                                self.layout.cbvh,
-                                self.cfg.node_buffer_bytes as u64,
-                                self.cfg.write_chunk_bytes as u64,
-                            );
-                            let pair = cbvh::format::pair_bytes(self.cfg.cbvh_bits) as u64;
-                            self.td = Some(TopdownUnit::new(
-                                self.emit.nodes.len() as u64,
-                                self.layout.nodes,
-                                pair,
-                            ));
-                            self.phase = Phase::Topdown;
-                        } else {
-                            self.phase = Phase::Done;
-                        }
-                        return true;
-                    }
-                }
-                false
-            }
-            Phase::Topdown => {
-                let td = self.td.as_ref().expect("top-down unit in its phase");
-                if td.done() {
-                    self.nodes_wb.flush = true;
-                    if self.nodes_wb.pending() == 0 && self.port.outstanding() == 0 {
-                        self.end_phase();
-                        self.phase = Phase::Done;
-                        return true;
-                    }
-                }
-                false
-            }
-            Phase::Toplevel => {
-                let top = self.top.as_ref().expect("toplevel unit in its phase");
-                if top.done() {
-                    self.hl_wb.flush = true;
-                    if self.hl_wb.pending() == 0 && self.port.outstanding() == 0 {
-                        self.end_phase();
-                        self.phase = Phase::Done;
-                        return true;
-                    }
-                }
-                false
-            }
-            Phase::Done => false,
-        }
-    }
-
-    /// Starts multi-merge pass `p` (runs of `M * F^p` elements).
-    fn start_pass(&mut self, p: u32) {
-        let fan = self.cfg.fan_in();
-        self.pass_run_len = self.cfg.m as u64 * fan.pow(p);
-        self.pass_runs = self.npad.div_ceil(self.pass_run_len);
+    fn start_pass(&mut self, w: &mut KWorld, cx: &mut Ctx, p: u32) {
+        let fan = w.cfg.fan_in();
+        self.pass_run_len = w.cfg.m as u64 * fan.pow(p);
+        self.pass_runs = w.npad.div_ceil(self.pass_run_len);
         self.group = 0;
-        self.dst = (p as usize + 1) % 2;
-        self.wr_pos = 0;
-        self.to_emitter = p + 1 == self.passes_total;
-        self.emit_active |= self.to_emitter;
-        self.phase = if self.to_emitter {
+        let to_emitter = p + 1 == w.passes_total;
+        if to_emitter {
+            w.emit_active.set(cx.now(), true);
+            cx.notify(EMITTER, cx.now() + 1);
+        }
+        let ph = if to_emitter {
             Phase::Emit
         } else {
             Phase::MergePass(p)
         };
-        self.setup_group();
+        self.set_phase(w, cx.now(), ph);
+        self.setup_group(w, cx, p);
     }
 
-    fn setup_group(&mut self) {
-        let fan = self.cfg.fan_in();
+    fn setup_group(&mut self, w: &mut KWorld, cx: &mut Ctx, p: u32) {
+        let fan = w.cfg.fan_in();
         let first = self.group * fan;
         let last = (first + fan).min(self.pass_runs);
-        let (len, npad) = (self.pass_run_len, self.npad);
-        self.run_flush = false;
-        self.merger.setup_multi(
-            (first..last).map(|r| (r * len, (npad - r * len).min(len))),
-            &mut self.refill,
-            self.cycle,
-        );
+        let c = MergeCmd::Multi {
+            first,
+            last,
+            run_len: self.pass_run_len,
+            src: (p % 2) as u8,
+            to_emitter: p + 1 == w.passes_total,
+        };
+        w.cmd
+            .push(cx, c)
+            .expect("the merger took the previous command");
+        self.merging = true;
     }
 
-    /// One cycle of the presorters and of the scratchpad write port.
-    ///
-    /// After a cycle in which no presorter changed state, they stay frozen (each counting
-    /// the same busy, starved or waiting cycle) until an insertion ends (`presort_wake`)
-    /// or an event reaches them (`presort_dirty`: data for a ring, a control-state
-    /// change); such cycles only add the frozen counts.
-    fn presort_tick(&mut self) -> bool {
-        self.presort_busy_now = 0;
-        self.presort_frozen_now = true;
-        if self.phase != Phase::PartialSort {
-            return false;
-        }
-        if !self.presort_dirty && self.cycle < self.presort_wake {
-            let f = self.frozen;
-            // Busy presorters of a frozen cycle are inside insertions, whose cycles were
-            // counted when they started: only the trace adds them per cycle.
-            self.presort_busy_now = f[0];
-            self.frozen_totals[0] += f[1];
-            self.frozen_totals[1] += f[2];
-            self.wake_at = self.wake_at.min(self.presort_wake);
-            return false;
-        }
-        self.presort_frozen_now = false;
-        let (mut n_starved, mut n_wait) = (0u64, 0u64);
-        let mut wake = u64::MAX;
-        let b = self.cfg.b as u64;
-        let subs_per_block = self.subs_per_block;
-        let total_subs = self.total_subs;
-        let mut progress = false;
-        let mut port_free = true;
-        let p_count = self.presorters.len() as u64;
-        let cycle = self.cycle;
-        for ps in self.presorters.iter_mut() {
-            match ps.state {
-                PresortState::Finished => {}
-                PresortState::Sorting => {
-                    if cycle < ps.busy_until {
-                        // Inside an insertion: nothing changes before it ends.
-                        self.presort_busy_now += 1;
-                        wake = wake.min(ps.busy_until);
-                        continue;
+    /// True when every write buffer was empty and no request was outstanding at the start
+    /// of the cycle.
+    fn drained(w: &KWorld, now: Cycle) -> bool {
+        w.nodes.start_pending(now) == 0
+            && w.leaves.start_pending(now) == 0
+            && w.hl.start_pending(now) == 0
+            && w.inflight.get(now) == 0
+    }
+}
+
+impl<'a> Unit<KWorld<'a>> for Control {
+    fn name(&self) -> &str {
+        "control"
+    }
+
+    fn step(&mut self, w: &mut KWorld<'a>, cx: &mut Ctx) -> Wake {
+        let now = cx.now();
+        match self.phase {
+            Phase::PartialSort => {
+                while w.sub_ready.pop(cx).is_some() {
+                    self.subs_in += 1;
+                }
+                if self.merging {
+                    if w.merge_done.pop(cx).is_none() {
+                        return Wake::OnEvent;
                     }
-                    if ps.sorted(cycle) {
-                        ps.state = PresortState::Draining { pos: 0 };
-                    } else {
-                        let starved = ps.starved_cycles;
-                        progress |= ps.tick_sort(cycle, self.cfg.b);
-                        n_starved += ps.starved_cycles - starved;
-                        if ps.busy_at(cycle) {
-                            self.presort_busy_now += 1;
-                            wake = wake.min(ps.busy_until);
+                    self.merging = false;
+                    self.fill_block += 1;
+                    if self.fill_block == w.blocks {
+                        if w.passes_total == 0 {
+                            self.set_phase(w, now, Phase::Emit);
+                            return Wake::Next;
                         }
-                        continue;
+                        self.end_phase(w, now);
+                        self.set_phase(w, now, Phase::Fence(0));
+                        return Wake::Next;
                     }
+                    w.scratch_open.set(now, self.fill_block);
+                    cx.notify(UnitId(PRESORTER0), now + 1);
+                    return Wake::OnEvent;
                 }
-                PresortState::Draining { .. } => {}
+                let nsub = w.subs_of_block(self.fill_block);
+                if self.subs_in < nsub {
+                    return Wake::OnEvent;
+                }
+                self.subs_in -= nsub;
+                let first = self.fill_block * w.cfg.m as u64 / (2 * w.cfg.b as u64);
+                let c = MergeCmd::Partial {
+                    first,
+                    count: nsub,
+                    to_emitter: w.blocks == 1,
+                };
+                w.cmd.push(cx, c).expect("the merger is idle");
+                w.scratch_open.set(now, CLOSED);
+                self.merging = true;
+                cx.set_state(State::Busy);
+                Wake::OnEvent
             }
-            if let PresortState::Draining { pos } = ps.state {
-                let can = port_free
-                    && ps.block == self.fill_block
-                    && self.merger.state == MergeState::Idle;
-                if !can {
-                    ps.wait_scratchpad_cycles += 1;
-                    n_wait += 1;
-                    continue;
+            Phase::Fence(p) => {
+                if w.acc.run_acked.get(now) < w.npad * (p as u64 + 1) {
+                    return Wake::Next; // polls the arbiter's total
                 }
-                port_free = false;
-                let slot = (ps.sub % subs_per_block) * 2 * b;
-                self.merger.scratch[(slot + pos as u64) as usize] = ps.buf[pos as usize];
-                ps.busy_cycles += 1;
-                self.presort_busy_now += 1;
-                progress = true;
-                if pos + 1 == ps.sub_len {
-                    self.sub_ready += 1;
-                    let next = ps.sub + p_count;
-                    if next < total_subs {
-                        ps.start(
-                            next,
-                            Self::sub_len(self.npad, b, next),
-                            next / subs_per_block,
-                        );
-                    } else {
-                        ps.state = PresortState::Finished;
+                self.start_pass(w, cx, p);
+                Wake::Next
+            }
+            Phase::MergePass(p) => {
+                if w.merge_done.pop(cx).is_none() {
+                    return Wake::OnEvent;
+                }
+                self.merging = false;
+                self.group += 1;
+                if self.group < self.pass_runs.div_ceil(w.cfg.fan_in()) {
+                    self.setup_group(w, cx, p);
+                    return Wake::OnEvent;
+                }
+                self.end_phase(w, now);
+                self.set_phase(w, now, Phase::Fence(p + 1));
+                Wake::Next
+            }
+            Phase::Emit => {
+                // The final merge's done token is not needed: the emitter ends the phase.
+                let _ = w.merge_done.pop(cx);
+                let streaming = w.cfg.output == OutputMode::CbvhStream;
+                if !self.draining {
+                    if w.emit_done.pop(cx).is_none() {
+                        return Wake::OnEvent;
                     }
-                } else {
-                    ps.state = PresortState::Draining { pos: pos + 1 };
+                    self.draining = true;
+                    // The streaming encoder writes node pairs until it is done.
+                    if !streaming {
+                        w.nodes.set_flush(cx, true);
+                    }
+                    w.leaves.set_flush(cx, true);
+                    w.hl.set_flush(cx, true);
+                    return Wake::Next;
                 }
+                if streaming && !self.stream_done {
+                    if w.stream_done.pop(cx).is_none() {
+                        return Wake::OnEvent;
+                    }
+                    self.stream_done = true;
+                    w.nodes.set_flush(cx, true);
+                    return Wake::Next;
+                }
+                if !Self::drained(w, now) {
+                    return Wake::Next;
+                }
+                self.draining = false;
+                self.end_phase(w, now);
+                w.build_cycles = now + 1;
+                if w.cfg.toplevel_sah && w.out.roots.len() > 1 {
+                    w.top_start.push(cx, ()).expect("one start");
+                    w.hl.set_flush(cx, false);
+                    self.set_phase(w, now, Phase::Toplevel);
+                    return Wake::OnEvent;
+                }
+                if w.cfg.output == OutputMode::CbvhTopdown {
+                    w.nodes = KBuf::new(
+                        WriteBuffer::new(
+                            w.layout.cbvh,
+                            w.cfg.node_buffer_bytes as u64,
+                            w.cfg.write_chunk_bytes as u64,
+                        ),
+                        [w.ids.topdown, w.ids.topdown],
+                    );
+                    w.td_start.push(cx, ()).expect("one start");
+                    self.set_phase(w, now, Phase::Topdown);
+                    return Wake::OnEvent;
+                }
+                self.set_phase(w, now, Phase::Done);
+                cx.set_state(State::Idle);
+                Wake::Done
             }
+            Phase::Toplevel => {
+                if !self.draining {
+                    if w.top_done.pop(cx).is_none() {
+                        return Wake::OnEvent;
+                    }
+                    self.draining = true;
+                    w.hl.set_flush(cx, true);
+                    return Wake::Next;
+                }
+                if !Self::drained(w, now) {
+                    return Wake::Next;
+                }
+                self.end_phase(w, now);
+                self.set_phase(w, now, Phase::Done);
+                cx.set_state(State::Idle);
+                Wake::Done
+            }
+            Phase::Topdown => {
+                if !self.draining {
+                    if w.td_done.pop(cx).is_none() {
+                        return Wake::OnEvent;
+                    }
+                    self.draining = true;
+                    w.nodes.set_flush(cx, true);
+                    return Wake::Next;
+                }
+                if !Self::drained(w, now) {
+                    return Wake::Next;
+                }
+                self.end_phase(w, now);
+                self.set_phase(w, now, Phase::Done);
+                cx.set_state(State::Idle);
+                Wake::Done
+            }
+            Phase::Done => Wake::Done,
         }
-        self.wake_at = self.wake_at.min(wake);
-        self.presort_wake = wake;
-        self.frozen = [self.presort_busy_now, n_starved, n_wait];
-        self.presort_dirty = progress;
-        progress
     }
 
-    fn new_tag(&mut self, d: ReadDesc) -> u64 {
-        match self.free_tags.pop() {
-            Some(t) => {
-                self.inflight[t as usize] = d;
-                t as u64
+    fn describe(&self, _w: &KWorld<'a>) -> String {
+        format!(
+            "phase {:?}, block {}, {} sub-blocks in, merging {}, group {}, draining {}",
+            self.phase, self.fill_block, self.subs_in, self.merging, self.group, self.draining
+        )
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Hierarchy emitter
+
+struct Emitter {
+    e: EmitUnit,
+}
+
+const EMIT_STARVED: u8 = 0;
+const EMIT_WRITE_FULL: u8 = 1;
+const EMIT_ENCODER_FULL: u8 = 2;
+
+/// The emitter's channels in the kernel world.
+struct KPorts<'c, 'w> {
+    cx: &'c mut Ctx,
+    input: &'w mut LatencyFifo<Elem>,
+    enc: Option<&'w mut LatencyFifo<cbvh::bottomup::InputNode>>,
+    nodes: &'w mut KBuf,
+    leaves: &'w mut KBuf,
+    hl: &'w mut KBuf,
+}
+
+impl EmitPorts for KPorts<'_, '_> {
+    #[inline]
+    fn drop_padding(&mut self) {
+        while self.input.peek(self.cx).is_some_and(|e| e.is_pad()) {
+            self.input.pop(self.cx);
+        }
+    }
+    #[inline]
+    fn pop(&mut self) -> Option<Elem> {
+        self.input.pop(self.cx)
+    }
+    #[inline]
+    fn encoder_attached(&self) -> bool {
+        self.enc.is_some()
+    }
+    #[inline]
+    fn node_room(&self) -> bool {
+        match &self.enc {
+            Some(f) => !f.is_full(self.cx),
+            None => self.nodes.has_room(self.cx.now(), NODE_BYTES),
+        }
+    }
+    #[inline]
+    fn leaf_room(&self) -> bool {
+        self.leaves.has_room(self.cx.now(), LEAF_ENTRY_BYTES)
+    }
+    #[inline]
+    fn highlevel_room(&self) -> bool {
+        self.hl.has_room(self.cx.now(), HIGHLEVEL_BYTES)
+    }
+    #[inline]
+    fn add_node(&mut self) {
+        self.nodes.add(self.cx, NODE_BYTES);
+    }
+    fn push_encoder(&mut self, n: cbvh::bottomup::InputNode) {
+        let f = self.enc.as_mut().expect("an encoder attached");
+        if f.push(self.cx, n).is_err() {
+            unreachable!("room in the encoder FIFO was checked before the step");
+        }
+    }
+    #[inline]
+    fn add_leaf(&mut self) {
+        self.leaves.add(self.cx, LEAF_ENTRY_BYTES);
+    }
+    #[inline]
+    fn add_highlevel(&mut self) {
+        self.hl.add(self.cx, HIGHLEVEL_BYTES);
+    }
+}
+
+impl<'a> Unit<KWorld<'a>> for Emitter {
+    fn name(&self) -> &str {
+        "emitter"
+    }
+
+    fn stall_reasons(&self) -> &'static [&'static str] {
+        &["input empty", "write buffer full", "encoder full"]
+    }
+
+    fn step(&mut self, w: &mut KWorld<'a>, cx: &mut Ctx) -> Wake {
+        let now = cx.now();
+        if !w.emit_active.get(now) {
+            return Wake::Done;
+        }
+        let streaming = w.cfg.output == OutputMode::CbvhStream;
+        let KWorld {
+            emit_fifo,
+            enc_fifo,
+            nodes,
+            leaves,
+            hl,
+            ..
+        } = w;
+        let mut io = KPorts {
+            cx: &mut *cx,
+            input: emit_fifo,
+            enc: streaming.then_some(enc_fifo),
+            nodes,
+            leaves,
+            hl,
+        };
+        let consumed = self.e.consumed;
+        let st = self.e.tick_with(&mut io);
+        if let Some(f) = self.e.fault.take() {
+            w.out.fault = Some(f);
+        }
+        match st {
+            EmitStatus::Stepped => {
+                cx.set_state(State::Busy);
+                w.trace.row(now).emitter_steps += 1;
+                if self.e.consumed > consumed {
+                    w.worked(1);
+                }
+                if self.e.done {
+                    w.out.nodes = std::mem::take(&mut self.e.nodes);
+                    w.out.roots = std::mem::take(&mut self.e.roots);
+                    w.out.order = std::mem::take(&mut self.e.order);
+                    w.out.max_stack_depth = self.e.max_stack_depth();
+                    w.out.cbvh_ids = self.e.cbvh_ids.take();
+                    w.emit_finished.set(now, true);
+                    cx.notify(w.ids.stream, now + 1);
+                    w.emit_done.push(cx, ()).expect("one done token");
+                    cx.set_state(State::Idle);
+                    return Wake::Done;
+                }
+                Wake::Next
+            }
+            EmitStatus::Starved => {
+                cx.set_state(State::Stalled(EMIT_STARVED));
+                Wake::OnEvent
+            }
+            EmitStatus::WriteFull => {
+                cx.set_state(State::Stalled(EMIT_WRITE_FULL));
+                Wake::OnEvent
+            }
+            EmitStatus::EncoderFull => {
+                cx.set_state(State::Stalled(EMIT_ENCODER_FULL));
+                Wake::OnEvent
+            }
+            EmitStatus::Finished => {
+                cx.set_state(State::Idle);
+                Wake::Done
+            }
+        }
+    }
+
+    fn counters(&self) -> Vec<(&'static str, u64)> {
+        vec![("steps", self.e.steps), ("consumed", self.e.consumed)]
+    }
+
+    fn describe(&self, _w: &KWorld<'a>) -> String {
+        format!("{} read, done {}", self.e.consumed, self.e.done)
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Toplevel SAH unit
+
+struct Toplevel {
+    t: Option<TopUnit>,
+    busy: u64,
+    busy_until: Cycle,
+}
+
+impl<'a> Unit<KWorld<'a>> for Toplevel {
+    fn name(&self) -> &str {
+        "toplevel"
+    }
+
+    fn stall_reasons(&self) -> &'static [&'static str] {
+        &["write buffer full"]
+    }
+
+    fn step(&mut self, w: &mut KWorld<'a>, cx: &mut Ctx) -> Wake {
+        let now = cx.now();
+        if now < self.busy_until {
+            return Wake::At(self.busy_until);
+        }
+        if self.t.is_none() {
+            if w.top_start.pop(cx).is_none() {
+                return Wake::Done;
+            }
+            self.t = Some(TopUnit::new(&w.out.roots, &w.cfg));
+        }
+        let t = self.t.as_mut().expect("started");
+        if !t.done() {
+            let k = t.left();
+            if k > 0 {
+                w.trace.span(now, now + k, |r| &mut r.toplevel_busy);
+                t.spend(k);
+                self.busy += k;
+                self.busy_until = now + k;
+                cx.set_state(State::Busy);
+                return Wake::At(now + k);
+            }
+            if !w.hl.has_room(now, NODE_BYTES) {
+                cx.set_state(State::Stalled(0));
+                return Wake::OnEvent;
+            }
+            w.hl.add(cx, NODE_BYTES);
+            t.finish_sweep();
+            if !t.done() {
+                cx.set_state(State::Busy);
+                return Wake::Next;
+            }
+        }
+        w.out.top = self.t.take();
+        w.top_done.push(cx, ()).expect("one done token");
+        cx.set_state(State::Idle);
+        Wake::Done
+    }
+
+    fn counters(&self) -> Vec<(&'static str, u64)> {
+        vec![("busy_cycles", self.busy)]
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Multi-merge unit
+
+struct MergeUnit {
+    m: Merger,
+    active: bool,
+    to_emitter: bool,
+    src: u8,
+    /// Buffer halves to refill, collected in a step (allocated once).
+    refills: VecDeque<u32>,
+}
+
+const MERGE_DRY: u8 = 0;
+const MERGE_FULL: u8 = 1;
+const MERGE_INIT: u8 = 2;
+
+struct KMergeOut<'c, 'w> {
+    cx: &'c mut Ctx,
+    out: &'w mut LatencyFifo<Elem>,
+    refills: &'w mut VecDeque<u32>,
+}
+
+impl MergeOut for KMergeOut<'_, '_> {
+    #[inline]
+    fn is_full(&self) -> bool {
+        self.out.is_full(self.cx)
+    }
+    #[inline]
+    fn push(&mut self, e: Elem) {
+        let _ = self.out.push(self.cx, e);
+    }
+    #[inline]
+    fn refill(&mut self, buf: u32) {
+        self.refills.push_back(buf);
+    }
+}
+
+impl MergeUnit {
+    fn push_refills(&mut self, w: &mut KWorld, cx: &mut Ctx) {
+        while let Some(buf) = self.refills.pop_front() {
+            let (pos, count) = self.m.peek_fetch(buf);
+            self.m.commit_fetch(buf, count);
+            let f = Fetch {
+                buf,
+                region: self.src,
+                pos,
+                count,
+            };
+            if w.refill.push(cx, f).is_err() {
+                unreachable!("the refill FIFO holds two halves per queue");
+            }
+        }
+    }
+}
+
+impl<'a> Unit<KWorld<'a>> for MergeUnit {
+    fn name(&self) -> &str {
+        "merge"
+    }
+
+    fn stall_reasons(&self) -> &'static [&'static str] {
+        &["queue dry", "output full", "init wait"]
+    }
+
+    fn step(&mut self, w: &mut KWorld<'a>, cx: &mut Ctx) -> Wake {
+        let now = cx.now();
+        while let Some(f) = w.fill.pop(cx) {
+            let s = f.pos as usize;
+            let src = &w.region[f.region as usize][s..s + f.count as usize];
+            let (aabbs, codes) = (w.aabbs, &w.codes);
+            self.m.fill_with(f.buf, src.len(), |k| {
+                let r = src[k];
+                match aabbs.get(r as usize) {
+                    Some(&a) => Elem::new(codes[r as usize], r, a),
+                    None => Elem::pad(r as u64),
+                }
+            });
+        }
+        if !self.active {
+            let Some(c) = w.cmd.pop(cx) else {
+                cx.set_state(State::Idle);
+                return Wake::Done;
+            };
+            self.active = true;
+            match c {
+                MergeCmd::Partial {
+                    first,
+                    count,
+                    to_emitter,
+                } => {
+                    std::mem::swap(&mut self.m.scratch, &mut w.scratch);
+                    self.to_emitter = to_emitter;
+                    let w = &*w;
+                    self.m
+                        .setup_partial((first..first + count).map(|s| w.sub_len(s)), now);
+                }
+                MergeCmd::Multi {
+                    first,
+                    last,
+                    run_len,
+                    src,
+                    to_emitter,
+                } => {
+                    self.to_emitter = to_emitter;
+                    self.src = src;
+                    let npad = w.npad;
+                    self.m.setup_multi(
+                        (first..last).map(|r| (r * run_len, (npad - r * run_len).min(run_len))),
+                        &mut self.refills,
+                        now,
+                    );
+                    self.push_refills(w, cx);
+                }
+            }
+            cx.set_state(State::Busy);
+        }
+        let before = self.m.outputs;
+        let slot = {
+            let out = if self.to_emitter {
+                &mut w.emit_fifo
+            } else {
+                &mut w.run_fifo
+            };
+            let mut o = KMergeOut {
+                cx: &mut *cx,
+                out,
+                refills: &mut self.refills,
+            };
+            self.m.tick_with(now, &mut o)
+        };
+        if self.m.outputs > before {
+            w.trace.row(now).merge_outputs += self.m.outputs - before;
+            w.worked(self.m.outputs - before);
+        }
+        self.push_refills(w, cx);
+        if self.m.state == MergeState::Done {
+            self.m.state = MergeState::Idle;
+            self.active = false;
+            w.merge_done
+                .push(cx, ())
+                .expect("the control took the last token");
+            cx.set_state(State::Idle);
+            return Wake::Next; // the next command may be there
+        }
+        match slot {
+            Slot::Worked | Slot::Closed => {
+                cx.set_state(State::Busy);
+                Wake::At(self.m.next_op)
+            }
+            Slot::QueueDry => {
+                cx.set_state(State::Stalled(MERGE_DRY));
+                Wake::OnEvent
+            }
+            Slot::OutputFull => {
+                cx.set_state(State::Stalled(MERGE_FULL));
+                Wake::OnEvent
+            }
+            Slot::InitWait => {
+                cx.set_state(State::Stalled(MERGE_INIT));
+                Wake::OnEvent
+            }
+        }
+    }
+
+    fn counters(&self) -> Vec<(&'static str, u64)> {
+        vec![("outputs", self.m.outputs), ("heap_ops", self.m.ops)]
+    }
+
+    fn describe(&self, _w: &KWorld<'a>) -> String {
+        format!(
+            "{:?}, heap {} live, next op at {}",
+            self.m.state,
+            self.m.heap.live(),
+            self.m.next_op
+        )
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Reader
+
+struct Reader {
+    in_next: u64,
+    in_p: u32,
+    second_half: bool,
+    /// Ring slots of each presorter allocated and not yet freed.
+    alloc: Vec<u32>,
+    tail: Vec<u32>,
+    slots: u32,
+}
+
+const READER_RING_FULL: u8 = 0;
+const READER_REQ_FULL: u8 = 1;
+
+impl<'a> Unit<KWorld<'a>> for Reader {
+    fn name(&self) -> &str {
+        "reader"
+    }
+
+    fn stall_reasons(&self) -> &'static [&'static str] {
+        &["presorter ring full", "request slot full"]
+    }
+
+    fn step(&mut self, w: &mut KWorld<'a>, cx: &mut Ctx) -> Wake {
+        for (a, f) in self.alloc.iter_mut().zip(w.ps_credit.iter_mut()) {
+            while f.pop(cx).is_some() {
+                *a -= 1;
+            }
+        }
+        let input = self.in_next < w.npad;
+        if !input && w.refill.peek(cx).is_none() {
+            cx.set_state(State::Idle);
+            return Wake::Done;
+        }
+        if input && self.alloc[self.in_p as usize] == self.slots {
+            cx.set_state(State::Stalled(READER_RING_FULL));
+            return Wake::OnEvent;
+        }
+        if w.req_read.is_full(cx) {
+            cx.set_state(State::Stalled(READER_REQ_FULL));
+            return Wake::OnEvent;
+        }
+        let req = if input {
+            let b = w.cfg.b as u64;
+            let p = self.in_p as usize;
+            let slot = self.tail[p];
+            self.tail[p] = if slot + 1 == self.slots { 0 } else { slot + 1 };
+            self.alloc[p] += 1;
+            let real = w.n.min(self.in_next + b) - self.in_next;
+            let r = Req {
+                addr: w.layout.input + self.in_next * ELEM_BYTES,
+                bytes: (real * ELEM_BYTES) as u32,
+                kind: AccessKind::Read,
+                dest: Dest::Presort {
+                    p: self.in_p,
+                    read: InputRead {
+                        slot,
+                        src: self.in_next,
+                        count: b as u32,
+                    },
+                },
+            };
+            self.in_next += b;
+            // Two buffers make a sub-block; sub-blocks go round robin to presorters.
+            self.second_half = !self.second_half;
+            if !self.second_half {
+                self.in_p += 1;
+                if self.in_p == w.cfg.presorters {
+                    self.in_p = 0;
+                }
+            }
+            r
+        } else {
+            let f = w.refill.pop(cx).expect("peeked");
+            Req {
+                addr: w.layout.runs[f.region as usize] + f.pos * ELEM_BYTES,
+                bytes: f.count * ELEM_BYTES as u32,
+                kind: AccessKind::Read,
+                dest: Dest::Merge(f),
+            }
+        };
+        if w.req_read.push(cx, req).is_err() {
+            unreachable!("checked");
+        }
+        cx.set_state(State::Busy);
+        Wake::Next
+    }
+
+    fn describe(&self, _w: &KWorld<'a>) -> String {
+        format!("input at {}, presorter {}", self.in_next, self.in_p)
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Run writer
+
+struct RunWriter {
+    staged: u32,
+    written: u64,
+    b: u32,
+    npad: u64,
+}
+
+impl<'a> Unit<KWorld<'a>> for RunWriter {
+    fn name(&self) -> &str {
+        "run writer"
+    }
+
+    fn stall_reasons(&self) -> &'static [&'static str] {
+        &["request slot full"]
+    }
+
+    fn step(&mut self, w: &mut KWorld<'a>, cx: &mut Ctx) -> Wake {
+        while self.staged < self.b {
+            let Some(e) = w.run_fifo.pop(cx) else { break };
+            let c = self.written;
+            let region = ((c / self.npad) % 2) as usize;
+            w.region[region][(c % self.npad) as usize] = e.index;
+            self.written += 1;
+            self.staged += 1;
+        }
+        if self.staged < self.b {
+            cx.set_state(State::Idle);
+            return if self.staged == 0 {
+                Wake::Done
+            } else {
+                Wake::OnEvent
+            };
+        }
+        let start = self.written - self.b as u64;
+        let region = ((start / self.npad) % 2) as usize;
+        let bytes = self.b * ELEM_BYTES as u32;
+        let req = Req {
+            addr: w.layout.runs[region] + (start % self.npad) * ELEM_BYTES,
+            bytes,
+            kind: AccessKind::Write,
+            dest: Dest::Run { elems: self.b },
+        };
+        if w.req_run.push(cx, req).is_err() {
+            cx.set_state(State::Stalled(0));
+            return Wake::OnEvent;
+        }
+        self.staged = 0;
+        cx.set_state(State::Busy);
+        Wake::Next
+    }
+
+    fn counters(&self) -> Vec<(&'static str, u64)> {
+        vec![("elements", self.written)]
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Memory arbiter
+
+/// Requesters of the arbiter, in round-robin order.
+const REQUESTERS: usize = 6;
+
+struct Arbiter {
+    rr: RoundRobin,
+    slab: Vec<(Dest, u32)>,
+    free: Vec<u32>,
+    inflight: u64,
+    burst: u32,
+    /// The port accepts a refused request only after a response (then a refused arbiter
+    /// sleeps until one arrives: the memory wakes it).
+    lift_only_with_responses: bool,
+}
+
+impl Arbiter {
+    #[inline]
+    fn head(w: &KWorld, cx: &Ctx, i: usize) -> Option<Req> {
+        let now = cx.now();
+        let buf = |b: &KBuf| {
+            b.ready(now).map(|(addr, bytes)| Req {
+                addr,
+                bytes,
+                kind: AccessKind::Write,
+                dest: Dest::Buffer,
+            })
+        };
+        match i {
+            0 => w.req_run.peek(cx).copied(),
+            1 => buf(&w.nodes),
+            2 => buf(&w.leaves),
+            3 => buf(&w.hl),
+            4 => w.req_read.peek(cx).copied(),
+            _ => w.req_cbvh.peek(cx).copied(),
+        }
+    }
+}
+
+impl<'a> Unit<KWorld<'a>> for Arbiter {
+    fn name(&self) -> &str {
+        "memory arbiter"
+    }
+
+    fn stall_reasons(&self) -> &'static [&'static str] {
+        &["port refused"]
+    }
+
+    fn step(&mut self, w: &mut KWorld<'a>, cx: &mut Ctx) -> Wake {
+        let now = cx.now();
+        while let Some(r) = w.mem.pop(cx) {
+            self.inflight -= 1;
+            let (d, bytes) = self.slab[r.tag as usize];
+            self.free.push(r.tag as u32);
+            let latency = r.completed_cycle - r.accepted_cycle;
+            if r.kind == AccessKind::Read {
+                w.acc.reads.add(now, 1);
+                w.acc.read_latency.add(now, latency);
+            }
+            match d {
+                Dest::Run { elems } => w.acc.run_acked.add(now, elems as u64),
+                Dest::Buffer => {}
+                Dest::Presort { p, read } => {
+                    if w.ps_data[p as usize].push(cx, read).is_err() {
+                        unreachable!("one entry per ring slot");
+                    }
+                }
+                Dest::Merge(f) => {
+                    if w.fill.push(cx, f).is_err() {
+                        unreachable!("one entry per buffer half");
+                    }
+                }
+                Dest::Backtrack => {
+                    if w.bt_data.push(cx, latency).is_err() {
+                        unreachable!("one backtracking read at a time");
+                    }
+                }
+                Dest::Topdown { j } => {
+                    if w.td_data.push(cx, (j, latency)).is_err() {
+                        unreachable!("one entry per node");
+                    }
+                }
+            }
+            w.trace.row(now).bus_bytes += bytes as u64;
+        }
+        let Arbiter {
+            rr,
+            slab,
+            free,
+            inflight,
+            burst,
+            ..
+        } = self;
+        let mut refused = false;
+        if !(0..REQUESTERS).any(|i| Self::head(w, cx, i).is_some()) {
+            // Nothing to issue: no arbitration.
+            w.inflight.set(now, *inflight);
+            cx.set_state(State::Idle);
+            return if *inflight > 0 {
+                Wake::OnEvent
+            } else {
+                Wake::Done
+            };
+        }
+        let granted = rr.arbitrate(|i| {
+            let Some(req) = Self::head(w, cx, i) else {
+                return Offer::Nothing;
+            };
+            let tag = match free.pop() {
+                Some(t) => {
+                    slab[t as usize] = (req.dest, req.bytes);
+                    t
+                }
+                None => {
+                    slab.push((req.dest, req.bytes));
+                    (slab.len() - 1) as u32
+                }
+            };
+            let m = MemRequest {
+                tag: tag as u64,
+                addr: req.addr,
+                bytes: req.bytes,
+                kind: req.kind,
+            };
+            if w.mem.send(cx, m).is_err() {
+                free.push(tag);
+                refused = true;
+                return Offer::Refused;
+            }
+            *inflight += 1;
+            match i {
+                0 => {
+                    w.req_run.pop(cx);
+                }
+                1 => w.nodes.issued(cx, req.bytes),
+                2 => w.leaves.issued(cx, req.bytes),
+                3 => w.hl.issued(cx, req.bytes),
+                4 => {
+                    w.req_read.pop(cx);
+                }
+                _ => {
+                    w.req_cbvh.pop(cx);
+                }
+            }
+            let bb = *burst;
+            let b = crate::dram::bursts_of(req.addr, req.bytes, bb) * bb as u64;
+            match req.kind {
+                AccessKind::Read => w.acc.read_bytes.add(now, b),
+                AccessKind::Write => w.acc.write_bytes.add(now, b),
+            }
+            Offer::Granted
+        });
+        w.inflight.set(now, self.inflight);
+        cx.set_state(if granted > 0 {
+            State::Busy
+        } else if refused {
+            State::Stalled(0)
+        } else {
+            State::Idle
+        });
+        // After a grant, step once more to end the busy cycle. Refused with nothing granted:
+        // retry in the next cycle, or, when only a response can make room, at the response.
+        if granted == 0 && refused && self.lift_only_with_responses {
+            Wake::OnEvent
+        } else if granted > 0 || (0..REQUESTERS).any(|i| Self::head(w, cx, i).is_some()) {
+            Wake::Next
+        } else if self.inflight > 0 {
+            Wake::OnEvent
+        } else {
+            Wake::Done
+        }
+    }
+
+    fn counters(&self) -> Vec<(&'static str, u64)> {
+        let s = self.rr.stats();
+        vec![
+            ("grants", s.grants.iter().sum()),
+            ("refusal_episodes", s.refusals.iter().sum()),
+        ]
+    }
+
+    fn describe(&self, _w: &KWorld<'a>) -> String {
+        format!("{} requests in flight", self.inflight)
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Streaming CBVH encoder (see [`super::cbvh_unit`] for the model)
+
+struct Stream {
+    enc: Option<cbvh::bottomup::StreamEncoder>,
+    ops: VecDeque<cbvh::bottomup::MemOp>,
+    awaiting_read: bool,
+    flushing: bool,
+    ended: bool,
+    done: bool,
+    stats: StreamUnitStats,
+    flush_before_read: bool,
+}
+
+const ST_STARVED: u8 = 0;
+const ST_READ_WAIT: u8 = 1;
+const ST_FLUSH_WAIT: u8 = 2;
+const ST_WRITE_FULL: u8 = 3;
+const ST_REQ_FULL: u8 = 4;
+
+impl Stream {
+    fn read_returned(&mut self, latency: u64) {
+        self.awaiting_read = false;
+        self.stats.backtrack_read_latency_cycles += latency;
+        let bucket = (63 - latency.max(1).leading_zeros()) as usize;
+        let h = &mut self.stats.backtrack_read_latency_log2;
+        if h.len() <= bucket {
+            h.resize(bucket + 1, 0);
+        }
+        h[bucket] += 1;
+    }
+
+    fn step_inner(&mut self, w: &mut KWorld, cx: &mut Ctx) -> Result<Wake, cbvh::CbvhError> {
+        use cbvh::bottomup::MemOp;
+        let now = cx.now();
+        while let Some(lat) = w.bt_data.pop(cx) {
+            self.read_returned(lat);
+        }
+        if self.done {
+            return Ok(Wake::Done);
+        }
+        if self.awaiting_read {
+            cx.set_state(State::Stalled(ST_READ_WAIT));
+            return Ok(Wake::OnEvent);
+        }
+        let enc = self.enc.as_mut().expect("encoder until done");
+        match self.ops.front().copied() {
+            Some(MemOp::WritePair { bytes, .. }) => {
+                if !w.nodes.has_room(now, bytes as u64) {
+                    cx.set_state(State::Stalled(ST_WRITE_FULL));
+                    return Ok(Wake::OnEvent);
+                }
+                w.nodes.add(cx, bytes as u64);
+                self.ops.pop_front();
+                self.stats.pairs_written += 1;
+                cx.set_state(State::Busy);
+                Ok(Wake::Next)
+            }
+            Some(MemOp::BacktrackRead {
+                addr_bytes, bytes, ..
+            }) => {
+                // A line with bytes still in the write buffer is written out first.
+                let pending = self.flush_before_read
+                    && w.nodes.start_pending(now) > 0
+                    && w.nodes.start_next_addr(now) < addr_bytes + bytes as u64;
+                if pending {
+                    if !self.flushing {
+                        self.flushing = true;
+                        self.stats.backtrack_flushes += 1;
+                        w.nodes.flush_through(cx, addr_bytes + bytes as u64);
+                    }
+                    cx.set_state(State::Stalled(ST_FLUSH_WAIT));
+                    return Ok(Wake::OnEvent); // the buffer's writes wake us
+                }
+                let req = Req {
+                    addr: addr_bytes,
+                    bytes,
+                    kind: AccessKind::Read,
+                    dest: Dest::Backtrack,
+                };
+                if w.req_cbvh.push(cx, req).is_err() {
+                    cx.set_state(State::Stalled(ST_REQ_FULL));
+                    return Ok(Wake::OnEvent);
+                }
+                self.ops.pop_front();
+                self.awaiting_read = true;
+                self.flushing = false;
+                self.stats.backtrack_reads += 1;
+                cx.set_state(State::Stalled(ST_READ_WAIT));
+                Ok(Wake::OnEvent)
+            }
+            Some(MemOp::BacktrackWrite {
+                addr_bytes, bytes, ..
+            }) => {
+                let req = Req {
+                    addr: addr_bytes,
+                    bytes,
+                    kind: AccessKind::Write,
+                    dest: Dest::Buffer,
+                };
+                if w.req_cbvh.push(cx, req).is_err() {
+                    cx.set_state(State::Stalled(ST_REQ_FULL));
+                    return Ok(Wake::OnEvent);
+                }
+                self.ops.pop_front();
+                self.stats.backtrack_writes += 1;
+                cx.set_state(State::Busy);
+                Ok(Wake::Next)
             }
             None => {
-                self.inflight.push(d);
-                (self.inflight.len() - 1) as u64
+                if let Some(n) = w.enc_fifo.pop(cx) {
+                    enc.push(n)?;
+                    self.ops.extend(enc.drain_ops());
+                    self.stats.nodes_in += 1;
+                    cx.set_state(State::Busy);
+                    Ok(Wake::Next)
+                } else if w.emit_finished.get(now) && !self.ended {
+                    // The root's treelet (or the root itself) is written last.
+                    enc.end_stream()?;
+                    self.ops.extend(enc.drain_ops());
+                    self.ended = true;
+                    cx.set_state(State::Busy);
+                    Ok(Wake::Next)
+                } else if self.ended {
+                    self.done = true;
+                    w.out.stream = Some((self.enc.take().expect("once"), self.stats.clone()));
+                    w.stream_done.push(cx, ()).expect("one done token");
+                    cx.set_state(State::Idle);
+                    Ok(Wake::Done)
+                } else {
+                    cx.set_state(State::Stalled(ST_STARVED));
+                    Ok(Wake::OnEvent)
+                }
+            }
+        }
+    }
+}
+
+impl<'a> Unit<KWorld<'a>> for Stream {
+    fn name(&self) -> &str {
+        "cbvh encoder"
+    }
+
+    fn stall_reasons(&self) -> &'static [&'static str] {
+        &[
+            "input empty",
+            "read wait",
+            "flush wait",
+            "write buffer full",
+            "request slot full",
+        ]
+    }
+
+    fn step(&mut self, w: &mut KWorld<'a>, cx: &mut Ctx) -> Wake {
+        if self.enc.is_none() && !self.done {
+            return Wake::Done; // not attached
+        }
+        match self.step_inner(w, cx) {
+            Ok(wake) => wake,
+            Err(e) => {
+                w.out.fault = Some(e);
+                self.done = true;
+                w.stream_done.push(cx, ()).expect("one done token");
+                Wake::Done
             }
         }
     }
 
-    /// The read the reader wants to issue now, if any.
-    fn next_read(&self) -> Option<(ReadDesc, u64)> {
-        let b = self.cfg.b as u64;
-        if self.phase == Phase::PartialSort {
-            if self.in_next >= self.npad {
-                return None;
+    fn describe(&self, _w: &KWorld<'a>) -> String {
+        format!(
+            "{} nodes in, {} ops queued (front {:?}), awaiting read {}, ended {}, done {}",
+            self.stats.nodes_in,
+            self.ops.len(),
+            self.ops.front(),
+            self.awaiting_read,
+            self.ended,
+            self.done
+        )
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Top-down CBVH pass (see [`super::cbvh_unit`] for the model)
+
+struct Topdown {
+    started: bool,
+    nodes: u64,
+    next_read: u64,
+    arrived: Vec<bool>,
+    next_encode: u64,
+    pairs: u64,
+    pair_bytes: u64,
+    stats: TopdownStats,
+}
+
+const TD_READ_WAIT: u8 = 0;
+const TD_WRITE_FULL: u8 = 1;
+
+impl<'a> Unit<KWorld<'a>> for Topdown {
+    fn name(&self) -> &str {
+        "topdown pass"
+    }
+
+    fn stall_reasons(&self) -> &'static [&'static str] {
+        &["read wait", "write buffer full"]
+    }
+
+    fn step(&mut self, w: &mut KWorld<'a>, cx: &mut Ctx) -> Wake {
+        let now = cx.now();
+        if !self.started {
+            if w.td_start.pop(cx).is_none() {
+                return Wake::Done;
             }
-            let p = self.in_p;
-            let ps = &self.presorters[p as usize];
-            if ps.used == ps.slots() {
-                return None;
-            }
-            let real = self.n.min(self.in_next + b) - self.in_next;
-            let d = ReadDesc {
-                dest: ReadDest::Presort { p, slot: ps.tail },
-                src: self.in_next,
-                count: b as u32,
-                bytes: (real * ELEM_BYTES) as u32,
+            self.started = true;
+            self.nodes = w.out.nodes.len() as u64;
+            self.arrived = vec![false; self.nodes as usize];
+            self.pairs = self.nodes.max(1);
+            w.td_data = fifo(
+                "arbiter->topdown",
+                self.nodes as usize,
+                ARBITER,
+                w.ids.topdown,
+            );
+        }
+        if self.next_encode == self.pairs {
+            return Wake::Done;
+        }
+        while let Some((j, lat)) = w.td_data.pop(cx) {
+            self.arrived[j as usize] = true;
+            self.stats.read_latency_cycles += lat;
+        }
+        // One node read offered per cycle, from the end of the node array backwards.
+        let mut issued = false;
+        if self.next_read < self.nodes && !w.req_cbvh.is_full(cx) {
+            let k = self.nodes - 1 - self.next_read;
+            let req = Req {
+                addr: w.layout.nodes + k * NODE_BYTES,
+                bytes: NODE_BYTES as u32,
+                kind: AccessKind::Read,
+                dest: Dest::Topdown { j: self.next_read },
             };
-            return Some((d, self.layout.input + self.in_next * ELEM_BYTES));
+            if w.req_cbvh.push(cx, req).is_err() {
+                unreachable!("checked");
+            }
+            self.next_read += 1;
+            self.stats.node_reads += 1;
+            issued = true;
         }
-        let &buf = self.refill.front()?;
-        let (at, count) = self.merger.peek_fetch(buf);
-        let src_region = 1 - self.dst;
-        let d = ReadDesc {
-            dest: ReadDest::Merge { buf },
-            src: at,
-            count,
-            bytes: count * ELEM_BYTES as u32,
-        };
-        Some((d, self.layout.runs[src_region] + at * ELEM_BYTES))
-    }
-
-    /// The memory arbiter: issues at most one request. Returns true when it did.
-    fn issue(&mut self) -> bool {
-        // Most cycles no requester is ready: find out with cheap checks before trying any.
-        let mask = self.ready_mask();
-        if mask == 0 {
-            self.count_reader_blocked();
-            return false;
-        }
-        let mut who = self.rr;
-        for _ in 0..REQUESTERS {
-            if who == REQUESTERS {
-                who = 0;
-            }
-            if mask & (1 << who) == 0 {
-                if who == 4 {
-                    self.count_reader_blocked();
-                }
-                who += 1;
-                continue;
-            }
-            let ok = match who {
-                0 => self.try_run_write(),
-                1 => Self::try_buffer_write(
-                    &mut self.nodes_wb,
-                    &mut *self.port,
-                    &mut self.outstanding_writes,
-                ),
-                2 => Self::try_buffer_write(
-                    &mut self.leaves_wb,
-                    &mut *self.port,
-                    &mut self.outstanding_writes,
-                ),
-                3 => Self::try_buffer_write(
-                    &mut self.hl_wb,
-                    &mut *self.port,
-                    &mut self.outstanding_writes,
-                ),
-                4 => self.try_read(),
-                _ => self.try_cbvh(),
-            };
-            match ok {
-                None => {
-                    who += 1;
-                    continue;
-                }
-                Some(Ok((bytes, read))) => {
-                    if read {
-                        self.phase_read += bytes;
-                    } else {
-                        self.phase_written += bytes;
-                    }
-                    self.rr = who + 1;
-                    return true;
-                }
-                Some(Err(())) => {
-                    // Refused (its staging queue is full): try the next ready requester.
-                    self.port_refusals += 1;
-                    who += 1;
-                }
-            }
-        }
-        false
-    }
-
-    /// Bit `i` set when requester `i` of [`Self::issue`] has a request ready (the
-    /// conditions under which its `try_*` function returns `Some`).
-    #[inline]
-    fn ready_mask(&self) -> u32 {
-        let len = self.run_fifo.len() as u64;
-        let run = len > 0 && (len >= self.cfg.b as u64 || self.run_flush);
-        let read = if self.phase == Phase::PartialSort {
-            self.in_next < self.npad && {
-                let ps = &self.presorters[self.in_p as usize];
-                ps.used < ps.slots()
-            }
+        // A tree that is one leaf has no node to read: its box is the root record.
+        let here = self.nodes == 0 || self.arrived[self.next_encode as usize];
+        let wake = if !here {
+            cx.set_state(State::Stalled(TD_READ_WAIT));
+            Wake::OnEvent
+        } else if !w.nodes.has_room(now, self.pair_bytes) {
+            cx.set_state(State::Stalled(TD_WRITE_FULL));
+            Wake::OnEvent
         } else {
-            !self.refill.is_empty()
+            w.nodes.add(cx, self.pair_bytes);
+            self.next_encode += 1;
+            self.stats.pairs_written += 1;
+            cx.set_state(State::Busy);
+            if self.next_encode == self.pairs {
+                w.out.topdown = Some(self.stats.clone());
+                w.td_done.push(cx, ()).expect("one done token");
+                cx.set_state(State::Idle);
+                return Wake::Done;
+            }
+            Wake::Next
         };
-        let cbvh = match (&self.stream, &self.td) {
-            (Some(s), _) => s.request(&self.nodes_wb).is_some(),
-            (None, Some(t)) => t.request().is_some(),
-            (None, None) => false,
-        };
-        let mut mask = run as u32 | (read as u32) << 4 | (cbvh as u32) << 5;
-        // Only the emitter and the toplevel unit fill the write buffers: before emission
-        // starts they are empty.
-        if self.emit_active || self.top.is_some() {
-            mask |= (self.nodes_wb.ready().is_some() as u32) << 1
-                | (self.leaves_wb.ready().is_some() as u32) << 2
-                | (self.hl_wb.ready().is_some() as u32) << 3;
-        }
-        mask
-    }
-
-    /// The reader was visited by the arbiter with nothing to issue.
-    #[inline]
-    fn count_reader_blocked(&mut self) {
-        if self.phase == Phase::PartialSort && self.in_next < self.npad {
-            self.reader_blocked_cycles += 1;
-        }
-    }
-
-    /// Bytes as the port counts them (whole bursts).
-    fn burst_bytes(port: &dyn MemoryPort, addr: u64, bytes: u32) -> u64 {
-        let bb = port.burst_bytes();
-        crate::dram::bursts_of(addr, bytes, bb) * bb as u64
-    }
-
-    /// The CBVH unit's request: a backtracking read or write of the streaming encoder, or a
-    /// node read of the top-down pass. Returns the bytes and whether it was a read.
-    fn try_cbvh(&mut self) -> Option<Result<(u64, bool), ()>> {
-        let (kind, addr, bytes, dest) = if let Some(st) = &self.stream {
-            let (kind, addr, bytes) = st.request(&self.nodes_wb)?;
-            (kind, addr, bytes, ReadDest::Backtrack)
+        if issued || (self.next_read < self.nodes && !w.req_cbvh.is_full(cx)) {
+            Wake::Next
         } else {
-            let (j, addr, bytes) = self.td.as_ref()?.request()?;
-            (AccessKind::Read, addr, bytes, ReadDest::Topdown { j })
-        };
-        let tag = match kind {
-            AccessKind::Read => self.new_tag(ReadDesc {
-                dest,
-                src: 0,
-                count: 0,
-                bytes,
-            }),
-            AccessKind::Write => WRITE_TAG | bytes as u64,
-        };
-        let req = MemRequest {
-            tag,
-            addr,
-            bytes,
-            kind,
-        };
-        if self.port.send(req).is_err() {
-            if kind == AccessKind::Read {
-                self.free_tags.push(tag as u32);
-            }
-            return Some(Err(()));
+            wake
         }
-        match (&mut self.stream, &mut self.td) {
-            (Some(st), _) => st.issued(),
-            (None, Some(td)) => td.issued(),
-            (None, None) => unreachable!("a CBVH request without a CBVH unit"),
-        }
-        if kind == AccessKind::Write {
-            self.outstanding_writes += 1;
-        }
-        let read = kind == AccessKind::Read;
-        Some(Ok((Self::burst_bytes(&*self.port, addr, bytes), read)))
     }
 
-    fn try_read(&mut self) -> Option<Result<(u64, bool), ()>> {
-        let Some((d, addr)) = self.next_read() else {
-            if self.phase == Phase::PartialSort && self.in_next < self.npad {
-                self.reader_blocked_cycles += 1;
-            }
-            return None;
-        };
-        let tag = self.new_tag(d);
-        let req = MemRequest {
-            tag,
-            addr,
-            bytes: d.bytes,
-            kind: AccessKind::Read,
-        };
-        if self.port.send(req).is_err() {
-            self.free_tags.push(tag as u32);
-            return Some(Err(()));
-        }
-        match d.dest {
-            ReadDest::Presort { p, .. } => {
-                self.presorters[p as usize].alloc_slot();
-                self.in_next += self.cfg.b as u64;
-                // Two buffers make a sub-block; sub-blocks go round robin to presorters.
-                self.in_second_half = !self.in_second_half;
-                if !self.in_second_half {
-                    self.in_p += 1;
-                    if self.in_p == self.cfg.presorters {
-                        self.in_p = 0;
+    fn describe(&self, _w: &KWorld<'a>) -> String {
+        format!(
+            "{}/{} read, {}/{} encoded",
+            self.next_read, self.nodes, self.next_encode, self.pairs
+        )
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Presorters
+
+/// One presorter of the bank, with its own busy / stall intervals.
+struct PresortUnit {
+    p: u32,
+    ps: Presorter,
+    acct: Acct,
+    b: u32,
+    subs_per_block: u64,
+    total_subs: u64,
+    count: u64,
+}
+
+const PS_STARVED: u8 = 0;
+const PS_WAIT: u8 = 1;
+
+impl PresortUnit {
+    /// One presorter's step (the unit contract holds per presorter: a step it did not ask
+    /// for changes nothing).
+    fn step(&mut self, w: &mut KWorld, cx: &mut Ctx) -> Wake {
+        let now = cx.now();
+        let b = self.b;
+        let ps = &mut self.ps;
+        while let Some(r) = w.ps_data[self.p as usize].pop(cx) {
+            let base = r.slot as usize * b as usize;
+            for i in 0..r.count as usize {
+                let e = elem_of(w.aabbs, &w.quant, w.cfg.morton_bits, r.src + i as u64);
+                if !e.is_pad() {
+                    if let Some(c) = w.codes.get_mut(e.index as usize) {
+                        *c = e.code;
                     }
                 }
+                ps.ring[base + i] = e;
             }
-            ReadDest::Merge { buf } => {
-                self.refill.pop_front();
-                self.merger.commit_fetch(buf, d.count);
-            }
-            ReadDest::Backtrack | ReadDest::Topdown { .. } => {
-                unreachable!("the reader issues input and run reads only")
-            }
+            ps.slot_count[r.slot as usize] = r.count;
+            ps.slot_valid[r.slot as usize] = true;
+            ps.used += 1;
         }
-        Some(Ok((Self::burst_bytes(&*self.port, addr, d.bytes), true)))
-    }
-
-    fn try_run_write(&mut self) -> Option<Result<(u64, bool), ()>> {
-        let len = self.run_fifo.len() as u64;
-        let b = self.cfg.b as u64;
-        if len == 0 || (len < b && !self.run_flush) {
-            return None;
+        match ps.state {
+            PresortState::Finished => {
+                self.acct.set(now, State::Idle);
+                return Wake::Done;
+            }
+            PresortState::Sorting => {
+                if now < ps.busy_until {
+                    return Wake::At(ps.busy_until);
+                }
+                if ps.sorted(now) {
+                    ps.state = PresortState::Draining { pos: 0 };
+                } else {
+                    let used = ps.used;
+                    if !ps.insert_next(now, b) {
+                        self.acct.set(now, State::Stalled(PS_STARVED));
+                        return Wake::OnEvent;
+                    }
+                    if ps.used < used && w.ps_credit[self.p as usize].push(cx, ()).is_err() {
+                        unreachable!("one credit per ring slot");
+                    }
+                    w.trace.span(now, ps.busy_until, |r| &mut r.presort_busy);
+                    self.acct.set(now, State::Busy);
+                    return Wake::At(ps.busy_until);
+                }
+            }
+            PresortState::Draining { .. } => {}
         }
-        let count = len.min(b);
-        let bytes = (count * ELEM_BYTES) as u32;
-        let addr = self.layout.runs[self.dst] + self.wr_pos * ELEM_BYTES;
-        let req = MemRequest {
-            tag: WRITE_TAG | bytes as u64,
-            addr,
-            bytes,
-            kind: AccessKind::Write,
+        let PresortState::Draining { pos } = ps.state else {
+            unreachable!("draining")
         };
-        if self.port.send(req).is_err() {
-            return Some(Err(()));
+        if w.scratch_open.get(now) != ps.block {
+            self.acct.set(now, State::Stalled(PS_WAIT));
+            return Wake::OnEvent; // the control's register change wakes us
         }
-        for _ in 0..count {
-            let e = self.run_fifo.pop().expect("counted");
-            self.region[self.dst][self.wr_pos as usize] = e.index;
-            self.wr_pos += 1;
+        if w.scratch_port == now {
+            self.acct.set(now, State::Stalled(PS_WAIT));
+            return Wake::Next; // the write port is taken this cycle
         }
-        self.outstanding_writes += 1;
-        Some(Ok((Self::burst_bytes(&*self.port, addr, bytes), false)))
+        w.scratch_port = now;
+        let slot = (ps.sub % self.subs_per_block) * 2 * b as u64;
+        w.scratch[(slot + pos as u64) as usize] = ps.buf[pos as usize];
+        w.trace.row(now).presort_busy += 1;
+        self.acct.set(now, State::Busy);
+        if pos + 1 == ps.sub_len {
+            if w.sub_ready.push(cx, ()).is_err() {
+                unreachable!("room for every sub-block");
+            }
+            let next = ps.sub + self.count;
+            if next < self.total_subs {
+                let len = w.sub_len(next);
+                ps.start(next, len, next / self.subs_per_block);
+            } else {
+                ps.state = PresortState::Finished;
+            }
+        } else {
+            ps.state = PresortState::Draining { pos: pos + 1 };
+        }
+        Wake::Next
     }
 
-    fn try_buffer_write(
-        wb: &mut WriteBuffer,
-        port: &mut dyn MemoryPort,
-        outstanding: &mut u64,
-    ) -> Option<Result<(u64, bool), ()>> {
-        let (addr, bytes) = wb.ready()?;
-        let req = MemRequest {
-            tag: WRITE_TAG | bytes as u64,
-            addr,
-            bytes,
-            kind: AccessKind::Write,
-        };
-        if port.send(req).is_err() {
-            return Some(Err(()));
+    fn describe(&self) -> String {
+        let p = &self.ps;
+        format!(
+            "{:?}, sub-block {} {}/{} inserted, ring {}/{} used",
+            p.state,
+            p.sub,
+            p.inserted,
+            p.sub_len,
+            p.used,
+            p.slots()
+        )
+    }
+}
+
+/// Busy / stall intervals of one presorter (the kernel's interval accounting, per
+/// presorter inside the bank).
+#[derive(Clone, Copy, Debug)]
+struct Acct {
+    state: State,
+    since: Cycle,
+    busy: u64,
+    starved: u64,
+    wait: u64,
+}
+
+impl Acct {
+    fn new() -> Self {
+        Self {
+            state: State::Idle,
+            since: 0,
+            busy: 0,
+            starved: 0,
+            wait: 0,
         }
-        wb.issued(bytes);
-        *outstanding += 1;
-        Some(Ok((Self::burst_bytes(port, addr, bytes), false)))
     }
 
-    fn on_response(&mut self, tag: u64, latency: u64) {
-        if tag & WRITE_TAG != 0 {
-            self.outstanding_writes -= 1;
-            self.win.bus_bytes += tag & 0xffff_ffff;
+    #[inline]
+    fn set(&mut self, now: Cycle, st: State) {
+        if st == self.state {
             return;
         }
-        let d = self.inflight[tag as usize];
-        self.free_tags.push(tag as u32);
-        self.win.bus_bytes += d.bytes as u64;
-        match d.dest {
-            ReadDest::Presort { p, slot } => {
-                let b = self.cfg.b as usize;
-                for i in 0..d.count as usize {
-                    let e = self.input_elem(d.src + i as u64);
-                    if let Some(c) = self.codes.get_mut(e.index as usize) {
-                        if !e.is_pad() {
-                            *c = e.code;
-                        }
-                    }
-                    self.presorters[p as usize].ring[slot as usize * b + i] = e;
-                }
-                let ps = &mut self.presorters[p as usize];
-                ps.slot_count[slot as usize] = d.count;
-                ps.slot_valid[slot as usize] = true;
-                self.presort_dirty = true;
+        let d = now - self.since;
+        match self.state {
+            State::Busy => self.busy += d,
+            State::Stalled(PS_STARVED) => self.starved += d,
+            State::Stalled(_) => self.wait += d,
+            State::Idle => {}
+        }
+        self.state = st;
+        self.since = now;
+    }
+}
+
+/// The presorters as one kernel unit (one step for all that are due, fewer units for the
+/// scheduler to scan): busy while any presorter is, else stalled on input while any is,
+/// else waiting for the scratchpad while any is. Each presorter's own intervals are kept
+/// in the bank (presorter-cycles for the stall report; every presorter ends idle, so its
+/// intervals are closed when the run ends).
+struct PresortBank {
+    units: Vec<PresortUnit>,
+}
+
+impl<'a> Unit<KWorld<'a>> for PresortBank {
+    fn name(&self) -> &str {
+        "presorters"
+    }
+
+    fn stall_reasons(&self) -> &'static [&'static str] {
+        &["input empty", "scratchpad wait"]
+    }
+
+    fn step(&mut self, w: &mut KWorld<'a>, cx: &mut Ctx) -> Wake {
+        let now = cx.now();
+        let mut next = crate::kernel::NEVER;
+        let mut all_done = true;
+        let (mut busy, mut starved, mut wait) = (false, false, false);
+        for u in &mut self.units {
+            // Presorters that finished, or are inside an insertion (which nothing can
+            // change before it ends; read data for their rings waits in their FIFO, which
+            // they pop when they next need an element), are not stepped.
+            let wake = match u.ps.state {
+                PresortState::Finished => Wake::Done,
+                PresortState::Sorting if now < u.ps.busy_until => Wake::At(u.ps.busy_until),
+                _ => u.step(w, cx),
+            };
+            match wake {
+                Wake::Next => next = next.min(now + 1),
+                Wake::At(c) => next = next.min(c.max(now + 1)),
+                Wake::OnEvent => all_done = false,
+                Wake::Done => {}
             }
-            ReadDest::Backtrack => {
-                if let Some(st) = &mut self.stream {
-                    st.read_returned(latency);
-                }
+            match u.acct.state {
+                State::Busy => busy = true,
+                State::Stalled(PS_STARVED) => starved = true,
+                State::Stalled(_) => wait = true,
+                State::Idle => {}
             }
-            ReadDest::Topdown { j } => {
-                if let Some(td) = &mut self.td {
-                    td.arrived(j, latency);
-                }
-            }
-            ReadDest::Merge { buf } => {
-                let s = d.src as usize;
-                let src = &self.region[1 - self.dst][s..s + d.count as usize];
-                let (aabbs, codes) = (self.aabbs, &self.codes);
-                self.merger.fill_with(buf, src.len(), |k| {
-                    let r = src[k];
-                    match aabbs.get(r as usize) {
-                        Some(&a) => Elem::new(codes[r as usize], r, a),
-                        None => Elem::pad(r as u64),
-                    }
-                });
-            }
+        }
+        cx.set_state(if busy {
+            State::Busy
+        } else if starved {
+            State::Stalled(PS_STARVED)
+        } else if wait {
+            State::Stalled(PS_WAIT)
+        } else {
+            State::Idle
+        });
+        if next != crate::kernel::NEVER {
+            Wake::At(next)
+        } else if all_done {
+            Wake::Done
+        } else {
+            Wake::OnEvent
         }
     }
 
-    /// Every FIFO and unit state, for a deadlock report.
-    fn state_dump(&self) -> String {
-        let mut s = format!(
-            "no unit progressed for {} cycles at cycle {} in phase {:?} ({} memory requests outstanding); ",
-            self.idle,
-            self.cycle,
-            self.phase,
-            self.port.outstanding()
-        );
-        for f in [self.emit_fifo.stats(), self.run_fifo.stats()] {
-            s += &format!(
-                "FIFO {}: {}/{} (peak {}, {} pushes); ",
-                f.name, f.len, f.capacity, f.peak, f.pushes
-            );
-        }
-        for (i, p) in self.presorters.iter().enumerate() {
-            s += &format!(
-                "presorter {i}: {:?}, sub-block {} {}/{} inserted, ring {}/{} used; ",
-                p.state,
-                p.sub,
-                p.inserted,
-                p.sub_len,
-                p.used,
-                p.slots()
-            );
-        }
-        s += &format!(
-            "merge: {:?}, heap {} live, refill queue {}; emitter: {} read, done {}; \
-             write buffers: nodes {}, leaves {}, highlevel {} bytes pending; \
-             {} writes outstanding",
-            self.merger.state,
-            self.merger.heap.live(),
-            self.refill.len(),
-            self.emit.consumed,
-            self.emit.done,
-            self.nodes_wb.pending(),
-            self.leaves_wb.pending(),
-            self.hl_wb.pending(),
-            self.outstanding_writes
-        );
-        if let Some(u) = &self.stream {
-            s += "; ";
-            s += &u.state();
-        }
-        if let Some(u) = &self.td {
-            s += "; ";
-            s += &u.state();
-        }
-        s
+    fn counters(&self) -> Vec<(&'static str, u64)> {
+        let sum = |f: fn(&Acct) -> u64| self.units.iter().map(|u| f(&u.acct)).sum();
+        vec![
+            ("presorter_busy_cycles", sum(|a| a.busy)),
+            ("presorter_starved_cycles", sum(|a| a.starved)),
+            ("presorter_wait_cycles", sum(|a| a.wait)),
+        ]
     }
 
-    /// Stall and busy counters of every unit.
-    pub fn stall_report(&self) -> StallReport {
-        let p = &self.presorters;
-        StallReport {
-            presort_busy_cycles: p.iter().map(|x| x.busy_cycles).sum::<u64>(),
-            presort_starved_cycles: p.iter().map(|x| x.starved_cycles).sum::<u64>()
-                + self.frozen_totals[0],
-            presort_wait_scratchpad_cycles: p.iter().map(|x| x.wait_scratchpad_cycles).sum::<u64>()
-                + self.frozen_totals[1],
-            merge: self.merger.stalls,
-            merge_outputs: self.merger.outputs,
-            heap_ops: self.merger.ops,
-            emitter: self.emit.stalls,
-            emitter_steps: self.emit.steps,
-            reader_blocked_cycles: self.reader_blocked_cycles,
-            port_refusals: self.port_refusals,
-            fifos: vec![self.emit_fifo.stats(), self.run_fifo.stats()],
+    fn describe(&self, _w: &KWorld<'a>) -> String {
+        self.units
+            .iter()
+            .map(|u| format!("presorter {}: {}", u.p, u.describe()))
+            .collect::<Vec<_>>()
+            .join("; ")
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Assembly
+
+/// What a run of the kernel machine gives back.
+pub(super) struct KRun {
+    pub cycles: u64,
+    pub run: RunReport,
+    pub stalls: StallReport,
+    pub phases: Vec<PhaseReport>,
+    pub trace: Vec<TraceRow>,
+    pub nodes: Vec<bvh::EmittedNode>,
+    pub roots: Vec<bvh::HighlevelRoot>,
+    pub order: Vec<u32>,
+    pub max_stack_depth: usize,
+    pub top: Option<TopUnit>,
+    pub cbvh_ids: Option<Vec<u32>>,
+    pub stream: Option<(cbvh::bottomup::StreamEncoder, StreamUnitStats)>,
+    pub topdown: Option<TopdownStats>,
+    pub build_cycles: u64,
+    pub passes_total: u32,
+    pub layout: MemoryLayout,
+    pub mem: crate::dram::MemStats,
+    pub dram: String,
+    pub peak: f64,
+}
+
+/// Runs the kernel machine on `aabbs` (with at least one primitive; plain BVH output).
+pub(super) fn run<'a>(
+    aabbs: &'a [Aabb],
+    centroid_bounds: &Aabb,
+    cfg: &MergeTreeConfig,
+    port: Box<dyn MemoryPort>,
+    progress: Option<&'a mut dyn FnMut(u64, u64)>,
+) -> Result<KRun, MergeTreeError> {
+    let n = aabbs.len() as u64;
+    if n == 0 {
+        // Nothing to sort: the unit does not start.
+        return Ok(KRun {
+            cycles: 0,
+            run: RunReport {
+                cycles: 0,
+                units: Vec::new(),
+                steps: Vec::new(),
+                stepped_cycles: 0,
+            },
+            stalls: StallReport::default(),
+            phases: Vec::new(),
+            trace: Vec::new(),
+            nodes: Vec::new(),
+            roots: Vec::new(),
+            order: Vec::new(),
+            max_stack_depth: 0,
+            top: None,
+            cbvh_ids: None,
+            stream: None,
+            topdown: None,
+            build_cycles: 0,
+            passes_total: 0,
+            layout: MemoryLayout::new(0, 0),
+            mem: port.stats(),
+            dram: port.name(),
+            peak: port.peak_bytes_per_unit_cycle(),
+        });
+    }
+    let b = cfg.b as u64;
+    let m = cfg.m as u64;
+    let npad = n.div_ceil(b) * b;
+    let blocks = npad.div_ceil(m).max(1);
+    let fan = cfg.fan_in();
+    let mut passes_total = 0;
+    let mut runs = blocks;
+    while runs > 1 {
+        runs = runs.div_ceil(fan);
+        passes_total += 1;
+    }
+    let layout = MemoryLayout::new(n, npad);
+    let subs = npad.div_ceil(2 * b);
+    let np = cfg.presorters as usize;
+    let slots = cfg.presort_slots as usize;
+    // The presorters are one unit, the bank.
+    let presorter = |_p: u32| UnitId(PRESORTER0);
+    let mut next = PRESORTER0 + 1;
+    let mut take = |used: bool| {
+        if used {
+            next += 1;
+            UnitId(next - 1)
+        } else {
+            UnitId::EXTERNAL
         }
+    };
+    let ids = Optional {
+        toplevel: take(cfg.toplevel_sah),
+        stream: take(cfg.output == OutputMode::CbvhStream),
+        topdown: take(cfg.output == OutputMode::CbvhTopdown),
+    };
+    let (toplevel, stream, topdown) = (ids.toplevel, ids.stream, ids.topdown);
+    let region_len = |needed: bool| if needed { npad as usize } else { 0 };
+    let streaming = cfg.output == OutputMode::CbvhStream;
+    let wb = |base: u64, cap: u32| WriteBuffer::new(base, cap as u64, cfg.write_chunk_bytes as u64);
+    let mut w = KWorld {
+        cfg: cfg.clone(),
+        aabbs,
+        quant: MortonQuantizer::with_grid(centroid_bounds, cfg.morton_grid),
+        n,
+        npad,
+        blocks,
+        passes_total,
+        layout,
+        mem: Memory::new(port),
+        cmd: fifo("control->merge", 1, CONTROL, MERGER),
+        merge_done: fifo("merge->control", 1, MERGER, CONTROL),
+        sub_ready: fifo(
+            "presorters->control",
+            subs as usize + 1,
+            UnitId::EXTERNAL,
+            CONTROL,
+        ),
+        emit_done: fifo("emitter->control", 1, EMITTER, CONTROL),
+        top_start: fifo("control->toplevel", 1, CONTROL, toplevel),
+        top_done: fifo("toplevel->control", 1, toplevel, CONTROL),
+        emit_fifo: fifo("merge->emitter", cfg.emit_fifo as usize, MERGER, EMITTER),
+        run_fifo: fifo(
+            "merge->run writer",
+            cfg.run_write_fifo as usize,
+            MERGER,
+            RUN_WRITER,
+        ),
+        refill: fifo("merge->reader", 2 * fan as usize, MERGER, READER),
+        fill: fifo("arbiter->merge", 2 * fan as usize, ARBITER, MERGER),
+        ps_data: (0..cfg.presorters)
+            .map(|p| fifo("arbiter->presorter", slots, ARBITER, presorter(p)))
+            .collect(),
+        ps_credit: (0..cfg.presorters)
+            .map(|p| fifo("presorter->reader", slots, presorter(p), READER))
+            .collect(),
+        req_read: fifo("reader->arbiter", 2, READER, ARBITER),
+        req_run: fifo("run writer->arbiter", 2, RUN_WRITER, ARBITER),
+        nodes: if streaming {
+            KBuf::new(wb(layout.cbvh, cfg.node_buffer_bytes), [stream, stream])
+        } else {
+            KBuf::new(wb(layout.nodes, cfg.node_buffer_bytes), [EMITTER, EMITTER])
+        },
+        leaves: KBuf::new(wb(layout.leaves, cfg.leaf_buffer_bytes), [EMITTER, EMITTER]),
+        hl: KBuf::new(
+            wb(layout.highlevel, cfg.node_buffer_bytes),
+            [EMITTER, toplevel],
+        ),
+        enc_fifo: fifo(
+            "emitter->cbvh encoder",
+            cfg.cbvh_fifo as usize,
+            EMITTER,
+            stream,
+        ),
+        req_cbvh: fifo(
+            "cbvh->arbiter",
+            2,
+            if streaming { stream } else { topdown },
+            ARBITER,
+        ),
+        bt_data: fifo("arbiter->cbvh encoder", 1, ARBITER, stream),
+        td_data: fifo("arbiter->topdown", 1, ARBITER, topdown),
+        stream_done: fifo("cbvh encoder->control", 1, stream, CONTROL),
+        td_start: fifo("control->topdown", 1, CONTROL, topdown),
+        td_done: fifo("topdown->control", 1, topdown, CONTROL),
+        emit_finished: Reg::new(false),
+        ids,
+        scratch_open: Reg::new(0),
+        emit_active: Reg::new(blocks == 1),
+        scratch: vec![Elem::PAD; cfg.m as usize],
+        scratch_port: Cycle::MAX,
+        region: [
+            vec![0; region_len(passes_total > 0)],
+            vec![0; region_len(passes_total > 1)],
+        ],
+        codes: vec![0; if passes_total > 0 { n as usize } else { 0 }],
+        inflight: Reg::new(0),
+        acc: Totals::default(),
+        trace: Trace::new(cfg.trace_window_cycles.max(1)),
+        out: Outputs::default(),
+        phases: Vec::new(),
+        phase_log: vec![(0, "partial_sort".to_string())],
+        build_cycles: 0,
+        work: 0,
+        // Every merge output (partial sorts and passes) and every emitter input.
+        work_total: npad * (passes_total as u64 + 1) + n,
+        progress,
+    };
+    let mut s: Scheduler<KWorld> = Scheduler::new(Options {
+        skip: cfg.fast_forward,
+        ..Options::default()
+    });
+    s.add(Box::new(Control {
+        phase: Phase::PartialSort,
+        fill_block: 0,
+        subs_in: 0,
+        merging: false,
+        group: 0,
+        pass_run_len: m,
+        pass_runs: blocks,
+        draining: false,
+        stream_done: false,
+        phase_start: 0,
+        snap: [0; 4],
+    }));
+    s.add(Box::new(Emitter {
+        e: EmitUnit::new(
+            n,
+            cfg.highlevel_threshold,
+            cfg.combine_identical,
+            cfg.max_leaf_size,
+            streaming,
+        ),
+    }));
+    s.add(Box::new(MergeUnit {
+        m: Merger::new(cfg.m, cfg.b),
+        active: false,
+        to_emitter: false,
+        src: 0,
+        refills: VecDeque::with_capacity(2 * fan as usize),
+    }));
+    s.add(Box::new(Reader {
+        in_next: 0,
+        in_p: 0,
+        second_half: false,
+        alloc: vec![0; np],
+        tail: vec![0; np],
+        slots: cfg.presort_slots,
+    }));
+    s.add(Box::new(RunWriter {
+        staged: 0,
+        written: 0,
+        b: cfg.b,
+        npad,
+    }));
+    s.add(Box::new(Arbiter {
+        rr: RoundRobin::new(REQUESTERS, 1).expect("five requesters"),
+        slab: Vec::with_capacity(64),
+        free: Vec::with_capacity(64),
+        inflight: 0,
+        burst: w.mem.port().burst_bytes(),
+        lift_only_with_responses: w.mem.port().refusals_lift_only_with_responses(),
+    }));
+    let mut bank = Vec::with_capacity(np);
+    for p in 0..cfg.presorters {
+        let mut ps = Presorter::new(cfg.presort_slots, cfg.b, p as u64);
+        if (p as u64) < subs {
+            let len = w.sub_len(p as u64);
+            ps.start(p as u64, len, p as u64 * 2 * b / m);
+        } else {
+            ps.state = PresortState::Finished;
+        }
+        bank.push(PresortUnit {
+            p,
+            ps,
+            acct: Acct::new(),
+            b: cfg.b,
+            subs_per_block: m / (2 * b),
+            total_subs: subs,
+            count: cfg.presorters as u64,
+        });
     }
-
-    /// The memory port (for its statistics).
-    pub fn port(&self) -> &dyn MemoryPort {
-        &*self.port
+    let id = s.add(Box::new(PresortBank { units: bank }));
+    debug_assert_eq!(id, presorter(0));
+    if cfg.toplevel_sah {
+        let id = s.add(Box::new(Toplevel {
+            t: None,
+            busy: 0,
+            busy_until: 0,
+        }));
+        debug_assert_eq!(id, toplevel);
     }
+    let enc = if streaming {
+        Some(cbvh::StreamEncoder::new(cfg.stream_config(layout.cbvh))?)
+    } else {
+        None
+    };
+    if let Some(enc) = enc {
+        let id = s.add(Box::new(Stream {
+            enc: Some(enc),
+            ops: VecDeque::new(),
+            awaiting_read: false,
+            flushing: false,
+            ended: false,
+            done: false,
+            stats: StreamUnitStats::default(),
+            flush_before_read: cfg.cbvh_flush_before_backtrack,
+        }));
+        debug_assert_eq!(id, stream);
+    }
+    if cfg.output == OutputMode::CbvhTopdown {
+        let id = s.add(Box::new(Topdown {
+            started: false,
+            nodes: 0,
+            next_read: 0,
+            arrived: Vec::new(),
+            next_encode: 0,
+            pairs: 0,
+            pair_bytes: cbvh::format::pair_bytes(cfg.cbvh_bits) as u64,
+            stats: TopdownStats::default(),
+        }));
+        debug_assert_eq!(id, topdown);
+    }
+    let rep = s
+        .run(&mut w)
+        .map_err(|e| MergeTreeError::Deadlock(e.to_string()))?;
+    if let Some(f) = w.out.fault.take() {
+        return Err(f.into());
+    }
+    let cycles = rep.cycles;
+    let stalls = stall_report(&rep, &w);
+    // Trace rows: one per window up to the end, each with the phase at its last cycle.
+    let window = w.trace.window;
+    let nrows = cycles.div_ceil(window) as usize;
+    let mut trace = std::mem::take(&mut w.trace.rows);
+    trace.resize_with(nrows, TraceRow::default);
+    for (i, r) in trace.iter_mut().enumerate() {
+        r.cycle_start = i as u64 * window;
+        r.cycles = window.min(cycles - r.cycle_start);
+        let last = r.cycle_start + r.cycles - 1;
+        let k = w.phase_log.partition_point(|(c, _)| *c <= last);
+        r.phase = w.phase_log[k.max(1) - 1].1.clone();
+    }
+    let port = w.mem.port();
+    Ok(KRun {
+        cycles,
+        stalls,
+        phases: std::mem::take(&mut w.phases),
+        trace,
+        nodes: std::mem::take(&mut w.out.nodes),
+        roots: std::mem::take(&mut w.out.roots),
+        order: std::mem::take(&mut w.out.order),
+        max_stack_depth: w.out.max_stack_depth,
+        top: w.out.top.take(),
+        cbvh_ids: w.out.cbvh_ids.take(),
+        stream: w.out.stream.take().map(|(e, mut st)| {
+            let a = &rep.units[w.ids.stream.index()];
+            st.busy_cycles = a.activity.busy_cycles;
+            st.starved_cycles = stalled(a, ST_STARVED as usize);
+            st.read_wait_cycles = stalled(a, ST_READ_WAIT as usize);
+            st.flush_wait_cycles = stalled(a, ST_FLUSH_WAIT as usize);
+            st.write_full_cycles = stalled(a, ST_WRITE_FULL as usize);
+            (e, st)
+        }),
+        topdown: w.out.topdown.take().map(|mut t| {
+            let a = &rep.units[w.ids.topdown.index()];
+            t.read_wait_cycles = stalled(a, TD_READ_WAIT as usize);
+            t.write_full_cycles = stalled(a, TD_WRITE_FULL as usize);
+            t
+        }),
+        build_cycles: w.build_cycles,
+        passes_total,
+        layout,
+        mem: port.stats(),
+        dram: port.name(),
+        peak: port.peak_bytes_per_unit_cycle(),
+        run: rep,
+    })
+}
 
-    /// The toplevel unit, if it ran.
-    pub fn toplevel(&self) -> Option<&TopUnit> {
-        self.top.as_ref()
+fn counter(u: &crate::kernel::UnitReport, name: &str) -> u64 {
+    u.counters.iter().find(|c| c.0 == name).map_or(0, |c| c.1)
+}
+
+fn stalled(u: &crate::kernel::UnitReport, r: usize) -> u64 {
+    u.activity.stalled.get(r).map_or(0, |s| s.cycles)
+}
+
+/// The [`StallReport`] of a run, from its units' activity intervals and counters:
+/// - `presort_*`: the presorters' busy / "input empty" / "scratchpad wait" cycles, summed
+///   over the presorters of the bank (presorter-cycles, as before);
+/// - `merge`: the merge unit's stall cycles by reason (queue dry, output full, init wait);
+/// - `emitter`: the emitter's "input empty" and "write buffer full" cycles (counted from
+///   the start of the final merge, when the emitter becomes active);
+/// - `reader_blocked_cycles`: the reader's "presorter ring full" cycles;
+/// - `port_refusals`: cycles the arbiter had a request refused and granted none (the old
+///   machine counted refused attempts, one per cycle at most: the same count);
+/// - `fifos`: the merge output FIFOs.
+fn stall_report(rep: &RunReport, w: &KWorld) -> StallReport {
+    let u = &rep.units;
+    let ps = &u[PRESORTER0 as usize];
+    let merge = &u[MERGER.index()];
+    let emit = &u[EMITTER.index()];
+    let fs = |f: &LatencyFifo<Elem>| {
+        let s = f.stats(rep.cycles);
+        FifoStats {
+            name: s.name,
+            capacity: s.capacity,
+            len: s.len,
+            pushes: s.pushes,
+            refused_pushes: s.refused_pushes,
+            peak: s.peak,
+        }
+    };
+    StallReport {
+        presort_busy_cycles: counter(ps, "presorter_busy_cycles"),
+        presort_starved_cycles: counter(ps, "presorter_starved_cycles"),
+        presort_wait_scratchpad_cycles: counter(ps, "presorter_wait_cycles"),
+        merge: MergeStalls {
+            queue_dry_cycles: stalled(merge, MERGE_DRY as usize),
+            output_full_cycles: stalled(merge, MERGE_FULL as usize),
+            init_wait_cycles: stalled(merge, MERGE_INIT as usize),
+        },
+        merge_outputs: counter(merge, "outputs"),
+        heap_ops: counter(merge, "heap_ops"),
+        emitter: EmitterStalls {
+            starved_cycles: stalled(emit, EMIT_STARVED as usize),
+            write_full_cycles: stalled(emit, EMIT_WRITE_FULL as usize),
+            encoder_full_cycles: stalled(emit, EMIT_ENCODER_FULL as usize),
+        },
+        emitter_steps: counter(emit, "steps"),
+        reader_blocked_cycles: stalled(&u[READER.index()], READER_RING_FULL as usize),
+        port_refusals: stalled(&u[ARBITER.index()], 0),
+        fifos: vec![fs(&w.emit_fifo), fs(&w.run_fifo)],
     }
 }

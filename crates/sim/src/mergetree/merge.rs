@@ -23,7 +23,6 @@ use std::collections::VecDeque;
 
 use super::heap::{MergeHeap, INF_KEY};
 use super::Elem;
-use crate::fifo::Fifo;
 
 /// One double-buffered queue of the scratchpad.
 #[derive(Clone, Copy, Debug, Default)]
@@ -61,7 +60,8 @@ pub(super) enum MergeState {
     Done,
 }
 
-/// Why the multi-merge unit did not output an element in an operation slot.
+/// Why the multi-merge unit did not output an element in an operation slot: its stall
+/// cycles by reason, from its activity intervals (the machine fills it in).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct MergeStalls {
     /// Operation slots lost because the successor's buffer half had not arrived.
@@ -93,8 +93,6 @@ pub(super) struct Merger {
     pub outputs: u64,
     /// Heap operations (inserts and replaces).
     pub ops: u64,
-    /// Stall counters.
-    pub stalls: MergeStalls,
 }
 
 impl Merger {
@@ -111,7 +109,6 @@ impl Merger {
             b,
             outputs: 0,
             ops: 0,
-            stalls: MergeStalls::default(),
         }
     }
 
@@ -194,46 +191,44 @@ impl Merger {
         q.valid[h] = true;
     }
 
-    /// One cycle. Elements leave into `out`; refills of consumed buffer halves are queued
-    /// to `refill`. Returns true when an operation was performed.
+    /// One cycle with the outputs behind `out`: what happened in the operation slot.
     #[inline]
-    pub fn tick(&mut self, cycle: u64, out: &mut Fifo<Elem>, refill: &mut VecDeque<u32>) -> bool {
+    pub fn tick_with(&mut self, cycle: u64, out: &mut impl MergeOut) -> Slot {
         if cycle < self.next_op || matches!(self.state, MergeState::Idle | MergeState::Done) {
-            return false;
+            return Slot::Closed;
         }
-        self.operate(cycle, out, refill)
+        self.operate(cycle, out)
     }
 
     /// The operation slot at `cycle`, once it is open.
-    fn operate(&mut self, cycle: u64, out: &mut Fifo<Elem>, refill: &mut VecDeque<u32>) -> bool {
+    fn operate(&mut self, cycle: u64, out: &mut impl MergeOut) -> Slot {
         match self.state {
-            MergeState::Idle | MergeState::Done => false,
+            MergeState::Idle | MergeState::Done => Slot::Closed,
             MergeState::Init => {
                 let nq = self.queues.len() as u32;
                 if self.init_q == nq {
                     self.state = MergeState::Merge;
-                    return self.operate(cycle, out, refill);
+                    return self.operate(cycle, out);
                 }
                 let q = &self.queues[self.init_q as usize];
                 if q.run_len == 0 {
                     self.init_q += 1;
-                    return true;
+                    return Slot::Worked;
                 }
                 if !q.valid[0] {
-                    self.stalls.init_wait_cycles += 1;
-                    return false;
+                    return Slot::InitWait;
                 }
                 let key = self.scratch[q.base[0] as usize].key();
                 self.heap.insert(key, self.init_q);
                 self.init_q += 1;
                 self.ops += 1;
                 self.next_op = cycle + 2;
-                true
+                Slot::Worked
             }
             MergeState::Merge => {
                 let Some((_, qi)) = self.heap.top() else {
                     self.state = MergeState::Done;
-                    return true;
+                    return Slot::Worked;
                 };
                 let q = self.queues[qi as usize];
                 let pos = (q.base[q.cur] + q.idx) as usize;
@@ -242,18 +237,16 @@ impl Merger {
                 } else if q.consumed + 1 < q.run_len {
                     let other = 1 - q.cur;
                     if !q.valid[other] {
-                        self.stalls.queue_dry_cycles += 1;
-                        return false;
+                        return Slot::QueueDry;
                     }
                     self.scratch[q.base[other] as usize].key()
                 } else {
                     INF_KEY
                 };
                 if out.is_full() {
-                    self.stalls.output_full_cycles += 1;
-                    return false;
+                    return Slot::OutputFull;
                 }
-                let _ = out.push(self.scratch[pos]);
+                out.push(self.scratch[pos]);
                 self.heap.replace_top(succ_key, qi);
                 self.outputs += 1;
                 self.ops += 1;
@@ -265,7 +258,7 @@ impl Merger {
                     // The half is used up: release it and refill it if the run has more.
                     q.valid[q.cur] = false;
                     if q.fetched < q.run_len {
-                        refill.push_back(qi * 2 + q.cur as u32);
+                        out.refill(qi * 2 + q.cur as u32);
                     }
                     q.cur = 1 - q.cur;
                     q.idx = 0;
@@ -274,8 +267,33 @@ impl Merger {
                 if self.heap.live() == 0 {
                     self.state = MergeState::Done;
                 }
-                true
+                Slot::Worked
             }
         }
     }
+}
+
+/// What happened in an operation slot of the multi-merge unit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(super) enum Slot {
+    /// No merge, or the slot is not open yet.
+    Closed,
+    /// An insert, a replace or a state change.
+    Worked,
+    /// The successor's buffer half has not arrived.
+    QueueDry,
+    /// The output FIFO is full.
+    OutputFull,
+    /// Initialization waits for a queue's first buffer.
+    InitWait,
+}
+
+/// Where the multi-merge unit's elements and refill requests go.
+pub(super) trait MergeOut {
+    /// True when the output FIFO has no room.
+    fn is_full(&self) -> bool;
+    /// Outputs an element (room was checked).
+    fn push(&mut self, e: Elem);
+    /// Buffer half `buf` was used up and its run has more: refill it.
+    fn refill(&mut self, buf: u32);
 }

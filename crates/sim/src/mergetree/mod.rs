@@ -4,8 +4,10 @@
 //! The unit sorts the primitives' AABBs by the Morton codes of their centroids with an
 //! external multi-merge sort and streams the sorted AABBs into the hierarchy emitter:
 //! - [`config`]: parameters and the presets `p1` and `p2`;
-//! - input (in [`machine`]): 32-byte AABBs read in bursts of B, Morton codes computed as
-//!   they stream in (\[P2\] §5.1);
+//! - [`machine`]: the units on the simulation kernel ([`crate::kernel`]): the control FSM,
+//!   the reader (32-byte AABBs read in bursts of B, Morton codes computed as they stream in,
+//!   \[P2\] §5.1; refills of the merge queues), the run writer, the write buffers and the
+//!   round-robin memory arbiter, each a kernel unit or channel, plus the DRAM layout;
 //! - [`presort`]: the insertion presorters of the partial-sort mode (\[P2\] §5.5);
 //! - [`heap`]: the pipelined merge heap (\[P2\] §5.2);
 //! - [`merge`]: the multi-merge unit, its double-buffered scratchpad and the even/odd
@@ -131,8 +133,19 @@ pub fn simulate(
     simulate_with_progress(aabbs, cfg, port, None)
 }
 
-/// [`simulate`] with a callback `(elements done, total)` called once per trace window.
+/// [`simulate`] with a callback `(elements done, total)`, called every 65536 elements of
+/// work (merge outputs and emitter inputs).
 pub fn simulate_with_progress<'a>(
+    aabbs: &'a [Aabb],
+    cfg: &MergeTreeConfig,
+    port: Box<dyn MemoryPort>,
+    progress: Option<&'a mut dyn FnMut(u64, u64)>,
+) -> Result<MergeTreeReport, MergeTreeError> {
+    run_machine(aabbs, cfg, port, progress)
+}
+
+/// Checks the input, runs the [`machine`] and assembles its report.
+fn run_machine<'a>(
     aabbs: &'a [Aabb],
     cfg: &MergeTreeConfig,
     port: Box<dyn MemoryPort>,
@@ -154,21 +167,26 @@ pub fn simulate_with_progress<'a>(
     if cfg.output.is_cbvh() {
         cbvh::bottomup::check_stream(1, aabbs.len())?;
     }
-    let mut m = machine::Machine::new(aabbs, &cb, cfg, port, progress)?;
-    let cycles = m.run()?;
-    let mem = m.port().stats();
-    let peak = m.port().peak_bytes_per_unit_cycle();
-    let stalls = m.stall_report();
-    let partial_cycles: u64 = m
+    let mut k = machine::run(aabbs, &cb, cfg, port, progress)?;
+    let out = KernelCbvh {
+        stream: k.stream.take(),
+        ids: k.cbvh_ids.take(),
+        topdown: k.topdown.take(),
+        build_cycles: k.build_cycles,
+        cycles: k.cycles,
+    };
+    let cycles = k.cycles;
+    let stalls = k.stalls;
+    let partial_cycles: u64 = k
         .phases
         .iter()
         .filter(|p| p.name == "partial_sort" || p.name == "sort_and_emit")
         .map(|p| p.end_cycle - p.start_cycle)
         .sum();
-    let (toplevel_sweeps, toplevel_cycles, top_tree) = match m.toplevel() {
+    let (toplevel_sweeps, toplevel_cycles, top_tree) = match &k.top {
         Some(t) => (
             t.sweeps.len() as u64,
-            m.phases
+            k.phases
                 .iter()
                 .find(|p| p.name == "toplevel_sah")
                 .map_or(0, |p| p.end_cycle - p.start_cycle),
@@ -176,81 +194,79 @@ pub fn simulate_with_progress<'a>(
         ),
         None => (0, 0, None),
     };
-    let blocks = (aabbs.len() as u64).div_ceil(cfg.m as u64);
     let highlevel = bvh::Highlevel {
-        nodes: std::mem::take(&mut m.emit.nodes),
-        roots: std::mem::take(&mut m.emit.roots),
-        order: std::mem::take(&mut m.emit.order),
+        nodes: std::mem::take(&mut k.nodes),
+        roots: std::mem::take(&mut k.roots),
+        order: std::mem::take(&mut k.order),
     };
-    let cbvh = cbvh_result(&mut m, &highlevel, cfg, cycles)?;
-    let report = MergeTreeReport {
+    let cbvh = kernel_cbvh_result(out, &highlevel, cfg)?;
+    let mem = k.mem;
+    Ok(MergeTreeReport {
         triangles: aabbs.len() as u64,
         config: cfg.clone(),
-        dram: m.port().name(),
+        dram: k.dram,
         cycles,
         ms: cycles as f64 / (cfg.clock_mhz as f64 * 1e3),
         bytes_read: mem.bytes_read,
         bytes_written: mem.bytes_written,
-        bus_utilization: if cycles == 0 {
-            0.0
-        } else {
-            (mem.bytes_read + mem.bytes_written) as f64 / (peak * cycles as f64)
-        },
-        peak_bytes_per_cycle: peak,
-        partial_sort_blocks: blocks,
-        merge_passes: m.passes_total,
-        phases: std::mem::take(&mut m.phases),
+        bus_utilization: (mem.bytes_read + mem.bytes_written) as f64 / (k.peak * cycles as f64),
+        peak_bytes_per_cycle: k.peak,
+        partial_sort_blocks: (aabbs.len() as u64).div_ceil(cfg.m as u64),
+        merge_passes: k.passes_total,
+        phases: k.phases,
         presort_busy_fraction: if partial_cycles == 0 {
             0.0
         } else {
             stalls.presort_busy_cycles as f64 / (cfg.presorters as f64 * partial_cycles as f64)
         },
-        merge_elements_per_cycle: if cycles == 0 {
-            0.0
-        } else {
-            stalls.merge_outputs as f64 / cycles as f64
-        },
+        merge_elements_per_cycle: stalls.merge_outputs as f64 / cycles as f64,
         stalls,
         nodes: highlevel.nodes.len() as u64,
         leaf_entries: highlevel.order.len() as u64,
         highlevel_roots: highlevel.roots.len() as u64,
-        max_stack_depth: m.emit.max_stack_depth(),
+        max_stack_depth: k.max_stack_depth,
         toplevel_sweeps,
         toplevel_cycles,
-        fast_forward_cycles: m.skipped_cycles,
-        layout: m.layout,
+        fast_forward_cycles: k.run.cycles - k.run.stepped_cycles,
+        layout: k.layout,
         memory: mem,
-        trace: std::mem::take(&mut m.trace),
+        trace: k.trace,
         highlevel,
         top_tree,
         cbvh,
-    };
-    Ok(report)
+        units: k.run.units,
+    })
 }
 
-/// The CBVH the unit wrote, with its counts, in the CBVH output modes.
-fn cbvh_result(
-    m: &mut machine::Machine<'_>,
+/// What the kernel machine's CBVH units left behind.
+struct KernelCbvh {
+    stream: Option<(cbvh::bottomup::StreamEncoder, cbvh_unit::StreamUnitStats)>,
+    ids: Option<Vec<u32>>,
+    topdown: Option<cbvh_unit::TopdownStats>,
+    build_cycles: u64,
+    cycles: u64,
+}
+
+/// The CBVH the kernel machine wrote, with its counts, in the CBVH output modes.
+fn kernel_cbvh_result(
+    mut k: KernelCbvh,
     hl: &bvh::Highlevel,
     cfg: &MergeTreeConfig,
-    cycles: u64,
 ) -> Result<Option<CbvhRunReport>, MergeTreeError> {
     let pair_bytes = cbvh::format::pair_bytes(cfg.cbvh_bits) as u64;
     let build_cycles = if hl.order.is_empty() {
         0
     } else {
-        m.build_cycles
+        k.build_cycles
     };
     let (tree, encode, stream, topdown) = match cfg.output {
         OutputMode::Bvh => return Ok(None),
-        OutputMode::CbvhStream => match m.stream.take() {
-            Some(unit) if !hl.order.is_empty() => {
-                let stats = unit.stats.clone();
-                let ids = m.emit.cbvh_ids.take().unwrap_or_default();
-                let (tree, encode) = unit.into_encoder().finish(ids)?;
+        OutputMode::CbvhStream => match k.stream.take() {
+            Some((enc, stats)) if !hl.order.is_empty() => {
+                let ids = k.ids.take().unwrap_or_default();
+                let (tree, encode) = enc.finish(ids)?;
                 (tree, encode, Some(stats), None)
             }
-            // An empty scene: nothing ran; the encoder's tree of no primitives.
             _ => {
                 let (tree, encode) = cbvh::compress_hlbvh(hl, &cfg.stream_config(0))?;
                 (tree, encode, None, None)
@@ -258,7 +274,7 @@ fn cbvh_result(
         },
         OutputMode::CbvhTopdown => {
             let (tree, encode) = cbvh::compress_topdown(&hl.to_bvh2(), &cfg.cbvh_params())?;
-            (tree, encode, None, m.td.take().map(|t| t.stats))
+            (tree, encode, None, k.topdown.take())
         }
     };
     Ok(Some(CbvhRunReport {
@@ -271,7 +287,7 @@ fn cbvh_result(
         backtrack_depth_hist: encode.backtrack_depth_hist.clone(),
         build_cycles,
         build_ms: build_cycles as f64 / (cfg.clock_mhz as f64 * 1e3),
-        compress_cycles: cycles - build_cycles,
+        compress_cycles: k.cycles - build_cycles,
         stream,
         topdown,
         encode,
@@ -364,3 +380,5 @@ pub fn tree_matches_software(
 mod tests;
 #[cfg(test)]
 mod tests_cbvh;
+#[cfg(test)]
+mod tests_kernel;

@@ -41,9 +41,8 @@ pub(super) struct Presorter {
     pub slot_valid: Vec<bool>,
     /// Slot consumed next.
     pub head: u32,
-    /// Next slot to allocate to a read.
-    pub tail: u32,
-    /// Slots allocated (requested, not yet consumed).
+    /// Slots whose data arrived and is not yet consumed (the machine counts a slot when
+    /// its read completes; the reader keeps its own count of requested slots).
     pub used: u32,
     /// Next element inside the head slot.
     pub head_pos: u32,
@@ -65,8 +64,6 @@ pub(super) struct Presorter {
     pub busy_cycles: u64,
     /// Cycles waiting for read data.
     pub starved_cycles: u64,
-    /// Cycles waiting for the scratchpad (previous block still merging, or port taken).
-    pub wait_scratchpad_cycles: u64,
 }
 
 impl Presorter {
@@ -77,7 +74,6 @@ impl Presorter {
             slot_count: vec![0; slots as usize],
             slot_valid: vec![false; slots as usize],
             head: 0,
-            tail: 0,
             used: 0,
             head_pos: 0,
             sub: first,
@@ -89,7 +85,6 @@ impl Presorter {
             state: PresortState::Sorting,
             busy_cycles: 0,
             starved_cycles: 0,
-            wait_scratchpad_cycles: 0,
         }
     }
 
@@ -99,23 +94,19 @@ impl Presorter {
     }
 
     /// Allocates the next ring slot for a read; `None` when the ring is full.
+    #[cfg(test)]
     pub fn alloc_slot(&mut self) -> Option<u32> {
         if self.used == self.slots() {
             return None;
         }
-        let s = self.tail;
-        self.tail = if self.tail + 1 == self.slots() {
-            0
-        } else {
-            self.tail + 1
-        };
+        let s = (self.head + self.used) % self.slots();
         self.used += 1;
         self.slot_valid[s as usize] = false;
         Some(s)
     }
 
     /// Takes the next delivered element from the ring, in request order.
-    fn take(&mut self, b: u32) -> Option<Elem> {
+    pub fn take(&mut self, b: u32) -> Option<Elem> {
         if self.used == 0 || !self.slot_valid[self.head as usize] {
             return None;
         }
@@ -124,6 +115,7 @@ impl Presorter {
         self.head_pos += 1;
         if self.head_pos == self.slot_count[h] {
             self.head_pos = 0;
+            self.slot_valid[h] = false;
             self.head = if self.head + 1 == self.slots() {
                 0
             } else {
@@ -137,7 +129,7 @@ impl Presorter {
     /// Cycle `cycle` of sorting. Returns true when an insertion started (a change of
     /// state); a cycle inside an insertion changes nothing until `busy_until` (its busy
     /// cycles were counted when it started), so the machine may skip it.
-    #[inline]
+    #[cfg(test)]
     pub fn tick_sort(&mut self, cycle: u64, b: u32) -> bool {
         if cycle < self.busy_until {
             return false;
@@ -149,7 +141,7 @@ impl Presorter {
     }
 
     /// Starts inserting the next element, if it has arrived.
-    fn insert_next(&mut self, cycle: u64, b: u32) -> bool {
+    pub fn insert_next(&mut self, cycle: u64, b: u32) -> bool {
         let Some(e) = self.take(b) else {
             self.starved_cycles += 1;
             return false;
@@ -169,11 +161,6 @@ impl Presorter {
         self.busy_until = cycle + compares as u64 + 1;
         self.busy_cycles += compares as u64 + 1;
         true
-    }
-
-    /// True while an insertion is in progress at `cycle`.
-    pub fn busy_at(&self, cycle: u64) -> bool {
-        cycle < self.busy_until
     }
 
     /// True when the sub-block is sorted and ready to copy at `cycle`.

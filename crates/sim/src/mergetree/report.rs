@@ -35,7 +35,9 @@ pub struct PhaseReport {
     pub read_latency_mean_cycles: f64,
 }
 
-/// Busy and stall counters of every unit.
+/// Busy and stall counters of every unit: sums of the units' activity intervals (see
+/// `machine::stall_report` for each field's source). Every figure counts cycles of a unit's
+/// state, so none depends on how often the kernel stepped the unit.
 #[derive(Clone, Debug, Default, PartialEq, Serialize)]
 pub struct StallReport {
     /// Presorter-cycles spent inserting or copying to the scratchpad.
@@ -56,7 +58,8 @@ pub struct StallReport {
     pub emitter_steps: u64,
     /// Cycles the input reader had data to fetch but no presorter buffer to put it in.
     pub reader_blocked_cycles: u64,
-    /// Requests the memory controller refused (queue full).
+    /// Cycles the memory arbiter had a request refused by the controller (queue full) and
+    /// granted none.
     pub port_refusals: u64,
     /// The FIFOs between units.
     pub fifos: Vec<FifoStats>,
@@ -128,8 +131,8 @@ pub struct MergeTreeReport {
     pub toplevel_sweeps: u64,
     /// Cycles of the toplevel SAH unit.
     pub toplevel_cycles: u64,
-    /// Cycles the simulator skipped because every unit waited for memory (a simulator
-    /// statistic; the results are the same without skipping).
+    /// Cycles in which the kernel stepped no unit (a simulator statistic; the results are
+    /// the same without skipping).
     pub fast_forward_cycles: u64,
     /// DRAM addresses of the regions.
     pub layout: MemoryLayout,
@@ -146,6 +149,9 @@ pub struct MergeTreeReport {
     pub top_tree: Option<bvh::Bvh2>,
     /// The CBVH output (\[P3\] §5.3), in the CBVH output modes.
     pub cbvh: Option<CbvhRunReport>,
+    /// Busy / stalled / idle cycles and counters of every unit (the kernel machine).
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub units: Vec<crate::kernel::UnitReport>,
 }
 
 /// What the CBVH output of a run did (\[P3\] §5.3).

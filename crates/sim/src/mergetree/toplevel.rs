@@ -61,6 +61,27 @@ impl TopUnit {
         self.cur == self.sweeps.len()
     }
 
+    /// Cycles of the current sweep still to work before its node is written.
+    pub fn left(&self) -> u64 {
+        self.left
+    }
+
+    /// Works `k` cycles of the current sweep at once (`k` at most [`Self::left`]).
+    pub fn spend(&mut self, k: u64) {
+        debug_assert!(k <= self.left);
+        self.left -= k;
+        self.busy_cycles += k;
+    }
+
+    /// Ends the current sweep (its node was written): the next sweep starts.
+    pub fn finish_sweep(&mut self) {
+        debug_assert!(self.left == 0 && !self.done());
+        self.cur += 1;
+        if let Some(&s) = self.sweeps.get(self.cur) {
+            self.left = s as u64 + self.sah_cycles as u64;
+        }
+    }
+
     /// One cycle; a finished sweep writes its node to `out`. Returns true on progress.
     pub fn tick(&mut self, out: &mut WriteBuffer) -> bool {
         self.busy = false;
