@@ -1,11 +1,11 @@
 //! Cycle-level models of the hardware of the thesis, following the conventions of
-//! `shared/DESIGN.md`: each unit is a struct that advances one clock cycle at a time,
-//! units talk through bounded [`fifo::Fifo`]s whose capacities are configuration, and every
-//! byte of memory traffic goes through one [`dram::MemoryPort`], so it is counted in one
-//! place.
+//! `shared/DESIGN.md`: each unit implements the simulation kernel's [`kernel::Unit`] and says
+//! when it next needs the clock, units talk through bounded [`kernel::LatencyFifo`]s whose
+//! capacities are configuration, and every byte of memory traffic goes through one
+//! [`dram::MemoryPort`], so it is counted in one place.
 //!
 //! - [`clock`]: exact crossing between two clock domains of any periods.
-//! - [`fifo`]: the bounded FIFO that connects units, with occupancy statistics.
+//! - [`fifo`]: the FIFO row of MergeTree's reports (name, capacity, statistics).
 //! - [`kernel`]: the simulation kernel: units with wake times, the skipping scheduler,
 //!   latency FIFOs, arbiter, tag pools and MSHRs, caches, interval statistics.
 //! - [`dram`]: the memory-port interface and its backends.

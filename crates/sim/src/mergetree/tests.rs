@@ -38,14 +38,14 @@ pub(super) fn clustered_boxes(n: usize, distinct: usize) -> Vec<Aabb> {
         .collect()
 }
 
-fn port(gbps: u64) -> Box<dyn MemoryPort> {
+pub(super) fn port(gbps: u64) -> Box<dyn MemoryPort> {
     Box::new(SimpleDram::new(SimpleDramConfig {
         peak_bytes_per_s: gbps * 1_000_000_000,
         ..SimpleDramConfig::lpddr3_1600_1x64_like()
     }))
 }
 
-fn small(m: u32, b: u32, presorters: u32) -> MergeTreeConfig {
+pub(super) fn small(m: u32, b: u32, presorters: u32) -> MergeTreeConfig {
     let mut c = MergeTreeConfig::p2();
     c.m = m;
     c.b = b;
@@ -55,7 +55,7 @@ fn small(m: u32, b: u32, presorters: u32) -> MergeTreeConfig {
     c
 }
 
-fn check(aabbs: &[Aabb], cfg: &MergeTreeConfig) -> MergeTreeReport {
+pub(super) fn check(aabbs: &[Aabb], cfg: &MergeTreeConfig) -> MergeTreeReport {
     let r = simulate(aabbs, cfg, port(13)).unwrap();
     assert!(
         tree_matches_software(&r, aabbs).unwrap(),

@@ -3,39 +3,9 @@
 //! (cycles, phases, memory statistics, every unit's activity and counters, the stall
 //! report and the time series) on the simple backend and on DRAMsim3.
 
-use super::tests::{clustered_boxes, random_boxes};
+use super::tests::{check, clustered_boxes, port, random_boxes, small};
 use super::*;
-use crate::dram::simple::{SimpleDram, SimpleDramConfig};
 use proptest::prelude::*;
-
-fn port(gbps: u64) -> Box<dyn MemoryPort> {
-    Box::new(SimpleDram::new(SimpleDramConfig {
-        peak_bytes_per_s: gbps * 1_000_000_000,
-        ..SimpleDramConfig::lpddr3_1600_1x64_like()
-    }))
-}
-
-fn small(m: u32, b: u32, presorters: u32) -> MergeTreeConfig {
-    let mut c = MergeTreeConfig::p2();
-    c.m = m;
-    c.b = b;
-    c.presorters = presorters;
-    c.run_write_fifo = c.run_write_fifo.max(b);
-    c.trace_window_cycles = 1000;
-    c
-}
-
-fn check(aabbs: &[Aabb], cfg: &MergeTreeConfig) -> MergeTreeReport {
-    let r = simulate(aabbs, cfg, port(13)).unwrap();
-    assert!(
-        tree_matches_software(&r, aabbs).unwrap(),
-        "tree differs from the software builder ({} prims, m={} b={})",
-        aabbs.len(),
-        cfg.m,
-        cfg.b
-    );
-    r
-}
 
 /// Everything simulated must be equal with and without skipping.
 fn assert_same(fast: &MergeTreeReport, slow: &MergeTreeReport, what: &str) {
