@@ -52,7 +52,7 @@ use super::energy::{self, CommandCounts, MemSpec};
 use super::lpddr::AddressMap;
 use super::port::{Backend, BurstPort};
 use super::{DramError, MemStats};
-use crate::clock::{period_fs_from_ns, ClockCrossing, PeriodFs};
+use crate::clock::PeriodFs;
 
 pub use super::port::STAGING_BURSTS;
 
@@ -197,14 +197,7 @@ extern "C" fn on_complete(data: *mut c_void, addr: u64, is_write: bool) {
 impl BurstPort<Dramsim3System> {
     /// Opens the shipped system `name` driven by a unit clock of period `unit_period_fs`.
     pub fn open(name: &str, unit_period_fs: PeriodFs) -> Result<Self, DramError> {
-        let config = system(name).ok_or_else(|| DramError::UnknownSystem {
-            name: name.to_string(),
-            known: SYSTEMS
-                .iter()
-                .map(|s| s.name)
-                .collect::<Vec<_>>()
-                .join(", "),
-        })?;
+        let config = super::port::shipped_system(name)?;
         Self::with_config(config, unit_period_fs)
     }
 
@@ -220,18 +213,8 @@ impl BurstPort<Dramsim3System> {
             return Err(DramError::Config("unit clock period of zero".into()));
         }
         let system = Dramsim3System::new(config)?;
-        let channels = config.int("channels")?;
-        let bus_bits = config.int("bus_width")?;
-        let bl = config.int("BL")?;
         let tck_ns = system.tck_ns;
-        // Two transfers per clock on each channel.
-        let peak_bytes_per_ns = channels as f64 * bus_bits as f64 / 8.0 * 2.0 / tck_ns;
-        Ok(BurstPort::new(
-            system,
-            ClockCrossing::new(unit_period_fs, period_fs_from_ns(tck_ns)),
-            (bus_bits / 8 * bl) as u32,
-            peak_bytes_per_ns * unit_period_fs as f64 * 1e-6,
-        ))
+        BurstPort::for_system(system, config, tck_ns, unit_period_fs)
     }
 
     /// The configuration this port runs.
@@ -467,18 +450,14 @@ impl Backend for Dramsim3System {
 
     fn fill_stats(&self, s: &mut MemStats) {
         let (counts, row_hits) = self.command_counts();
-        s.row_hits = row_hits;
-        s.row_misses = (counts.read + counts.write).saturating_sub(row_hits);
-        s.act_commands = counts.act;
-        s.read_commands = counts.read;
-        s.write_commands = counts.write;
-        s.refresh_commands = counts.refresh;
-        s.energy_pj = Some(energy::energy(
-            self.config.memspec,
+        super::port::fill_command_stats(
+            s,
+            self.config,
             &counts,
+            row_hits,
             self.dies_per_rank,
             self.tck_ns,
-        ));
+        );
     }
 }
 

@@ -49,10 +49,10 @@
 //! cycles in between only add to the active or precharged count.
 
 use super::dramsim3::SystemConfig;
-use super::energy::{self, CommandCounts};
+use super::energy::CommandCounts;
 use super::port::{Backend, BurstPort};
 use super::{DramError, MemStats};
-use crate::clock::{period_fs_from_ns, ClockCrossing, PeriodFs};
+use crate::clock::PeriodFs;
 
 /// The memory port over this model.
 pub type LpddrPort = BurstPort<LpddrSystem>;
@@ -1063,32 +1063,21 @@ impl Backend for LpddrSystem {
 
     fn fill_stats(&self, s: &mut MemStats) {
         let (counts, row_hits) = self.command_counts();
-        s.row_hits = row_hits;
-        s.row_misses = (counts.read + counts.write).saturating_sub(row_hits);
-        s.act_commands = counts.act;
-        s.read_commands = counts.read;
-        s.write_commands = counts.write;
-        s.refresh_commands = counts.refresh;
-        s.energy_pj = Some(energy::energy(
-            self.config.memspec,
+        super::port::fill_command_stats(
+            s,
+            self.config,
             &counts,
+            row_hits,
             self.dies_per_rank,
             self.tck_ns,
-        ));
+        );
     }
 }
 
 impl BurstPort<LpddrSystem> {
     /// Opens the shipped system `name` driven by a unit clock of period `unit_period_fs`.
     pub fn open(name: &str, unit_period_fs: PeriodFs) -> Result<Self, DramError> {
-        let config = super::dramsim3::system(name).ok_or_else(|| DramError::UnknownSystem {
-            name: name.to_string(),
-            known: super::dramsim3::SYSTEMS
-                .iter()
-                .map(|s| s.name)
-                .collect::<Vec<_>>()
-                .join(", "),
-        })?;
+        let config = super::port::shipped_system(name)?;
         Self::with_config(config, unit_period_fs)
     }
 
@@ -1101,16 +1090,7 @@ impl BurstPort<LpddrSystem> {
             return Err(DramError::Config("unit clock period of zero".into()));
         }
         let system = LpddrSystem::new(config)?;
-        let channels = config.int("channels")?;
-        let bus_bits = config.int("bus_width")?;
-        let bl = config.int("BL")?;
         let tck_ns = config.tck_ns()?;
-        let peak_bytes_per_ns = channels as f64 * bus_bits as f64 / 8.0 * 2.0 / tck_ns;
-        Ok(BurstPort::new(
-            system,
-            ClockCrossing::new(unit_period_fs, period_fs_from_ns(tck_ns)),
-            (bus_bits / 8 * bl) as u32,
-            peak_bytes_per_ns * unit_period_fs as f64 * 1e-6,
-        ))
+        BurstPort::for_system(system, config, tck_ns, unit_period_fs)
     }
 }

@@ -21,8 +21,10 @@
 
 use std::collections::VecDeque;
 
-use super::{bursts_of, AccessKind, MemRequest, MemResponse, MemStats, MemoryPort};
-use crate::clock::ClockCrossing;
+use super::dramsim3::{system, SystemConfig, SYSTEMS};
+use super::energy::{self, CommandCounts};
+use super::{bursts_of, AccessKind, DramError, MemRequest, MemResponse, MemStats, MemoryPort};
+use crate::clock::{period_fs_from_ns, ClockCrossing, PeriodFs};
 
 /// Bursts each staging queue (one per channel and direction) may hold before
 /// [`MemoryPort::send`] refuses requests that go to it. Small next to a controller's
@@ -92,7 +94,67 @@ pub struct BurstPort<B: Backend> {
     stats: MemStats,
 }
 
+/// The shipped configuration called `name`, or an error listing the known ones.
+pub fn shipped_system(name: &str) -> Result<&'static SystemConfig, DramError> {
+    system(name).ok_or_else(|| DramError::UnknownSystem {
+        name: name.to_string(),
+        known: SYSTEMS
+            .iter()
+            .map(|s| s.name)
+            .collect::<Vec<_>>()
+            .join(", "),
+    })
+}
+
+/// Writes a cycle-accurate backend's command counts, row hits and the energy they imply into
+/// `s` (the same for every backend that counts commands).
+pub fn fill_command_stats(
+    s: &mut MemStats,
+    config: &SystemConfig,
+    counts: &CommandCounts,
+    row_hits: u64,
+    dies_per_rank: u32,
+    tck_ns: f64,
+) {
+    s.row_hits = row_hits;
+    s.row_misses = (counts.read + counts.write).saturating_sub(row_hits);
+    s.act_commands = counts.act;
+    s.read_commands = counts.read;
+    s.write_commands = counts.write;
+    s.refresh_commands = counts.refresh;
+    s.energy_pj = Some(energy::energy(
+        config.memspec,
+        counts,
+        dies_per_rank,
+        tck_ns,
+    ));
+}
+
 impl<B: Backend> BurstPort<B> {
+    /// A port over `backend`, which runs `config` with DRAM clock period `tck_ns`, driven by
+    /// a unit clock of period `unit_period_fs`: bursts of `bus_width / 8 * BL` bytes and
+    /// two transfers per DRAM clock on each channel.
+    pub fn for_system(
+        backend: B,
+        config: &SystemConfig,
+        tck_ns: f64,
+        unit_period_fs: PeriodFs,
+    ) -> Result<Self, DramError> {
+        if unit_period_fs == 0 {
+            return Err(DramError::Config("unit clock period of zero".into()));
+        }
+        let channels = config.int("channels")?;
+        let bus_bits = config.int("bus_width")?;
+        let bl = config.int("BL")?;
+        let peak_bytes_per_ns = channels as f64 * bus_bits as f64 / 8.0 * 2.0 / tck_ns;
+        Ok(Self::new(
+            backend,
+            ClockCrossing::new(unit_period_fs, period_fs_from_ns(tck_ns)),
+            (bus_bits / 8 * bl) as u32,
+            peak_bytes_per_ns * unit_period_fs as f64 * 1e-6,
+        ))
+    }
+
     /// A port over `backend`, whose bursts are `burst_bytes` long, crossing from the unit
     /// clock to the DRAM clock with `crossing`.
     pub fn new(
