@@ -73,13 +73,15 @@ pub struct MemoryLayout {
 }
 
 impl MemoryLayout {
-    /// The layout for `n` primitives padded to `npad` elements.
-    pub fn new(n: u64, npad: u64) -> Self {
+    /// The layout for `n` primitives padded to `npad` elements, with `run_gap` bytes after
+    /// every run of `m` elements in the run regions ([`run_offset`]).
+    pub fn new(n: u64, npad: u64, m: u64, run_gap: u64) -> Self {
         let up = |x: u64| x.div_ceil(REGION_ALIGN) * REGION_ALIGN;
         let input = 0;
+        let run_bytes = run_offset(npad, m, run_gap);
         let run0 = up(input + n * ELEM_BYTES);
-        let run1 = up(run0 + npad * ELEM_BYTES);
-        let nodes = up(run1 + npad * ELEM_BYTES);
+        let run1 = up(run0 + run_bytes);
+        let nodes = up(run1 + run_bytes);
         let leaves = up(nodes + n.saturating_sub(1) * super::config::NODE_BYTES);
         let highlevel = up(leaves + n * super::config::LEAF_ENTRY_BYTES);
         let cbvh = up(highlevel + n * super::config::HIGHLEVEL_BYTES);
@@ -95,6 +97,13 @@ impl MemoryLayout {
             end,
         }
     }
+}
+
+/// Byte offset of element `at` in a run region: runs of `m` elements, each followed by
+/// `run_gap` unused bytes.
+#[inline]
+pub fn run_offset(at: u64, m: u64, run_gap: u64) -> u64 {
+    at * ELEM_BYTES + at / m * run_gap
 }
 
 /// The sort element of primitive `i` of `aabbs` (padding past the end): its box,
@@ -376,7 +385,7 @@ impl<'a> Machine<'a> {
             runs = runs.div_ceil(fan);
             passes_total += 1;
         }
-        let layout = MemoryLayout::new(n, npad);
+        let layout = MemoryLayout::new(n, npad, m, cfg.run_gap_bytes as u64);
         let subs = npad.div_ceil(2 * b);
         let presorters = (0..cfg.presorters)
             .map(|p| {
@@ -1073,7 +1082,8 @@ impl<'a> Machine<'a> {
             count,
             bytes: count * ELEM_BYTES as u32,
         };
-        Some((d, self.layout.runs[src_region] + at * ELEM_BYTES))
+        let (m, gap) = (self.cfg.m as u64, self.cfg.run_gap_bytes as u64);
+        Some((d, self.layout.runs[src_region] + run_offset(at, m, gap)))
     }
 
     /// The memory arbiter: issues at most one request. Returns true when it did.
@@ -1277,7 +1287,8 @@ impl<'a> Machine<'a> {
         }
         let count = len.min(b);
         let bytes = (count * ELEM_BYTES) as u32;
-        let addr = self.layout.runs[self.dst] + self.wr_pos * ELEM_BYTES;
+        let (m, gap) = (self.cfg.m as u64, self.cfg.run_gap_bytes as u64);
+        let addr = self.layout.runs[self.dst] + run_offset(self.wr_pos, m, gap);
         let req = MemRequest {
             tag: WRITE_TAG | bytes as u64,
             addr,
