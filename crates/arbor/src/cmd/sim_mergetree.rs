@@ -28,7 +28,9 @@ pub struct MergetreeArgs {
     preset: Option<String>,
     /// Memory system: lpddr3-1600-1x64 (slow), lpddr3-1600-2x64 (medium),
     /// lpddr3-1333-4x64 (fast), lpddr3-1600-2x32 (Arbor's model of DRAMsim3's controller); prefix
-    /// `dramsim3:` for DRAMsim3 itself, `simple:` for the simple model.
+    /// `dramsim3:` for DRAMsim3 itself, `simple:` for the simple model; append
+    /// `,KEY=VALUE,...` to a name for a what-if of the model (any key of its configuration,
+    /// or write_drain, write_high_watermark, write_low_watermark, row_hit_cap, bank_xor).
     /// Default: lpddr3-1600-1x64, or lpddr3-1600-2x32 with --cbvh (thesis P3 5.3).
     #[arg(long)]
     dram: Option<String>,

@@ -84,6 +84,27 @@ struct Params {
     /// target command may go to a bank of that scope; 0 means no constraint.
     delay: [[[u64; KINDS]; 3]; 4],
     map: AddressMap,
+    /// When the transaction scheduler moves writes instead of reads.
+    drain: Drain,
+    /// RD/WR to an open row after which a PRE may close it while hits still wait
+    /// (`row_hit_cap`; DRAMsim3: 4).
+    row_hit_cap: u32,
+}
+
+/// The write-drain policy of the transaction scheduler (`write_drain`, a what-if key that
+/// only this model reads; DRAMsim3's policy is the default).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum Drain {
+    /// DRAMsim3: drain as many writes as the buffer holds once it is full, or once it
+    /// holds more than 8 while every command queue is empty (`write_drain = dramsim3`).
+    Dramsim3,
+    /// Ramulator-like (`write_drain = watermark`): enter write mode when more than
+    /// `high` writes wait for their WR, or when no read waits for its RD; leave it when
+    /// fewer than `low` writes wait and a read does. `high` and `low` are
+    /// `write_high_watermark` and `write_low_watermark` percent of the write buffer
+    /// (Ramulator: 80 and 20), rounded down (`low` at least 1). Only writes move in write mode, only reads
+    /// otherwise; a write whose address has a read waiting is passed over.
+    Watermark { high: usize, low: usize },
 }
 
 /// DRAMsim3's address map (`Config::AddressMapping`): the burst offset is dropped, then
@@ -98,6 +119,10 @@ pub(crate) struct AddressMap {
     ba: (u32, u64),
     ro: (u32, u64),
     co: (u32, u64),
+    /// XOR the bank field with the low bits of the row (`bank_xor = 1`, a what-if only
+    /// this model reads; DRAMsim3 and the default: 0): permutation-based interleaving, so
+    /// that addresses a multiple of a row's span apart fall in different banks.
+    bank_xor: bool,
 }
 
 impl AddressMap {
@@ -144,7 +169,13 @@ impl AddressMap {
         }
         let field = |f: &str| pos.get(f).copied().ok_or_else(|| bad(format!("no '{f}'")));
         field("ra")?;
+        let bank_xor = match int_or("bank_xor", 0)? {
+            0 => false,
+            1 => true,
+            _ => return Err(bad("bank_xor must be 0 or 1".into())),
+        };
         Ok(Self {
+            bank_xor,
             banks_per_group: banks_per_group.max(1) as usize,
             shift: log2(bus_width / 8 * bl),
             ch: field("ch")?,
@@ -180,8 +211,11 @@ impl AddressMap {
     #[inline]
     fn decode(&self, addr: u64) -> (u16, u32, u32) {
         let a = addr >> self.shift;
-        let bank =
-            Self::get(a, self.bg) as usize * self.banks_per_group + Self::get(a, self.ba) as usize;
+        let mut ba = Self::get(a, self.ba);
+        if self.bank_xor {
+            ba ^= Self::get(a, self.ro) & self.ba.1;
+        }
+        let bank = Self::get(a, self.bg) as usize * self.banks_per_group + ba as usize;
         (
             bank as u16,
             Self::get(a, self.ro) as u32,
@@ -344,17 +378,41 @@ impl Params {
             delay[PRE][OTHER_GROUP][PRE] = t_ppd;
         }
         let map = AddressMap::from_config(cfg)?;
+        let trans_queue_size = int_or("trans_queue_size", 32)? as usize;
+        let drain = match str_or("write_drain", "dramsim3") {
+            "dramsim3" => Drain::Dramsim3,
+            "watermark" => {
+                let high = int_or("write_high_watermark", 80)?;
+                let low = int_or("write_low_watermark", 20)?;
+                if low > high || high > 100 {
+                    return Err(bad(format!("write watermarks {low}% / {high}%")));
+                }
+                Drain::Watermark {
+                    high: trans_queue_size * high as usize / 100,
+                    // At least 1, so that write mode ends once the buffer is empty.
+                    low: (trans_queue_size * low as usize / 100).max(1),
+                }
+            }
+            other => {
+                return Err(bad(format!(
+                    "write_drain = {other} (dramsim3 or watermark)"
+                )))
+            }
+        };
+        let row_hit_cap = int_or("row_hit_cap", 4)?;
         let params = Self {
             banks: banks as usize,
             banks_per_group: banks_per_group as usize,
             cmd_queue_size: int_or("cmd_queue_size", 16)? as usize,
-            trans_queue_size: int_or("trans_queue_size", 32)? as usize,
+            trans_queue_size,
             read_delay,
             t_refi,
             t_rfc,
             t_faw,
             delay,
             map,
+            drain,
+            row_hit_cap: u32::try_from(row_hit_cap).map_err(|_| bad("row_hit_cap".into()))?,
         };
         Ok((params, channels as usize))
     }
@@ -642,7 +700,7 @@ impl Channel {
         match kind {
             PRE => {
                 let b = &self.banks[q];
-                j == 0 && (b.hits >= 4 || !queue.iter().any(|x| x.row == b.row))
+                j == 0 && (b.hits >= self.p.row_hit_cap || !queue.iter().any(|x| x.row == b.row))
             }
             WR => {
                 let e = &queue[j];
@@ -724,6 +782,9 @@ impl Channel {
 
     /// The transaction scheduler's choice for a cycle starting in draining state `d`.
     fn decide(&self, mut d: i64) -> Decision {
+        if let Drain::Watermark { high, low } = self.p.drain {
+            return self.decide_watermark(d > 0, high, low);
+        }
         let wlen = self.write_q.len();
         if d == 0 && (wlen >= self.p.trans_queue_size || (wlen > 8 && self.queued == 0)) {
             d = wlen as i64;
@@ -757,6 +818,33 @@ impl Channel {
         Decision {
             moved: None,
             draining: d.max(0),
+        }
+    }
+
+    /// [`Drain::Watermark`]'s choice in a cycle that starts in write mode or not.
+    fn decide_watermark(&self, mut writes: bool, high: usize, low: usize) -> Decision {
+        let wait_wr = self.pending_wr.len();
+        let reads = !self.pending_rd.is_empty();
+        if !writes && (wait_wr > high || !reads) {
+            writes = true;
+        } else if writes && wait_wr < low && reads {
+            writes = false;
+        }
+        let draining = writes as i64;
+        if self.waiting_mask[writes as usize] & !self.full_mask == 0 {
+            return Decision {
+                moved: None,
+                draining,
+            };
+        }
+        let q = if writes { &self.write_q } else { &self.read_q };
+        let moved = q.iter().position(|e| {
+            self.queues[e.bank as usize].len() < self.p.cmd_queue_size
+                && !(writes && self.pending_rd.iter().any(|r| r.addr == e.addr))
+        });
+        Decision {
+            moved: moved.map(|i| (writes, i)),
+            draining,
         }
     }
 
@@ -1092,5 +1180,41 @@ impl BurstPort<LpddrSystem> {
         let system = LpddrSystem::new(config)?;
         let tck_ns = config.tck_ns()?;
         BurstPort::for_system(system, config, tck_ns, unit_period_fs)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The map of `system` with what-if `options` (as `dram::open` builds it).
+    fn map(system: &str, options: &str) -> AddressMap {
+        let base = super::super::dramsim3::system(system).unwrap();
+        let ini = format!("{options}\n{}", base.ini);
+        let cfg = SystemConfig {
+            name: base.name,
+            ini: Box::leak(ini.into_boxed_str()),
+            memspec: base.memspec,
+        };
+        AddressMap::from_config(&cfg).unwrap()
+    }
+
+    #[test]
+    fn bank_xor_spreads_rows_over_banks_and_is_off_by_default() {
+        let plain = map("lpddr3-1333-4x64", "");
+        let off = map("lpddr3-1333-4x64", "bank_xor = 0");
+        let on = map("lpddr3-1333-4x64", "bank_xor = 1");
+        // 256 KiB = one row of every bank on this system: the same bank without the XOR.
+        let addrs: Vec<u64> = (0..8).map(|k| 0x1_2340 + (k << 18)).collect();
+        let banks = |m: &AddressMap| -> Vec<u16> { addrs.iter().map(|&a| m.decode(a).0).collect() };
+        assert!(banks(&plain).iter().all(|&b| b == banks(&plain)[0]));
+        assert_eq!(banks(&plain), banks(&off));
+        let mut spread = banks(&on);
+        spread.sort_unstable();
+        assert_eq!(spread, (0..8).collect::<Vec<u16>>());
+        for a in (0..1u64 << 24).step_by(4099 * 64) {
+            let (p, o) = (plain.decode(a), on.decode(a));
+            assert_eq!((p.1, p.2, plain.channel(a)), (o.1, o.2, on.channel(a)));
+        }
     }
 }

@@ -24,7 +24,10 @@
 //! `name()` is `lpddr(NAME)`); `dramsim3:NAME` gives DRAMsim3 with the same configuration
 //! (`dramsim3(NAME)`); `lpddr:NAME` is the bare name spelled out; `simple:NAME` gives the
 //! simple model with NAME's peak bandwidth; `simple:bw=BYTES_PER_S,lat=NS` (with optional
-//! `burst=BYTES` and `queue=REQUESTS`) a simple model of any bandwidth.
+//! `burst=BYTES` and `queue=REQUESTS`) a simple model of any bandwidth;
+//! `lpddr:NAME,KEY=VALUE,...` (or `NAME,KEY=VALUE,...`) Arbor's model with configuration
+//! keys overridden, for what-ifs: any key of NAME's file and the policy keys only the model
+//! reads ([`LPDDR_WHAT_IF_KEYS`]), each defaulting to DRAMsim3's behaviour.
 
 #[cfg(test)]
 mod crosscheck;
@@ -133,8 +136,68 @@ pub fn open(name: &str, unit_period_fs: PeriodFs) -> Result<Box<dyn MemoryPort>,
         )?));
     }
     let bare = name.strip_prefix("lpddr:").unwrap_or(name);
+    if let Some((system, options)) = bare.split_once(',') {
+        known_system(system, name)?;
+        let config = what_if_config(system, options, name)?;
+        return Ok(Box::new(lpddr::LpddrPort::with_config(
+            config,
+            unit_period_fs,
+        )?));
+    }
     known_system(bare, name)?;
     Ok(Box::new(lpddr::LpddrPort::open(bare, unit_period_fs)?))
+}
+
+/// Keys of an `lpddr:NAME,KEY=VALUE,...` what-if that only Arbor's controller model reads
+/// (see `lpddr`): `write_drain` (`dramsim3`, the default, or `watermark`),
+/// `write_high_watermark` and `write_low_watermark` (percent, 80 and 20), `row_hit_cap`
+/// (4), `bank_xor` (0; 1 XORs the bank with the row's low bits). Any key of the system's configuration file may be given too (for example
+/// `trans_queue_size`, `cmd_queue_size`, `address_mapping`).
+pub const LPDDR_WHAT_IF_KEYS: &[&str] = &[
+    "write_drain",
+    "write_high_watermark",
+    "write_low_watermark",
+    "row_hit_cap",
+    "bank_xor",
+];
+
+/// The configuration of system `system` with the `KEY=VALUE` pairs of `options` (comma
+/// separated) in front of its own lines, so that they take precedence. Leaked: a what-if
+/// is opened once per run.
+fn what_if_config(
+    system: &str,
+    options: &str,
+    asked: &str,
+) -> Result<&'static dramsim3::SystemConfig, DramError> {
+    let base = dramsim3::system(system).ok_or_else(|| DramError::UnknownSystem {
+        name: asked.to_string(),
+        known: dramsim3::SYSTEMS
+            .iter()
+            .map(|s| s.name)
+            .collect::<Vec<_>>()
+            .join(", "),
+    })?;
+    let mut ini = String::new();
+    for kv in options.split(',') {
+        let (k, v) = kv
+            .split_once('=')
+            .map(|(k, v)| (k.trim(), v.trim()))
+            .filter(|(k, v)| !k.is_empty() && !v.is_empty())
+            .ok_or_else(|| DramError::Config(format!("{asked}: option '{kv}' is not KEY=VALUE")))?;
+        if base.value(k).is_none() && !LPDDR_WHAT_IF_KEYS.contains(&k) {
+            return Err(DramError::Config(format!(
+                "{asked}: unknown key '{k}' (a key of {system}'s configuration or one of {})",
+                LPDDR_WHAT_IF_KEYS.join(", ")
+            )));
+        }
+        ini.push_str(&format!("{k} = {v}\n"));
+    }
+    ini.push_str(base.ini);
+    Ok(Box::leak(Box::new(dramsim3::SystemConfig {
+        name: base.name,
+        ini: Box::leak(ini.into_boxed_str()),
+        memspec: base.memspec,
+    })))
 }
 
 /// Every system name [`open`] accepts bare, with peak bandwidth and description.
@@ -511,7 +574,7 @@ mod contract_tests {
     fn check(
         port: &mut dyn MemoryPort,
         work: &[(u64, u32, bool, u8)],
-    ) -> Result<(), TestCaseError> {
+    ) -> Result<Vec<u64>, TestCaseError> {
         let burst = port.burst_bytes();
         let mut accepted = Vec::new();
         for (i, &(addr, bytes, write, idle)) in work.iter().enumerate() {
@@ -561,7 +624,7 @@ mod contract_tests {
         prop_assert_eq!((s.read_bursts, s.write_bursts), (rb, wb));
         prop_assert_eq!(s.bytes_read + s.bytes_written, (rb + wb) * burst as u64);
         prop_assert_eq!(s.unit_cycles, port.cycle());
-        Ok(())
+        Ok(seen.iter().map(|r| r.completed_cycle).collect())
     }
 
     proptest! {
@@ -573,6 +636,42 @@ mod contract_tests {
             check(open(name, 1_000_000).unwrap().as_mut(), &work)?;
             check(open(&format!("dramsim3:{name}"), 1_000_000).unwrap().as_mut(), &work)?;
             check(open(&format!("simple:{name}"), 1_000_000).unwrap().as_mut(), &work)?;
+            let wm = format!(
+                "lpddr:{name},write_drain=watermark,trans_queue_size=8,row_hit_cap=16,bank_xor=1"
+            );
+            check(open(&wm, 1_000_000).unwrap().as_mut(), &work)?;
         }
+
+        /// The what-if keys at their defaults give the shipped model's timing exactly.
+        #[test]
+        fn what_if_defaults_change_nothing(work in requests(), system in 0usize..5) {
+            let name = all_systems().nth(system).unwrap().0;
+            let spec = format!(
+                "lpddr:{name},write_drain=dramsim3,row_hit_cap=4,write_high_watermark=80,bank_xor=0"
+            );
+            let run = |spec: &str| -> Result<_, TestCaseError> {
+                let mut port = open(spec, 1_000_000).unwrap();
+                let done = check(port.as_mut(), &work)?;
+                let s = port.stats();
+                Ok((done, port.cycle(), s.row_hits, s.act_commands))
+            };
+            prop_assert_eq!(run(name)?, run(&spec)?);
+        }
+    }
+
+    #[test]
+    fn what_if_options_are_checked() {
+        for bad in [
+            "lpddr:lpddr3-1333-4x64,foo=1",
+            "lpddr:lpddr3-1333-4x64,write_drain=never",
+            "lpddr:lpddr3-1333-4x64,write_drain=watermark,write_low_watermark=90",
+            "lpddr:lpddr3-1333-4x64,trans_queue_size",
+            "lpddr:lpddr3-1333-4x64,bank_xor=2",
+            "lpddr:ddr9,row_hit_cap=4",
+        ] {
+            assert!(open(bad, 1_000_000).is_err(), "{bad}");
+        }
+        let port = open("lpddr3-1333-4x64,address_mapping=rorabgbachco", 1_000_000).unwrap();
+        assert_eq!(port.name(), "lpddr(lpddr3-1333-4x64)");
     }
 }

@@ -173,6 +173,11 @@ pub struct MergeTreeConfig {
     /// first writes them out (coherent, the default); `false` is a timing what-if that reads
     /// DRAM at once (see `cbvh_unit`).
     pub cbvh_flush_before_backtrack: bool,
+    /// Bytes of unused space after every M-element run in the run regions (a layout
+    /// what-if; the presets: 0, runs back to back). With runs a power-of-two span apart,
+    /// refills of runs at equal offsets go to one DRAM bank (`docs/mergetree-vs-thesis.md`,
+    /// "Fast system: what the gap is made of"); a gap shifts each run's banks.
+    pub run_gap_bytes: u32,
 }
 
 /// Names of the parameters [`MergeTreeConfig::set`] accepts.
@@ -204,6 +209,7 @@ pub const KEYS: &[&str] = &[
     "cbvh_min_scale_exp",
     "cbvh_fifo",
     "cbvh_flush_before_backtrack",
+    "run_gap_bytes",
 ];
 
 impl MergeTreeConfig {
@@ -251,6 +257,7 @@ impl MergeTreeConfig {
             cbvh_min_scale_exp: cbvh::grid::DEFAULT_MIN_SCALE_EXP,
             cbvh_fifo: 16,
             cbvh_flush_before_backtrack: true,
+            run_gap_bytes: 0,
         }
     }
 
@@ -378,6 +385,7 @@ impl MergeTreeConfig {
             }
             "cbvh_fifo" => self.cbvh_fifo = num32(1)?,
             "cbvh_flush_before_backtrack" => self.cbvh_flush_before_backtrack = boolean()?,
+            "run_gap_bytes" => self.run_gap_bytes = num32(0)?,
             _ => {
                 return Err(ConfigError::UnknownKey {
                     key: key.to_string(),

@@ -131,13 +131,15 @@ pub struct MemoryLayout {
 }
 
 impl MemoryLayout {
-    /// The layout for `n` primitives padded to `npad` elements.
-    pub fn new(n: u64, npad: u64) -> Self {
+    /// The layout for `n` primitives padded to `npad` elements, with `run_gap` bytes after
+    /// every run of `m` elements in the run regions ([`run_offset`]).
+    pub fn new(n: u64, npad: u64, m: u64, run_gap: u64) -> Self {
         let up = |x: u64| x.div_ceil(REGION_ALIGN) * REGION_ALIGN;
         let input = 0;
         let run0 = up(input + n * ELEM_BYTES);
-        let run1 = up(run0 + npad * ELEM_BYTES);
-        let nodes = up(run1 + npad * ELEM_BYTES);
+        let run_bytes = run_offset(npad, m.max(1), run_gap);
+        let run1 = up(run0 + run_bytes);
+        let nodes = up(run1 + run_bytes);
         let leaves = up(nodes + n.saturating_sub(1) * super::config::NODE_BYTES);
         let highlevel = up(leaves + n * super::config::LEAF_ENTRY_BYTES);
         let cbvh = up(highlevel + n * super::config::HIGHLEVEL_BYTES);
@@ -153,6 +155,13 @@ impl MemoryLayout {
             end,
         }
     }
+}
+
+/// Byte offset of element `at` in a run region: runs of `m` elements, each followed by
+/// `run_gap` unused bytes (the `run_gap_bytes` layout what-if; 0 by default).
+#[inline]
+pub fn run_offset(at: u64, m: u64, run_gap: u64) -> u64 {
+    at * ELEM_BYTES + at / m * run_gap
 }
 
 /// The sort element of primitive `i` of `aabbs` (padding past the end): its box,
@@ -1463,7 +1472,8 @@ impl<'a> Unit<KWorld<'a>> for Reader {
         } else {
             let f = w.refill.pop(cx).expect("peeked");
             Req {
-                addr: w.layout.runs[f.region as usize] + f.pos * ELEM_BYTES,
+                addr: w.layout.runs[f.region as usize]
+                    + run_offset(f.pos, w.cfg.m as u64, w.cfg.run_gap_bytes as u64),
                 bytes: f.count * ELEM_BYTES as u32,
                 kind: AccessKind::Read,
                 dest: Dest::Merge(f),
@@ -1521,7 +1531,12 @@ impl<'a> Unit<KWorld<'a>> for RunWriter {
         let region = ((start / self.npad) % 2) as usize;
         let bytes = self.b * ELEM_BYTES as u32;
         let req = Req {
-            addr: w.layout.runs[region] + (start % self.npad) * ELEM_BYTES,
+            addr: w.layout.runs[region]
+                + run_offset(
+                    start % self.npad,
+                    w.cfg.m as u64,
+                    w.cfg.run_gap_bytes as u64,
+                ),
             bytes,
             kind: AccessKind::Write,
             dest: Dest::Run { elems: self.b },
@@ -2302,7 +2317,7 @@ pub(super) fn run<'a>(
             topdown: None,
             build_cycles: 0,
             passes_total: 0,
-            layout: MemoryLayout::new(0, 0),
+            layout: MemoryLayout::new(0, 0, 1, 0),
             mem: port.stats(),
             dram: port.name(),
             peak: port.peak_bytes_per_unit_cycle(),
@@ -2319,7 +2334,7 @@ pub(super) fn run<'a>(
         runs = runs.div_ceil(fan);
         passes_total += 1;
     }
-    let layout = MemoryLayout::new(n, npad);
+    let layout = MemoryLayout::new(n, npad, m, cfg.run_gap_bytes as u64);
     let subs = npad.div_ceil(2 * b);
     let np = cfg.presorters as usize;
     let slots = cfg.presort_slots as usize;
