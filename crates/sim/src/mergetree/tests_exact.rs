@@ -1,0 +1,286 @@
+//! Whole-machine runs whose cycle counts are derived by hand from the documented unit
+//! rules (`machine.rs` module docs, `docs/sim-kernel.md`), step by step, and asserted
+//! exactly: the project standard "timing models get exact hand-derived cycle counts for
+//! small cases, not only bounds" (the bounds are `tests::timing_bounds`).
+//!
+//! The memory is [`SimpleDram`] at 64 GB/s with 64-byte bursts at 1 GHz, so one burst
+//! holds the bus exactly one cycle, and a fixed latency of `L = 10` ns. The rules the
+//! derivations use, with where they are stated:
+//!
+//! - **Kernel** (`docs/sim-kernel.md`): cycle 0 steps every unit; within a cycle units step
+//!   in id order (control 0, emitter 1, merger 2, reader 3, run writer 4, arbiter 5,
+//!   presorter bank 6); a FIFO push at `t` is visible at `t + 1` (every MergeTree FIFO has
+//!   latency 1), a slot popped at `t` is free for pushes from `t + 1`; registers
+//!   (`Reg`, the control's `scratch_open`, `emit_active`, flush flags, the arbiter's
+//!   `inflight`) are read from the cycle after they are set. `cycles` is one past the last
+//!   cycle stepped.
+//! - **Memory** (`dram/simple.rs`): a request accepted at cycle `s` (the port is at the
+//!   cycle being stepped) holds the bus from `max(s, bus free)` for one cycle per 64-byte
+//!   burst and completes `L` cycles after its last burst; a response completing at `c` is
+//!   popped by the arbiter at `c`.
+//! - **Reader**: one request per cycle into `req_read` (capacity 2), B elements each, two
+//!   per sub-block, round robin over presorters; stalls while the presorter's ring
+//!   (`presort_slots` buffers) has no free slot; a slot is credited back (`ps_credit`,
+//!   latency 1) when its last element is taken.
+//! - **Arbiter**: one grant per cycle, round robin over (run writer, node, leaf,
+//!   high-level buffers, reader, CBVH) from the last winner + 1; read data goes to the
+//!   presorter's `ps_data` (latency 1).
+//! - **Presorter** (`presort.rs`, \[P2\] §5.5): inserting an element into a sorted prefix
+//!   takes compares + 1 cycles (the first element: 1; an element smaller than all `i`
+//!   before it: `i + 1`); once sorted, one element per cycle is copied to the scratchpad,
+//!   and the last copy pushes `sub_ready`.
+//! - **Control** (\[P1\] Fig. 2): on `sub_ready` for every sub-block of the block, it pushes
+//!   the `Partial` command; on `merge_done` of the last block with no merge pass it enters
+//!   the emit phase; on `emit_done` it sets the write buffers' flush flags; then it polls
+//!   until every buffer was empty and nothing was in flight at the start of a cycle, and
+//!   finishes in that cycle.
+//! - **Merger** (`merge.rs`, \[P2\] Fig. 4): the command is taken in the cycle it is
+//!   visible, and the queue heads are inserted, one per two cycles, from that cycle; then
+//!   one output per two cycles.
+//! - **Emitter** (`emitter.rs`, \[P2\] Algorithm 1): one step per cycle (load, push, pop with
+//!   a node, the high-level root, and a last step that reports `Done`, which pushes
+//!   `emit_done`); a step that needs an input waits for the FIFO; once every primitive is
+//!   read the end of the stream needs no input. Each primitive adds a 4-byte leaf entry,
+//!   each node 64 bytes, the root a 32-byte high-level record, to write buffers whose
+//!   512-byte chunks are written out only when full or flushed.
+
+use super::*;
+use crate::dram::simple::{SimpleDram, SimpleDramConfig};
+use geom::{MortonGrid, MortonQuantizer, Vec3};
+
+/// Memory latency in cycles (ns at 1 GHz).
+const L: u64 = 10;
+
+/// SimpleDram with one 64-byte burst per cycle and latency `L`.
+fn mem() -> Box<dyn MemoryPort> {
+    Box::new(SimpleDram::new(SimpleDramConfig {
+        peak_bytes_per_s: 64_000_000_000,
+        latency_ns: L,
+        ..SimpleDramConfig::lpddr3_1600_1x64_like()
+    }))
+}
+
+/// A configuration with scratchpad `m`, buffers `b`, one presorter with `slots` ring
+/// slots, and a trace row per cycle.
+fn cfg(m: u32, b: u32, slots: u32) -> MergeTreeConfig {
+    let mut c = MergeTreeConfig::p2();
+    c.m = m;
+    c.b = b;
+    c.presorters = 1;
+    c.presort_slots = slots;
+    c.trace_window_cycles = 1;
+    c
+}
+
+/// The cycles in which `f` of the trace row is nonzero, with its value.
+fn events(r: &MergeTreeReport, f: fn(&TraceRow) -> u64) -> Vec<(u64, u64)> {
+    r.trace
+        .iter()
+        .filter(|t| f(t) > 0)
+        .map(|t| (t.cycle_start, f(t)))
+        .collect()
+}
+
+/// The cycle the trace's phase first reads `name`.
+fn phase_from(r: &MergeTreeReport, name: &str) -> Option<u64> {
+    r.trace
+        .iter()
+        .find(|t| t.phase == name)
+        .map(|t| t.cycle_start)
+}
+
+/// Case 1: one primitive, one block (M = 4, B = 1), no merge pass.
+///
+/// | cycle | what happens |
+/// |---|---|
+/// | 0 | the reader pushes the read of element 0 (32 bytes, one burst) |
+/// | 1 | the arbiter sees it and issues it: the first read; bus 1..2, completes 2 + L = 12 |
+/// | 12 | the arbiter pops the response (32 bytes on the trace) and pushes `ps_data` |
+/// | 13 | the presorter inserts element 0: 0 compares + 1 = 1 cycle (busy until 14) |
+/// | 14 | sorted: copies it to the scratchpad (1 element), pushes `sub_ready`: the partial sort ends |
+/// | 15 | the control pops `sub_ready` and pushes `Partial` |
+/// | 16 | the merger takes it and inserts the queue head (next operation at 18) |
+/// | 18 | the merger outputs element 0 into `emit_fifo`, its merge is done, pushes `merge_done` |
+/// | 19 | the control pops `merge_done`: phase `sort_and_emit`; the emitter loads element 0 (leaf entry, 4 bytes) |
+/// | 20 | emitter: end of stream, the root to the high-level output (32 bytes) |
+/// | 21 | emitter: `Done`, pushes `emit_done` |
+/// | 22 | the control pops it and sets the flush flags |
+/// | 23 | the arbiter sees the flush: leaf buffer first (after the reader, the last winner): 4 bytes, bus 23..24, completes 24 + L = 34 |
+/// | 24 | the high-level buffer: 32 bytes, bus 24..25, completes 35 |
+/// | 34, 35 | the arbiter pops the two write responses; `inflight` is 0 from the end of 35 |
+/// | 36 | the control sees every buffer empty and nothing in flight: done; `cycles` = 37 = 2L + 17 |
+#[test]
+fn one_element_one_block() {
+    let a = [Aabb::new(Vec3::ZERO, Vec3::ONE)];
+    let r = simulate(&a, &cfg(4, 1, 4), mem()).unwrap();
+    assert_eq!((r.partial_sort_blocks, r.merge_passes), (1, 0));
+    assert_eq!(
+        events(&r, |t| t.bus_bytes),
+        [(L + 2, 32), (2 * L + 14, 4), (2 * L + 15, 32)]
+    );
+    // Issued at 1, completed at 12.
+    assert_eq!(r.phases[0].read_latency_mean_cycles, (L + 1) as f64);
+    assert_eq!(
+        events(&r, |t| t.presort_busy),
+        [(L + 3, 1), (L + 4, 1)],
+        "insertion, then the copy that ends the partial sort"
+    );
+    assert_eq!(events(&r, |t| t.merge_outputs), [(L + 8, 1)]);
+    assert_eq!(
+        events(&r, |t| t.emitter_steps),
+        [(L + 9, 1), (L + 10, 1), (L + 11, 1)]
+    );
+    assert_eq!(phase_from(&r, "sort_and_emit"), Some(L + 9));
+    assert_eq!(r.phases.len(), 1);
+    assert_eq!(
+        (r.phases[0].start_cycle, r.phases[0].end_cycle),
+        (0, 2 * L + 16)
+    );
+    assert_eq!(r.cycles, 2 * L + 17);
+    assert_eq!(r.cycles, 37);
+}
+
+/// Four primitives whose centroids are the corners of a square in z = 0 (distinct Morton
+/// codes forming a balanced tree: the first two and the last two share their top bit),
+/// in descending Morton order, so insertion sort shifts every element.
+fn reversed_square() -> Vec<Aabb> {
+    let e = Vec3::splat(0.01);
+    let mut a: Vec<Aabb> = [(0.0, 0.0), (1.0, 0.0), (0.0, 1.0), (1.0, 1.0)]
+        .iter()
+        .map(|&(x, y)| {
+            let c = Vec3::new(x, y, 0.0);
+            Aabb::new(c - e, c + e)
+        })
+        .collect();
+    let q = MortonQuantizer::with_grid(&centroid_bounds(&a), MortonGrid::Cube);
+    let code = |b: &Aabb| q.code30(b.min * 0.5 + b.max * 0.5);
+    a.sort_by_key(|b| std::cmp::Reverse(code(b)));
+    let codes: Vec<u32> = a.iter().map(code).collect();
+    assert!(codes.windows(2).all(|w| w[0] > w[1]), "distinct: {codes:?}");
+    // Balanced: the middle pair differs in a higher bit than the outer pairs.
+    let lvl = |i: usize| 32 - (codes[i] ^ codes[i + 1]).leading_zeros();
+    assert!(lvl(1) > lvl(0) && lvl(1) > lvl(2), "{codes:?}");
+    a
+}
+
+/// Case 2: four elements in reversed Morton order, one block (M = 8, B = 2: one sub-block
+/// of 4, one queue), one presorter with 4 ring slots.
+///
+/// | cycle | what happens |
+/// |---|---|
+/// | 0 | the reader pushes read 0 (elements 0, 1: 64 bytes, one burst) |
+/// | 1 | the arbiter issues read 0 (the first read; bus 1..2, completes 2 + L = 12); the reader pushes read 1 (elements 2, 3) |
+/// | 2 | the arbiter issues read 1 (bus 2..3, completes 13) |
+/// | 12, 13 | the arbiter pops the two responses into `ps_data` (visible 13, 14) |
+/// | 13 | insert e0: 0 compares + 1 = 1 cycle |
+/// | 14 | insert e1 (smaller than 1 element): 1 + 1 = 2 cycles, to 16 |
+/// | 16 | insert e2: 2 + 1 = 3 cycles, to 19 |
+/// | 19 | insert e3: 3 + 1 = 4 cycles, to 23 (1 + 2 + 3 + 4 = 10 cycles of insertion) |
+/// | 23..26 | copy 4 elements to the scratchpad; at 26 `sub_ready`: the partial sort ends |
+/// | 27 | the control pushes `Partial` |
+/// | 28 | the merger inserts the one queue head (next operation at 30) |
+/// | 30, 32, 34, 36 | the merger outputs the four elements (one per two cycles); `merge_done` at 36 |
+/// | 37 | the control enters `sort_and_emit` |
+/// | 31 | emitter: load e0 |
+/// | 32 | emitter: needs e1, not visible until 33: starved |
+/// | 33 | push leaf 0, e1 becomes the input |
+/// | 35 | reads e2 (visible 35): pop, node (e0, e1) |
+/// | 36 | push node, e2 becomes the input |
+/// | 37 | reads e3 (visible 37): push leaf 2 |
+/// | 38, 39 | end of stream: pop, node (e2, e3); pop, the root node |
+/// | 40 | the root to the high-level output |
+/// | 41 | `Done`: pushes `emit_done` (9 steps) |
+/// | 42 | the control sets the flush flags |
+/// | 43 | nodes: 3 x 64 = 192 bytes, 3 bursts, bus 43..46, completes 46 + L = 56 |
+/// | 44 | leaves: 16 bytes, bus 46..47 (behind the nodes), completes 57 |
+/// | 45 | high-level: 32 bytes, bus 47..48, completes 58 |
+/// | 59 | the control sees nothing in flight (the last pop at 58): done; `cycles` = 60 = 2L + 40 |
+#[test]
+fn reversed_four_elements_one_block() {
+    let a = reversed_square();
+    let r = simulate(&a, &cfg(8, 2, 4), mem()).unwrap();
+    check_reversed_four(&r, L + 3, 0);
+    // Starved from cycle 0 until the first data at 13.
+    assert_eq!(r.stalls.presort_starved_cycles, L + 3);
+    assert_eq!(r.cycles, 60);
+    // The kernel's reference mode (every unit stepped every cycle) agrees.
+    let mut c = cfg(8, 2, 4);
+    c.fast_forward = false;
+    let slow = simulate(&a, &c, mem()).unwrap();
+    assert_eq!((slow.cycles, &slow.trace), (r.cycles, &r.trace));
+}
+
+/// The events of [`reversed_four_elements_one_block`] with the second read completing at
+/// `read1` and everything from e2's insertion on `d` cycles later.
+fn check_reversed_four(r: &MergeTreeReport, read1: u64, d: u64) {
+    assert_eq!((r.partial_sort_blocks, r.merge_passes), (1, 0));
+    assert_eq!(
+        r.highlevel.order,
+        [3, 2, 1, 0],
+        "input was in reversed order"
+    );
+    assert_eq!(r.nodes, 3);
+    assert_eq!(
+        events(r, |t| t.bus_bytes),
+        [
+            (L + 2, 64),
+            (read1, 64),
+            (2 * L + 36 + d, 192),
+            (2 * L + 37 + d, 16),
+            (2 * L + 38 + d, 32)
+        ]
+    );
+    // Insertion of e0 at 13, e1 at 14-15, then (d later) e2 and e3, then the copy.
+    let mut busy: Vec<(u64, u64)> = vec![(L + 3, 1), (L + 4, 1), (L + 5, 1)];
+    busy.extend((L + 6 + d..=L + 16 + d).map(|c| (c, 1)));
+    assert_eq!(events(r, |t| t.presort_busy), busy);
+    let o = L + 20 + d; // the first merge output
+    assert_eq!(
+        events(r, |t| t.merge_outputs),
+        [(o, 1), (o + 2, 1), (o + 4, 1), (o + 6, 1)]
+    );
+    let steps: Vec<(u64, u64)> = [1, 3, 5, 6, 7, 8, 9, 10, 11]
+        .iter()
+        .map(|&k| (o + k, 1))
+        .collect();
+    assert_eq!(events(r, |t| t.emitter_steps), steps);
+    assert_eq!(phase_from(r, "sort_and_emit"), Some(o + 7));
+    assert_eq!(r.stalls.merge.output_full_cycles, 0);
+    assert_eq!(
+        (r.phases[0].start_cycle, r.phases[0].end_cycle),
+        (0, o + 19 + L)
+    );
+    assert_eq!(r.cycles, o + 20 + L);
+    assert_eq!(r.cycles, 2 * L + 40 + d);
+}
+
+/// Case 2 with `emit_fifo` = 1: the emitter pops each output in the cycle after it is
+/// pushed (31, 33, 35, 37 for pushes at 30, 32, 34, 36), and a slot popped at t is free
+/// from t + 1, so every push finds the FIFO empty: no cycle is lost, 60 cycles again.
+#[test]
+fn one_entry_emit_fifo_loses_nothing_when_the_emitter_keeps_up() {
+    let a = reversed_square();
+    let mut c = cfg(8, 2, 4);
+    c.emit_fifo = 1;
+    let r = simulate(&a, &c, mem()).unwrap();
+    check_reversed_four(&r, L + 3, 0);
+    assert_eq!(r.cycles, 60);
+}
+
+/// Case 4, a stalled queue: case 2 with one ring slot in front of the presorter
+/// (`presort_slots` = 1). The reader pushes read 0 at 0 and then finds the ring full
+/// (stalled). The slot is credited back when its last element is taken, by the insertion
+/// of e1 at 14 (`ps_credit` visible 15); the reader pushes read 1 at 15, the arbiter issues
+/// it at 16 (bus 16..17, completes 17 + L = 27), its data is visible at 28. Meanwhile e1's
+/// insertion ends at 16 and the presorter starves 16..28. So everything from e2's
+/// insertion on is 28 - 16 = 12 = L + 2 cycles later than in case 2: 72 cycles.
+#[test]
+fn one_ring_slot_delays_by_a_read_round_trip() {
+    let a = reversed_square();
+    let r = simulate(&a, &cfg(8, 2, 1), mem()).unwrap();
+    let d = L + 2;
+    check_reversed_four(&r, L + 17, d);
+    // Starved 0..13 for read 0 and 16..28 for read 1.
+    assert_eq!(r.stalls.presort_starved_cycles, L + 3 + d);
+    assert_eq!(r.cycles, 72);
+}
