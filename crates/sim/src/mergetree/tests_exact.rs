@@ -284,3 +284,110 @@ fn one_ring_slot_delays_by_a_read_round_trip() {
     assert_eq!(r.stalls.presort_starved_cycles, L + 3 + d);
     assert_eq!(r.cycles, 72);
 }
+
+/// Five primitives on the x axis (centroids x = 0, 1, 3, 7, 15), given in ascending Morton
+/// order, whose consecutive codes differ in ever higher bits (a left-deep tree).
+fn ascending_line() -> Vec<Aabb> {
+    let e = Vec3::splat(0.01);
+    let a: Vec<Aabb> = [0.0f32, 1.0, 3.0, 7.0, 15.0]
+        .iter()
+        .map(|&x| {
+            let c = Vec3::new(x, 0.0, 0.0);
+            Aabb::new(c - e, c + e)
+        })
+        .collect();
+    let q = MortonQuantizer::with_grid(&centroid_bounds(&a), MortonGrid::Cube);
+    let codes: Vec<u32> = a
+        .iter()
+        .map(|b| q.code30(b.min * 0.5 + b.max * 0.5))
+        .collect();
+    let lvl = |i: usize| 32 - (codes[i] ^ codes[i + 1]).leading_zeros();
+    assert!(
+        codes.windows(2).all(|w| w[0] < w[1]) && (0..3).all(|i| lvl(i) < lvl(i + 1)),
+        "{codes:?}"
+    );
+    a
+}
+
+/// Case 3: one merge pass. M = 4, B = 1 (two queues), one presorter with 4 ring slots,
+/// n = 5 in ascending order: block 0 = sub-blocks (e0, e1), (e2, e3); block 1 = (e4).
+/// Inserting the second element of a sub-block costs 1 compare + 1 = 2 cycles.
+///
+/// Partial sorts:
+/// - reads of one element (32 bytes) pushed at 0, 1, 2, 3, issued at 1, 2, 3, 4 (the
+///   first read at 1), completed at 12, 13, 14, 15; the ring is then full (4 slots);
+/// - 13: insert e0 (1 cycle), its slot is credited; 14: the reader pushes read 4 (e4),
+///   issued at 15, completed at 26; 14: insert e1 (2 cycles, to 16);
+/// - 16, 17: copy sub-block 0; 18: insert e2; 19: insert e3 (to 21); 21, 22: copy,
+///   `sub_ready` at 22; 23: insert e4 starves (data visible 27);
+/// - 23: the control has both sub-blocks of block 0: `Partial`, scratchpad closed;
+///   24: the merger inserts queue 0's head, 26 queue 1's; outputs at 28, 30, 32, 34 to
+///   the run writer, which stages each (29, 31, 33, 35) and whose writes are issued at 30,
+///   32, 34, 36 and complete at 41, 43, 45, 47; `merge_done` at 34;
+/// - 27: insert e4 (1 cycle); 28: sorted, but the scratchpad is closed until the control
+///   opens it for block 1 at 35 (visible 36); 36: copy e4, `sub_ready`;
+/// - 37: `Partial` for block 1; 38: head insert; 40: output e4, `merge_done`; its write
+///   is issued at 42 and completes at 53;
+/// - 41: the control ends the partial sort (phase `merge_pass_1`, the fence) and polls
+///   the acknowledged run elements; 5 of them from the end of 53, so at 54 it starts the
+///   pass, which is the last: phase `merge_pass_1_and_emit`, `Multi` command.
+///
+/// Merge pass (queue 0: run 0 = e0..e3, queue 1: run 1 = e4):
+/// - 55: the merger queues the reads of queue 0 half 0 (e0), queue 1 half 0 (e4), queue
+///   0 half 1 (e1); the reader takes one per cycle (56, 57, 58), the arbiter issues them at
+///   57, 58, 59; they complete at 68, 69, 70 (data visible 69, 70, 71);
+/// - 69: insert queue 0's head; 71: queue 1's; 73: output e0 (its half is refilled with
+///   e2: refill 73, read 74, issued 75, completes 86, visible 87);
+/// - 75: e1's successor e2 is in the refilling half: queue dry until 87; 87: output e1
+///   (refill with e3: issued 89, completes 100, visible 101); 89: dry until 101;
+/// - 101: output e2; 103: e3 (queue 0's last); 105: e4, the merge is done.
+///
+/// Emitter (each output visible a cycle later; with rising levels each input is one pop
+/// and one push): 74 load e0; 88 push e0; 102 pop (e0, e1); 103 push; 104 pop; 105 push;
+/// 106 pop; 107 push; 108 end of stream: pop, the root; 109 the root to the high-level
+/// output; 110 `Done`. 111: the control flushes; 112: nodes (4 x 64 bytes, 4 bursts, bus
+/// 112..116, completes 126); 113: leaves (20 bytes, bus 116..117, 127); 114: high-level (32
+/// bytes, 128). 129: drained, done: 130 cycles.
+#[test]
+fn one_merge_pass_two_blocks() {
+    let a = ascending_line();
+    let r = simulate(&a, &cfg(4, 1, 4), mem()).unwrap();
+    assert_eq!((r.partial_sort_blocks, r.merge_passes), (2, 1));
+    assert_eq!(r.highlevel.order, [0, 1, 2, 3, 4]);
+    let bus: Vec<(u64, u64)> = [12, 13, 14, 15, 26, 41, 43, 45, 47, 53, 68, 69, 70, 86, 100]
+        .iter()
+        .map(|&c| (c, 32))
+        .chain([(126, 256), (127, 20), (128, 32)])
+        .collect();
+    assert_eq!(events(&r, |t| t.bus_bytes), bus);
+    let outs: Vec<(u64, u64)> = [28, 30, 32, 34, 40, 73, 87, 101, 103, 105]
+        .iter()
+        .map(|&c| (c, 1))
+        .collect();
+    assert_eq!(events(&r, |t| t.merge_outputs), outs);
+    let presort: Vec<(u64, u64)> = [13, 14, 15, 16, 17, 18, 19, 20, 21, 22, 27, 36]
+        .iter()
+        .map(|&c| (c, 1))
+        .collect();
+    assert_eq!(events(&r, |t| t.presort_busy), presort);
+    let steps: Vec<(u64, u64)> = [74, 88]
+        .into_iter()
+        .chain(102..=110)
+        .map(|c| (c, 1))
+        .collect();
+    assert_eq!(events(&r, |t| t.emitter_steps), steps);
+    assert_eq!(phase_from(&r, "merge_pass_1"), Some(41));
+    assert_eq!(phase_from(&r, "merge_pass_1_and_emit"), Some(54));
+    let ph: Vec<(&str, u64, u64)> = r
+        .phases
+        .iter()
+        .map(|p| (p.name.as_str(), p.start_cycle, p.end_cycle))
+        .collect();
+    assert_eq!(
+        ph,
+        [("partial_sort", 0, 41), ("merge_pass_1_and_emit", 41, 129)]
+    );
+    // Queue dry 75..87 and 89..101.
+    assert_eq!(r.stalls.merge.queue_dry_cycles, 24);
+    assert_eq!(r.cycles, 130);
+}
