@@ -3,6 +3,17 @@
 //! exactly: the project standard "timing models get exact hand-derived cycle counts for
 //! small cases, not only bounds" (the bounds are `tests::timing_bounds`).
 //!
+//! | test | case | cycles (L = 10) |
+//! |---|---|---|
+//! | `one_element_one_block` | n = 1, M = 4, B = 1 | 37 = 2L + 17 |
+//! | `reversed_four_elements_one_block` | n = 4 reversed, M = 8, B = 2 (insertions 1 + 2 + 3 + 4) | 60 = 2L + 40 |
+//! | `one_entry_emit_fifo_loses_nothing_when_the_emitter_keeps_up` | the same, `emit_fifo` = 1 | 60 |
+//! | `one_ring_slot_delays_by_a_read_round_trip` | the same, `presort_slots` = 1: the reader stalls on the ring | 72 (+ L + 2) |
+//! | `one_merge_pass_two_blocks` | n = 5, M = 4, B = 1: two partial sorts, fence, one merge pass with refills | 130 |
+//! | `full_emit_fifo_adds_the_cycle_the_emitter_pops_late` | n = 6, M = 12, B = 3, `emit_fifo` 64 vs 1 | 71 vs 72 |
+//!
+//! The DRAM-level case (a read meeting a refresh) is in `dram::lpddr::tests`.
+//!
 //! The memory is [`SimpleDram`] at 64 GB/s with 64-byte bursts at 1 GHz, so one burst
 //! holds the bus exactly one cycle, and a fixed latency of `L = 10` ns. The rules the
 //! derivations use, with where they are stated:
@@ -390,4 +401,97 @@ fn one_merge_pass_two_blocks() {
     // Queue dry 75..87 and 89..101.
     assert_eq!(r.stalls.merge.queue_dry_cycles, 24);
     assert_eq!(r.cycles, 130);
+}
+
+/// Six primitives on the x axis at grid cells 0, 256, 384, 600, 610, 1023 (of 1024), in
+/// ascending order: consecutive codes differ at cell bits 8, 7, 9, 5, 8, so e3 closes two
+/// nodes at once and e5 one.
+fn two_pop_line() -> Vec<Aabb> {
+    let e = Vec3::splat(0.01);
+    let a: Vec<Aabb> = [0.0f32, 256.0, 384.0, 600.0, 610.0, 1023.0]
+        .iter()
+        .map(|&x| {
+            let c = Vec3::new(x, 0.0, 0.0);
+            Aabb::new(c - e, c + e)
+        })
+        .collect();
+    let q = MortonQuantizer::with_grid(&centroid_bounds(&a), MortonGrid::Cube);
+    let codes: Vec<u32> = a
+        .iter()
+        .map(|b| q.code30(b.min * 0.5 + b.max * 0.5))
+        .collect();
+    let lvl: Vec<u32> = codes
+        .windows(2)
+        .map(|w| 32 - (w[0] ^ w[1]).leading_zeros())
+        .collect();
+    // The pattern of the levels (cell bits 8, 7, 9, 5, 8 of x).
+    assert!(
+        lvl[1] < lvl[0] && lvl[0] < lvl[2] && lvl[3] < lvl[4] && lvl[4] == lvl[0],
+        "{codes:?} {lvl:?}"
+    );
+    a
+}
+
+/// Case 4, a full `emit_fifo`: one block of six (M = 12, B = 3: one sub-block of 6), one
+/// presorter, ascending input (insertions 1 + 5 x 2 = 11 cycles).
+///
+/// Common part: reads of 96 bytes (2 bursts) pushed at 0, 1, issued at 1 (bus 1..3) and
+/// 2 (bus 3..5), complete at 13 and 15 (visible 14, 16); insertions 14..25 (e0 at 14, e1
+/// 15-16, e2 17-18, e3 19-20, e4 21-22, e5 23-24), copies 25..30, `sub_ready` at 30;
+/// `Partial` at 31; head insert at 32; outputs from o = 34 every two cycles.
+///
+/// Emitter steps by input (levels 8, 7, 9, 5, 8): e0 load; e1 push; e2 push; e3 pop, pop,
+/// push; e4 push; e5 pop, push; end: pop, pop, high-level root, `Done` (13 steps).
+///
+/// With `emit_fifo` = 64: e0..e5 pushed at 34, 36, ..., 44; the emitter: 35 (e0), 37 (e1),
+/// 39 (e2), 41, 42, 43 (e3), 44 (e4, visible 43), 45..50 (e5, visible 45): `emit_done` at
+/// 50. `merge_done` at 44, emit phase from 45. Flush 51; nodes 5 x 64 = 320 bytes (5
+/// bursts) issued 52, bus 52..57, complete 67; leaves (24 bytes) 53, bus 57..58, 68;
+/// high-level 54, 69; drained at 70: 71 cycles.
+///
+/// With `emit_fifo` = 1: e4 is pushed at 42 (e3 was popped at 41); the emitter pops e4 at
+/// 44, which frees the slot only from 45, so at 44 the merger finds the FIFO full (its
+/// one output-full cycle) and pushes e5 at 45 (woken by the pop). The emitter, wanting e5
+/// at 45, starves one cycle and does e5's and the end's six steps at 46..51: one cycle
+/// more, 72 cycles; `merge_done` at 45, emit phase from 46.
+#[test]
+fn full_emit_fifo_adds_the_cycle_the_emitter_pops_late() {
+    let a = two_pop_line();
+    let ones = |v: &[u64]| v.iter().map(|&c| (c, 1)).collect::<Vec<_>>();
+    for (fifo, late) in [(64, 0), (1, 1)] {
+        let mut c = cfg(12, 3, 4);
+        c.emit_fifo = fifo;
+        let r = simulate(&a, &c, mem()).unwrap();
+        assert_eq!(r.highlevel.order, [0, 1, 2, 3, 4, 5]);
+        assert_eq!(r.nodes, 5);
+        assert_eq!(
+            events(&r, |t| t.bus_bytes),
+            [
+                (13, 96),
+                (15, 96),
+                (67 + late, 320),
+                (68 + late, 24),
+                (69 + late, 32)
+            ]
+        );
+        assert_eq!(
+            events(&r, |t| t.presort_busy),
+            ones(&(14..=30).collect::<Vec<_>>())
+        );
+        assert_eq!(r.stalls.presort_starved_cycles, L + 4);
+        assert_eq!(
+            events(&r, |t| t.merge_outputs),
+            ones(&[34, 36, 38, 40, 42, 44 + late])
+        );
+        let mut steps = vec![35, 37, 39, 41, 42, 43, 44];
+        steps.extend(45 + late..=50 + late);
+        assert_eq!(
+            events(&r, |t| t.emitter_steps),
+            ones(&steps),
+            "emit_fifo {fifo}"
+        );
+        assert_eq!(r.stalls.merge.output_full_cycles, late);
+        assert_eq!(phase_from(&r, "sort_and_emit"), Some(45 + late));
+        assert_eq!(r.cycles, 71 + late, "emit_fifo {fifo}");
+    }
 }
