@@ -1121,15 +1121,27 @@ mod tests {
     //! cycles, from the per-cycle rules of the module documentation and the timing of
     //! `lpddr3-1600-1x64.ini`: tREFI = 3120, tRFC = 104, tRCD = 15, tRAS = 34, tRP = 15,
     //! CL = 12 (AL = 0, so RL = 12), BL = 8 (BL/2 = 4 cycles of data). (The DRAMsim3 tests
-    //! bound these latencies and the refresh cost; these pin them.)
+    //! bound these latencies and the refresh cost; these pin them, on Arbor's model and on
+    //! DRAMsim3 itself.)
 
     use super::*;
 
     /// The DRAM cycle whose tick completes a read of `addr` added with the controller at
-    /// cycle `a` (before that cycle's tick), and the refreshes issued by then.
+    /// cycle `a` (before that cycle's tick), and the refreshes issued by then, on Arbor's
+    /// model and on DRAMsim3 itself (the same `Backend` interface), which must agree.
     fn read_done(a: u64, addr: u64) -> (u64, u64) {
         let cfg = super::super::dramsim3::system("lpddr3-1600-1x64").unwrap();
-        let mut m = LpddrSystem::new(cfg).unwrap();
+        let model = read_done_on(LpddrSystem::new(cfg).unwrap(), a, addr);
+        let ds3 = read_done_on(
+            super::super::dramsim3::Dramsim3System::new(cfg).unwrap(),
+            a,
+            addr,
+        );
+        assert_eq!(model, ds3, "the model and DRAMsim3 differ");
+        model
+    }
+
+    fn read_done_on(mut m: impl Backend, a: u64, addr: u64) -> (u64, u64) {
         let mut done = Vec::new();
         m.run_until(a, &mut done);
         assert!(done.is_empty() && m.now() == a);
@@ -1139,8 +1151,10 @@ mod tests {
             m.run_until(t, &mut done);
         }
         assert_eq!(done, [7]);
+        let mut s = MemStats::default();
+        m.fill_stats(&mut s);
         // Tick c leaves the controller at c + 1.
-        (m.now() - 1, m.command_counts().0.refresh)
+        (m.now() - 1, s.refresh_commands)
     }
 
     const TREFI: u64 = 3120;
