@@ -1218,3 +1218,99 @@ mod tests {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    //! Exact hand-derived completion cycles of single reads around a refresh, in DRAM
+    //! cycles, from the per-cycle rules of the module documentation and the timing of
+    //! `lpddr3-1600-1x64.ini`: tREFI = 3120, tRFC = 104, tRCD = 15, tRAS = 34, tRP = 15,
+    //! CL = 12 (AL = 0, so RL = 12), BL = 8 (BL/2 = 4 cycles of data). (The DRAMsim3 tests
+    //! bound these latencies and the refresh cost; these pin them, on Arbor's model and on
+    //! DRAMsim3 itself.)
+
+    use super::*;
+
+    /// The DRAM cycle whose tick completes a read of `addr` added with the controller at
+    /// cycle `a` (before that cycle's tick), and the refreshes issued by then, on Arbor's
+    /// model and on DRAMsim3 itself (the same `Backend` interface), which must agree.
+    fn read_done(a: u64, addr: u64) -> (u64, u64) {
+        let cfg = super::super::dramsim3::system("lpddr3-1600-1x64").unwrap();
+        let model = read_done_on(LpddrSystem::new(cfg).unwrap(), a, addr);
+        let ds3 = read_done_on(
+            super::super::dramsim3::Dramsim3System::new(cfg).unwrap(),
+            a,
+            addr,
+        );
+        assert_eq!(model, ds3, "the model and DRAMsim3 differ");
+        model
+    }
+
+    fn read_done_on(mut m: impl Backend, a: u64, addr: u64) -> (u64, u64) {
+        let mut done = Vec::new();
+        m.run_until(a, &mut done);
+        assert!(done.is_empty() && m.now() == a);
+        m.add(m.channel_of(addr), addr, false, 7);
+        while done.is_empty() {
+            let t = m.now() + 1;
+            m.run_until(t, &mut done);
+        }
+        assert_eq!(done, [7]);
+        let mut s = MemStats::default();
+        m.fill_stats(&mut s);
+        // Tick c leaves the controller at c + 1.
+        (m.now() - 1, s.refresh_commands)
+    }
+
+    const TREFI: u64 = 3120;
+    const TRFC: u64 = 104;
+    const TRCD: u64 = 15;
+    const TRAS: u64 = 34;
+    const TRP: u64 = 15;
+    /// RL + BL/2: a RD at c returns at c + 16.
+    const READ: u64 = 12 + 8 / 2;
+
+    /// No refresh near: the read moves to its command queue in the tick of its arrival
+    /// cycle a (step 5), ACT at a + 1 (every bank closed), RD at a + 1 + tRCD, data back
+    /// at a + 1 + tRCD + RL + BL/2 = a + 32.
+    #[test]
+    fn read_to_a_closed_bank_completes_after_trcd_rl_and_the_burst() {
+        assert_eq!(read_done(100, 0), (100 + 1 + TRCD + READ, 0));
+        assert_eq!(read_done(100, 0).0, 132);
+    }
+
+    /// A read arriving at a = tREFI, the cycle the first refresh becomes due (step 2, before
+    /// the command of step 3): every bank is closed, so the REF issues at a itself; it
+    /// holds every bank's ACT until a + tRFC. The read moved to its queue at a (step 5);
+    /// ACT at a + tRFC = 3224, RD at 3224 + tRCD = 3239, data at 3239 + 16 = 3255:
+    /// the refresh costs tRFC - 1 = 103 cycles over the 32 of an undisturbed read.
+    /// Arriving one cycle earlier (a = tREFI - 1) changes nothing: the read is in its
+    /// queue at the end of tick a, but at tREFI the refresh has priority.
+    #[test]
+    fn read_arriving_as_the_refresh_becomes_due_waits_trfc() {
+        let want = TREFI + TRFC + TRCD + READ;
+        assert_eq!(want, 3255);
+        assert_eq!(read_done(TREFI, 0), (want, 1));
+        assert_eq!(read_done(TREFI - 1, 0), (want, 1));
+    }
+
+    /// A read arriving at a = tREFI - 2: ACT at tREFI - 1 = 3119, then at tREFI the refresh
+    /// is due and only its commands may issue, so the RD (legal from 3119 + tRCD = 3134) is
+    /// held. The refresh must close the bank: PRE when it becomes legal, tRAS after the ACT
+    /// (3153); REF tRP later (3168); the read's row is closed by then, so ACT again at
+    /// 3168 + tRFC = 3272, RD at 3287, data at 3303 = a + 1 + tRAS + tRP + tRFC + tRCD + 16.
+    #[test]
+    fn read_whose_act_just_precedes_the_refresh_is_closed_and_reopened() {
+        let a = TREFI - 2;
+        let want = a + 1 + TRAS + TRP + TRFC + TRCD + READ;
+        assert_eq!(want, 3303);
+        assert_eq!(read_done(a, 0), (want, 1));
+        let cfg = super::super::dramsim3::system("lpddr3-1600-1x64").unwrap();
+        let mut m = LpddrSystem::new(cfg).unwrap();
+        let mut done = Vec::new();
+        m.run_until(a, &mut done);
+        m.add(0, 0, false, 1);
+        m.run_until(want + 1, &mut done);
+        let c = m.command_counts().0;
+        assert_eq!((c.act, c.pre, c.read, c.refresh), (2, 1, 1, 1));
+    }
+}

@@ -381,4 +381,6 @@ mod tests;
 #[cfg(test)]
 mod tests_cbvh;
 #[cfg(test)]
+mod tests_exact;
+#[cfg(test)]
 mod tests_kernel;
