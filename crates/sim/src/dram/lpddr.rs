@@ -1220,7 +1220,7 @@ mod tests {
 }
 
 #[cfg(test)]
-mod tests {
+mod tests_refresh {
     //! Exact hand-derived completion cycles of single reads around a refresh, in DRAM
     //! cycles, from the per-cycle rules of the module documentation and the timing of
     //! `lpddr3-1600-1x64.ini`: tREFI = 3120, tRFC = 104, tRCD = 15, tRAS = 34, tRP = 15,
