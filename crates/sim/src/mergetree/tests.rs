@@ -368,49 +368,6 @@ fn traffic_is_the_formula_of_a_build_of_at_most_one_pass() {
 }
 
 #[test]
-fn fast_forward_is_exact_on_dramsim3() {
-    let a = random_boxes(3000, 17);
-    for system in ["lpddr3-1600-1x64", "lpddr3-1333-4x64"] {
-        let mut cfg = small(512, 8, 3);
-        let period = cfg.period_fs();
-        let open = || crate::dram::open(system, period).unwrap();
-        let fast = simulate(&a, &cfg, open()).unwrap();
-        cfg.fast_forward = false;
-        let slow = simulate(&a, &cfg, open()).unwrap();
-        assert_eq!(fast.cycles, slow.cycles, "{system}");
-        assert_eq!(fast.stalls, slow.stalls, "{system}");
-        assert_eq!(fast.phases, slow.phases, "{system}");
-        assert_eq!(fast.memory, slow.memory, "{system}");
-        assert!(fast.fast_forward_cycles > 0, "{system}");
-    }
-}
-
-proptest! {
-    #![proptest_config(ProptestConfig::with_cases(8))]
-    /// The random-configuration test on the cycle-accurate DRAM path.
-    #[test]
-    fn any_small_configuration_builds_the_software_tree_on_dramsim3(
-        n in 1usize..500,
-        seed in 0u64..1000,
-        b_log in 0u32..4,
-        fan_log in 1u32..3,
-        presorters in 1u32..5,
-        clustered in any::<bool>(),
-        system in 0usize..4,
-    ) {
-        let a = if clustered { clustered_boxes(n, 1 + seed as usize % 9) } else { random_boxes(n, seed) };
-        let b = 1 << b_log;
-        let mut c = small((2 * b) << fan_log, b, presorters);
-        c.emit_fifo = 1 + (seed % 8) as u32;
-        let name = crate::dram::MEMORY_SYSTEMS[system].0;
-        let port = crate::dram::open(name, c.period_fs()).unwrap();
-        let r = simulate(&a, &c, port).unwrap();
-        prop_assert!(tree_matches_software(&r, &a).unwrap());
-        prop_assert!(r.cycles > 0 && r.memory.unit_cycles == r.cycles);
-    }
-}
-
-#[test]
 fn run_gap_moves_only_addresses() {
     let a = random_boxes(5000, 2);
     let base = small(1024, 8, 4); // 5 blocks, one merge pass

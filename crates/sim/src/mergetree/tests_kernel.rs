@@ -90,7 +90,7 @@ fn kernel_skipping_is_exact_on_the_simple_backend() {
 }
 
 #[test]
-fn kernel_skipping_is_exact_on_dramsim3() {
+fn kernel_skipping_is_exact_on_the_cycle_accurate_memory() {
     let a = random_boxes(3000, 17);
     for system in ["lpddr3-1600-1x64", "lpddr3-1333-4x64"] {
         let mut cfg = small(512, 8, 3);
@@ -116,7 +116,7 @@ proptest! {
         fan_log in 1u32..3,
         presorters in 1u32..5,
         clustered in any::<bool>(),
-        dram in 0usize..3,
+        dram in 0usize..5,
     ) {
         let a = if clustered { clustered_boxes(n, 1 + seed as usize % 9) } else { random_boxes(n, seed) };
         let b = 1 << b_log;
