@@ -175,18 +175,7 @@ impl<T: Copy> MshrFile<T> {
                 }
                 (e, false)
             }
-            None => {
-                let Some(e) = self.valid.iter().position(|v| !v) else {
-                    return Err(MshrRefusal::MshrFull);
-                };
-                self.valid[e] = true;
-                self.lines[e] = line;
-                self.counts[e] = 0;
-                self.in_use += 1;
-                self.high_water = self.high_water.max(self.in_use);
-                self.allocations += 1;
-                (e, true)
-            }
+            None => (self.allocate(line)?, true),
         };
         if !new {
             self.merges += 1;
@@ -203,16 +192,24 @@ impl<T: Copy> MshrFile<T> {
         if self.find(line).is_some() {
             return Ok(false);
         }
-        let Some(e) = self.valid.iter().position(|v| !v) else {
-            return Err(MshrRefusal::MshrFull);
-        };
+        self.allocate(line)?;
+        Ok(true)
+    }
+
+    /// A free entry made outstanding for `line`, with no targets yet.
+    fn allocate(&mut self, line: u64) -> Result<usize, MshrRefusal> {
+        let e = self
+            .valid
+            .iter()
+            .position(|v| !v)
+            .ok_or(MshrRefusal::MshrFull)?;
         self.valid[e] = true;
         self.lines[e] = line;
         self.counts[e] = 0;
         self.in_use += 1;
         self.high_water = self.high_water.max(self.in_use);
         self.allocations += 1;
-        Ok(true)
+        Ok(e)
     }
 
     /// The fill of `line` arrived: frees its entry and appends its targets, in arrival
