@@ -296,11 +296,11 @@ fn one_ring_slot_delays_by_a_read_round_trip() {
     assert_eq!(r.cycles, 72);
 }
 
-/// Five primitives on the x axis (centroids x = 0, 1, 3, 7, 15), given in ascending Morton
-/// order, whose consecutive codes differ in ever higher bits (a left-deep tree).
-fn ascending_line() -> Vec<Aabb> {
+/// Small boxes centred at `xs` on the x axis, and their 30-bit Morton codes on the
+/// presets' cube grid.
+fn line_boxes(xs: &[f32]) -> (Vec<Aabb>, Vec<u32>) {
     let e = Vec3::splat(0.01);
-    let a: Vec<Aabb> = [0.0f32, 1.0, 3.0, 7.0, 15.0]
+    let a: Vec<Aabb> = xs
         .iter()
         .map(|&x| {
             let c = Vec3::new(x, 0.0, 0.0);
@@ -308,10 +308,17 @@ fn ascending_line() -> Vec<Aabb> {
         })
         .collect();
     let q = MortonQuantizer::with_grid(&centroid_bounds(&a), MortonGrid::Cube);
-    let codes: Vec<u32> = a
+    let codes = a
         .iter()
         .map(|b| q.code30(b.min * 0.5 + b.max * 0.5))
         .collect();
+    (a, codes)
+}
+
+/// Five primitives on the x axis (centroids x = 0, 1, 3, 7, 15), given in ascending Morton
+/// order, whose consecutive codes differ in ever higher bits (a left-deep tree).
+fn ascending_line() -> Vec<Aabb> {
+    let (a, codes) = line_boxes(&[0.0, 1.0, 3.0, 7.0, 15.0]);
     let lvl = |i: usize| 32 - (codes[i] ^ codes[i + 1]).leading_zeros();
     assert!(
         codes.windows(2).all(|w| w[0] < w[1]) && (0..3).all(|i| lvl(i) < lvl(i + 1)),
@@ -407,19 +414,7 @@ fn one_merge_pass_two_blocks() {
 /// ascending order: consecutive codes differ at cell bits 8, 7, 9, 5, 8, so e3 closes two
 /// nodes at once and e5 one.
 fn two_pop_line() -> Vec<Aabb> {
-    let e = Vec3::splat(0.01);
-    let a: Vec<Aabb> = [0.0f32, 256.0, 384.0, 600.0, 610.0, 1023.0]
-        .iter()
-        .map(|&x| {
-            let c = Vec3::new(x, 0.0, 0.0);
-            Aabb::new(c - e, c + e)
-        })
-        .collect();
-    let q = MortonQuantizer::with_grid(&centroid_bounds(&a), MortonGrid::Cube);
-    let codes: Vec<u32> = a
-        .iter()
-        .map(|b| q.code30(b.min * 0.5 + b.max * 0.5))
-        .collect();
+    let (a, codes) = line_boxes(&[0.0, 256.0, 384.0, 600.0, 610.0, 1023.0]);
     let lvl: Vec<u32> = codes
         .windows(2)
         .map(|w| 32 - (w[0] ^ w[1]).leading_zeros())
