@@ -145,9 +145,18 @@ impl SystemConfig {
 
     /// The DRAM clock period in nanoseconds.
     pub fn tck_ns(&self) -> Result<f64, DramError> {
-        self.value("tCK")
+        let tck: f64 = self
+            .value("tCK")
             .and_then(|v| v.parse().ok())
-            .ok_or_else(|| DramError::Config(format!("{}: no tCK", self.name)))
+            .ok_or_else(|| DramError::Config(format!("{}: no tCK", self.name)))?;
+        // A clock of at most 1 s and at least 1 fs (the clock crossing's unit).
+        if !(1e-6..=1e9).contains(&tck) {
+            return Err(DramError::Config(format!(
+                "{}: tCK = {tck} ns (1e-6 to 1e9)",
+                self.name
+            )));
+        }
+        Ok(tck)
     }
 }
 

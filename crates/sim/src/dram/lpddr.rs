@@ -379,6 +379,17 @@ impl Params {
         }
         let map = AddressMap::from_config(cfg)?;
         let trans_queue_size = int_or("trans_queue_size", 32)? as usize;
+        let cmd_queue_size = int_or("cmd_queue_size", 16)? as usize;
+        // Empty queues would accept nothing (a run that never ends); absurd ones only
+        // allocate.
+        for (key, v) in [
+            ("trans_queue_size", trans_queue_size),
+            ("cmd_queue_size", cmd_queue_size),
+        ] {
+            if !(1..=4096).contains(&v) {
+                return Err(bad(format!("{key} = {v} (1 to 4096)")));
+            }
+        }
         let drain = match str_or("write_drain", "dramsim3") {
             "dramsim3" => Drain::Dramsim3,
             "watermark" => {
@@ -403,7 +414,7 @@ impl Params {
         let params = Self {
             banks: banks as usize,
             banks_per_group: banks_per_group as usize,
-            cmd_queue_size: int_or("cmd_queue_size", 16)? as usize,
+            cmd_queue_size,
             trans_queue_size,
             read_delay,
             t_refi,

@@ -668,6 +668,12 @@ mod contract_tests {
             "lpddr:lpddr3-1333-4x64,trans_queue_size",
             "lpddr:lpddr3-1333-4x64,bank_xor=2",
             "lpddr:ddr9,row_hit_cap=4",
+            // Queues that accept nothing and clocks of no period are errors, not hangs or
+            // panics.
+            "lpddr3-1600-1x64,trans_queue_size=0",
+            "lpddr3-1600-1x64,cmd_queue_size=0",
+            "lpddr3-1600-1x64,tCK=0",
+            "lpddr3-1600-1x64,tCK=nan",
         ] {
             assert!(open(bad, 1_000_000).is_err(), "{bad}");
         }
