@@ -11,6 +11,8 @@
 //! | `fluid`   | metaballs polygonized every frame              | changes  |
 //! | `forest`  | instanced trees on a huge ground, wind sway    | stable   |
 //! | `soup`    | uniformly random small triangles, slow jitter  | stable   |
+//! | `hairball`| thin random strands filling a ball (static)    | stable   |
+//! | `city`    | voxel box buildings on a street grid (static)  | stable   |
 //!
 //! Spec: `proc:NAME?n=...&seed=...&duration=...&fps=...` plus per-scene parameters (see each
 //! module). `n` is an approximate triangle count: each scene rounds it to its structure
@@ -20,10 +22,12 @@
 //! `Rng` streams keyed by element index, never from shared state, and parallel work
 //! writes each element independently, so the meshes are bit-identical on any thread count.
 
+mod city;
 mod cloth;
 mod explode;
 mod fluid;
 mod forest;
+mod hairball;
 mod skinned;
 mod soup;
 
@@ -35,7 +39,9 @@ use geom::{Aabb, Vec3};
 use std::str::FromStr;
 
 /// Names of the procedural scenes, for error messages and listings.
-pub const NAMES: [&str; 6] = ["cloth", "skinned", "explode", "fluid", "forest", "soup"];
+pub const NAMES: [&str; 8] = [
+    "cloth", "skinned", "explode", "fluid", "forest", "soup", "hairball", "city",
+];
 
 /// Opens the procedural scene named by `ps` (`spec` is the full spec, for messages).
 pub fn open(spec: &str, ps: &ProcSpec, opts: &LoadOptions) -> Result<Box<dyn Scene>, SceneError> {
@@ -47,6 +53,8 @@ pub fn open(spec: &str, ps: &ProcSpec, opts: &LoadOptions) -> Result<Box<dyn Sce
         "fluid" => Box::new(fluid::Fluid::new(&p)?),
         "forest" => Box::new(forest::Forest::new(&p)?),
         "soup" => Box::new(soup::Soup::new(&p)?),
+        "hairball" => Box::new(hairball::Hairball::new(&p)?),
+        "city" => Box::new(city::City::new(&p)?),
         other => {
             return Err(SceneError::spec(
                 spec,
@@ -323,6 +331,29 @@ pub(crate) mod tests {
 
     /// Shared checks for every scene: valid, finite at several times, deterministic, moving.
     pub fn check_scene(s: &str) {
+        check_scene_with(s, true)
+    }
+
+    /// [`check_scene`] for a static scene: the same mesh at every time, duration 0.
+    pub fn check_static_scene(s: &str) {
+        check_scene_with(s, false);
+        let a = open_proc(s);
+        assert_eq!(a.info().timeline.duration_s, 0.0, "{s}");
+        assert_eq!(a.info().timeline.frame_count(), 1, "{s}");
+        assert_eq!(a.mesh_at(0.0).unwrap(), a.mesh_at(7.0).unwrap(), "{s}");
+        // The reported bounds frame the mesh.
+        let m = a.mesh_at(0.0).unwrap();
+        assert!(m.bounds().min.is_finite() && m.bounds().max.is_finite());
+    }
+
+    /// Twice the smallest triangle area of `m` (0 for a degenerate triangle).
+    pub fn min_double_area(m: &Mesh) -> f32 {
+        m.triangles_iter()
+            .map(|t| (t.v[1] - t.v[0]).cross(t.v[2] - t.v[0]).length())
+            .fold(f32::INFINITY, f32::min)
+    }
+
+    fn check_scene_with(s: &str, moving: bool) {
         let a = open_proc(s);
         let b = open_proc(s);
         let info = a.info();
@@ -339,11 +370,13 @@ pub(crate) mod tests {
             );
             assert_eq!(m, b.mesh_at(t).unwrap(), "{s}: not deterministic at t={t}");
         }
-        assert_ne!(
-            a.mesh_at(0.0).unwrap(),
-            a.mesh_at(0.5 * d).unwrap(),
-            "{s}: no motion"
-        );
+        if moving {
+            assert_ne!(
+                a.mesh_at(0.0).unwrap(),
+                a.mesh_at(0.5 * d).unwrap(),
+                "{s}: no motion"
+            );
+        }
         assert_eq!(a.mesh_at(d).unwrap(), a.mesh_at_frame(u32::MAX).unwrap());
         // The default camera sees every vertex of the first, middle and last frames.
         let cam = info.camera;
@@ -402,6 +435,8 @@ pub(crate) mod tests {
             "fluid?n=3000",
             "forest?n=3000",
             "soup?n=100000",
+            "hairball?n=3000",
+            "city?n=3000",
         ] {
             assert_eq!(run(1, s), run(3, s), "{s}");
         }
@@ -412,7 +447,7 @@ pub(crate) mod tests {
         /// Any scene, size, seed and time gives a valid, finite, non-empty mesh.
         #[test]
         fn any_seed_and_time_is_valid(
-            which in 0usize..6,
+            which in 0usize..NAMES.len(),
             n in 100usize..3000,
             seed in proptest::prelude::any::<u64>(),
             t in -1.0f32..4.0,
