@@ -19,7 +19,7 @@ use std::sync::{Arc, Mutex};
 /// a caller stepping forwards while another samples nearby).
 const CACHE_FRAMES: usize = 4;
 
-/// Opens the `.obj` / `.ply` files of a directory, in name order, as a keyframe sequence.
+/// Opens the `.obj` / `.ply` files of a directory, in natural name order ([`natural_cmp`]), as a keyframe sequence.
 pub fn open_dir(spec: &str, dir: &Path, opts: &LoadOptions) -> Result<Box<dyn Scene>, SceneError> {
     let entries = std::fs::read_dir(dir).map_err(|e| SceneError::io(dir, e))?;
     let mut files = Vec::new();
@@ -39,7 +39,7 @@ pub fn open_dir(spec: &str, dir: &Path, opts: &LoadOptions) -> Result<Box<dyn Sc
             "directory has no .obj or .ply files",
         ));
     }
-    files.sort();
+    sort_natural(&mut files);
     let name = dir
         .file_name()
         .map(|s| s.to_string_lossy().into_owned())
@@ -47,7 +47,7 @@ pub fn open_dir(spec: &str, dir: &Path, opts: &LoadOptions) -> Result<Box<dyn Sc
     Ok(Box::new(KeyframeScene::open(spec, &name, files, opts)?))
 }
 
-/// Opens the files matching a glob pattern, in name order, as a keyframe sequence.
+/// Opens the files matching a glob pattern, in natural name order ([`natural_cmp`]), as a keyframe sequence.
 pub fn open_glob(spec: &str, opts: &LoadOptions) -> Result<Box<dyn Scene>, SceneError> {
     let paths =
         glob::glob(spec).map_err(|e| SceneError::spec(spec, format!("bad glob pattern: {e}")))?;
@@ -61,13 +61,59 @@ pub fn open_glob(spec: &str, opts: &LoadOptions) -> Result<Box<dyn Scene>, Scene
     if files.is_empty() {
         return Err(SceneError::spec(spec, "no files match the pattern"));
     }
-    files.sort();
+    sort_natural(&mut files);
     let name = Path::new(spec)
         .parent()
         .and_then(|p| p.file_name())
         .map(|s| s.to_string_lossy().into_owned())
         .unwrap_or_else(|| "keyframes".to_string());
     Ok(Box::new(KeyframeScene::open(spec, &name, files, opts)?))
+}
+
+/// Sorts frame files in natural order of their paths ([`natural_cmp`]), so `f2` plays
+/// before `f10`.
+fn sort_natural(files: &mut [PathBuf]) {
+    files.sort_by(|a, b| natural_cmp(&a.to_string_lossy(), &b.to_string_lossy()));
+}
+
+/// Natural ("numeric") order of names: runs of ASCII digits compare as numbers, everything
+/// else character by character, so `f1 < f2 < f10`. Numbers equal in value but written
+/// differently (`f01` and `f1`) fall back to the plain string order, as do otherwise equal
+/// names, so the order is total and deterministic.
+pub fn natural_cmp(a: &str, b: &str) -> std::cmp::Ordering {
+    use std::cmp::Ordering;
+    let (ab, bb) = (a.as_bytes(), b.as_bytes());
+    let (mut i, mut j) = (0, 0);
+    while i < ab.len() && j < bb.len() {
+        if ab[i].is_ascii_digit() && bb[j].is_ascii_digit() {
+            let si = i;
+            while i < ab.len() && ab[i].is_ascii_digit() {
+                i += 1;
+            }
+            let sj = j;
+            while j < bb.len() && bb[j].is_ascii_digit() {
+                j += 1;
+            }
+            // Compare digit runs by value without parsing (any length): strip leading
+            // zeros, then longer is larger, then lexicographic.
+            let x = a[si..i].trim_start_matches('0');
+            let y = b[sj..j].trim_start_matches('0');
+            let o = x.len().cmp(&y.len()).then_with(|| x.cmp(y));
+            if o != Ordering::Equal {
+                return o;
+            }
+        } else {
+            // Compare whole characters, not bytes, so non-ASCII names order sensibly.
+            let ca = a[i..].chars().next().unwrap();
+            let cb = b[j..].chars().next().unwrap();
+            if ca != cb {
+                return ca.cmp(&cb);
+            }
+            i += ca.len_utf8();
+            j += cb.len_utf8();
+        }
+    }
+    (ab.len() - i).cmp(&(bb.len() - j)).then_with(|| a.cmp(b))
 }
 
 /// A keyframe sequence (see the module docs). `Send + Sync`: the cache sits behind a mutex.
@@ -249,6 +295,52 @@ mod tests {
         LoadOptions {
             fps: Some(fps),
             ..Default::default()
+        }
+    }
+
+    #[test]
+    fn natural_order() {
+        use std::cmp::Ordering::*;
+        assert_eq!(natural_cmp("f1", "f2"), Less);
+        assert_eq!(natural_cmp("f2", "f10"), Less);
+        assert_eq!(natural_cmp("f10", "f2"), Greater);
+        // Leading zeros: same value, tie broken by the string order (deterministic).
+        assert_eq!(natural_cmp("f007", "f7"), Less);
+        assert_eq!(natural_cmp("f007", "f8"), Less);
+        assert_eq!(natural_cmp("f010", "f9"), Greater);
+        // No digits: plain text order.
+        assert_eq!(natural_cmp("abc", "abd"), Less);
+        assert_eq!(natural_cmp("ab", "abc"), Less);
+        assert_eq!(natural_cmp("same", "same"), Equal);
+        // Mixed runs and digits against letters.
+        assert_eq!(natural_cmp("a2b10", "a2b9"), Greater);
+        assert_eq!(natural_cmp("a10b1", "a9b2"), Greater);
+        assert_eq!(natural_cmp("frame9.obj", "frame10.obj"), Less);
+        assert_eq!(natural_cmp("1x", "x"), Less);
+        // Longer than any integer type.
+        assert_eq!(
+            natural_cmp("f99999999999999999999999", "f100000000000000000000000"),
+            Less
+        );
+        let mut v = vec!["f10", "f2", "f1", "f01", "g", "f"];
+        v.sort_by(|a, b| natural_cmp(a, b));
+        assert_eq!(v, ["f", "f01", "f1", "f2", "f10", "g"]);
+    }
+
+    #[test]
+    fn dir_frames_play_in_natural_order() {
+        let d = tempfile::tempdir().unwrap();
+        // Frame k has x = k; named f1, f2, f10 (string order would be f1, f10, f2).
+        for (name, x) in [("f1", 0.0), ("f2", 1.0), ("f10", 2.0)] {
+            let mut b = Vec::new();
+            crate::obj::write(&frame(x), &mut b).unwrap();
+            std::fs::write(d.path().join(format!("{name}.obj")), b).unwrap();
+        }
+        let s = open_dir("seq", d.path(), &opts(1.0)).unwrap();
+        assert_eq!(s.info().timeline.frame_count(), 3);
+        for k in 0..3 {
+            let m = s.mesh_at(k as f32).unwrap();
+            assert_eq!(m.positions[0].x, k as f32, "frame {k}");
         }
     }
 
