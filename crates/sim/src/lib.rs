@@ -11,6 +11,7 @@
 //! - [`dram`]: the memory-port interface and its backends.
 //! - [`analytic`]: analytic models of the builders MergeTree is compared with.
 //! - [`mergetree`]: the MergeTree HLBVH builder of \[P1\] and \[P2\].
+//! - [`rtunit`]: the ray-tracing accelerator of \[P4\] (TRV and IST pipelines, caches).
 //! - [`thesis`]: the thesis's published figures the models are compared with.
 #![warn(missing_docs)]
 
@@ -20,4 +21,5 @@ pub mod dram;
 pub mod fifo;
 pub mod kernel;
 pub mod mergetree;
+pub mod rtunit;
 pub mod thesis;

@@ -61,7 +61,9 @@ pub use cbvh_watertight::{WatertightCheck, WatertightStats};
 pub use mbvh4_kernel::{sort4, Mbvh4Accel};
 pub use mbvh8_kernel::{Mbvh8Accel, WIDTH8};
 pub use observer::{Observer, Query};
-pub use render::{render, RayKind, Render, RenderSettings, RenderStats, Shading};
+pub use render::{
+    bounce_ray, facing_normal, render, RayKind, Render, RenderSettings, RenderStats, Shading,
+};
 pub use stats::RayStats;
 
 use thiserror::Error;

@@ -219,8 +219,9 @@ struct TileOut<O> {
     obs: O,
 }
 
-/// The geometric normal of a hit, facing against the ray direction `d`.
-fn facing_normal(tri: &Triangle, d: Vec3) -> Vec3 {
+/// The geometric normal of a hit, facing against the ray direction `d` (zero for a
+/// degenerate triangle, which has no orientation and ends a diffuse path).
+pub fn facing_normal(tri: &Triangle, d: Vec3) -> Vec3 {
     let n = tri.normal().normalize_or_zero();
     if n.dot(d) > 0.0 {
         -n
@@ -378,8 +379,7 @@ impl<T: Traverse> Tracer<'_, T> {
                 return Vec3::ZERO; // a degenerate triangle has no orientation
             }
             throughput *= self.shading.albedo(hit.prim);
-            let dir = cosine_hemisphere(n, rng.next_f32(), rng.next_f32());
-            ray = Ray::new(offset_origin(hit_point(tri, &hit), n), dir);
+            ray = bounce_ray(tri, n, &hit, &mut rng);
             match self.trace(
                 &ray,
                 Query::Closest,
@@ -396,6 +396,15 @@ impl<T: Traverse> Tracer<'_, T> {
         }
         Vec3::ZERO
     }
+}
+
+/// The next ray of a diffuse path: from the hit `hit` on `tri` (whose normal facing the
+/// incoming ray is `n`, non-zero), a cosine-weighted direction drawn from `rng`. The one
+/// rule for diffuse bounces, shared by the renderer and the accelerator model's ray
+/// generator (`sim::rtunit`), so both trace the very same rays.
+pub fn bounce_ray(tri: &Triangle, n: Vec3, hit: &Hit, rng: &mut Pcg32) -> Ray {
+    let dir = cosine_hemisphere(n, rng.next_f32(), rng.next_f32());
+    Ray::new(offset_origin(hit_point(tri, hit), n), dir)
 }
 
 /// Bounce counter slots after the primary ray: `bounces` for diffuse, 1 for shadow.

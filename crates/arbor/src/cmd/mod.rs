@@ -17,6 +17,7 @@ pub mod report_mergetree;
 pub mod sim;
 pub mod sim_dram;
 pub mod sim_mergetree;
+pub mod sim_rtunit;
 
 use crate::progress::{Ui, Unit};
 use anyhow::Context;

@@ -1,6 +1,6 @@
 //! `arbor sim`: the hardware models, one subcommand each (`sim_*.rs`).
 
-use super::{sim_dram, sim_mergetree};
+use super::{sim_dram, sim_mergetree, sim_rtunit};
 use crate::progress::Ui;
 
 /// Arguments of `arbor sim`.
@@ -18,6 +18,9 @@ pub enum SimCommand {
     /// Drive a memory system with a synthetic access pattern; report bandwidth, latency,
     /// row hits, DRAM commands and energy.
     Dram(sim_dram::DramArgs),
+    /// Simulate the ray-tracing accelerator (thesis P4: TRV and IST pipelines, caches,
+    /// DRAM) with a binary BVH or a 4-wide MBVH over a scene.
+    Rtunit(sim_rtunit::RtunitArgs),
 }
 
 /// Runs `arbor sim ...`.
@@ -25,5 +28,6 @@ pub fn run(args: &SimArgs, ui: &Ui) -> anyhow::Result<()> {
     match &args.model {
         SimCommand::Mergetree(a) => sim_mergetree::run_mergetree(a, ui),
         SimCommand::Dram(a) => sim_dram::run_dram(a, ui),
+        SimCommand::Rtunit(a) => sim_rtunit::run_rtunit(a, ui),
     }
 }

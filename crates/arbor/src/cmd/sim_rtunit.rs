@@ -1,0 +1,230 @@
+//! `arbor sim rtunit` runs the ray-tracing accelerator model of \[P4\] (`sim::rtunit`) over
+//! a scene: the TRV and IST pipelines, the node and primitive caches and DRAM, with the
+//! binary BVH or the 4-wide MBVH, for primary rays or diffuse paths. Every ray's hit is
+//! checked against the software tracer. The JSON form (`arbor.sim.rtunit.v1`) is
+//! documented in `docs/cli-json.md`.
+
+use super::{open_scene, thousands, SceneArgs};
+use crate::progress::{Ui, Unit};
+use anyhow::Context;
+use geom::Triangle;
+use sim::rtunit::{self, RayMode, RtConfig, RtReport, TreeKind, Workload};
+
+/// Arguments of `arbor sim rtunit`.
+#[derive(clap::Args, Debug)]
+pub struct RtunitArgs {
+    #[command(flatten)]
+    scene: SceneArgs,
+    /// Tree: bvh2 (binary BVH from binned SAH, the thesis's baseline) or mbvh4 (4-wide MBVH
+    /// from Wald's top-down builder, the thesis's proposal).
+    #[arg(long, default_value = "bvh2")]
+    tree: String,
+    /// Rays: primary or diffuse (1 sample per pixel, --bounces diffuse bounces).
+    #[arg(long, default_value = "primary")]
+    rays: String,
+    /// Diffuse bounces after the primary hit (thesis P4 3.2: 4).
+    #[arg(long, default_value_t = 4)]
+    bounces: u32,
+    /// Image width.
+    #[arg(long, default_value_t = 1280)]
+    width: u32,
+    /// Image height.
+    #[arg(long, default_value_t = 720)]
+    height: u32,
+    /// Trace one in N of the image's 8x8 pixel tiles (1: the whole frame); frame traffic
+    /// is then estimated as N times the traffic measured.
+    #[arg(long, default_value_t = 1, value_name = "N")]
+    sample: u32,
+    /// Sampling seed of the diffuse bounces.
+    #[arg(long, default_value_t = 1)]
+    seed: u64,
+    /// Time at which to sample the scene, in seconds.
+    #[arg(long, value_name = "SECONDS")]
+    time: Option<f32>,
+    /// Size the FIFOs as the thesis does: run with 32-entry FIFOs, shrink each to the power
+    /// of two above its highest occupancy, run again; print the sizes.
+    #[arg(long)]
+    size_fifos: bool,
+    /// Override one parameter, e.g. --set l2_bytes=262144 (repeatable; `--set help=1`
+    /// lists the keys).
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+    /// Print the report as JSON (arbor.sim.rtunit.v1).
+    #[arg(long)]
+    json: bool,
+}
+
+fn config_of(a: &RtunitArgs) -> anyhow::Result<RtConfig> {
+    let mut cfg = RtConfig::default();
+    for s in &a.set {
+        if s.starts_with("help") {
+            anyhow::bail!("accelerator parameters: {}", rtunit::KEYS.join(", "));
+        }
+        cfg.set_pair(s)?;
+    }
+    Ok(cfg)
+}
+
+/// Runs `arbor sim rtunit`.
+pub fn run_rtunit(a: &RtunitArgs, ui: &Ui) -> anyhow::Result<()> {
+    let kind = TreeKind::parse(&a.tree)?;
+    let rays = match a.rays.as_str() {
+        "primary" => RayMode::Primary,
+        "diffuse" => RayMode::Diffuse,
+        other => anyhow::bail!("unknown --rays '{other}' (known: primary, diffuse)"),
+    };
+    let cfg = config_of(a)?;
+    cfg.validate(kind)?;
+    if let Some(t) = a.time {
+        anyhow::ensure!(
+            t.is_finite(),
+            "--time must be a finite number of seconds, got {t}"
+        );
+    }
+    let (scene, _) = open_scene(&a.scene, ui)?;
+    let info = scene.info();
+    let t = info.timeline.clamp(a.time.unwrap_or(0.0));
+    let mesh = scene
+        .mesh_at(t)
+        .with_context(|| format!("cannot sample the scene at t = {t} s"))?;
+    let triangles: Vec<Triangle> = mesh.triangles_iter().collect();
+    // The interior view reports use for the scenes that have one (crytek-sponza, ...).
+    let view = super::report::view_camera(&super::report::short_name(&a.scene.scene), info.camera);
+    let camera = trace::PinholeCamera::new(&view, a.width, a.height)?;
+    let tree = {
+        let _s = ui.spinner(&format!(
+            "building the {} tree over {} triangles",
+            kind.name(),
+            thousands(triangles.len() as u64)
+        ));
+        rtunit::build_tree(kind, &triangles)?
+    };
+    let bar = ui.progress(
+        &format!(
+            "simulating the {} accelerator, {} rays",
+            kind.name(),
+            a.rays
+        ),
+        Unit::Items,
+    );
+    let hook = |done: u64, total: u64| bar.update(done, total);
+    let work = Workload {
+        triangles: &triangles,
+        camera: &camera,
+        rays,
+        bounces: a.bounces,
+        seed: a.seed,
+        sample: a.sample,
+        progress: Some(&hook),
+    };
+    let result = if a.size_fifos {
+        rtunit::size_fifos(&tree, &work, &cfg).map(|(_, first, r)| (Some(first), r))
+    } else {
+        rtunit::run(&tree, &work, &cfg).map(|r| (None, r))
+    };
+    bar.finish();
+    let (first, r) = result.context("accelerator simulation failed")?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&r)?);
+    } else {
+        print_report(&r, first.as_ref());
+    }
+    anyhow::ensure!(
+        r.hits_match_software,
+        "{} of {} rays differ from the software tracer (a model bug)",
+        r.mismatches,
+        r.rays
+    );
+    Ok(())
+}
+
+fn print_report(r: &RtReport, first: Option<&RtReport>) {
+    println!(
+        "{} accelerator, {} rays, {}x{} ({} pixels, 1 in {} tile chunks timed), {}",
+        r.tree.name(),
+        match r.ray_kind {
+            RayMode::Primary => "primary".to_string(),
+            RayMode::Diffuse => format!("diffuse ({} bounces)", r.bounces),
+        },
+        r.width,
+        r.height,
+        thousands(r.pixels),
+        r.sample,
+        r.memory_name
+    );
+    println!(
+        "  {} rays in {} cycles ({:.3} ms at {} MHz): {:.1} MRPS",
+        thousands(r.rays),
+        thousands(r.cycles),
+        r.seconds * 1e3,
+        r.config.clock_mhz,
+        r.mrps
+    );
+    println!(
+        "  DRAM: {:.2} MB read, {:.2} MB written, bus {:.1}% busy; frame traffic {:.2} MB{}",
+        r.dram_bytes_read as f64 / 1e6,
+        r.dram_bytes_written as f64 / 1e6,
+        100.0 * r.bus_utilization,
+        r.frame_dram_mb,
+        if r.sample > 1 {
+            " (estimated from the sample)"
+        } else {
+            ""
+        }
+    );
+    println!(
+        "  {} node visits, {} box tests, {} triangle tests; loops after misses: TRV {}, IST {}",
+        thousands(r.node_visits),
+        thousands(r.box_tests),
+        thousands(r.triangle_tests),
+        thousands(r.trv_loops),
+        thousands(r.ist_loops)
+    );
+    println!(
+        "  deepest stack {} of {} entries; hits equal the software tracer's: {}",
+        r.max_stack_depth,
+        r.config.stack_entries,
+        if r.hits_match_software { "yes" } else { "NO" }
+    );
+    println!("  caches:");
+    for c in &r.caches {
+        println!(
+            "    {:<10} {:>12} accesses, hit rate {:.1}%",
+            c.name,
+            thousands(c.stats.line_accesses),
+            100.0 * c.hit_rate
+        );
+    }
+    println!("  units (busy, stalls):");
+    for u in &r.units {
+        let stalls: Vec<String> = u
+            .stalls
+            .iter()
+            .filter(|(_, f)| *f > 0.0005)
+            .map(|(n, f)| format!("{n} {:.1}%", 100.0 * f))
+            .collect();
+        println!(
+            "    {:<10} busy {:>5.1}%  {}",
+            u.name,
+            100.0 * u.busy,
+            stalls.join(", ")
+        );
+    }
+    println!("  FIFOs (capacity, high water):");
+    for (k, f) in r.fifos.iter().enumerate() {
+        let before = first.map(|p| {
+            format!(
+                " (sized from {}, high water {})",
+                p.fifos[k].capacity, p.fifos[k].high_water
+            )
+        });
+        println!(
+            "    {:<11} x{}  {:>5} {:>5}{}",
+            f.name,
+            f.count,
+            f.capacity,
+            f.high_water,
+            before.unwrap_or_default()
+        );
+    }
+}

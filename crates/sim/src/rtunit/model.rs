@@ -1,0 +1,1043 @@
+//! The units of the accelerator and the world they share (see the module documentation
+//! of [`super`] for the architecture).
+//!
+//! Unit ids: the ray scheduler is 0, TRV unit `i` is `1 + i`, then the IST unit, then the
+//! shared node cache.
+
+use std::cmp::Reverse;
+use std::collections::{BinaryHeap, VecDeque};
+
+use bvh::ChildRef;
+use geom::{intersect_triangle_watertight, ray_aabb, Ray, RayPrecomp, Triangle};
+use trace::sampling::Pcg32;
+use trace::{cull_distance, enters_own_box, Hit};
+
+use super::config::{RtConfig, TRIANGLE_BYTES};
+use super::tree::TreeImage;
+use crate::dram::{AccessKind, MemRequest};
+use crate::kernel::{
+    Access, Cache, Ctx, Cycle, LatencyFifo, Memory, Offer, RoundRobin, State, Unit, UnitId, Wake,
+    World,
+};
+
+/// What a ray does at its next pass.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum Next {
+    /// Fetch and test inner node `n` (TRV).
+    Fetch(u32),
+    /// Pop the stack (TRV, after the IST unit returned the ray).
+    Pop,
+    /// Test the triangles of a leaf (IST).
+    Ist { first: u32, count: u32 },
+    /// Traversal has ended.
+    Done,
+}
+
+/// A ray slot: the ray, its stack (held by its TRV unit) and its progress.
+#[derive(Clone, Debug)]
+pub(crate) struct Slot {
+    pub ray: Ray,
+    pub pre: RayPrecomp,
+    pub best: Option<Hit>,
+    pub best_t: f32,
+    /// The stack: children still to visit with their entry distances.
+    pub stack: Vec<(ChildRef, f32)>,
+    pub next: Next,
+    /// Triangles of the current leaf already tested.
+    pub ist_pos: u32,
+    pub pixel: u32,
+    pub bounce: u8,
+    pub rng: Pcg32,
+}
+
+/// One finished ray: which pixel and bounce, and its closest hit.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct RayResult {
+    /// Pixel index (`y * width + x`).
+    pub pixel: u32,
+    /// 0 for the primary ray, `k` for bounce `k`.
+    pub bounce: u8,
+    /// The closest hit.
+    pub hit: Option<Hit>,
+}
+
+/// Where rays come from: the camera pixels to trace and how paths continue.
+pub(crate) struct RaySource<'a> {
+    pub camera: &'a trace::PinholeCamera,
+    /// The pixels traced by the timing model, in issue order.
+    pub pixels: Vec<u32>,
+    /// Sampled runs: before the camera ray `pixels[k]` is issued, the paths of these
+    /// pixels (the tiles skipped since the previous sampled tile) warm the caches.
+    pub warm: Vec<(usize, Vec<u32>)>,
+    pub bounces: u32,
+    pub seed: u64,
+    pub triangles: &'a [Triangle],
+}
+
+impl RaySource<'_> {
+    pub fn primary(&self, pixel: u32) -> Slot {
+        let w = self.camera.width();
+        let ray = self.camera.pixel_ray(pixel % w, pixel / w);
+        Slot::new(ray, pixel, 0, Pcg32::new(self.seed, pixel as u64))
+    }
+
+    /// The next ray of the path of `s` after its closest hit, as the renderer makes it.
+    pub fn bounce(&self, s: &Slot) -> Option<Slot> {
+        let h = s.best?;
+        if (s.bounce as u32) >= self.bounces {
+            return None;
+        }
+        let tri = &self.triangles[h.prim as usize];
+        let n = trace::facing_normal(tri, s.ray.dir);
+        if n == geom::Vec3::ZERO {
+            return None;
+        }
+        let mut rng = s.rng.clone();
+        let ray = trace::bounce_ray(tri, n, &h, &mut rng);
+        Some(Slot::new(ray, s.pixel, s.bounce + 1, rng))
+    }
+}
+
+impl Slot {
+    /// An unused slot.
+    pub fn placeholder() -> Self {
+        Self::new(
+            Ray::new(geom::Vec3::ZERO, geom::Vec3::Z),
+            0,
+            0,
+            Pcg32::new(0, 0),
+        )
+    }
+
+    fn new(ray: Ray, pixel: u32, bounce: u8, rng: Pcg32) -> Self {
+        let finite = geom::is_finite3(ray.origin) && geom::is_finite3(ray.dir);
+        Self {
+            pre: RayPrecomp::new(&ray),
+            best: None,
+            best_t: ray.t_max,
+            stack: Vec::new(),
+            next: if finite { Next::Fetch(0) } else { Next::Done },
+            ist_pos: 0,
+            ray,
+            pixel,
+            bounce,
+            rng,
+        }
+    }
+
+    fn continue_with(c: ChildRef) -> Next {
+        if c.is_leaf() {
+            Next::Ist {
+                first: c.index,
+                count: c.count,
+            }
+        } else {
+            Next::Fetch(c.index)
+        }
+    }
+
+    /// Pops the stack: with the distance stack, entries beyond the closest hit are
+    /// dropped in the same pass.
+    fn pop(&mut self, distance_stack: bool) {
+        let cull = cull_distance(self.best_t);
+        self.next = loop {
+            match self.stack.pop() {
+                None => break Next::Done,
+                Some((_, t)) if distance_stack && t > cull => continue,
+                Some((c, _)) => break Self::continue_with(c),
+            }
+        };
+    }
+}
+
+/// A stack that outgrew its storage.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub(crate) struct Overflow {
+    pub pixel: u32,
+    pub bounce: u8,
+    pub depth: usize,
+}
+
+/// Everything the units share.
+pub(crate) struct RtWorld<'a> {
+    pub mem: Memory,
+    pub tree: &'a TreeImage,
+    /// The software tracer over the same tree (functional warming of sampled runs).
+    pub accel: &'a trace::Accel,
+    pub source: RaySource<'a>,
+    pub progress: Option<&'a dyn Fn(u64, u64)>,
+    pub slots: Vec<Slot>,
+    /// Per TRV: new rays from the scheduler, rays to the IST unit, rays back from it,
+    /// finished rays, L1 misses to the shared node cache, fills from it.
+    pub new_ray: Vec<LatencyFifo<u32>>,
+    pub to_ist: Vec<LatencyFifo<u32>>,
+    pub from_ist: Vec<LatencyFifo<u32>>,
+    pub done: Vec<LatencyFifo<u32>>,
+    pub miss: Vec<LatencyFifo<u64>>,
+    pub fill: Vec<LatencyFifo<u64>>,
+    /// The L1 node cache of each TRV unit, the shared node cache, the primitive cache.
+    pub l1: Vec<Cache<u32>>,
+    pub l2: Cache<u32>,
+    pub prim: Cache<u32>,
+    /// Finished rays, in the order they finished.
+    pub results: Vec<RayResult>,
+    pub overflow: Option<Overflow>,
+    /// Set when no ray has finished for `livelock_cycles`: every unit stops.
+    pub livelock: Option<Cycle>,
+    pub last_finish: Cycle,
+    pub livelock_cycles: Cycle,
+    pub max_depth: usize,
+    pub stack_entries: usize,
+    pub distance_stack: bool,
+}
+
+impl World for RtWorld<'_> {
+    fn memory(&mut self) -> Option<&mut Memory> {
+        Some(&mut self.mem)
+    }
+
+    fn describe(&self) -> String {
+        let occ = |v: &[LatencyFifo<u32>]| {
+            v.iter()
+                .map(|f| f.len().to_string())
+                .collect::<Vec<_>>()
+                .join("/")
+        };
+        format!(
+            "fifo occupancy sched->trv {}, trv->ist {}, ist->trv {}, trv->sched {}; {:?}",
+            occ(&self.new_ray),
+            occ(&self.to_ist),
+            occ(&self.from_ist),
+            occ(&self.done),
+            self.mem
+        )
+    }
+}
+
+/// True when the run must stop because no ray has finished for the livelock limit
+/// (rays looping without end: caches too small to keep a line until its ray returns).
+fn stop_on_livelock(w: &mut RtWorld<'_>, now: Cycle) -> bool {
+    if w.livelock.is_none() && now > w.last_finish + w.livelock_cycles {
+        w.livelock = Some(now);
+    }
+    w.livelock.is_some()
+}
+
+/// The TRV unit owning slot `s`.
+#[inline]
+pub(crate) fn trv_of(s: u32, stacks_per_trv: u32) -> usize {
+    (s / stacks_per_trv) as usize
+}
+
+// ---------------------------------------------------------------------------------------
+// Ray scheduler
+// ---------------------------------------------------------------------------------------
+
+/// Hands free ray slots to new rays (camera rays, and the next bounce of a finished
+/// diffuse ray, which has priority) and collects finished rays: one ray in and one out
+/// per cycle.
+pub(crate) struct Scheduler {
+    next_pixel: usize,
+    free: Vec<Vec<u32>>,
+    reissue: VecDeque<u32>,
+    stacks_per_trv: u32,
+    issue_rr: usize,
+    done_rr: RoundRobin,
+    in_flight: usize,
+    rays: u64,
+    next_warm: usize,
+    warm_rr: usize,
+    warm_rays: u64,
+    stack: trace::TraversalStack,
+}
+
+impl Scheduler {
+    pub fn new(cfg: &RtConfig) -> Self {
+        let n = cfg.trv_units as usize;
+        let free = (0..n as u32)
+            .map(|t| {
+                (0..cfg.stacks_per_trv)
+                    .rev()
+                    .map(|k| t * cfg.stacks_per_trv + k)
+                    .collect()
+            })
+            .collect();
+        Self {
+            next_pixel: 0,
+            free,
+            reissue: VecDeque::new(),
+            stacks_per_trv: cfg.stacks_per_trv,
+            issue_rr: 0,
+            done_rr: RoundRobin::new(n, 1).expect("at least one TRV"),
+            in_flight: 0,
+            rays: 0,
+            next_warm: 0,
+            warm_rr: 0,
+            warm_rays: 0,
+            stack: trace::TraversalStack::new(),
+        }
+    }
+}
+
+const SCHED_STALLS: &[&str] = &["trv_full"];
+
+impl<'a> Unit<RtWorld<'a>> for Scheduler {
+    fn name(&self) -> &str {
+        "scheduler"
+    }
+
+    fn stall_reasons(&self) -> &'static [&'static str] {
+        SCHED_STALLS
+    }
+
+    fn step(&mut self, w: &mut RtWorld<'a>, cx: &mut Ctx) -> Wake {
+        if w.livelock.is_some() {
+            cx.set_state(State::Idle);
+            return Wake::Done;
+        }
+        let mut worked = false;
+        // One finished ray per cycle.
+        let (source, reissue, free, spt) = (
+            &w.source,
+            &mut self.reissue,
+            &mut self.free,
+            self.stacks_per_trv,
+        );
+        let mut finished = 0;
+        let (done, slots, results) = (&mut w.done, &mut w.slots, &mut w.results);
+        self.done_rr.arbitrate(|t| {
+            let Some(s) = done[t].pop(cx) else {
+                return Offer::Nothing;
+            };
+            let slot = &slots[s as usize];
+            results.push(RayResult {
+                pixel: slot.pixel,
+                bounce: slot.bounce,
+                hit: slot.best,
+            });
+            finished += 1;
+            match source.bounce(slot) {
+                Some(next) => {
+                    slots[s as usize] = next;
+                    reissue.push_back(s);
+                }
+                None => free[trv_of(s, spt)].push(s),
+            }
+            Offer::Granted
+        });
+        if finished > 0 {
+            worked = true;
+            self.in_flight -= finished;
+            w.last_finish = cx.now();
+        }
+        // One new ray per cycle: a next bounce first, else a camera ray.
+        let mut blocked = false;
+        if let Some(&s) = self.reissue.front() {
+            let t = trv_of(s, spt);
+            if w.new_ray[t].push(cx, s).is_ok() {
+                self.reissue.pop_front();
+                self.in_flight += 1;
+                self.rays += 1;
+                worked = true;
+            } else {
+                blocked = true;
+            }
+        } else if self.next_pixel < w.source.pixels.len() {
+            // A sampled run warms the caches with the skipped pixels before the next
+            // sampled chunk, once the rays of the previous one have all finished (else
+            // they would find lines warmed by pixels traced after them, and their misses
+            // would not be counted).
+            let warm_due = w
+                .source
+                .warm
+                .get(self.next_warm)
+                .is_some_and(|(k, _)| *k == self.next_pixel);
+            if warm_due && self.in_flight == 0 {
+                let pixels = std::mem::take(&mut w.source.warm[self.next_warm].1);
+                self.warm_rays += warm(w, &pixels, &mut self.warm_rr, &mut self.stack);
+                self.next_warm += 1;
+            }
+            let draining = warm_due && self.in_flight > 0;
+            let n = if draining { 0 } else { self.free.len() };
+            let mut any_free = false;
+            for k in 0..n {
+                let t = (self.issue_rr + k) % n;
+                if self.free[t].is_empty() {
+                    continue;
+                }
+                any_free = true;
+                if w.new_ray[t].is_full(cx) {
+                    continue;
+                }
+                let s = self.free[t].pop().expect("checked");
+                w.slots[s as usize] = w.source.primary(w.source.pixels[self.next_pixel]);
+                w.new_ray[t].push(cx, s).expect("checked not full");
+                self.next_pixel += 1;
+                if let Some(p) = w.progress {
+                    if self.next_pixel.is_multiple_of(4096)
+                        || self.next_pixel == w.source.pixels.len()
+                    {
+                        p(self.next_pixel as u64, w.source.pixels.len() as u64);
+                    }
+                }
+                self.in_flight += 1;
+                self.rays += 1;
+                self.issue_rr = (t + 1) % n;
+                worked = true;
+                break;
+            }
+            blocked = any_free && !worked;
+        }
+        cx.set_state(if worked {
+            State::Busy
+        } else if blocked {
+            State::Stalled(0)
+        } else {
+            State::Idle
+        });
+        let draining = w
+            .source
+            .warm
+            .get(self.next_warm)
+            .is_some_and(|(k, _)| *k == self.next_pixel);
+        let more_in = !self.reissue.is_empty()
+            || (self.next_pixel < w.source.pixels.len()
+                && !draining
+                && self.free.iter().any(|f| !f.is_empty()));
+        let done_visible = w.done.iter().any(|f| f.can_pop(cx));
+        let all_done = !more_in && self.in_flight == 0 && self.next_pixel == w.source.pixels.len();
+        if all_done {
+            Wake::Done
+        } else if worked || done_visible || (more_in && !blocked) {
+            Wake::Next
+        } else {
+            Wake::OnEvent
+        }
+    }
+
+    fn describe(&self, w: &RtWorld<'a>) -> String {
+        format!(
+            "{} rays in flight, {} of {} camera rays issued, {} bounces waiting",
+            self.in_flight,
+            self.next_pixel,
+            w.source.pixels.len(),
+            self.reissue.len()
+        )
+    }
+
+    fn counters(&self) -> Vec<(&'static str, u64)> {
+        vec![("rays", self.rays), ("warming_rays", self.warm_rays)]
+    }
+}
+
+/// Functional warming: traces the paths of `pixels` with the software tracer and reads
+/// every node and triangle they touch into the caches ([`Cache::warm`]: no time, no
+/// counts), each path through the L1 of the next TRV unit in turn. A node found in the L1
+/// does not reach the shared node cache, as in the timed model. Returns the rays traced.
+fn warm(
+    w: &mut RtWorld<'_>,
+    pixels: &[u32],
+    rr: &mut usize,
+    stack: &mut trace::TraversalStack,
+) -> u64 {
+    struct Toucher<'c> {
+        l1: &'c mut Cache<u32>,
+        l2: &'c mut Cache<u32>,
+        prim: &'c mut Cache<u32>,
+        tree: &'c TreeImage,
+        node_bytes: u32,
+    }
+    impl trace::Observer for Toucher<'_> {
+        fn node(&mut self, node: u32, _valid: u8, _hit: u8) {
+            let a = self.tree.node_addr(node);
+            if !self.l1.warm(a, self.node_bytes) {
+                self.l2.warm(a, self.node_bytes);
+            }
+        }
+        fn leaf(&mut self, first: u32, count: u32) {
+            for e in first..first + count {
+                self.prim.warm(self.tree.triangle_addr(e), TRIANGLE_BYTES);
+            }
+        }
+    }
+    let mut stats = trace::RayStats::default();
+    let mut rays = 0;
+    let n = w.l1.len();
+    for &p in pixels {
+        let trv = *rr % n;
+        *rr += 1;
+        let mut t = Toucher {
+            l1: &mut w.l1[trv],
+            l2: &mut w.l2,
+            prim: &mut w.prim,
+            tree: w.tree,
+            node_bytes: w.tree.node_bytes(),
+        };
+        let mut slot = Some(w.source.primary(p));
+        while let Some(mut s) = slot.take() {
+            s.best = trace::Traverse::trace_observed(
+                w.accel,
+                &s.ray,
+                trace::Query::Closest,
+                stack,
+                &mut stats,
+                &mut t,
+            );
+            rays += 1;
+            slot = w.source.bounce(&s);
+        }
+    }
+    rays
+}
+
+// ---------------------------------------------------------------------------------------
+// TRV unit
+// ---------------------------------------------------------------------------------------
+
+/// A traversal unit: an in-order pipeline of `depth` stages that takes one ray per cycle
+/// (a recirculating ray first, then a ray back from the IST unit, then a new ray), reads
+/// its node from the L1 node cache in the first stage, tests the node's children, sorts
+/// the hits and performs the stack operations. A ray whose node misses loops through the
+/// pipeline with its results invalidated and tries again ("looping for next chance").
+pub(crate) struct Trv {
+    pub index: usize,
+    name: String,
+    /// Rays in the pipeline, with the cycle they leave it.
+    pipe: VecDeque<(Cycle, u32)>,
+    depth: Cycle,
+    node_line: u32,
+    scratch: Vec<crate::kernel::cache::Ready<u32>>,
+    visits: u64,
+    pops: u64,
+    loops: u64,
+    box_tests: u64,
+}
+
+impl Trv {
+    pub fn new(index: usize, depth: Cycle, node_line: u32) -> Self {
+        Self {
+            index,
+            name: format!("trv{index}"),
+            pipe: VecDeque::new(),
+            depth,
+            node_line,
+            scratch: Vec::new(),
+            visits: 0,
+            pops: 0,
+            loops: 0,
+            box_tests: 0,
+        }
+    }
+}
+
+const TRV_STALLS: &[&str] = &["loop", "ist_full", "done_full", "miss_fifo_full"];
+
+/// The node visit: tests the children of `node` against the ray within the cull distance,
+/// continues with the nearest hit child and pushes the others, farthest first (the
+/// compare-and-swap of the BVH unit, the sorting network of the MBVH4 unit).
+fn visit(w: &mut RtWorld<'_>, s: u32, node: u32) -> u64 {
+    let (tree, dist, cap) = (w.tree, w.distance_stack, w.stack_entries);
+    let slot = &mut w.slots[s as usize];
+    let cull = cull_distance(slot.best_t);
+    let mut hits: [(f32, ChildRef); 4] = [(0.0, ChildRef::EMPTY); 4];
+    let mut n = 0;
+    let tests = tree.for_children(node, |b, c| {
+        if let Some(t) = ray_aabb(&slot.pre, b, slot.ray.t_min, cull) {
+            hits[n] = (t, c);
+            n += 1;
+        }
+    });
+    // Stable by distance: equal distances keep the child order.
+    hits[..n].sort_by(|a, b| a.0.total_cmp(&b.0));
+    if n == 0 {
+        slot.pop(dist);
+    } else {
+        for &(t, c) in hits[1..n].iter().rev() {
+            slot.stack.push((c, t));
+        }
+        slot.next = Slot::continue_with(hits[0].1);
+        let depth = slot.stack.len();
+        w.max_depth = w.max_depth.max(depth);
+        if depth > cap && w.overflow.is_none() {
+            w.overflow = Some(Overflow {
+                pixel: slot.pixel,
+                bounce: slot.bounce,
+                depth,
+            });
+        }
+    }
+    tests
+}
+
+impl<'a> Unit<RtWorld<'a>> for Trv {
+    fn name(&self) -> &str {
+        &self.name
+    }
+
+    fn stall_reasons(&self) -> &'static [&'static str] {
+        TRV_STALLS
+    }
+
+    fn step(&mut self, w: &mut RtWorld<'a>, cx: &mut Ctx) -> Wake {
+        let now = cx.now();
+        let i = self.index;
+        if stop_on_livelock(w, now) {
+            cx.set_state(State::Idle);
+            return Wake::Done;
+        }
+        while let Some(line) = w.fill[i].pop(cx) {
+            self.scratch.clear();
+            w.l1[i]
+                .fill(line, now, &mut self.scratch)
+                .expect("the L1 fetched this line");
+        }
+        let mut state = State::Idle;
+        // The pipeline's exit: a ray for the IST unit or a finished one leaves.
+        let mut blocked_exit = false;
+        if let Some(&(t, s)) = self.pipe.front() {
+            if t <= now {
+                let out = match w.slots[s as usize].next {
+                    Next::Ist { .. } => Some((&mut w.to_ist[i], 1u8)),
+                    Next::Done => Some((&mut w.done[i], 2u8)),
+                    _ => None,
+                };
+                if let Some((fifo, reason)) = out {
+                    if fifo.push(cx, s).is_ok() {
+                        self.pipe.pop_front();
+                    } else {
+                        blocked_exit = true;
+                        state = State::Stalled(reason);
+                    }
+                }
+            }
+        }
+        // The pipeline's entrance.
+        let head_reenters = matches!(self.pipe.front(), Some(&(t, s)) if t <= now
+            && matches!(w.slots[s as usize].next, Next::Fetch(_) | Next::Pop));
+        let entering = if head_reenters {
+            self.pipe.pop_front().map(|(_, s)| s)
+        } else if let Some(s) = w.from_ist[i].pop(cx) {
+            w.slots[s as usize].next = Next::Pop;
+            Some(s)
+        } else {
+            w.new_ray[i].pop(cx)
+        };
+        if let Some(s) = entering {
+            let leave = now + self.depth;
+            match w.slots[s as usize].next {
+                Next::Pop => {
+                    w.slots[s as usize].pop(w.distance_stack);
+                    self.pops += 1;
+                    state = State::Busy;
+                }
+                Next::Fetch(node) => {
+                    let addr = w.tree.node_addr(node);
+                    let present = w.l1[i].contains(addr);
+                    if !present && w.miss[i].is_full(cx) {
+                        self.loops += 1;
+                        state = State::Stalled(3);
+                    } else {
+                        match w.l1[i].access(addr, self.node_line, AccessKind::Read, None, now) {
+                            Access::Hit { .. } => {
+                                self.box_tests += visit(w, s, node);
+                                self.visits += 1;
+                                state = State::Busy;
+                            }
+                            Access::Miss { fetch } => {
+                                for line in fetch.into_iter().flatten() {
+                                    w.miss[i].push(cx, line).expect("checked not full");
+                                }
+                                self.loops += 1;
+                                state = State::Stalled(0);
+                            }
+                            _ => {
+                                self.loops += 1;
+                                state = State::Stalled(0);
+                            }
+                        }
+                    }
+                }
+                Next::Ist { .. } | Next::Done => unreachable!("rays enter to fetch or pop"),
+            }
+            self.pipe.push_back((leave, s));
+        }
+        cx.set_state(state);
+        let inputs = w.fill[i].can_pop(cx) || w.from_ist[i].can_pop(cx) || w.new_ray[i].can_pop(cx);
+        // A pass this cycle: step next cycle too, to report the state of that cycle.
+        let passed = entering.is_some();
+        match self.pipe.front() {
+            _ if inputs || passed => Wake::Next,
+            Some(&(t, _)) if t <= now => {
+                if blocked_exit {
+                    Wake::OnEvent
+                } else {
+                    Wake::Next
+                }
+            }
+            Some(&(t, _)) => Wake::At(t),
+            None => Wake::Done,
+        }
+    }
+
+    fn describe(&self, w: &RtWorld<'a>) -> String {
+        format!(
+            "{} rays in the pipeline, head {:?}",
+            self.pipe.len(),
+            self.pipe
+                .front()
+                .map(|&(t, s)| (t, w.slots[s as usize].next))
+        )
+    }
+
+    fn counters(&self) -> Vec<(&'static str, u64)> {
+        vec![
+            ("node_visits", self.visits),
+            ("box_tests", self.box_tests),
+            ("pops", self.pops),
+            ("loops", self.loops),
+        ]
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// IST unit
+// ---------------------------------------------------------------------------------------
+
+/// The intersection unit: takes rays from the TRV units (round robin, one per cycle) into
+/// its ray buffer, starts one triangle test per cycle (the buffer's head ray, triangle by
+/// triangle) reading 48-byte triangles from the two-bank primitive cache, and returns a
+/// ray to its TRV unit `depth` cycles after its last test. A triangle that misses sends
+/// its ray around the pipeline again.
+pub(crate) struct Ist {
+    ready: VecDeque<u32>,
+    looping: VecDeque<(Cycle, u32)>,
+    out: VecDeque<(Cycle, u32)>,
+    mem_q: VecDeque<u64>,
+    rr: RoundRobin,
+    capacity: usize,
+    depth: Cycle,
+    line: u32,
+    stacks_per_trv: u32,
+    scratch: Vec<crate::kernel::cache::Ready<u32>>,
+    tests: u64,
+    loops: u64,
+}
+
+impl Ist {
+    pub fn new(cfg: &RtConfig) -> Self {
+        Self {
+            line: cfg.prim_line_bytes,
+            ready: VecDeque::new(),
+            looping: VecDeque::new(),
+            out: VecDeque::new(),
+            mem_q: VecDeque::new(),
+            rr: RoundRobin::new(cfg.trv_units as usize, 1).expect("at least one TRV"),
+            capacity: cfg.ist_rays as usize,
+            depth: cfg.ist_stages,
+            stacks_per_trv: cfg.stacks_per_trv,
+            scratch: Vec::new(),
+            tests: 0,
+            loops: 0,
+        }
+    }
+
+    fn held(&self) -> usize {
+        self.ready.len() + self.looping.len() + self.out.len()
+    }
+}
+
+const IST_STALLS: &[&str] = &["loop", "return_full"];
+
+/// Sends queued line reads until the port refuses one.
+fn send_lines(mem: &mut Memory, cx: &Ctx, q: &mut VecDeque<u64>, bytes: u32) {
+    while let Some(&line) = q.front() {
+        let r = MemRequest {
+            tag: line,
+            addr: line,
+            bytes,
+            kind: AccessKind::Read,
+        };
+        if mem.send(cx, r).is_err() {
+            break;
+        }
+        q.pop_front();
+    }
+}
+
+impl<'a> Unit<RtWorld<'a>> for Ist {
+    fn name(&self) -> &str {
+        "ist"
+    }
+
+    fn stall_reasons(&self) -> &'static [&'static str] {
+        IST_STALLS
+    }
+
+    fn step(&mut self, w: &mut RtWorld<'a>, cx: &mut Ctx) -> Wake {
+        let now = cx.now();
+        if stop_on_livelock(w, now) {
+            while w.mem.pop(cx).is_some() {}
+            cx.set_state(State::Idle);
+            return Wake::Done;
+        }
+        while let Some(r) = w.mem.pop(cx) {
+            self.scratch.clear();
+            w.prim
+                .fill(r.tag, now, &mut self.scratch)
+                .expect("the primitive cache fetched this line");
+        }
+        send_lines(&mut w.mem, cx, &mut self.mem_q, self.line);
+        let mut state = State::Idle;
+        // Return finished rays.
+        let mut return_blocked = false;
+        if let Some(&(t, s)) = self.out.front() {
+            if t <= now {
+                let trv = trv_of(s, self.stacks_per_trv);
+                if w.from_ist[trv].push(cx, s).is_ok() {
+                    self.out.pop_front();
+                } else {
+                    return_blocked = true;
+                    state = State::Stalled(1);
+                }
+            }
+        }
+        while matches!(self.looping.front(), Some(&(t, _)) if t <= now) {
+            let (_, s) = self.looping.pop_front().expect("checked");
+            self.ready.push_back(s);
+        }
+        // Take one ray from the TRV units.
+        if self.held() < self.capacity {
+            let (ready, to_ist) = (&mut self.ready, &mut w.to_ist);
+            self.rr.arbitrate(|t| match to_ist[t].pop(cx) {
+                Some(s) => {
+                    ready.push_back(s);
+                    Offer::Granted
+                }
+                None => Offer::Nothing,
+            });
+        }
+        // One triangle test.
+        if let Some(&s) = self.ready.front() {
+            let Next::Ist { first, count } = w.slots[s as usize].next else {
+                unreachable!("rays in the IST unit have a leaf")
+            };
+            let entry = first + w.slots[s as usize].ist_pos;
+            let addr = w.tree.triangle_addr(entry);
+            match w
+                .prim
+                .access(addr, TRIANGLE_BYTES, AccessKind::Read, None, now)
+            {
+                Access::Hit { .. } => {
+                    let tri = w.tree.triangle(entry);
+                    let slot = &mut w.slots[s as usize];
+                    test_triangle(slot, tri, entry, w.tree.prim_of(entry));
+                    slot.ist_pos += 1;
+                    self.tests += 1;
+                    if slot.ist_pos == count {
+                        slot.ist_pos = 0;
+                        self.ready.pop_front();
+                        self.out.push_back((now + self.depth, s));
+                    }
+                    state = State::Busy;
+                }
+                a => {
+                    if let Access::Miss { fetch } = a {
+                        self.mem_q.extend(fetch.into_iter().flatten());
+                        send_lines(&mut w.mem, cx, &mut self.mem_q, self.line);
+                    }
+                    self.ready.pop_front();
+                    self.looping.push_back((now + self.depth, s));
+                    self.loops += 1;
+                    if state == State::Idle {
+                        state = State::Stalled(0);
+                    }
+                }
+            }
+        }
+        cx.set_state(state);
+        let inputs = self.held() < self.capacity && w.to_ist.iter().any(|f| f.can_pop(cx));
+        let mut wake = Cycle::MAX;
+        if let Some(&(t, _)) = self.out.front() {
+            if !return_blocked {
+                wake = wake.min(t.max(now + 1));
+            }
+        }
+        if let Some(&(t, _)) = self.looping.front() {
+            wake = wake.min(t.max(now + 1));
+        }
+        let acted = matches!(state, State::Busy | State::Stalled(0));
+        if acted || inputs || !self.ready.is_empty() || !self.mem_q.is_empty() {
+            Wake::Next
+        } else if wake != Cycle::MAX {
+            Wake::At(wake)
+        } else if return_blocked || w.prim.mshrs_in_use() > 0 {
+            Wake::OnEvent
+        } else {
+            Wake::Done
+        }
+    }
+
+    fn describe(&self, _w: &RtWorld<'a>) -> String {
+        format!(
+            "{} rays ready, {} looping, {} returning, {} line reads queued",
+            self.ready.len(),
+            self.looping.len(),
+            self.out.len(),
+            self.mem_q.len()
+        )
+    }
+
+    fn counters(&self) -> Vec<(&'static str, u64)> {
+        vec![("triangle_tests", self.tests), ("loops", self.loops)]
+    }
+}
+
+/// The triangle test of the software tracer (`trace`'s leaf test): the watertight test
+/// within `[t_min, closest hit]`, the hit's own box entered, the closest-hit rule.
+fn test_triangle(slot: &mut Slot, tri: &Triangle, entry: u32, prim: u32) {
+    let Some(h) = intersect_triangle_watertight(&slot.pre, tri, slot.ray.t_min, slot.best_t) else {
+        return;
+    };
+    if !enters_own_box(&slot.pre, tri, slot.ray.t_min, h.t) {
+        return;
+    }
+    let hit = Hit {
+        t: h.t,
+        prim,
+        leaf_entry: entry,
+        bary: h.bary,
+    };
+    if hit.beats(slot.best.as_ref()) {
+        slot.best_t = hit.t;
+        slot.best = Some(hit);
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Shared node cache
+// ---------------------------------------------------------------------------------------
+
+/// The node cache shared by the TRV units: takes one L1 miss per cycle (round robin),
+/// answers hits after its latency and misses when DRAM returns the line; requests for a
+/// line already being fetched wait in its MSHR.
+pub(crate) struct NodeL2 {
+    out: BinaryHeap<Reverse<(Cycle, u32, u64)>>,
+    mem_q: VecDeque<u64>,
+    rr: RoundRobin,
+    line: u32,
+    ready: Vec<crate::kernel::cache::Ready<u32>>,
+}
+
+impl NodeL2 {
+    pub fn new(line: u32, trv_units: usize) -> Self {
+        Self {
+            line,
+            out: BinaryHeap::new(),
+            mem_q: VecDeque::new(),
+            rr: RoundRobin::new(trv_units, 1).expect("at least one TRV"),
+            ready: Vec::new(),
+        }
+    }
+}
+
+const L2_STALLS: &[&str] = &["fill_full", "refused"];
+
+impl<'a> Unit<RtWorld<'a>> for NodeL2 {
+    fn name(&self) -> &str {
+        "node_cache"
+    }
+
+    fn stall_reasons(&self) -> &'static [&'static str] {
+        L2_STALLS
+    }
+
+    fn step(&mut self, w: &mut RtWorld<'a>, cx: &mut Ctx) -> Wake {
+        let now = cx.now();
+        if w.livelock.is_some() {
+            while w.mem.pop(cx).is_some() {}
+            cx.set_state(State::Idle);
+            return Wake::Done;
+        }
+        while let Some(r) = w.mem.pop(cx) {
+            self.ready.clear();
+            w.l2.fill(r.tag, now, &mut self.ready)
+                .expect("the node cache fetched this line");
+            for rd in &self.ready {
+                self.out.push(Reverse((rd.ready_at, rd.tag, r.tag)));
+            }
+        }
+        send_lines(&mut w.mem, cx, &mut self.mem_q, self.line);
+        let mut state = State::Idle;
+        let mut fill_blocked = false;
+        while let Some(&Reverse((t, trv, line))) = self.out.peek() {
+            if t > now {
+                break;
+            }
+            if w.fill[trv as usize].push(cx, line).is_err() {
+                fill_blocked = true;
+                state = State::Stalled(0);
+                break;
+            }
+            self.out.pop();
+        }
+        let (cache, out, mem_q, miss) = (&mut w.l2, &mut self.out, &mut self.mem_q, &mut w.miss);
+        let mut refused = false;
+        let granted = self.rr.arbitrate(|t| {
+            let Some(&line) = miss[t].peek(cx) else {
+                return Offer::Nothing;
+            };
+            match cache.access(
+                line,
+                cache.config().line_bytes,
+                AccessKind::Read,
+                Some(t as u32),
+                now,
+            ) {
+                Access::Hit { ready_at } => out.push(Reverse((ready_at, t as u32, line))),
+                Access::Miss { fetch } => mem_q.extend(fetch.into_iter().flatten()),
+                Access::MergedMiss => {}
+                _ => {
+                    refused = true;
+                    return Offer::Refused;
+                }
+            }
+            miss[t].pop(cx);
+            Offer::Granted
+        });
+        if granted > 0 {
+            send_lines(&mut w.mem, cx, &mut self.mem_q, self.line);
+            state = State::Busy;
+        } else if refused {
+            state = State::Stalled(1);
+        }
+        cx.set_state(state);
+        let inputs = w.miss.iter().any(|f| f.can_pop(cx));
+        match self.out.peek() {
+            _ if granted > 0 || inputs || !self.mem_q.is_empty() => Wake::Next,
+            Some(&Reverse((t, _, _))) if !fill_blocked => Wake::At(t.max(now + 1)),
+            Some(_) => Wake::OnEvent,
+            None if w.l2.mshrs_in_use() > 0 => Wake::OnEvent,
+            None => Wake::Done,
+        }
+    }
+
+    fn describe(&self, w: &RtWorld<'a>) -> String {
+        format!(
+            "{} fills waiting, {} line reads queued, {} MSHRs in use",
+            self.out.len(),
+            self.mem_q.len(),
+            w.l2.mshrs_in_use()
+        )
+    }
+}
+
+/// A TRV's input FIFOs and a unit id helper for building the world.
+pub(crate) fn unit_ids(trv_units: usize) -> (UnitId, Vec<UnitId>, UnitId, UnitId) {
+    let trvs = (0..trv_units).map(|i| UnitId(1 + i as u32)).collect();
+    (
+        UnitId(0),
+        trvs,
+        UnitId(1 + trv_units as u32),
+        UnitId(2 + trv_units as u32),
+    )
+}
