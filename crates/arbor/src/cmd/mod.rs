@@ -14,6 +14,7 @@ pub mod report_cbvh;
 pub mod report_cbvh_runtime;
 pub mod report_cbvh_trace;
 pub mod report_mergetree;
+pub mod report_rtunit;
 pub mod sim;
 pub mod sim_dram;
 pub mod sim_mergetree;

@@ -25,6 +25,9 @@ enum ReportKind {
     /// three memory systems, SAH of the HLBVH family and binned SAH, and the traffic of
     /// the comparison models.
     Mergetree(super::report_mergetree::ReportMergetreeArgs),
+    /// \[P4\] Table 2: the ray-tracing accelerator with BVH and MBVH4, primary and
+    /// diffuse rays, performance and DRAM traffic beside the thesis's.
+    Rtunit(super::report_rtunit::ReportRtunitArgs),
 }
 
 /// Runs `arbor report`.
@@ -32,6 +35,7 @@ pub fn run(a: &ReportArgs, ui: &Ui) -> anyhow::Result<()> {
     match &a.kind {
         ReportKind::Cbvh(r) => super::report_cbvh::run(r, ui),
         ReportKind::Mergetree(r) => super::report_mergetree::run(r, ui),
+        ReportKind::Rtunit(r) => super::report_rtunit::run(r, ui),
     }
 }
 

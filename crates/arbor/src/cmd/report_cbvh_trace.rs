@@ -86,7 +86,7 @@ impl QualityRow {
 }
 
 /// Triangles and camera of a report scene spec: the scene's camera, or the interior one.
-fn load_traced(spec: &str) -> anyhow::Result<(String, Vec<Triangle>, scene::Camera)> {
+pub(super) fn load_traced(spec: &str) -> anyhow::Result<(String, Vec<Triangle>, scene::Camera)> {
     let (name, tris, camera) = load_triangles(spec)?;
     let camera = super::report::view_camera(&name, camera);
     Ok((name, tris, camera))

@@ -75,6 +75,14 @@ pub fn run_rtunit(a: &RtunitArgs, ui: &Ui) -> anyhow::Result<()> {
     };
     let cfg = config_of(a)?;
     cfg.validate(kind)?;
+    anyhow::ensure!(
+        a.width as u64 * a.height as u64 <= rtunit::MAX_PIXELS,
+        "a {}x{} image has more than {} pixels, the most one run traces",
+        a.width,
+        a.height,
+        rtunit::MAX_PIXELS
+    );
+    anyhow::ensure!(a.sample >= 1, "--sample must be at least 1");
     if let Some(t) = a.time {
         anyhow::ensure!(
             t.is_finite(),

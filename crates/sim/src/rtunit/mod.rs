@@ -43,6 +43,7 @@
 
 mod config;
 mod model;
+pub mod report;
 #[cfg(test)]
 mod tests;
 mod tree;
@@ -309,13 +310,17 @@ pub fn sampled_pixels(width: u32, height: u32, sample: u32) -> Vec<u32> {
 fn sample_plan(width: u32, height: u32, sample: u32) -> (Vec<u32>, Vec<(usize, Vec<u32>)>) {
     let k = sample.max(1);
     let (tw, th) = (width.div_ceil(TILE), height.div_ceil(TILE));
+    let chunks = ((tw * th) as u64).div_ceil(SAMPLE_CHUNK_TILES as u64);
     let mut timed = Vec::new();
     let mut warm = Vec::new();
     let mut skipped = Vec::new();
     for ty in 0..th {
         for tx in 0..tw {
             let c = ((ty * tw + tx) / SAMPLE_CHUNK_TILES) as u64;
-            let keep = c % k as u64 == trace::sampling::mix64(c / k as u64) % k as u64;
+            let (g, k) = (c / k as u64, k as u64);
+            // The last run of chunks may be short: its chunk is drawn among those it has.
+            let run_len = k.min(chunks - g * k);
+            let keep = c % k == trace::sampling::mix64(g) % run_len;
             let start = timed.len();
             let out = if keep { &mut timed } else { &mut skipped };
             for y in ty * TILE..((ty + 1) * TILE).min(height) {

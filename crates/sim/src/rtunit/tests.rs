@@ -277,7 +277,7 @@ fn sampled_pixels_cover_one_chunk_in_k_and_warm_with_the_rest() {
     // of 16 tiles (chunk 7 holds the last 8 tiles).
     let (w, h) = (320, 20);
     let chunk = |p: u32| (((p / w) / 8) * 40 + (p % w) / 8) / SAMPLE_CHUNK_TILES;
-    for k in [2, 3, 8] {
+    for k in [2, 3, 8, 16] {
         let (timed, warm) = sample_plan(w, h, k);
         assert_eq!(timed, sampled_pixels(w, h, k));
         let chunks: std::collections::BTreeSet<u32> = timed.iter().map(|&p| chunk(p)).collect();
@@ -286,7 +286,12 @@ fn sampled_pixels_cover_one_chunk_in_k_and_warm_with_the_rest() {
         let mut dedup = runs.clone();
         dedup.dedup();
         assert_eq!(runs, dedup, "k = {k}: one chunk per run");
-        assert!(chunks.len() as u32 >= 8 / k, "k = {k}: {chunks:?}");
+        // One chunk per run of k, the last run (maybe short) included.
+        assert_eq!(
+            chunks.len() as u32,
+            8_u32.div_ceil(k),
+            "k = {k}: {chunks:?}"
+        );
         // Every pixel is timed, warmed before a later timed chunk, or lies after the
         // last timed chunk; none twice.
         let mut seen: Vec<u32> = timed.clone();

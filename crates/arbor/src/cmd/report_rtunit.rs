@@ -1,0 +1,178 @@
+//! `arbor report rtunit`: \[P4\] Table 2 from the accelerator model (`sim::rtunit`): the
+//! BVH and MBVH4 accelerators on each scene with primary rays and diffuse paths, beside
+//! the thesis's figures, and a check of pixel sampling against whole frames. The table is
+//! library code (`sim::rtunit::report`); this command loads the scenes and writes:
+//! - `table2.md` / `table2.csv` / `table2.json`: the table;
+//! - `sampling.md`: the first whole-frame scene sampled one in `--check-sample` tile
+//!   chunks, against its whole-frame figures;
+//! - `report.md`: both, with the scene list.
+
+use super::report::{write_file, SHARED_SCENES};
+use super::report_cbvh_trace::load_traced;
+use super::thousands;
+use crate::progress::{Ui, Unit};
+use sim::rtunit::report::{sampling_check, sampling_markdown, table2, ReportScene};
+use sim::rtunit::RtConfig;
+use std::path::PathBuf;
+
+/// Arguments of `arbor report rtunit`.
+#[derive(clap::Args, Debug)]
+pub struct ReportRtunitArgs {
+    /// Output folder (created if missing).
+    #[arg(long, value_name = "DIR", default_value = "arbor-out/report-rtunit")]
+    out: PathBuf,
+    /// Scenes, comma separated: mesh files or procedural specs. Default: Crytek Sponza
+    /// (the thesis's scene we have) and the procedural stand-ins for Hairball and Rungholt
+    /// at their sizes, plus Conference and Sibenik where they exist.
+    #[arg(long, value_name = "LIST", value_delimiter = ',')]
+    scenes: Option<Vec<String>>,
+    /// Folder of the shared real scenes.
+    #[arg(long, value_name = "DIR", default_value = SHARED_SCENES)]
+    scene_dir: PathBuf,
+    /// Image width.
+    #[arg(long, default_value_t = 1280)]
+    width: u32,
+    /// Image height.
+    #[arg(long, default_value_t = 720)]
+    height: u32,
+    /// Diffuse bounces (thesis P4 3.2: 4).
+    #[arg(long, default_value_t = 4)]
+    bounces: u32,
+    /// Scenes of more than 1M triangles are timed one in N tile chunks (1: whole frames).
+    #[arg(long, default_value_t = 16, value_name = "N")]
+    large_sample: u32,
+    /// The sampling factor of the sampling check (0: no check).
+    #[arg(long, default_value_t = 16, value_name = "N")]
+    check_sample: u32,
+    /// Override an accelerator parameter (repeatable), as in `arbor sim rtunit`.
+    #[arg(long = "set", value_name = "KEY=VALUE")]
+    set: Vec<String>,
+}
+
+/// The thesis's scenes our default scenes stand for: (our spec, thesis name, note).
+const DEFAULT_SCENES: [(&str, Option<&str>, &str); 5] = [
+    (
+        "crytek-sponza.ply",
+        Some("Crytek"),
+        "Crytek Sponza (262K triangles), the thesis's scene; interior camera (Arbor's choice, the thesis does not give its view)",
+    ),
+    (
+        "proc:hairball?n=2900000",
+        Some("Hairball"),
+        "procedural stand-in for Hairball (2.9M triangles, not in shared/scenes): thin strands filling a ball",
+    ),
+    (
+        "proc:city?n=6700000",
+        Some("Rungholt"),
+        "procedural stand-in for Rungholt (6.7M triangles, not in shared/scenes): a voxel city",
+    ),
+    ("conference.ply", None, "Conference (283K), not in the thesis's Table 2; interior camera"),
+    ("sibenik.ply", None, "Sibenik (75K), not in the thesis's Table 2; interior camera"),
+];
+
+/// Runs `arbor report rtunit`.
+pub fn run(a: &ReportRtunitArgs, ui: &Ui) -> anyhow::Result<()> {
+    let mut cfg = RtConfig::default();
+    for s in &a.set {
+        cfg.set_pair(s)?;
+    }
+    anyhow::ensure!(a.large_sample >= 1, "--large-sample must be at least 1");
+    let specs: Vec<(String, Option<&'static str>, String)> = match &a.scenes {
+        Some(list) => list
+            .iter()
+            .map(|s| (s.clone(), None, String::new()))
+            .collect(),
+        None => DEFAULT_SCENES
+            .iter()
+            .filter_map(|&(spec, thesis, note)| {
+                let path = if spec.starts_with("proc:") {
+                    spec.to_string()
+                } else {
+                    let p = a.scene_dir.join(spec);
+                    if !p.exists() {
+                        ui.warn(&format!("{} not found: skipped", p.display()));
+                        return None;
+                    }
+                    p.display().to_string()
+                };
+                Some((path, thesis, note.to_string()))
+            })
+            .collect(),
+    };
+    anyhow::ensure!(!specs.is_empty(), "no scenes to report on");
+    std::fs::create_dir_all(&a.out)?;
+    let mut loaded = Vec::new();
+    for (spec, thesis, note) in &specs {
+        let _s = ui.spinner(&format!("loading {spec}"));
+        let (name, tris, camera) = load_traced(spec)?;
+        loaded.push((name, tris, camera, *thesis, note.clone()));
+    }
+    let mut scenes = Vec::new();
+    for (name, tris, camera, thesis, note) in &loaded {
+        let sample = if tris.len() > 1_000_000 {
+            a.large_sample
+        } else {
+            1
+        };
+        scenes.push(ReportScene {
+            name: name.clone(),
+            triangles: tris,
+            camera: trace::PinholeCamera::new(camera, a.width, a.height)?,
+            sample,
+            thesis_scene: *thesis,
+            note: note.clone(),
+        });
+    }
+    let check = a.check_sample > 1 && scenes.iter().any(|s| s.sample == 1);
+    let total = 4 * scenes.len() as u64 + if check { 4 } else { 0 };
+    let bar = ui.progress("accelerator runs (scene, rays, tree)", Unit::Items);
+    let done = std::cell::Cell::new(0u64);
+    let tick = |_what: &str| {
+        bar.update(done.get(), total);
+        done.set(done.get() + 1);
+    };
+    let table = table2(&scenes, &cfg, a.bounces, tick)?;
+    let mut checks = Vec::new();
+    if check {
+        if let Some(s) = scenes.iter().find(|s| s.sample == 1) {
+            checks = sampling_check(&table, s, a.check_sample, &cfg, tick)?;
+        }
+    }
+    bar.update(total, total);
+    bar.finish();
+    let md = table.markdown();
+    write_file(&a.out, "table2.md", &md)?;
+    write_file(&a.out, "table2.csv", &table.csv())?;
+    write_file(
+        &a.out,
+        "table2.json",
+        &serde_json::to_string_pretty(&table)?,
+    )?;
+    let sampling = sampling_markdown(&checks);
+    if !checks.is_empty() {
+        write_file(&a.out, "sampling.md", &sampling)?;
+    }
+    let mut report = String::from("# [P4] Table 2 from Arbor's accelerator model\n\n");
+    report += &md;
+    if !checks.is_empty() {
+        report += &format!(
+            "\n## Pixel sampling\n\nEach run below times one in {} chunks of 16 tiles and warms the caches with the others; errors are against the whole frame.\n\n{sampling}",
+            a.check_sample
+        );
+    }
+    report += "\nScenes:\n";
+    for s in &scenes {
+        report += &format!(
+            "- {} ({} triangles)\n",
+            s.name,
+            thousands(s.triangles.len() as u64)
+        );
+    }
+    write_file(&a.out, "report.md", &report)?;
+    println!("{md}");
+    if !checks.is_empty() {
+        println!("{sampling}");
+    }
+    println!("wrote {}", a.out.join("report.md").display());
+    Ok(())
+}

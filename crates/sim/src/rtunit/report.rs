@@ -1,0 +1,443 @@
+//! The analogue of \[P4\] Table 2 from the accelerator model: per scene and ray kind, the
+//! BVH and MBVH4 accelerators' performance and DRAM traffic, the relative change, and the
+//! thesis's figures beside them (`crate::thesis::P4_TABLE2`), as Markdown, CSV and JSON.
+//! The command line (`arbor report rtunit`) and the Python package call this; they only
+//! load the scenes and write the files.
+//!
+//! Energy per frame and performance per area are \[P4\]'s other columns; they come from the
+//! energy model, which is not part of this module yet, so the table leaves them out and
+//! says so.
+
+use std::fmt::Write as _;
+
+use geom::Triangle;
+use serde::Serialize;
+use trace::PinholeCamera;
+
+use super::{build_tree, run, RayMode, RtConfig, RtError, RtReport, TreeKind, Workload};
+use crate::thesis::{p4_row, P4Row};
+
+/// A scene of the report.
+pub struct ReportScene<'a> {
+    /// Short name.
+    pub name: String,
+    /// Its triangles.
+    pub triangles: &'a [Triangle],
+    /// The camera (its size is the image size).
+    pub camera: PinholeCamera,
+    /// Time one in `sample` tile chunks (1: the whole frame).
+    pub sample: u32,
+    /// The thesis's name of the scene this one is compared with, if any.
+    pub thesis_scene: Option<&'static str>,
+    /// What the scene is (e.g. a stand-in for one of the thesis's).
+    pub note: String,
+}
+
+/// The figures of one run.
+#[derive(Clone, Debug, Serialize)]
+pub struct Figures {
+    /// Million rays per second.
+    pub mrps: f64,
+    /// DRAM traffic of the frame in MB (10^6 bytes; estimated when sampled).
+    pub frame_dram_mb: f64,
+    /// Cycles simulated.
+    pub cycles: u64,
+    /// Rays simulated.
+    pub rays: u64,
+    /// One in `sample` tile chunks timed.
+    pub sample: u32,
+    /// Fraction of the data bus's peak used.
+    pub bus_utilization: f64,
+    /// Deepest stack.
+    pub max_stack_depth: usize,
+    /// Every hit equal to the software tracer's.
+    pub hits_match_software: bool,
+    /// Bytes of the tree's nodes.
+    pub node_bytes: u64,
+    /// Node visits per ray.
+    pub visits_per_ray: f64,
+    /// Triangle tests per ray.
+    pub tests_per_ray: f64,
+    /// Hit rates of the L1, shared node and primitive caches.
+    pub hit_rates: [f64; 3],
+    /// Wall-clock seconds of the simulation.
+    pub wall_seconds: f64,
+}
+
+impl Figures {
+    /// The figures of `r`.
+    pub fn of(r: &RtReport) -> Self {
+        let per = |x: u64| x as f64 / r.rays.max(1) as f64;
+        Self {
+            mrps: r.mrps,
+            frame_dram_mb: r.frame_dram_mb,
+            cycles: r.cycles,
+            rays: r.rays,
+            sample: r.sample,
+            bus_utilization: r.bus_utilization,
+            max_stack_depth: r.max_stack_depth,
+            hits_match_software: r.hits_match_software,
+            node_bytes: r.tree_nodes as u64 * r.tree.node_bytes() as u64,
+            visits_per_ray: per(r.node_visits),
+            tests_per_ray: per(r.triangle_tests),
+            hit_rates: [0, 1, 2].map(|k| r.caches.get(k).map_or(0.0, |c| c.hit_rate)),
+            wall_seconds: r.wall_seconds,
+        }
+    }
+}
+
+/// One row: a scene and ray kind.
+#[derive(Clone, Debug, Serialize)]
+pub struct Row {
+    /// Scene.
+    pub scene: String,
+    /// Triangles.
+    pub triangles: usize,
+    /// "primary" or "diffuse".
+    pub rays: &'static str,
+    /// The BVH accelerator.
+    pub bvh: Figures,
+    /// The MBVH4 accelerator.
+    pub mbvh4: Figures,
+    /// MBVH4's performance over BVH's, in percent.
+    pub perf_change_pct: f64,
+    /// MBVH4's traffic over BVH's, in percent.
+    pub traffic_change_pct: f64,
+    /// The thesis's row it is compared with.
+    pub thesis: Option<P4Row>,
+    /// What the scene is.
+    pub note: String,
+}
+
+/// Relative difference between our change and the thesis's is within this fraction of the
+/// thesis's change (the issue's criterion for agreement).
+pub const AGREEMENT: f64 = 0.25;
+
+impl Row {
+    /// Whether our perf and traffic changes lie within [`AGREEMENT`] of the thesis's.
+    pub fn agrees(&self) -> Option<[bool; 2]> {
+        let t = self.thesis?;
+        let close = |ours: f64, theirs: f64| (ours - theirs).abs() <= AGREEMENT * theirs.abs();
+        Some([
+            close(self.perf_change_pct, t.change_pct[0]),
+            close(self.traffic_change_pct, t.change_pct[3]),
+        ])
+    }
+}
+
+/// The table.
+#[derive(Clone, Debug, Serialize)]
+pub struct Table2 {
+    /// Schema name.
+    pub schema: &'static str,
+    /// Image size.
+    pub width: u32,
+    /// Image height.
+    pub height: u32,
+    /// Diffuse bounces.
+    pub bounces: u32,
+    /// The accelerator's configuration.
+    pub config: RtConfig,
+    /// Rows in scene order, primary then diffuse.
+    pub rows: Vec<Row>,
+}
+
+/// Runs both trees and both ray kinds over every scene. `progress` is told what runs.
+pub fn table2(
+    scenes: &[ReportScene<'_>],
+    cfg: &RtConfig,
+    bounces: u32,
+    mut progress: impl FnMut(&str),
+) -> Result<Table2, RtError> {
+    let mut rows = Vec::new();
+    let (mut width, mut height) = (0, 0);
+    for s in scenes {
+        width = s.camera.width();
+        height = s.camera.height();
+        let trees = [
+            build_tree(TreeKind::Bvh2, s.triangles)?,
+            build_tree(TreeKind::Mbvh4, s.triangles)?,
+        ];
+        for (rays, name) in [(RayMode::Primary, "primary"), (RayMode::Diffuse, "diffuse")] {
+            let work = Workload {
+                triangles: s.triangles,
+                camera: &s.camera,
+                rays,
+                bounces,
+                seed: 1,
+                sample: s.sample,
+                progress: None,
+            };
+            let mut figs = Vec::new();
+            for t in &trees {
+                progress(&format!("{} {name} {}", s.name, t.kind.name()));
+                figs.push(Figures::of(&run(t, &work, cfg)?));
+            }
+            let mbvh4 = figs.pop().expect("two runs");
+            let bvh = figs.pop().expect("two runs");
+            rows.push(Row {
+                scene: s.name.clone(),
+                triangles: s.triangles.len(),
+                rays: name,
+                perf_change_pct: 100.0 * (mbvh4.mrps / bvh.mrps - 1.0),
+                traffic_change_pct: 100.0 * (mbvh4.frame_dram_mb / bvh.frame_dram_mb - 1.0),
+                bvh,
+                mbvh4,
+                thesis: s.thesis_scene.and_then(|t| p4_row(t, name)).copied(),
+                note: s.note.clone(),
+            });
+        }
+    }
+    Ok(Table2 {
+        schema: "arbor.report.rtunit.v1",
+        width,
+        height,
+        bounces,
+        config: cfg.clone(),
+        rows,
+    })
+}
+
+fn pct(x: f64) -> String {
+    format!("{x:+.0}%")
+}
+
+impl Table2 {
+    /// The table as Markdown, with a legend and a summary.
+    pub fn markdown(&self) -> String {
+        let mut m = String::new();
+        let _ = writeln!(
+            m,
+            "| scene | rays | BVH MRPS | MBVH4 MRPS | perf | thesis perf | BVH MB | MBVH4 MB | traffic | thesis traffic | within 25% (perf, traffic) | thesis MRPS | thesis MB | node MB (BVH, MBVH4) | timed |"
+        );
+        let _ = writeln!(
+            m,
+            "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|"
+        );
+        for r in &self.rows {
+            let (tp, tt, tm, tb) = match r.thesis {
+                Some(t) => (
+                    pct(t.change_pct[0]),
+                    pct(t.change_pct[3]),
+                    format!("{} / {}", t.bvh[0], t.mbvh4[0]),
+                    format!("{} / {}", t.bvh[3], t.mbvh4[3]),
+                ),
+                None => ("".into(), "".into(), "".into(), "".into()),
+            };
+            let agree = match r.agrees() {
+                Some([p, t]) => format!(
+                    "{}, {}",
+                    if p { "yes" } else { "no" },
+                    if t { "yes" } else { "no" }
+                ),
+                None => "".into(),
+            };
+            let timed = if r.bvh.sample == 1 {
+                "full frame".to_string()
+            } else {
+                format!("1/{} of the tiles", r.bvh.sample)
+            };
+            let _ = writeln!(
+                m,
+                "| {} | {} | {:.1} | {:.1} | {} | {tp} | {:.1} | {:.1} | {} | {tt} | {agree} | {tm} | {tb} | {:.1}, {:.1} | {timed} |",
+                r.scene,
+                r.rays,
+                r.bvh.mrps,
+                r.mbvh4.mrps,
+                pct(r.perf_change_pct),
+                r.bvh.frame_dram_mb,
+                r.mbvh4.frame_dram_mb,
+                pct(r.traffic_change_pct),
+                r.bvh.node_bytes as f64 / 1e6,
+                r.mbvh4.node_bytes as f64 / 1e6,
+            );
+        }
+        let _ = writeln!(m);
+        let _ = writeln!(
+            m,
+            "{}x{} pixels, diffuse paths of up to {} bounces after the primary hit, one sample per pixel; \
+             {} MHz, {} TRV units of {} stacks, {} KB L1 per TRV, {} KB node and {} KB primitive caches, {}. \
+             MB = 10^6 bytes per frame (sampled runs: the traffic of the timed tiles times the sampling factor). \
+             Energy per frame and performance per area ([P4] Table 2's other columns) come from the energy model \
+             and are not in this table.",
+            self.width,
+            self.height,
+            self.bounces,
+            self.config.clock_mhz,
+            self.config.trv_units,
+            self.config.stacks_per_trv,
+            self.config.l1_bytes >> 10,
+            self.config.l2_bytes >> 10,
+            self.config.prim_bytes >> 10,
+            self.config.dram,
+        );
+        let _ = writeln!(m);
+        for r in &self.rows {
+            if !r.note.is_empty() && r.rays == "primary" {
+                let _ = writeln!(m, "- {}: {}", r.scene, r.note);
+            }
+        }
+        let _ = writeln!(m);
+        for r in &self.rows {
+            let ok = r.mbvh4.frame_dram_mb < r.bvh.frame_dram_mb && r.mbvh4.mrps > r.bvh.mrps;
+            let hits = r.bvh.hits_match_software && r.mbvh4.hits_match_software;
+            let _ = writeln!(
+                m,
+                "- {} {}: MBVH4 {} less traffic and faster than BVH; deepest stack {} (BVH) and {} (MBVH4) of {}; hits equal the software tracer's: {}.",
+                r.scene,
+                r.rays,
+                if ok { "has" } else { "does not have" },
+                r.bvh.max_stack_depth,
+                r.mbvh4.max_stack_depth,
+                self.config.stack_entries,
+                if hits { "yes" } else { "NO" }
+            );
+        }
+        m
+    }
+
+    /// The table as CSV, one line per row and tree.
+    pub fn csv(&self) -> String {
+        let mut c = String::from(
+            "scene,triangles,rays,tree,mrps,frame_dram_mb,cycles,rays_simulated,sample,bus_utilization,max_stack_depth,hits_match_software,node_bytes,visits_per_ray,tests_per_ray,l1_hit_rate,node_hit_rate,prim_hit_rate,thesis_mrps,thesis_mb\n",
+        );
+        for r in &self.rows {
+            for (tree, f, t) in [
+                ("bvh2", &r.bvh, r.thesis.map(|t| t.bvh)),
+                ("mbvh4", &r.mbvh4, r.thesis.map(|t| t.mbvh4)),
+            ] {
+                let (tm, tb) = t.map_or((String::new(), String::new()), |t| {
+                    (t[0].to_string(), t[3].to_string())
+                });
+                let _ = writeln!(
+                    c,
+                    "{},{},{},{tree},{:.3},{:.4},{},{},{},{:.4},{},{},{},{:.3},{:.3},{:.4},{:.4},{:.4},{tm},{tb}",
+                    r.scene,
+                    r.triangles,
+                    r.rays,
+                    f.mrps,
+                    f.frame_dram_mb,
+                    f.cycles,
+                    f.rays,
+                    f.sample,
+                    f.bus_utilization,
+                    f.max_stack_depth,
+                    f.hits_match_software,
+                    f.node_bytes,
+                    f.visits_per_ray,
+                    f.tests_per_ray,
+                    f.hit_rates[0],
+                    f.hit_rates[1],
+                    f.hit_rates[2],
+                );
+            }
+        }
+        c
+    }
+}
+
+/// A sampled run's figures beside the whole frame's, for one scene, tree and ray kind.
+#[derive(Clone, Debug, Serialize)]
+pub struct SamplingCheck {
+    /// Scene.
+    pub scene: String,
+    /// Tree.
+    pub tree: TreeKind,
+    /// Ray kind.
+    pub rays: &'static str,
+    /// Sampling factor.
+    pub sample: u32,
+    /// The whole frame.
+    pub full: Figures,
+    /// The sample.
+    pub sampled: Figures,
+}
+
+impl SamplingCheck {
+    /// Relative errors of the sample's MRPS and traffic against the whole frame's.
+    pub fn errors(&self) -> [f64; 2] {
+        [
+            self.sampled.mrps / self.full.mrps - 1.0,
+            self.sampled.frame_dram_mb / self.full.frame_dram_mb - 1.0,
+        ]
+    }
+}
+
+/// Runs `scene` sampled one in `sample` for both trees and both ray kinds and sets each
+/// beside the full-frame figures of `table` (rows of the same scene, run with sample 1).
+pub fn sampling_check(
+    table: &Table2,
+    scene: &ReportScene<'_>,
+    sample: u32,
+    cfg: &RtConfig,
+    mut progress: impl FnMut(&str),
+) -> Result<Vec<SamplingCheck>, RtError> {
+    let mut out = Vec::new();
+    let trees = [
+        build_tree(TreeKind::Bvh2, scene.triangles)?,
+        build_tree(TreeKind::Mbvh4, scene.triangles)?,
+    ];
+    for row in table
+        .rows
+        .iter()
+        .filter(|r| r.scene == scene.name && r.bvh.sample == 1)
+    {
+        let rays = if row.rays == "primary" {
+            RayMode::Primary
+        } else {
+            RayMode::Diffuse
+        };
+        let work = Workload {
+            triangles: scene.triangles,
+            camera: &scene.camera,
+            rays,
+            bounces: table.bounces,
+            seed: 1,
+            sample,
+            progress: None,
+        };
+        for (t, full) in trees.iter().zip([&row.bvh, &row.mbvh4]) {
+            progress(&format!(
+                "{} {} {} sampled 1/{sample}",
+                scene.name,
+                row.rays,
+                t.kind.name()
+            ));
+            out.push(SamplingCheck {
+                scene: scene.name.clone(),
+                tree: t.kind,
+                rays: row.rays,
+                sample,
+                full: full.clone(),
+                sampled: Figures::of(&run(t, &work, cfg)?),
+            });
+        }
+    }
+    Ok(out)
+}
+
+/// The sampling checks as a Markdown table.
+pub fn sampling_markdown(checks: &[SamplingCheck]) -> String {
+    let mut m = String::from(
+        "| scene | rays | tree | full MRPS | sampled MRPS | error | full MB | sampled MB | error | wall s (full, sampled) |\n|---|---|---|---:|---:|---:|---:|---:|---:|---:|\n",
+    );
+    for c in checks {
+        let [em, et] = c.errors();
+        let _ = writeln!(
+            m,
+            "| {} | {} | {} | {:.1} | {:.1} | {:+.1}% | {:.2} | {:.2} | {:+.1}% | {:.1}, {:.1} |",
+            c.scene,
+            c.rays,
+            c.tree.name(),
+            c.full.mrps,
+            c.sampled.mrps,
+            100.0 * em,
+            c.full.frame_dram_mb,
+            c.sampled.frame_dram_mb,
+            100.0 * et,
+            c.full.wall_seconds,
+            c.sampled.wall_seconds
+        );
+    }
+    m
+}
