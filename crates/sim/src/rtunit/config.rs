@@ -11,6 +11,9 @@ pub enum TreeKind {
     Bvh2,
     /// 4-wide MBVH, 128-byte nodes, from Wald's top-down builder (the proposal).
     Mbvh4,
+    /// Beyond the thesis: the \[P3\] compressed BVH (16-byte node pairs of 6-bit
+    /// coordinates, relative encoding) of the binned SAH tree, decoded in the TRV pipeline.
+    Cbvh,
 }
 
 impl TreeKind {
@@ -19,6 +22,7 @@ impl TreeKind {
         match self {
             TreeKind::Bvh2 => "bvh2",
             TreeKind::Mbvh4 => "mbvh4",
+            TreeKind::Cbvh => "cbvh",
         }
     }
 
@@ -27,24 +31,32 @@ impl TreeKind {
         match s {
             "bvh2" | "bvh" => Ok(TreeKind::Bvh2),
             "mbvh4" => Ok(TreeKind::Mbvh4),
+            "cbvh" => Ok(TreeKind::Cbvh),
             _ => Err(ConfigError(format!(
-                "unknown tree '{s}' (known: bvh2, mbvh4)"
+                "unknown tree '{s}' (known: bvh2, mbvh4, cbvh)"
             ))),
         }
     }
 
-    /// Bytes of one node in memory.
+    /// Bytes of one node in memory (a CBVH node is a node pair at 6 bits).
     pub fn node_bytes(self) -> u32 {
         match self {
             TreeKind::Bvh2 => 64,
             TreeKind::Mbvh4 => 128,
+            TreeKind::Cbvh => 16,
         }
+    }
+
+    /// Node cache line at the thesis's capacity: one node for BVH and MBVH4 ([P4] §3),
+    /// four 16-byte pairs for the CBVH (the 64-byte DRAM granularity of [P3] §5.2).
+    pub fn default_line(self) -> u32 {
+        self.node_bytes().max(64)
     }
 
     /// Children per node.
     pub fn width(self) -> usize {
         match self {
-            TreeKind::Bvh2 => 2,
+            TreeKind::Bvh2 | TreeKind::Cbvh => 2,
             TreeKind::Mbvh4 => 4,
         }
     }
@@ -80,7 +92,8 @@ pub struct RtConfig {
     pub prim_bytes: u64,
     /// Associativity of every cache ([P4] §3: 4).
     pub ways: u32,
-    /// Node cache line in bytes; 0 = one node (64 B BVH, 128 B MBVH4, [P4] §3).
+    /// Node cache line in bytes; 0 = one node (64 B BVH, 128 B MBVH4, [P4] §3; 64 B, four
+    /// node pairs, for the CBVH).
     pub node_line_bytes: u32,
     /// Primitive cache line in bytes ([P4] §3: 64, two interleaved banks).
     pub prim_line_bytes: u32,
@@ -98,6 +111,9 @@ pub struct RtConfig {
     pub trv_stages: u64,
     /// Extra TRV stages of the MBVH4 unit's sorting network ([P4] §3.1: 2).
     pub sort_stages: u64,
+    /// Extra TRV stages of the CBVH unit's box decoder (Arbor's assumption: 2, one for the
+    /// integer arithmetic of [P3] Eq. 3, one for the conversion to floats).
+    pub decode_stages: u64,
     /// IST pipeline depth in cycles (Arbor's assumption for Wald's test with a Markstein
     /// division: 20).
     pub ist_stages: u64,
@@ -145,6 +161,7 @@ pub const KEYS: &[&str] = &[
     "prim_latency",
     "trv_stages",
     "sort_stages",
+    "decode_stages",
     "ist_stages",
     "ist_rays",
     "fifo_entries",
@@ -179,6 +196,7 @@ impl Default for RtConfig {
             prim_latency: 2,
             trv_stages: 6,
             sort_stages: 2,
+            decode_stages: 2,
             ist_stages: 20,
             ist_rays: 16,
             fifo_entries: 32,
@@ -236,6 +254,7 @@ impl RtConfig {
             "prim_latency" => self.prim_latency = num(1, 1000)?,
             "trv_stages" => self.trv_stages = num(1, 1000)?,
             "sort_stages" => self.sort_stages = num(0, 1000)?,
+            "decode_stages" => self.decode_stages = num(0, 1000)?,
             "ist_stages" => self.ist_stages = num(1, 1000)?,
             "ist_rays" => self.ist_rays = num32(1, 4096)?,
             "fifo_entries" => self.fifo_entries = num32(1, 1 << 16)?,
@@ -283,7 +302,7 @@ impl RtConfig {
     /// Node cache line for `tree`.
     pub fn node_line(&self, tree: TreeKind) -> u32 {
         match self.node_line_bytes {
-            0 => tree.node_bytes(),
+            0 => tree.default_line(),
             n => n,
         }
     }
@@ -291,10 +310,10 @@ impl RtConfig {
     /// TRV pipeline depth for `tree`.
     pub fn trv_depth(&self, tree: TreeKind) -> u64 {
         self.trv_stages
-            + if tree == TreeKind::Mbvh4 {
-                self.sort_stages
-            } else {
-                0
+            + match tree {
+                TreeKind::Bvh2 => 0,
+                TreeKind::Mbvh4 => self.sort_stages,
+                TreeKind::Cbvh => self.decode_stages,
             }
     }
 

@@ -269,6 +269,20 @@ pub fn build_tree(kind: TreeKind, triangles: &[Triangle]) -> Result<BuiltTree, R
                 accel: trace::Accel::Bvh2(accel),
             }
         }
+        TreeKind::Cbvh => {
+            let t = bvh::BinnedSahBuilder::default()
+                .build(&aabbs)
+                .map_err(|e| tree_err(&e))?;
+            let (c, _) =
+                cbvh::compress_topdown(&t, &cbvh::Params::default()).map_err(|e| tree_err(&e))?;
+            let image = TreeImage::cbvh(&c, triangles).map_err(|e| tree_err(&e))?;
+            let accel = trace::CbvhAccel::new(&c, triangles, options).map_err(|e| tree_err(&e))?;
+            BuiltTree {
+                kind,
+                image,
+                accel: trace::Accel::Cbvh(accel),
+            }
+        }
         TreeKind::Mbvh4 => {
             let t = bvh::Mbvh4TopDownBuilder::default()
                 .build(&aabbs)
@@ -437,6 +451,7 @@ pub(crate) fn run_with(
         },
         seed: work.seed,
         triangles: work.triangles,
+        root: tree.image.root(),
     };
     let mut world = RtWorld {
         mem: Memory::new(port),
@@ -675,6 +690,7 @@ pub fn check_against_software(
         },
         seed: work.seed,
         triangles: work.triangles,
+        root: tree.image.root(),
     };
     let key = |h: &Option<trace::Hit>| h.map(|h| (h.prim, h.t.to_bits()));
     let mut i = 0;

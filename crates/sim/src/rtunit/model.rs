@@ -72,13 +72,21 @@ pub(crate) struct RaySource<'a> {
     pub bounces: u32,
     pub seed: u64,
     pub triangles: &'a [Triangle],
+    /// The tree's root node.
+    pub root: u32,
 }
 
 impl RaySource<'_> {
     pub fn primary(&self, pixel: u32) -> Slot {
         let w = self.camera.width();
         let ray = self.camera.pixel_ray(pixel % w, pixel / w);
-        Slot::new(ray, pixel, 0, Pcg32::new(self.seed, pixel as u64))
+        Slot::new(
+            ray,
+            pixel,
+            0,
+            Pcg32::new(self.seed, pixel as u64),
+            self.root,
+        )
     }
 
     /// The next ray of the path of `s` after its closest hit, as the renderer makes it.
@@ -94,7 +102,7 @@ impl RaySource<'_> {
         }
         let mut rng = s.rng.clone();
         let ray = trace::bounce_ray(tri, n, &h, &mut rng);
-        Some(Slot::new(ray, s.pixel, s.bounce + 1, rng))
+        Some(Slot::new(ray, s.pixel, s.bounce + 1, rng, self.root))
     }
 }
 
@@ -106,17 +114,22 @@ impl Slot {
             0,
             0,
             Pcg32::new(0, 0),
+            0,
         )
     }
 
-    fn new(ray: Ray, pixel: u32, bounce: u8, rng: Pcg32) -> Self {
+    fn new(ray: Ray, pixel: u32, bounce: u8, rng: Pcg32, root: u32) -> Self {
         let finite = geom::is_finite3(ray.origin) && geom::is_finite3(ray.dir);
         Self {
             pre: RayPrecomp::new(&ray),
             best: None,
             best_t: ray.t_max,
             stack: Vec::new(),
-            next: if finite { Next::Fetch(0) } else { Next::Done },
+            next: if finite {
+                Next::Fetch(root)
+            } else {
+                Next::Done
+            },
             ist_pos: 0,
             ray,
             pixel,

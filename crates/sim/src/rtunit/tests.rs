@@ -29,7 +29,7 @@ fn work<'a>(tris: &'a [Triangle], cam: &'a PinholeCamera, rays: RayMode) -> Work
 #[test]
 fn hits_equal_the_software_tracer_for_every_tree_and_ray_kind() {
     let (tris, cam) = scene("proc:hairball?n=2000&seed=3", 48, 32);
-    for kind in [TreeKind::Bvh2, TreeKind::Mbvh4] {
+    for kind in [TreeKind::Bvh2, TreeKind::Mbvh4, TreeKind::Cbvh] {
         let tree = build_tree(kind, &tris).unwrap();
         for rays in [RayMode::Primary, RayMode::Diffuse] {
             let r = run(&tree, &work(&tris, &cam, rays), &RtConfig::default()).unwrap();
@@ -40,10 +40,6 @@ fn hits_equal_the_software_tracer_for_every_tree_and_ray_kind() {
             );
             assert!(r.rays >= 48 * 32);
             assert!(r.cycles > 0 && r.dram_bytes_read > 0);
-            eprintln!(
-                "{kind:?} {rays:?}: {} rays {} cycles {:.1} MRPS {} B",
-                r.rays, r.cycles, r.mrps, r.dram_bytes_read
-            );
         }
     }
 }
@@ -56,7 +52,7 @@ fn small() -> (Vec<Triangle>, PinholeCamera) {
 #[test]
 fn skipping_equals_stepping_every_cycle() {
     let (tris, cam) = small();
-    for kind in [TreeKind::Bvh2, TreeKind::Mbvh4] {
+    for kind in [TreeKind::Bvh2, TreeKind::Mbvh4, TreeKind::Cbvh] {
         let tree = build_tree(kind, &tris).unwrap();
         let w = work(&tris, &cam, RayMode::Diffuse);
         let cfg = RtConfig {
@@ -351,6 +347,7 @@ fn one_ray_takes_the_hand_derived_number_of_cycles() {
     for (kind, dram) in [
         (TreeKind::Bvh2, "simple:bw=12.8e9,lat=100"),
         (TreeKind::Mbvh4, "simple:bw=12.8e9,lat=37"),
+        (TreeKind::Cbvh, "simple:bw=12.8e9,lat=61"),
     ] {
         let tree = build_tree(kind, &tris).unwrap();
         let mut cfg = RtConfig::default();

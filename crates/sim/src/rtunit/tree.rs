@@ -26,6 +26,7 @@ pub struct TreeImage {
     prims: Vec<u32>,
     node_bytes: u64,
     triangle_base: u64,
+    root: u32,
 }
 
 /// Alignment of the triangle array: a DRAM page (any value that is a multiple of every
@@ -45,7 +46,56 @@ impl TreeImage {
             prims: prims.to_vec(),
             node_bytes,
             triangle_base: (count * node_bytes).div_ceil(TRIANGLE_ALIGN) * TRIANGLE_ALIGN,
+            root: 0,
         }
+    }
+
+    /// A compressed tree: node `i` of the image is pair `i` of `c` (16 bytes at 6 bits,
+    /// [`TreeKind::Cbvh`]), holding the child boxes the TRV unit's decoder produces (the
+    /// `cbvh` crate's own decoder, so the boxes are those the software CBVH kernel tests).
+    pub fn cbvh(c: &cbvh::Cbvh, triangles: &[Triangle]) -> Result<Self, cbvh::CbvhError> {
+        let mut nodes = vec![bvh::Node::EMPTY; c.pairs.len()];
+        let mut seen = vec![false; c.pairs.len()];
+        let mut stack = vec![(c.root, c.root_ctx)];
+        while let Some((idx, ctx)) = stack.pop() {
+            let (Some(pair), Some(s)) = (c.pairs.get(idx as usize), seen.get_mut(idx as usize))
+            else {
+                return Err(cbvh::CbvhError::Corrupt(format!(
+                    "pointer {idx} outside the tree"
+                )));
+            };
+            if std::mem::replace(s, true) {
+                return Err(cbvh::CbvhError::Corrupt("a pair reached twice".into()));
+            }
+            let kids = c.decode_children(idx, &ctx)?;
+            let mut node = bvh::Node::EMPTY;
+            for k in 0..2 {
+                let Some(kc) = kids[k] else { continue };
+                node.set_child_aabb(k, &kc.aabb());
+                node.children[k] = match cbvh::codec::slot_ptr(&pair.slots[k]) {
+                    cbvh::codec::ChildPtr::Leaf(first) => {
+                        let (f, n) = c.leaf_range(first)?;
+                        ChildRef::leaf(f, n)
+                    }
+                    cbvh::codec::ChildPtr::Inner(p) => {
+                        stack.push((p, kc));
+                        ChildRef::inner(p)
+                    }
+                    cbvh::codec::ChildPtr::Empty => ChildRef::EMPTY,
+                };
+            }
+            nodes[idx as usize] = node;
+        }
+        let prims = c.decode_to_bvh2()?.prim_indices;
+        let mut image = Self::with(Nodes::Bvh2(nodes), &prims, triangles, TreeKind::Cbvh);
+        image.root = c.root;
+        Ok(image)
+    }
+
+    /// The root node.
+    #[inline]
+    pub fn root(&self) -> u32 {
+        self.root
     }
 
     /// A binary tree over `triangles` (its links already checked by the software tracer).
