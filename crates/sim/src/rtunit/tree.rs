@@ -69,8 +69,8 @@ impl TreeImage {
             }
             let kids = c.decode_children(idx, &ctx)?;
             let mut node = bvh::Node::EMPTY;
-            for k in 0..2 {
-                let Some(kc) = kids[k] else { continue };
+            for (k, kid) in kids.iter().enumerate() {
+                let Some(kc) = *kid else { continue };
                 node.set_child_aabb(k, &kc.aabb());
                 node.children[k] = match cbvh::codec::slot_ptr(&pair.slots[k]) {
                     cbvh::codec::ChildPtr::Leaf(first) => {
