@@ -66,7 +66,7 @@ const DEFAULT_SCENES: [(&str, Option<&str>, &str); 5] = [
         Some("Rungholt"),
         "procedural stand-in for Rungholt (6.7M triangles, not in shared/scenes): a voxel city",
     ),
-    ("conference.ply", None, "Conference (283K), not in the thesis's Table 2; interior camera"),
+    ("conference.ply", None, "Conference (331K), not in the thesis's Table 2; interior camera"),
     ("sibenik.ply", None, "Sibenik (75K), not in the thesis's Table 2; interior camera"),
 ];
 

@@ -19,6 +19,10 @@ pub struct RtunitArgs {
     /// from Wald's top-down builder, the thesis's proposal).
     #[arg(long, default_value = "bvh2")]
     tree: String,
+    /// How the mbvh4 tree is built: topdown (Wald's top-down builder, thesis P4 3.2) or
+    /// collapse (the binned SAH tree collapsed to 4 wide: the same leaves as bvh2).
+    #[arg(long, default_value = "topdown")]
+    mbvh4_builder: String,
     /// Rays: primary or diffuse (1 sample per pixel, --bounces diffuse bounces).
     #[arg(long, default_value = "primary")]
     rays: String,
@@ -73,6 +77,11 @@ pub fn run_rtunit(a: &RtunitArgs, ui: &Ui) -> anyhow::Result<()> {
         "diffuse" => RayMode::Diffuse,
         other => anyhow::bail!("unknown --rays '{other}' (known: primary, diffuse)"),
     };
+    let mbvh4 = match a.mbvh4_builder.as_str() {
+        "topdown" => rtunit::Mbvh4Build::Topdown,
+        "collapse" => rtunit::Mbvh4Build::Collapse,
+        other => anyhow::bail!("unknown --mbvh4-builder '{other}' (known: topdown, collapse)"),
+    };
     let cfg = config_of(a)?;
     cfg.validate(kind)?;
     anyhow::ensure!(
@@ -105,7 +114,7 @@ pub fn run_rtunit(a: &RtunitArgs, ui: &Ui) -> anyhow::Result<()> {
             kind.name(),
             thousands(triangles.len() as u64)
         ));
-        rtunit::build_tree(kind, &triangles)?
+        rtunit::build_tree_with(kind, &triangles, mbvh4)?
     };
     let bar = ui.progress(
         &format!(

@@ -190,16 +190,22 @@ pub struct RtReport {
     pub cycles: u64,
     /// Simulated time in seconds.
     pub seconds: f64,
-    /// Rays traced.
+    /// Rays traced (sampled runs: the rays of the timed tiles).
     pub rays: u64,
-    /// Million rays per second of simulated time.
+    /// Rays simulated in detail (sampled runs add the lead and gap tiles' rays).
+    pub detailed_rays: u64,
+    /// Million rays per second of simulated time (sampled runs: rays retired per cycle
+    /// within the measurement windows, from the first to the last retired ray of each
+    /// timed chunk, at the clock).
     pub mrps: f64,
     /// Bytes read from DRAM.
     pub dram_bytes_read: u64,
     /// Bytes written to DRAM.
     pub dram_bytes_written: u64,
-    /// DRAM traffic of the whole frame in MB (1e6 bytes): the traffic times `sample`
-    /// (exact with `sample` = 1, an estimate otherwise).
+    /// Bytes fetched for misses of rays of timed tiles (all of them with `sample` = 1).
+    pub counted_dram_bytes: u64,
+    /// DRAM traffic of the whole frame in MB (1e6 bytes): exact with `sample` = 1; for a
+    /// sampled run the counted bytes per timed pixel times the frame's pixels.
     pub frame_dram_mb: f64,
     /// Fraction of the data bus's peak used.
     pub bus_utilization: f64,
@@ -247,9 +253,29 @@ pub struct BuiltTree {
     pub accel: trace::Accel,
 }
 
+/// How the MBVH4 is built.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Mbvh4Build {
+    /// Wald's top-down builder (\[P4\] §3.2).
+    Topdown,
+    /// The binned SAH binary tree collapsed to 4 wide (same leaves as the BVH2): a what-if
+    /// that separates the node layout from the builder.
+    Collapse,
+}
+
 /// Builds `kind` over `triangles` as \[P4\] §3.2 does: binned SAH for BVH, Wald's top-down
 /// builder for MBVH4 (both with Arbor's defaults: 16 bins, leaves of up to 8).
 pub fn build_tree(kind: TreeKind, triangles: &[Triangle]) -> Result<BuiltTree, RtError> {
+    build_tree_with(kind, triangles, Mbvh4Build::Topdown)
+}
+
+/// [`build_tree`] with the MBVH4 built by `mbvh4`.
+pub fn build_tree_with(
+    kind: TreeKind,
+    triangles: &[Triangle],
+    mbvh4: Mbvh4Build,
+) -> Result<BuiltTree, RtError> {
     if triangles.is_empty() {
         return Err(RtError::Tree("the scene has no triangles".into()));
     }
@@ -284,9 +310,17 @@ pub fn build_tree(kind: TreeKind, triangles: &[Triangle]) -> Result<BuiltTree, R
             }
         }
         TreeKind::Mbvh4 => {
-            let t = bvh::Mbvh4TopDownBuilder::default()
-                .build(&aabbs)
-                .map_err(|e| tree_err(&e))?;
+            let t = match mbvh4 {
+                Mbvh4Build::Topdown => bvh::Mbvh4TopDownBuilder::default()
+                    .build(&aabbs)
+                    .map_err(|e| tree_err(&e))?,
+                Mbvh4Build::Collapse => {
+                    let b = bvh::BinnedSahBuilder::default()
+                        .build(&aabbs)
+                        .map_err(|e| tree_err(&e))?;
+                    bvh::collapse(&b).map_err(|e| tree_err(&e))?
+                }
+            };
             let image = TreeImage::mbvh4(&t, triangles);
             let accel = trace::Mbvh4Accel::new(t, triangles, options).map_err(|e| tree_err(&e))?;
             BuiltTree {
@@ -305,49 +339,101 @@ pub const MAX_PIXELS: u64 = 1 << 28;
 pub const TILE: u32 = 8;
 
 /// Tiles per sampling chunk: a sampled run times one in `sample` chunks of this many
-/// consecutive tiles (in issue order) and warms the caches with the others.
+/// consecutive tiles (in issue order).
 pub const SAMPLE_CHUNK_TILES: u32 = 16;
 
-/// The pixels traced, in issue order: 8x8 tiles in rows, pixels in rows within a tile;
+/// Tiles simulated in detail, uncounted, before each timed chunk (they fill the pipeline,
+/// so the chunk starts in steady state): two pipeline-fulls of 128 rays.
+pub const SAMPLE_LEAD_TILES: u32 = 4;
+
+/// The pixels timed, in issue order: 8x8 tiles in rows, pixels in rows within a tile;
 /// with `sample` = k, one chunk ([`SAMPLE_CHUNK_TILES`] consecutive tiles) of each run of
 /// k chunks, at a position drawn from a hash of the run's index (stratified random
 /// sampling: a fixed position would sample the same image columns in every row, and the
 /// traffic of a chunk depends on where it lies: measured on Crytek Sponza, the even and
 /// the odd chunks of k = 2 gave traffic 13% below and above the whole frame's).
 pub fn sampled_pixels(width: u32, height: u32, sample: u32) -> Vec<u32> {
-    sample_plan(width, height, sample).0
+    let p = plan(width, height, sample);
+    p.tiles
+        .iter()
+        .enumerate()
+        .filter(|(_, t)| t.1 == TileMode::Timed)
+        .flat_map(|(i, _)| p.tile_pixels(i).iter().copied())
+        .collect()
 }
 
-/// The timed pixels ([`sampled_pixels`]) and, for each sampled tile after skipped ones,
-/// the index of its first pixel among the timed ones and the skipped pixels before it
-/// (in issue order), which warm the caches functionally.
-fn sample_plan(width: u32, height: u32, sample: u32) -> (Vec<u32>, Vec<(usize, Vec<u32>)>) {
-    let k = sample.max(1);
+/// What the scheduler does with a tile of a sampled run.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum TileMode {
+    /// Simulated and counted.
+    Timed,
+    /// Simulated in detail, not counted: one of the [`SAMPLE_LEAD_TILES`] before a timed
+    /// chunk.
+    Lead,
+    /// Between chunks: simulated in detail (not counted) while rays of the previous timed
+    /// chunk are in flight, then warmed functionally up to the next lead tiles.
+    Gap,
+}
+
+/// The tiles of an image in issue order with their modes.
+#[derive(Clone, Debug)]
+pub(crate) struct Plan {
+    /// Every pixel in issue order.
+    pub pixels: Vec<u32>,
+    /// Per tile: its first index in `pixels` and its mode.
+    pub tiles: Vec<(usize, TileMode)>,
+}
+
+impl Plan {
+    /// The pixels of tile `i`.
+    pub fn tile_pixels(&self, i: usize) -> &[u32] {
+        let end = self.tiles.get(i + 1).map_or(self.pixels.len(), |t| t.0);
+        &self.pixels[self.tiles[i].0..end]
+    }
+}
+
+/// The plan of a run timing one in `sample` chunks.
+pub(crate) fn plan(width: u32, height: u32, sample: u32) -> Plan {
+    let k = sample.max(1) as u64;
     let (tw, th) = (width.div_ceil(TILE), height.div_ceil(TILE));
     let chunks = ((tw * th) as u64).div_ceil(SAMPLE_CHUNK_TILES as u64);
-    let mut timed = Vec::new();
-    let mut warm = Vec::new();
-    let mut skipped = Vec::new();
+    let mut pixels = Vec::with_capacity((width * height) as usize);
+    let mut tiles = Vec::with_capacity((tw * th) as usize);
     for ty in 0..th {
         for tx in 0..tw {
             let c = ((ty * tw + tx) / SAMPLE_CHUNK_TILES) as u64;
-            let (g, k) = (c / k as u64, k as u64);
+            let g = c / k;
             // The last run of chunks may be short: its chunk is drawn among those it has.
             let run_len = k.min(chunks - g * k);
-            let keep = c % k == trace::sampling::mix64(g) % run_len;
-            let start = timed.len();
-            let out = if keep { &mut timed } else { &mut skipped };
+            let timed = c % k == trace::sampling::mix64(g) % run_len;
+            tiles.push((
+                pixels.len(),
+                if timed {
+                    TileMode::Timed
+                } else {
+                    TileMode::Gap
+                },
+            ));
             for y in ty * TILE..((ty + 1) * TILE).min(height) {
                 for x in tx * TILE..((tx + 1) * TILE).min(width) {
-                    out.push(y * width + x);
+                    pixels.push(y * width + x);
                 }
-            }
-            if keep && !skipped.is_empty() {
-                warm.push((start, std::mem::take(&mut skipped)));
             }
         }
     }
-    (timed, warm)
+    // The tiles just before each timed chunk lead into it.
+    let mut lead = 0;
+    for t in tiles.iter_mut().rev() {
+        match t.1 {
+            TileMode::Timed => lead = SAMPLE_LEAD_TILES,
+            _ if lead > 0 => {
+                t.1 = TileMode::Lead;
+                lead -= 1;
+            }
+            _ => {}
+        }
+    }
+    Plan { pixels, tiles }
 }
 
 fn cache(
@@ -439,12 +525,10 @@ pub(crate) fn run_with(
     let l1s = (0..n)
         .map(|_| cache("l1", cfg.l1_bytes, node_line, 1, 1, cfg))
         .collect::<Result<Vec<_>, _>>()?;
-    let (pixels, warm) = sample_plan(width, height, work.sample);
-    let pixel_count = pixels.len() as u64;
+    let plan = plan(width, height, work.sample);
     let source = RaySource {
         camera: work.camera,
-        pixels,
-        warm,
+        plan,
         bounces: match work.rays {
             RayMode::Primary => 0,
             RayMode::Diffuse => work.bounces,
@@ -453,6 +537,7 @@ pub(crate) fn run_with(
         triangles: work.triangles,
         root: tree.image.root(),
     };
+    let scheduler = model::Scheduler::new(cfg, &source.plan);
     let mut world = RtWorld {
         mem: Memory::new(port),
         tree: &tree.image,
@@ -477,6 +562,12 @@ pub(crate) fn run_with(
             cfg,
         )?,
         results: Vec::new(),
+        issued: Vec::new(),
+        counted_bytes: 0,
+        window_rays: 0,
+        window_cycles: 0,
+        counted_rays: 0,
+        counted_pixels: 0,
         overflow: None,
         livelock: None,
         last_finish: 0,
@@ -490,7 +581,7 @@ pub(crate) fn run_with(
         max_cycles: cfg.max_cycles,
         ..Options::default()
     });
-    sched.add(Box::new(model::Scheduler::new(cfg)));
+    sched.add(Box::new(scheduler));
     for i in 0..n {
         sched.add(Box::new(model::Trv::new(
             i,
@@ -599,9 +690,28 @@ pub(crate) fn run_with(
     let cycles = report.cycles;
     let seconds = cycles as f64 / (cfg.clock_mhz as f64 * 1e6);
     let mut results = std::mem::take(&mut world.results);
-    let rays = results.len() as u64;
-    let mismatches = check_against_software(tree, work, &mut results);
+    let detailed_rays = results.len() as u64;
+    let mut mismatches = check_against_software(tree, work, &mut results, &world.issued);
+    if work.sample == 1 {
+        // Every pixel once.
+        mismatches += (width as u64 * height as u64).abs_diff(world.issued.len() as u64);
+    }
     let bytes = memory.bytes_read + memory.bytes_written;
+    let sampled = work.sample > 1;
+    let clock_hz = cfg.clock_mhz as f64 * 1e6;
+    let (rays, mrps, frame_bytes) = if sampled {
+        let per_cycle = world.window_rays as f64 / world.window_cycles.max(1) as f64;
+        let frame = world.counted_bytes as f64 * (width as f64 * height as f64)
+            / world.counted_pixels.max(1) as f64;
+        (world.counted_rays, per_cycle * clock_hz / 1e6, frame)
+    } else {
+        let mrps = if seconds > 0.0 {
+            detailed_rays as f64 / seconds / 1e6
+        } else {
+            0.0
+        };
+        (detailed_rays, mrps, bytes as f64)
+    };
     Ok(RtReport {
         schema: SCHEMA,
         tree: kind,
@@ -614,19 +724,21 @@ pub(crate) fn run_with(
         width,
         height,
         sample: work.sample,
-        pixels: pixel_count,
+        pixels: if sampled {
+            world.counted_pixels
+        } else {
+            world.issued.len() as u64
+        },
         config: cfg.clone(),
         cycles,
         seconds,
         rays,
-        mrps: if seconds > 0.0 {
-            rays as f64 / seconds / 1e6
-        } else {
-            0.0
-        },
+        detailed_rays,
+        mrps,
         dram_bytes_read: memory.bytes_read,
         dram_bytes_written: memory.bytes_written,
-        frame_dram_mb: bytes as f64 * work.sample as f64 / 1e6,
+        counted_dram_bytes: world.counted_bytes,
+        frame_dram_mb: frame_bytes / 1e6,
         bus_utilization: if cycles > 0 {
             bytes as f64 / (peak * cycles as f64)
         } else {
@@ -668,13 +780,15 @@ fn add_stats(a: &mut CacheStats, b: &CacheStats) {
     a.write_throughs += b.write_throughs;
 }
 
-/// Traces every path of `work` with the software tracer over the same tree and counts
-/// the rays whose closest hit (primitive and distance) differs from the model's, or that
-/// one traced and the other did not. Sorts `results` by pixel and bounce.
+/// Traces the paths of `pixels` (the camera pixels the model simulated) with the software
+/// tracer over the same tree and counts the rays whose closest hit (primitive and
+/// distance) differs from the model's, or that one traced and the other did not. Sorts
+/// `results` by pixel and bounce.
 pub fn check_against_software(
     tree: &BuiltTree,
     work: &Workload<'_>,
     results: &mut [RayResult],
+    pixels: &[u32],
 ) -> u64 {
     results.sort_by_key(|r| (r.pixel, r.bounce));
     let mut stack = TraversalStack::new();
@@ -682,8 +796,10 @@ pub fn check_against_software(
     let mut mismatches = 0u64;
     let source = RaySource {
         camera: work.camera,
-        pixels: Vec::new(),
-        warm: Vec::new(),
+        plan: Plan {
+            pixels: Vec::new(),
+            tiles: Vec::new(),
+        },
         bounces: match work.rays {
             RayMode::Primary => 0,
             RayMode::Diffuse => work.bounces,
@@ -694,8 +810,7 @@ pub fn check_against_software(
     };
     let key = |h: &Option<trace::Hit>| h.map(|h| (h.prim, h.t.to_bits()));
     let mut i = 0;
-    let pixels = sampled_pixels(work.camera.width(), work.camera.height(), work.sample);
-    let mut sorted = pixels;
+    let mut sorted = pixels.to_vec();
     sorted.sort_unstable();
     for p in sorted {
         let mut slot = Some(source.primary(p));

@@ -48,6 +48,8 @@ pub(crate) struct Slot {
     pub pixel: u32,
     pub bounce: u8,
     pub rng: Pcg32,
+    /// The ray belongs to a timed tile (its misses and its path are counted).
+    pub counted: bool,
 }
 
 /// One finished ray: which pixel and bounce, and its closest hit.
@@ -64,11 +66,8 @@ pub struct RayResult {
 /// Where rays come from: the camera pixels to trace and how paths continue.
 pub(crate) struct RaySource<'a> {
     pub camera: &'a trace::PinholeCamera,
-    /// The pixels traced by the timing model, in issue order.
-    pub pixels: Vec<u32>,
-    /// Sampled runs: before the camera ray `pixels[k]` is issued, the paths of these
-    /// pixels (the tiles skipped since the previous sampled tile) warm the caches.
-    pub warm: Vec<(usize, Vec<u32>)>,
+    /// The tiles in issue order and what to do with each (sampled runs).
+    pub plan: super::Plan,
     pub bounces: u32,
     pub seed: u64,
     pub triangles: &'a [Triangle],
@@ -102,7 +101,9 @@ impl RaySource<'_> {
         }
         let mut rng = s.rng.clone();
         let ray = trace::bounce_ray(tri, n, &h, &mut rng);
-        Some(Slot::new(ray, s.pixel, s.bounce + 1, rng, self.root))
+        let mut next = Slot::new(ray, s.pixel, s.bounce + 1, rng, self.root);
+        next.counted = s.counted;
+        Some(next)
     }
 }
 
@@ -135,6 +136,7 @@ impl Slot {
             pixel,
             bounce,
             rng,
+            counted: true,
         }
     }
 
@@ -186,14 +188,26 @@ pub(crate) struct RtWorld<'a> {
     pub to_ist: Vec<LatencyFifo<u32>>,
     pub from_ist: Vec<LatencyFifo<u32>>,
     pub done: Vec<LatencyFifo<u32>>,
-    pub miss: Vec<LatencyFifo<u64>>,
+    pub miss: Vec<LatencyFifo<(u64, bool)>>,
     pub fill: Vec<LatencyFifo<u64>>,
     /// The L1 node cache of each TRV unit, the shared node cache, the primitive cache.
     pub l1: Vec<Cache<u32>>,
     pub l2: Cache<u32>,
     pub prim: Cache<u32>,
-    /// Finished rays, in the order they finished.
+    /// Finished rays, in the order they finished (every ray simulated in detail).
     pub results: Vec<RayResult>,
+    /// Camera pixels simulated in detail, in issue order.
+    pub issued: Vec<u32>,
+    /// DRAM bytes fetched for misses of counted rays.
+    pub counted_bytes: u64,
+    /// Sampled runs: rays retired and cycles within the measurement windows (from the
+    /// first retired counted ray of a timed chunk to its last).
+    pub window_rays: u64,
+    pub window_cycles: u64,
+    /// Rays of counted paths retired.
+    pub counted_rays: u64,
+    /// Camera pixels of counted paths.
+    pub counted_pixels: u64,
     pub overflow: Option<Overflow>,
     /// Set when no ray has finished for `livelock_cycles`: every unit stops.
     pub livelock: Option<Cycle>,
@@ -251,6 +265,14 @@ pub(crate) fn trv_of(s: u32, stacks_per_trv: u32) -> usize {
 /// per cycle.
 pub(crate) struct Scheduler {
     next_pixel: usize,
+    /// Tile of `next_pixel`.
+    tile: usize,
+    /// Paths of timed tiles in flight.
+    counted_in_flight: usize,
+    /// Cycle the open measurement window started (sampled runs).
+    window: Option<(Cycle, u64)>,
+    /// Index in `plan.pixels` after the last timed tile.
+    timed_end: usize,
     free: Vec<Vec<u32>>,
     reissue: VecDeque<u32>,
     stacks_per_trv: u32,
@@ -258,15 +280,20 @@ pub(crate) struct Scheduler {
     done_rr: RoundRobin,
     in_flight: usize,
     rays: u64,
-    next_warm: usize,
     warm_rr: usize,
     warm_rays: u64,
     stack: trace::TraversalStack,
 }
 
 impl Scheduler {
-    pub fn new(cfg: &RtConfig) -> Self {
+    pub fn new(cfg: &RtConfig, plan: &super::Plan) -> Self {
         let n = cfg.trv_units as usize;
+        let timed_end = (0..plan.tiles.len())
+            .rev()
+            .find(|&i| plan.tiles[i].1 == super::TileMode::Timed)
+            .map_or(0, |i| {
+                plan.tiles.get(i + 1).map_or(plan.pixels.len(), |t| t.0)
+            });
         let free = (0..n as u32)
             .map(|t| {
                 (0..cfg.stacks_per_trv)
@@ -277,6 +304,10 @@ impl Scheduler {
             .collect();
         Self {
             next_pixel: 0,
+            tile: 0,
+            counted_in_flight: 0,
+            window: None,
+            timed_end,
             free,
             reissue: VecDeque::new(),
             stacks_per_trv: cfg.stacks_per_trv,
@@ -284,10 +315,45 @@ impl Scheduler {
             done_rr: RoundRobin::new(n, 1).expect("at least one TRV"),
             in_flight: 0,
             rays: 0,
-            next_warm: 0,
             warm_rr: 0,
             warm_rays: 0,
             stack: trace::TraversalStack::new(),
+        }
+    }
+}
+
+impl Scheduler {
+    /// Moves the cursor over what need not be simulated in detail: with no ray of a timed
+    /// chunk in flight, the gap tiles up to the next lead tiles are warmed functionally
+    /// (now, so no counted ray sees lines warmed by pixels after it), and after the last
+    /// timed tile nothing more is issued.
+    fn advance(&mut self, w: &mut RtWorld<'_>) {
+        let plan_len = w.source.plan.pixels.len();
+        while let Some(&(start, _)) = w.source.plan.tiles.get(self.tile + 1) {
+            if self.next_pixel < start {
+                break;
+            }
+            self.tile += 1;
+        }
+        if self.counted_in_flight > 0 || self.next_pixel >= plan_len {
+            return;
+        }
+        if self.next_pixel >= self.timed_end {
+            self.next_pixel = plan_len;
+            return;
+        }
+        let first = self.next_pixel;
+        while let Some(&(start, mode)) = w.source.plan.tiles.get(self.tile) {
+            if mode != super::TileMode::Gap {
+                break;
+            }
+            self.tile += 1;
+            self.next_pixel = w.source.plan.tiles.get(self.tile).map_or(plan_len, |t| t.0);
+            let _ = start;
+        }
+        if self.next_pixel > first {
+            let pixels = w.source.plan.pixels[first..self.next_pixel].to_vec();
+            self.warm_rays += warm(w, &pixels, &mut self.warm_rr, &mut self.stack);
         }
     }
 }
@@ -317,6 +383,7 @@ impl<'a> Unit<RtWorld<'a>> for Scheduler {
             self.stacks_per_trv,
         );
         let mut finished = 0;
+        let mut retired: Option<(bool, bool)> = None;
         let (done, slots, results) = (&mut w.done, &mut w.slots, &mut w.results);
         self.done_rr.arbitrate(|t| {
             let Some(s) = done[t].pop(cx) else {
@@ -328,20 +395,51 @@ impl<'a> Unit<RtWorld<'a>> for Scheduler {
                 bounce: slot.bounce,
                 hit: slot.best,
             });
+            let counted = slot.counted;
             finished += 1;
             match source.bounce(slot) {
                 Some(next) => {
                     slots[s as usize] = next;
                     reissue.push_back(s);
+                    retired = Some((counted, false));
                 }
-                None => free[trv_of(s, spt)].push(s),
+                None => {
+                    free[trv_of(s, spt)].push(s);
+                    retired = Some((counted, true));
+                }
             }
             Offer::Granted
         });
-        if finished > 0 {
+        if let Some((counted, path_ended)) = retired {
             worked = true;
             self.in_flight -= finished;
             w.last_finish = cx.now();
+            let now = cx.now();
+            if counted {
+                w.counted_rays += 1;
+                if path_ended {
+                    self.counted_in_flight -= 1;
+                }
+                if self.window.is_none() {
+                    self.window = Some((now, 0));
+                }
+            }
+            if let Some((start, rays)) = self.window.as_mut() {
+                *rays += 1;
+                // The chunk is over when the cursor is not inside a timed tile.
+                let tiles = &w.source.plan.tiles;
+                let at = tiles
+                    .partition_point(|t| t.0 <= self.next_pixel)
+                    .saturating_sub(1);
+                let in_timed = tiles
+                    .get(at)
+                    .is_some_and(|t| t.1 == super::TileMode::Timed && self.next_pixel > t.0);
+                if self.counted_in_flight == 0 && !in_timed {
+                    w.window_rays += *rays;
+                    w.window_cycles += now + 1 - *start;
+                    self.window = None;
+                }
+            }
         }
         // One new ray per cycle: a next bounce first, else a camera ray.
         let mut blocked = false;
@@ -355,23 +453,13 @@ impl<'a> Unit<RtWorld<'a>> for Scheduler {
             } else {
                 blocked = true;
             }
-        } else if self.next_pixel < w.source.pixels.len() {
-            // A sampled run warms the caches with the skipped pixels before the next
-            // sampled chunk, once the rays of the previous one have all finished (else
-            // they would find lines warmed by pixels traced after them, and their misses
-            // would not be counted).
-            let warm_due = w
-                .source
-                .warm
-                .get(self.next_warm)
-                .is_some_and(|(k, _)| *k == self.next_pixel);
-            if warm_due && self.in_flight == 0 {
-                let pixels = std::mem::take(&mut w.source.warm[self.next_warm].1);
-                self.warm_rays += warm(w, &pixels, &mut self.warm_rr, &mut self.stack);
-                self.next_warm += 1;
-            }
-            let draining = warm_due && self.in_flight > 0;
-            let n = if draining { 0 } else { self.free.len() };
+        } else {
+            self.advance(w);
+            let n = if self.next_pixel < w.source.plan.pixels.len() {
+                self.free.len()
+            } else {
+                0
+            };
             let mut any_free = false;
             for k in 0..n {
                 let t = (self.issue_rr + k) % n;
@@ -383,14 +471,21 @@ impl<'a> Unit<RtWorld<'a>> for Scheduler {
                     continue;
                 }
                 let s = self.free[t].pop().expect("checked");
-                w.slots[s as usize] = w.source.primary(w.source.pixels[self.next_pixel]);
+                let pixel = w.source.plan.pixels[self.next_pixel];
+                let mut slot = w.source.primary(pixel);
+                slot.counted = w.source.plan.tiles[self.tile].1 == super::TileMode::Timed;
+                if slot.counted {
+                    self.counted_in_flight += 1;
+                    w.counted_pixels += 1;
+                }
+                w.slots[s as usize] = slot;
+                w.issued.push(pixel);
                 w.new_ray[t].push(cx, s).expect("checked not full");
                 self.next_pixel += 1;
                 if let Some(p) = w.progress {
-                    if self.next_pixel.is_multiple_of(4096)
-                        || self.next_pixel == w.source.pixels.len()
-                    {
-                        p(self.next_pixel as u64, w.source.pixels.len() as u64);
+                    let total = w.source.plan.pixels.len();
+                    if self.next_pixel.is_multiple_of(4096) || self.next_pixel == total {
+                        p(self.next_pixel as u64, total as u64);
                     }
                 }
                 self.in_flight += 1;
@@ -408,17 +503,12 @@ impl<'a> Unit<RtWorld<'a>> for Scheduler {
         } else {
             State::Idle
         });
-        let draining = w
-            .source
-            .warm
-            .get(self.next_warm)
-            .is_some_and(|(k, _)| *k == self.next_pixel);
-        let more_in = !self.reissue.is_empty()
-            || (self.next_pixel < w.source.pixels.len()
-                && !draining
-                && self.free.iter().any(|f| !f.is_empty()));
+        self.advance(w);
+        let pixels_left = self.next_pixel < w.source.plan.pixels.len();
+        let more_in =
+            !self.reissue.is_empty() || (pixels_left && self.free.iter().any(|f| !f.is_empty()));
         let done_visible = w.done.iter().any(|f| f.can_pop(cx));
-        let all_done = !more_in && self.in_flight == 0 && self.next_pixel == w.source.pixels.len();
+        let all_done = !more_in && self.in_flight == 0 && !pixels_left;
         if all_done {
             Wake::Done
         } else if worked || done_visible || (more_in && !blocked) {
@@ -433,7 +523,7 @@ impl<'a> Unit<RtWorld<'a>> for Scheduler {
             "{} rays in flight, {} of {} camera rays issued, {} bounces waiting",
             self.in_flight,
             self.next_pixel,
-            w.source.pixels.len(),
+            w.source.plan.pixels.len(),
             self.reissue.len()
         )
     }
@@ -657,8 +747,11 @@ impl<'a> Unit<RtWorld<'a>> for Trv {
                                 state = State::Busy;
                             }
                             Access::Miss { fetch } => {
+                                let counted = w.slots[s as usize].counted;
                                 for line in fetch.into_iter().flatten() {
-                                    w.miss[i].push(cx, line).expect("checked not full");
+                                    w.miss[i]
+                                        .push(cx, (line, counted))
+                                        .expect("checked not full");
                                 }
                                 self.loops += 1;
                                 state = State::Stalled(0);
@@ -855,6 +948,10 @@ impl<'a> Unit<RtWorld<'a>> for Ist {
                 }
                 a => {
                     if let Access::Miss { fetch } = a {
+                        if w.slots[s as usize].counted {
+                            let lines = fetch.iter().flatten().count() as u64;
+                            w.counted_bytes += lines * self.line as u64;
+                        }
                         self.mem_q.extend(fetch.into_iter().flatten());
                         send_lines(&mut w.mem, cx, &mut self.mem_q, self.line);
                     }
@@ -994,9 +1091,11 @@ impl<'a> Unit<RtWorld<'a>> for NodeL2 {
             self.out.pop();
         }
         let (cache, out, mem_q, miss) = (&mut w.l2, &mut self.out, &mut self.mem_q, &mut w.miss);
+        let counted_bytes = &mut w.counted_bytes;
+        let line_bytes = self.line;
         let mut refused = false;
         let granted = self.rr.arbitrate(|t| {
-            let Some(&line) = miss[t].peek(cx) else {
+            let Some(&(line, counted)) = miss[t].peek(cx) else {
                 return Offer::Nothing;
             };
             match cache.access(
@@ -1007,7 +1106,12 @@ impl<'a> Unit<RtWorld<'a>> for NodeL2 {
                 now,
             ) {
                 Access::Hit { ready_at } => out.push(Reverse((ready_at, t as u32, line))),
-                Access::Miss { fetch } => mem_q.extend(fetch.into_iter().flatten()),
+                Access::Miss { fetch } => {
+                    if counted {
+                        *counted_bytes += fetch.iter().flatten().count() as u64 * line_bytes as u64;
+                    }
+                    mem_q.extend(fetch.into_iter().flatten())
+                }
                 Access::MergedMiss => {}
                 _ => {
                     refused = true;

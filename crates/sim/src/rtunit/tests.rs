@@ -262,44 +262,58 @@ fn fifo_sizing_shrinks_to_the_power_of_two_above_the_high_water() {
 }
 
 #[test]
-fn sampled_pixels_cover_one_chunk_in_k_and_warm_with_the_rest() {
-    let all = sampled_pixels(20, 10, 1);
-    assert_eq!(all.len(), 200);
-    let mut sorted = all.clone();
+fn the_sampling_plan_times_one_chunk_in_k_with_lead_tiles_before_each() {
+    let p = plan(20, 10, 1);
+    assert!(p.tiles.iter().all(|t| t.1 == TileMode::Timed));
+    let mut sorted = p.pixels.clone();
     sorted.sort_unstable();
-    sorted.dedup();
-    assert_eq!(sorted.len(), 200, "every pixel once");
+    assert_eq!(sorted, (0..200).collect::<Vec<_>>(), "every pixel once");
+    assert_eq!(sampled_pixels(20, 10, 1), p.pixels);
     // 40 x 3 tiles of 8x8 (the last tile row clipped to 4 pixels): 120 tiles, chunks 0..8
     // of 16 tiles (chunk 7 holds the last 8 tiles).
     let (w, h) = (320, 20);
-    let chunk = |p: u32| (((p / w) / 8) * 40 + (p % w) / 8) / SAMPLE_CHUNK_TILES;
     for k in [2, 3, 8, 16] {
-        let (timed, warm) = sample_plan(w, h, k);
-        assert_eq!(timed, sampled_pixels(w, h, k));
-        let chunks: std::collections::BTreeSet<u32> = timed.iter().map(|&p| chunk(p)).collect();
-        // Exactly one chunk of each run of k chunks (the last run may be cut short).
-        let runs: Vec<u32> = chunks.iter().map(|c| c / k).collect();
-        let mut dedup = runs.clone();
-        dedup.dedup();
-        assert_eq!(runs, dedup, "k = {k}: one chunk per run");
-        // One chunk per run of k, the last run (maybe short) included.
+        let p = plan(w, h, k);
+        let mut sorted = p.pixels.clone();
+        sorted.sort_unstable();
         assert_eq!(
-            chunks.len() as u32,
-            8_u32.div_ceil(k),
-            "k = {k}: {chunks:?}"
+            sorted,
+            (0..w * h).collect::<Vec<_>>(),
+            "k = {k}: every pixel once"
         );
-        // Every pixel is timed, warmed before a later timed chunk, or lies after the
-        // last timed chunk; none twice.
-        let mut seen: Vec<u32> = timed.clone();
-        for (at, pixels) in &warm {
-            assert!(*at < timed.len() && !pixels.is_empty());
-            assert!(pixels.iter().all(|&p| chunk(p) < chunk(timed[*at])));
-            seen.extend(pixels);
+        let timed: Vec<usize> = (0..p.tiles.len())
+            .filter(|&i| p.tiles[i].1 == TileMode::Timed)
+            .collect();
+        let chunks: std::collections::BTreeSet<usize> = timed.iter().map(|t| t / 16).collect();
+        // Exactly one chunk of each run of k chunks, the last (maybe short) run included,
+        // and every tile of a timed chunk timed.
+        let runs: Vec<usize> = chunks.iter().map(|c| c / k as usize).collect();
+        assert_eq!(
+            runs,
+            (0..8usize.div_ceil(k as usize)).collect::<Vec<_>>(),
+            "k = {k}"
+        );
+        for c in &chunks {
+            let tiles = (c * 16..(c * 16 + 16).min(120)).collect::<Vec<_>>();
+            assert!(
+                tiles.iter().all(|t| timed.contains(t)),
+                "k = {k}: chunk {c}"
+            );
         }
-        let last = *chunks.iter().max().unwrap();
-        seen.extend((0..w * h).filter(|&p| chunk(p) > last));
-        seen.sort_unstable();
-        assert_eq!(seen, (0..w * h).collect::<Vec<_>>(), "k = {k}");
+        // The lead tiles are the SAMPLE_LEAD_TILES untimed tiles before each timed run.
+        for i in 0..p.tiles.len() {
+            let next_timed = (i + 1..p.tiles.len()).find(|&j| p.tiles[j].1 == TileMode::Timed);
+            let lead = p.tiles[i].1 != TileMode::Timed
+                && next_timed.is_some_and(|j| {
+                    j - i <= SAMPLE_LEAD_TILES as usize
+                        && (i + 1..j).all(|m| p.tiles[m].1 != TileMode::Timed)
+                });
+            assert_eq!(p.tiles[i].1 == TileMode::Lead, lead, "k = {k}, tile {i}");
+        }
+        assert_eq!(
+            sampled_pixels(w, h, k).len(),
+            timed.iter().map(|&t| p.tile_pixels(t).len()).sum::<usize>()
+        );
     }
 }
 
@@ -401,4 +415,10 @@ fn a_sampled_run_warms_the_caches_and_stays_exact() {
     let sched = &a.units[0].counters;
     let warmed = sched.iter().find(|(k, _)| k == "warming_rays").unwrap().1;
     assert!(warmed > 0, "skipped chunks warm the caches");
+    assert!(
+        a.detailed_rays > a.rays,
+        "lead and gap tiles are simulated uncounted"
+    );
+    assert!(a.counted_dram_bytes <= a.dram_bytes_read);
+    assert!(a.mrps > 0.0 && a.frame_dram_mb > 0.0);
 }
