@@ -11,13 +11,7 @@ use serde_json::Value;
 fn dram_json(args: &[&str]) -> Value {
     let mut a = vec!["sim", "dram", "--json", "--quiet"];
     a.extend_from_slice(args);
-    let out = arbor(&a);
-    assert!(
-        out.status.success(),
-        "arbor {a:?} failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("valid JSON")
+    common::json_of(&a)
 }
 
 #[test]

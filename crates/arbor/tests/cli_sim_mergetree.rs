@@ -14,13 +14,7 @@ const CLOTH: &str = "proc:cloth?n=20000";
 fn sim_json(args: &[&str]) -> Value {
     let mut a = vec!["sim", "mergetree", "--json", "--quiet"];
     a.extend_from_slice(args);
-    let out = arbor(&a);
-    assert!(
-        out.status.success(),
-        "arbor {a:?} failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("valid JSON")
+    common::json_of(&a)
 }
 
 /// Runs `arbor sim mergetree ARGS` expecting failure; returns stderr.

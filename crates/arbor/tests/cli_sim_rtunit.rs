@@ -4,7 +4,7 @@
 #[allow(dead_code)]
 mod common;
 
-use common::{arbor, error};
+use common::{arbor, error, json_of};
 use serde_json::Value;
 
 const CITY: &str = "proc:city?n=3000&seed=2";
@@ -14,13 +14,7 @@ fn rt_json(args: &[&str]) -> Value {
         "sim", "rtunit", "--json", "--quiet", CITY, "--width", "48", "--height", "32",
     ];
     a.extend_from_slice(args);
-    let out = arbor(&a);
-    assert!(
-        out.status.success(),
-        "arbor {a:?} failed: {}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    serde_json::from_slice(&out.stdout).expect("valid JSON")
+    json_of(&a)
 }
 
 #[test]

@@ -16,7 +16,13 @@ pub fn arbor(args: &[&str]) -> Output {
 pub fn json(command: &str, args: &[&str]) -> Value {
     let mut a = vec![command, "--json", "--quiet"];
     a.extend_from_slice(args);
-    let out = arbor(&a);
+    json_of(&a)
+}
+
+/// Runs `arbor ARGS` (which ask for JSON) and parses its output, failing with stderr.
+#[allow(dead_code)]
+pub fn json_of(a: &[&str]) -> Value {
+    let out = arbor(a);
     assert!(
         out.status.success(),
         "arbor {a:?} failed: {}",

@@ -525,18 +525,7 @@ pub(crate) fn run_with(
     let l1s = (0..n)
         .map(|_| cache("l1", cfg.l1_bytes, node_line, 1, 1, cfg))
         .collect::<Result<Vec<_>, _>>()?;
-    let plan = plan(width, height, work.sample);
-    let source = RaySource {
-        camera: work.camera,
-        plan,
-        bounces: match work.rays {
-            RayMode::Primary => 0,
-            RayMode::Diffuse => work.bounces,
-        },
-        seed: work.seed,
-        triangles: work.triangles,
-        root: tree.image.root(),
-    };
+    let source = RaySource::new(work, tree.image.root(), plan(width, height, work.sample));
     let scheduler = model::Scheduler::new(cfg, &source.plan);
     let mut world = RtWorld {
         mem: Memory::new(port),
@@ -794,20 +783,11 @@ pub fn check_against_software(
     let mut stack = TraversalStack::new();
     let mut stats = trace::RayStats::default();
     let mut mismatches = 0u64;
-    let source = RaySource {
-        camera: work.camera,
-        plan: Plan {
-            pixels: Vec::new(),
-            tiles: Vec::new(),
-        },
-        bounces: match work.rays {
-            RayMode::Primary => 0,
-            RayMode::Diffuse => work.bounces,
-        },
-        seed: work.seed,
-        triangles: work.triangles,
-        root: tree.image.root(),
+    let no_plan = Plan {
+        pixels: Vec::new(),
+        tiles: Vec::new(),
     };
+    let source = RaySource::new(work, tree.image.root(), no_plan);
     let key = |h: &Option<trace::Hit>| h.map(|h| (h.prim, h.t.to_bits()));
     let mut i = 0;
     let mut sorted = pixels.to_vec();

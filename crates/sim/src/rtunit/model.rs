@@ -75,7 +75,22 @@ pub(crate) struct RaySource<'a> {
     pub root: u32,
 }
 
-impl RaySource<'_> {
+impl<'a> RaySource<'a> {
+    /// The rays of `work` over a tree whose root is `root`, issued as `plan` says.
+    pub fn new(work: &super::Workload<'a>, root: u32, plan: super::Plan) -> Self {
+        Self {
+            camera: work.camera,
+            plan,
+            bounces: match work.rays {
+                super::RayMode::Primary => 0,
+                super::RayMode::Diffuse => work.bounces,
+            },
+            seed: work.seed,
+            triangles: work.triangles,
+            root,
+        }
+    }
+
     pub fn primary(&self, pixel: u32) -> Slot {
         let w = self.camera.width();
         let ray = self.camera.pixel_ray(pixel % w, pixel / w);
