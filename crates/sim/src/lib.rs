@@ -9,6 +9,7 @@
 //! - [`kernel`]: the simulation kernel: units with wake times, the skipping scheduler,
 //!   latency FIFOs, arbiter, tag pools and MSHRs, caches, interval statistics.
 //! - [`dram`]: the memory-port interface and its backends.
+//! - [`energy`]: energy, leakage and area of SRAMs and FPUs (CACTI, Horowitz).
 //! - [`analytic`]: analytic models of the builders MergeTree is compared with.
 //! - [`mergetree`]: the MergeTree HLBVH builder of \[P1\] and \[P2\].
 //! - [`rtunit`]: the ray-tracing accelerator of \[P4\] (TRV and IST pipelines, caches).
@@ -18,6 +19,7 @@
 pub mod analytic;
 pub mod clock;
 pub mod dram;
+pub mod energy;
 pub mod fifo;
 pub mod kernel;
 pub mod mergetree;

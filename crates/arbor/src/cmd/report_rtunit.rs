@@ -2,7 +2,9 @@
 //! BVH and MBVH4 accelerators on each scene with primary rays and diffuse paths, beside
 //! the thesis's figures, and a check of pixel sampling against whole frames. The table is
 //! library code (`sim::rtunit::report`); this command loads the scenes and writes:
-//! - `table2.md` / `table2.csv` / `table2.json`: the table;
+//! - `table2.md` / `table2.csv` / `table2.json`: the table (performance, traffic, energy
+//!   per frame, performance per area);
+//! - `table1.md`: \[P4\] Table 1's analogue (area and power per unit) on the first scene;
 //! - `sampling.md`: the first whole-frame scene sampled one in `--check-sample` tile
 //!   chunks, against its whole-frame figures;
 //! - `report.md`: both, with the scene list.
@@ -142,6 +144,8 @@ pub fn run(a: &ReportRtunitArgs, ui: &Ui) -> anyhow::Result<()> {
     bar.finish();
     let md = table.markdown();
     write_file(&a.out, "table2.md", &md)?;
+    let t1 = table.table1_markdown();
+    write_file(&a.out, "table1.md", &t1)?;
     write_file(&a.out, "table2.csv", &table.csv())?;
     write_file(
         &a.out,
@@ -154,6 +158,8 @@ pub fn run(a: &ReportRtunitArgs, ui: &Ui) -> anyhow::Result<()> {
     }
     let mut report = String::from("# [P4] Table 2 from Arbor's accelerator model\n\n");
     report += &md;
+    report += "\n## [P4] Table 1: area and power\n\n";
+    report += &t1;
     if !checks.is_empty() {
         report += &format!(
             "\n## Pixel sampling\n\nEach run below times one in {} chunks of 16 tiles and warms the caches with the others; errors are against the whole frame.\n\n{sampling}",
@@ -170,6 +176,7 @@ pub fn run(a: &ReportRtunitArgs, ui: &Ui) -> anyhow::Result<()> {
     }
     write_file(&a.out, "report.md", &report)?;
     println!("{md}");
+    println!("{t1}");
     if !checks.is_empty() {
         println!("{sampling}");
     }

@@ -126,6 +126,10 @@ pub struct RtConfig {
     pub fifo_sizes: [u32; 6],
     /// Stop with an error after this many cycles.
     pub max_cycles: u64,
+    /// Process node of the energy and area figures ([P4] §3.2: 45 nm).
+    pub energy_node: crate::energy::Node,
+    /// SRAM cell type of the energy figures (CACTI hp).
+    pub sram_cell: crate::energy::Cell,
     /// Stop with an error when no ray has finished for this many cycles (rays that loop
     /// for ever because the caches cannot hold a line until its ray comes back).
     pub livelock_cycles: u64,
@@ -173,6 +177,8 @@ pub const KEYS: &[&str] = &[
     "fifo_l2_l1",
     "max_cycles",
     "livelock_cycles",
+    "energy_node",
+    "sram_cell",
 ];
 
 impl Default for RtConfig {
@@ -203,6 +209,8 @@ impl Default for RtConfig {
             fifo_sizes: [0; 6],
             max_cycles: 50_000_000_000,
             livelock_cycles: 10_000_000,
+            energy_node: crate::energy::Node::Nm45,
+            sram_cell: crate::energy::Cell::Hp,
         }
     }
 }
@@ -260,6 +268,14 @@ impl RtConfig {
             "fifo_entries" => self.fifo_entries = num32(1, 1 << 16)?,
             "max_cycles" => self.max_cycles = num(1, u64::MAX / 2)?,
             "livelock_cycles" => self.livelock_cycles = num(1, u64::MAX / 2)?,
+            "energy_node" => {
+                self.energy_node =
+                    crate::energy::Node::parse(value).map_err(|e| bad(&e.to_string()))?
+            }
+            "sram_cell" => {
+                self.sram_cell =
+                    crate::energy::Cell::parse(value).map_err(|e| bad(&e.to_string()))?
+            }
             k => match k
                 .strip_prefix("fifo_")
                 .and_then(|c| FIFO_KEYS.iter().position(|&f| f == c))

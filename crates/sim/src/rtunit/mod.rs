@@ -42,6 +42,7 @@
 //! `docs/rtunit.md` describes the model, its parameters and what it leaves out.
 
 mod config;
+pub mod energy;
 mod model;
 pub mod report;
 #[cfg(test)]
@@ -163,6 +164,8 @@ pub struct FifoFigures {
     pub high_water: usize,
     /// FIFOs in the class.
     pub count: usize,
+    /// Items pushed into the class's FIFOs.
+    pub pushes: u64,
 }
 
 /// The result of [`run`] (`arbor.sim.rtunit.v1`; `docs/cli-json.md`).
@@ -239,6 +242,8 @@ pub struct RtReport {
     pub memory: MemStats,
     /// The memory system.
     pub memory_name: String,
+    /// Energy and area of the accelerator ([`energy`]).
+    pub energy: Option<energy::AcceleratorEnergy>,
     /// Wall-clock seconds the simulation took (not a result: varies with the machine).
     pub wall_seconds: f64,
 }
@@ -650,27 +655,21 @@ pub(crate) fn run_with(
         [&world.new_ray, &world.to_ist, &world.from_ist, &world.done];
     let mut fifos = Vec::new();
     for (c, name) in FIFO_CLASSES.iter().enumerate() {
-        let peaks: Vec<usize> = match c {
+        let stats: Vec<crate::kernel::LatencyFifoStats> = match c {
             0..=3 => fifo_groups[c]
                 .iter()
-                .map(|f| f.stats(report.cycles).peak)
+                .map(|f| f.stats(report.cycles))
                 .collect(),
-            4 => world
-                .miss
-                .iter()
-                .map(|f| f.stats(report.cycles).peak)
-                .collect(),
-            _ => world
-                .fill
-                .iter()
-                .map(|f| f.stats(report.cycles).peak)
-                .collect(),
+            4 => world.miss.iter().map(|f| f.stats(report.cycles)).collect(),
+            _ => world.fill.iter().map(|f| f.stats(report.cycles)).collect(),
         };
+        let peaks: Vec<usize> = stats.iter().map(|f| f.peak).collect();
         fifos.push(FifoFigures {
             name: name.to_string(),
             capacity: cfg.fifo_capacity(c),
             high_water: peaks.iter().copied().max().unwrap_or(0),
             count: peaks.len(),
+            pushes: stats.iter().map(|f| f.pushes).sum(),
         });
     }
     let memory = world.mem.port().stats();
@@ -701,7 +700,7 @@ pub(crate) fn run_with(
         };
         (detailed_rays, mrps, bytes as f64)
     };
-    Ok(RtReport {
+    let mut out = RtReport {
         schema: SCHEMA,
         tree: kind,
         ray_kind: work.rays,
@@ -748,8 +747,15 @@ pub(crate) fn run_with(
         tree_bytes: tree.image.bytes(),
         memory,
         memory_name,
-        wall_seconds: start.elapsed().as_secs_f64(),
-    })
+        energy: None,
+        wall_seconds: 0.0,
+    };
+    out.energy = Some(
+        energy::accelerator_energy(&out, cfg.energy_node, cfg.sram_cell)
+            .map_err(|e| RtError::Config(ConfigError(e.to_string())))?,
+    );
+    out.wall_seconds = start.elapsed().as_secs_f64();
+    Ok(out)
 }
 
 fn add_stats(a: &mut CacheStats, b: &CacheStats) {

@@ -629,6 +629,7 @@ pub(crate) struct Trv {
     pops: u64,
     loops: u64,
     box_tests: u64,
+    pushes: u64,
 }
 
 impl Trv {
@@ -644,6 +645,7 @@ impl Trv {
             pops: 0,
             loops: 0,
             box_tests: 0,
+            pushes: 0,
         }
     }
 }
@@ -653,7 +655,8 @@ const TRV_STALLS: &[&str] = &["loop", "ist_full", "done_full", "miss_fifo_full"]
 /// The node visit: tests the children of `node` against the ray within the cull distance,
 /// continues with the nearest hit child and pushes the others, farthest first (the
 /// compare-and-swap of the BVH unit, the sorting network of the MBVH4 unit).
-fn visit(w: &mut RtWorld<'_>, s: u32, node: u32) -> u64 {
+/// Returns the box tests and the stack pushes.
+fn visit(w: &mut RtWorld<'_>, s: u32, node: u32) -> (u64, u64) {
     let (tree, dist, cap) = (w.tree, w.distance_stack, w.stack_entries);
     let slot = &mut w.slots[s as usize];
     let cull = cull_distance(slot.best_t);
@@ -667,6 +670,7 @@ fn visit(w: &mut RtWorld<'_>, s: u32, node: u32) -> u64 {
     });
     // Stable by distance: equal distances keep the child order.
     hits[..n].sort_by(|a, b| a.0.total_cmp(&b.0));
+    let pushes = n.saturating_sub(1) as u64;
     if n == 0 {
         slot.pop(dist);
     } else {
@@ -684,7 +688,7 @@ fn visit(w: &mut RtWorld<'_>, s: u32, node: u32) -> u64 {
             });
         }
     }
-    tests
+    (tests, pushes)
 }
 
 impl<'a> Unit<RtWorld<'a>> for Trv {
@@ -757,7 +761,9 @@ impl<'a> Unit<RtWorld<'a>> for Trv {
                     } else {
                         match w.l1[i].access(addr, self.node_line, AccessKind::Read, None, now) {
                             Access::Hit { .. } => {
-                                self.box_tests += visit(w, s, node);
+                                let (tests, pushes) = visit(w, s, node);
+                                self.box_tests += tests;
+                                self.pushes += pushes;
                                 self.visits += 1;
                                 state = State::Busy;
                             }
@@ -814,6 +820,7 @@ impl<'a> Unit<RtWorld<'a>> for Trv {
         vec![
             ("node_visits", self.visits),
             ("box_tests", self.box_tests),
+            ("pushes", self.pushes),
             ("pops", self.pops),
             ("loops", self.loops),
         ]

@@ -1,12 +1,12 @@
 //! The analogue of \[P4\] Table 2 from the accelerator model: per scene and ray kind, the
 //! BVH and MBVH4 accelerators' performance and DRAM traffic, the relative change, and the
 //! thesis's figures beside them (`crate::thesis::P4_TABLE2`), as Markdown, CSV and JSON.
-//! The command line (`arbor report rtunit`) and the Python package call this; they only
-//! load the scenes and write the files.
+//! The command line (`arbor report rtunit`) calls this; it only loads the scenes and
+//! writes the files.
 //!
-//! Energy per frame and performance per area are \[P4\]'s other columns; they come from the
-//! energy model, which is not part of this module yet, so the table leaves them out and
-//! says so.
+//! Energy per frame and performance per area (\[P4\] Table 2's other columns) and the
+//! area and power breakdown of \[P4\] Table 1 come from the accelerator's energy model
+//! (`super::energy`).
 
 use std::fmt::Write as _;
 
@@ -60,6 +60,15 @@ pub struct Figures {
     pub tests_per_ray: f64,
     /// Hit rates of the L1, shared node and primitive caches.
     pub hit_rates: [f64; 3],
+    /// Energy of a frame in mJ.
+    pub frame_mj: f64,
+    /// Area of the accelerator in mm^2.
+    pub area_mm2: f64,
+    /// MRPS per mm^2.
+    pub mrps_per_mm2: f64,
+    /// Per unit of \[P4\] Table 1 (TRV, IST, stack, cache, FIFO, DRAM): area in mm^2 and
+    /// mean power in mW.
+    pub units: Vec<(&'static str, f64, f64)>,
     /// Wall-clock seconds of the simulation.
     pub wall_seconds: f64,
 }
@@ -81,6 +90,15 @@ impl Figures {
             visits_per_ray: per(r.node_visits),
             tests_per_ray: per(r.triangle_tests),
             hit_rates: [0, 1, 2].map(|k| r.caches.get(k).map_or(0.0, |c| c.hit_rate)),
+            frame_mj: r.energy.as_ref().map_or(0.0, |e| e.frame_mj),
+            area_mm2: r.energy.as_ref().map_or(0.0, |e| e.area_mm2),
+            mrps_per_mm2: r.energy.as_ref().map_or(0.0, |e| e.mrps_per_mm2),
+            units: r.energy.as_ref().map_or(Vec::new(), |e| {
+                e.units
+                    .iter()
+                    .map(|u| (u.unit, u.area_mm2, u.power_mw))
+                    .collect()
+            }),
             wall_seconds: r.wall_seconds,
         }
     }
@@ -103,6 +121,10 @@ pub struct Row {
     pub perf_change_pct: f64,
     /// MBVH4's traffic over BVH's, in percent.
     pub traffic_change_pct: f64,
+    /// MBVH4's energy per frame over BVH's, in percent.
+    pub energy_change_pct: f64,
+    /// MBVH4's performance per area over BVH's, in percent.
+    pub ppa_change_pct: f64,
     /// The thesis's row it is compared with.
     pub thesis: Option<P4Row>,
     /// What the scene is.
@@ -114,13 +136,16 @@ pub struct Row {
 pub const AGREEMENT: f64 = 0.25;
 
 impl Row {
-    /// Whether our perf and traffic changes lie within [`AGREEMENT`] of the thesis's.
-    pub fn agrees(&self) -> Option<[bool; 2]> {
+    /// Whether our perf, traffic, energy and perf/area changes lie within [`AGREEMENT`] of
+    /// the thesis's.
+    pub fn agrees(&self) -> Option<[bool; 4]> {
         let t = self.thesis?;
         let close = |ours: f64, theirs: f64| (ours - theirs).abs() <= AGREEMENT * theirs.abs();
         Some([
             close(self.perf_change_pct, t.change_pct[0]),
             close(self.traffic_change_pct, t.change_pct[3]),
+            close(self.energy_change_pct, t.change_pct[1]),
+            close(self.ppa_change_pct, t.change_pct[2]),
         ])
     }
 }
@@ -181,6 +206,8 @@ pub fn table2(
                 rays: name,
                 perf_change_pct: 100.0 * (mbvh4.mrps / bvh.mrps - 1.0),
                 traffic_change_pct: 100.0 * (mbvh4.frame_dram_mb / bvh.frame_dram_mb - 1.0),
+                energy_change_pct: 100.0 * (mbvh4.frame_mj / bvh.frame_mj - 1.0),
+                ppa_change_pct: 100.0 * (mbvh4.mrps_per_mm2 / bvh.mrps_per_mm2 - 1.0),
                 bvh,
                 mbvh4,
                 thesis: s.thesis_scene.and_then(|t| p4_row(t, name)).copied(),
@@ -208,28 +235,28 @@ impl Table2 {
         let mut m = String::new();
         let _ = writeln!(
             m,
-            "| scene | rays | BVH MRPS | MBVH4 MRPS | perf | thesis perf | BVH MB | MBVH4 MB | traffic | thesis traffic | within 25% (perf, traffic) | thesis MRPS | thesis MB | node MB (BVH, MBVH4) | timed |"
+            "| scene | rays | BVH MRPS | MBVH4 MRPS | perf | thesis perf | BVH MB | MBVH4 MB | traffic | thesis traffic | BVH mJ | MBVH4 mJ | energy | thesis energy | BVH MRPS/mm2 | MBVH4 MRPS/mm2 | perf/area | thesis perf/area | within 25% (perf, traffic, energy, perf/area) | thesis MRPS | thesis MB | thesis mJ | node MB (BVH, MBVH4) | timed |"
         );
         let _ = writeln!(
             m,
-            "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|"
+            "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|"
         );
         for r in &self.rows {
-            let (tp, tt, tm, tb) = match r.thesis {
+            let (tp, tt, te, ta, tm, tb, tj) = match r.thesis {
                 Some(t) => (
                     pct(t.change_pct[0]),
                     pct(t.change_pct[3]),
+                    pct(t.change_pct[1]),
+                    pct(t.change_pct[2]),
                     format!("{} / {}", t.bvh[0], t.mbvh4[0]),
                     format!("{} / {}", t.bvh[3], t.mbvh4[3]),
+                    format!("{} / {}", t.bvh[1], t.mbvh4[1]),
                 ),
-                None => ("".into(), "".into(), "".into(), "".into()),
+                None => Default::default(),
             };
+            let yes = |b: bool| if b { "yes" } else { "no" };
             let agree = match r.agrees() {
-                Some([p, t]) => format!(
-                    "{}, {}",
-                    if p { "yes" } else { "no" },
-                    if t { "yes" } else { "no" }
-                ),
+                Some(a) => a.map(yes).join(", "),
                 None => "".into(),
             };
             let timed = if r.bvh.sample == 1 {
@@ -239,7 +266,7 @@ impl Table2 {
             };
             let _ = writeln!(
                 m,
-                "| {} | {} | {:.1} | {:.1} | {} | {tp} | {:.1} | {:.1} | {} | {tt} | {agree} | {tm} | {tb} | {:.1}, {:.1} | {timed} |",
+                "| {} | {} | {:.1} | {:.1} | {} | {tp} | {:.1} | {:.1} | {} | {tt} | {:.1} | {:.1} | {} | {te} | {:.1} | {:.1} | {} | {ta} | {agree} | {tm} | {tb} | {tj} | {:.1}, {:.1} | {timed} |",
                 r.scene,
                 r.rays,
                 r.bvh.mrps,
@@ -248,6 +275,12 @@ impl Table2 {
                 r.bvh.frame_dram_mb,
                 r.mbvh4.frame_dram_mb,
                 pct(r.traffic_change_pct),
+                r.bvh.frame_mj,
+                r.mbvh4.frame_mj,
+                pct(r.energy_change_pct),
+                r.bvh.mrps_per_mm2,
+                r.mbvh4.mrps_per_mm2,
+                pct(r.ppa_change_pct),
                 r.bvh.node_bytes as f64 / 1e6,
                 r.mbvh4.node_bytes as f64 / 1e6,
             );
@@ -257,9 +290,9 @@ impl Table2 {
             m,
             "{}x{} pixels, diffuse paths of up to {} bounces after the primary hit, one sample per pixel; \
              {} MHz, {} TRV units of {} stacks, {} KB L1 per TRV, {} KB node and {} KB primitive caches, {}. \
-             MB = 10^6 bytes per frame (sampled runs: the traffic of the timed tiles times the sampling factor). \
-             Energy per frame and performance per area ([P4] Table 2's other columns) come from the energy model \
-             and are not in this table.",
+             MB = 10^6 bytes per frame (sampled runs: the misses of the timed tiles' rays per timed pixel, times the frame's pixels). \
+             Energy per frame and area at {:?} with {:?} SRAM cells (`sim::rtunit::energy`: FPUs and memory blocks counted as [P4] §3.2 does; \
+             sampled runs: the run's energy per simulated ray times the frame's rays).",
             self.width,
             self.height,
             self.bounces,
@@ -270,6 +303,8 @@ impl Table2 {
             self.config.l2_bytes >> 10,
             self.config.prim_bytes >> 10,
             self.config.dram,
+            self.config.energy_node,
+            self.config.sram_cell,
         );
         let _ = writeln!(m);
         for r in &self.rows {
@@ -296,27 +331,101 @@ impl Table2 {
         m
     }
 
+    /// \[P4\] Table 1's analogue for the first scene with both ray kinds: area and power
+    /// per unit of both accelerators, primary and diffuse, beside the thesis's (Fairy).
+    pub fn table1_markdown(&self) -> String {
+        let mut m = String::new();
+        let Some(p) = self.rows.iter().find(|r| r.rays == "primary") else {
+            return m;
+        };
+        let Some(d) = self
+            .rows
+            .iter()
+            .find(|r| r.rays == "diffuse" && r.scene == p.scene)
+        else {
+            return m;
+        };
+        let _ = writeln!(
+            m,
+            "Area and power per unit on {} (ours; the thesis's figure in parentheses is Fairy's, [P4] Table 1): area in mm^2, mean power in mW with primary (P) and diffuse (D) rays.\n",
+            p.scene
+        );
+        let _ = writeln!(
+            m,
+            "| tree | figure | {} | sum |",
+            super::energy::UNITS.join(" | ")
+        );
+        let _ = writeln!(
+            m,
+            "|---|---|{}---:|",
+            "---:|".repeat(super::energy::UNITS.len())
+        );
+        for (t, (fp, fd)) in [(&p.bvh, &d.bvh), (&p.mbvh4, &d.mbvh4)]
+            .into_iter()
+            .enumerate()
+        {
+            let tree = if t == 0 { "BVH" } else { "MBVH4" };
+            for (k, what) in ["area", "P. power", "D. power"].into_iter().enumerate() {
+                let ours: Vec<f64> = match k {
+                    0 => fp.units.iter().map(|u| u.1).collect(),
+                    1 => fp.units.iter().map(|u| u.2).collect(),
+                    _ => fd.units.iter().map(|u| u.2).collect(),
+                };
+                let thesis = crate::thesis::P4_TABLE1[t][k];
+                let fmt = |x: f64| {
+                    if k == 0 {
+                        format!("{x:.2}")
+                    } else {
+                        format!("{x:.0}")
+                    }
+                };
+                let cells: Vec<String> = ours
+                    .iter()
+                    .zip(thesis.iter())
+                    .map(|(o, th)| format!("{} ({th})", fmt(*o)))
+                    .collect();
+                let sum: f64 = ours.iter().sum();
+                let _ = writeln!(
+                    m,
+                    "| {tree} | {what} | {} | {} ({}) |",
+                    cells.join(" | "),
+                    fmt(sum),
+                    thesis[6]
+                );
+            }
+        }
+        m
+    }
+
     /// The table as CSV, one line per row and tree.
     pub fn csv(&self) -> String {
         let mut c = String::from(
-            "scene,triangles,rays,tree,mrps,frame_dram_mb,cycles,rays_simulated,sample,bus_utilization,max_stack_depth,hits_match_software,node_bytes,visits_per_ray,tests_per_ray,l1_hit_rate,node_hit_rate,prim_hit_rate,thesis_mrps,thesis_mb\n",
+            "scene,triangles,rays,tree,mrps,frame_dram_mb,frame_mj,area_mm2,mrps_per_mm2,cycles,rays_simulated,sample,bus_utilization,max_stack_depth,hits_match_software,node_bytes,visits_per_ray,tests_per_ray,l1_hit_rate,node_hit_rate,prim_hit_rate,thesis_mrps,thesis_mb,thesis_mj,thesis_mrps_per_mm2\n",
         );
         for r in &self.rows {
             for (tree, f, t) in [
                 ("bvh2", &r.bvh, r.thesis.map(|t| t.bvh)),
                 ("mbvh4", &r.mbvh4, r.thesis.map(|t| t.mbvh4)),
             ] {
-                let (tm, tb) = t.map_or((String::new(), String::new()), |t| {
-                    (t[0].to_string(), t[3].to_string())
+                let (tm, tb, tj, ta) = t.map_or(Default::default(), |t| {
+                    (
+                        t[0].to_string(),
+                        t[3].to_string(),
+                        t[1].to_string(),
+                        t[2].to_string(),
+                    )
                 });
                 let _ = writeln!(
                     c,
-                    "{},{},{},{tree},{:.3},{:.4},{},{},{},{:.4},{},{},{},{:.3},{:.3},{:.4},{:.4},{:.4},{tm},{tb}",
+                    "{},{},{},{tree},{:.3},{:.4},{:.4},{:.4},{:.4},{},{},{},{:.4},{},{},{},{:.3},{:.3},{:.4},{:.4},{:.4},{tm},{tb},{tj},{ta}",
                     r.scene,
                     r.triangles,
                     r.rays,
                     f.mrps,
                     f.frame_dram_mb,
+                    f.frame_mj,
+                    f.area_mm2,
+                    f.mrps_per_mm2,
                     f.cycles,
                     f.rays,
                     f.sample,

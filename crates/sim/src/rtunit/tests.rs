@@ -422,3 +422,67 @@ fn a_sampled_run_warms_the_caches_and_stays_exact() {
     assert!(a.counted_dram_bytes <= a.dram_bytes_read);
     assert!(a.mrps > 0.0 && a.frame_dram_mb > 0.0);
 }
+
+#[test]
+fn the_energy_breakdown_adds_up_and_grows_with_work_and_size() {
+    let (tris, cam) = small();
+    let tree = build_tree(TreeKind::Mbvh4, &tris).unwrap();
+    let primary = run(
+        &tree,
+        &work(&tris, &cam, RayMode::Primary),
+        &RtConfig::default(),
+    )
+    .unwrap();
+    let diffuse = run(
+        &tree,
+        &work(&tris, &cam, RayMode::Diffuse),
+        &RtConfig::default(),
+    )
+    .unwrap();
+    for r in [&primary, &diffuse] {
+        let e = r.energy.as_ref().unwrap();
+        let names: Vec<&str> = e.units.iter().map(|u| u.unit).collect();
+        assert_eq!(names, energy::UNITS);
+        let sum: f64 = e.units.iter().map(|u| u.total_mj).sum();
+        assert!((sum - e.run_mj).abs() <= 1e-12 * e.run_mj.max(1.0));
+        let area: f64 = e.units.iter().map(|u| u.area_mm2).sum();
+        assert!((area - e.area_mm2).abs() < 1e-12);
+        for u in &e.units {
+            assert!(u.dynamic_mj >= 0.0 && u.static_mj >= 0.0, "{u:?}");
+            assert!((u.power_mw - u.total_mj / r.seconds).abs() <= 1e-9 * u.power_mw.max(1.0));
+        }
+        assert_eq!(e.frame_mj, e.run_mj, "a whole frame");
+        assert!((e.mrps_per_mm2 - r.mrps / e.area_mm2).abs() < 1e-9);
+    }
+    // More rays, more dynamic energy in every unit that works per ray.
+    let (p, d) = (primary.energy.unwrap(), diffuse.energy.unwrap());
+    for k in 0..5 {
+        assert!(
+            d.units[k].dynamic_mj > p.units[k].dynamic_mj,
+            "{}",
+            energy::UNITS[k]
+        );
+    }
+    assert_eq!(p.area_mm2, d.area_mm2, "same hardware");
+    // Bigger caches: more area and leakage.
+    let mut big = RtConfig::default();
+    big.set("l2_bytes", "262144").unwrap();
+    let rb = run(&tree, &work(&tris, &cam, RayMode::Primary), &big).unwrap();
+    let b = rb.energy.unwrap();
+    assert!(b.units[3].area_mm2 > p.units[3].area_mm2);
+    // Leakage power (static energy over the run's time) grows with the size.
+    assert!(b.units[3].static_mj / rb.seconds > p.units[3].static_mj / primary.seconds);
+    // The node and cell are configuration; an unknown node is a one-line error.
+    let mut c = RtConfig::default();
+    assert!(c
+        .set("energy_node", "7nm")
+        .unwrap_err()
+        .to_string()
+        .contains("unknown process node"));
+    c.set("energy_node", "28nm").unwrap();
+    let e28 = run(&tree, &work(&tris, &cam, RayMode::Primary), &c)
+        .unwrap()
+        .energy
+        .unwrap();
+    assert!(e28.area_mm2 < p.area_mm2);
+}

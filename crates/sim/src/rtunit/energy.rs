@@ -1,0 +1,223 @@
+//! Energy and area of the accelerator, counted as \[P4\] §3.2 counts them: the
+//! floating-point units and memory blocks (caches, stacks, FIFOs) of each unit, SRAM
+//! figures from CACTI, FPU figures per operation, DRAM from DRAMPower's formulas; a unit
+//! spends dynamic energy only for the work it does (idle units are clock gated) and every
+//! SRAM leaks for the whole run. Control logic, clock trees and pipeline registers are not
+//! counted (\[P4\] §3.2: "they add a similar margin to both configurations"), nor FPU
+//! leakage (no source gives it). The component figures are `crate::energy`'s.
+//!
+//! Datapaths (FLOPs per operation, Arbor's count of the textbook forms):
+//! - slab test of one box: 6 subtractions and 6 multiplies (the plane distances), 6
+//!   compares to order each axis's pair, 6 for the max of the entries and min of the exits
+//!   with the ray's range, 1 for the final test: 19 adds, 6 multiplies;
+//! - the MBVH4 unit's sorting network: 5 compares per visit (\[P4\] Fig. 4);
+//! - the CBVH unit's decoder: 6 integer-to-float conversions and adds per box, counted
+//!   as 6 adds;
+//! - Wald's (2004) triangle test on 48-byte triangles: distance numerator and denominator
+//!   (4 multiplies, 5 adds), the division by Markstein's method (11 FLOPs, \[P4\] §3.2,
+//!   counted as multiplies), the hit point's two coordinates (2 multiplies, 2 adds), the
+//!   two barycentrics (4 multiplies, 4 adds), and 6 compares (distance range, both
+//!   barycentrics, their sum): 21 multiplies, 17 adds.
+//!
+//! Memory entries: a stack entry holds a child reference (8 bytes), plus its distance (4)
+//! with a distance stack; a FIFO entry holds a ray record of 48 bytes (origin, direction,
+//! range, closest hit and its primitive, node pointer and slot). An access reads or writes
+//! one entry: its energy is CACTI's 64-byte access scaled by the entry's share of 64 bytes.
+
+use serde::Serialize;
+
+use super::{RtReport, TreeKind};
+use crate::energy::{sram, Cell, EnergyError, Flops, Fpu, Node};
+
+/// Bytes of a ray record in a FIFO.
+pub const RAY_RECORD_BYTES: f64 = 48.0;
+
+/// FLOPs of one slab test.
+pub const BOX_TEST: Flops = Flops {
+    adds: 19.0,
+    muls: 6.0,
+};
+/// FLOPs of the MBVH4 sorting network per visit.
+pub const SORT_NETWORK: Flops = Flops {
+    adds: 5.0,
+    muls: 0.0,
+};
+/// FLOPs of the CBVH decoder per box.
+pub const DECODE_BOX: Flops = Flops {
+    adds: 6.0,
+    muls: 0.0,
+};
+/// FLOPs of Wald's triangle test with a Markstein division.
+pub const TRIANGLE_TEST: Flops = Flops {
+    adds: 17.0,
+    muls: 21.0,
+};
+
+/// Where energy and area are counted: \[P4\] Table 1's columns.
+pub const UNITS: [&str; 6] = ["TRV", "IST", "stack", "cache", "FIFO", "DRAM"];
+
+/// One unit's figures over a run.
+#[derive(Clone, Debug, Serialize)]
+pub struct UnitEnergy {
+    /// One of [`UNITS`].
+    pub unit: &'static str,
+    /// Area in mm^2 (DRAM: 0, off chip).
+    pub area_mm2: f64,
+    /// Dynamic energy in mJ.
+    pub dynamic_mj: f64,
+    /// Static (leakage; DRAM: background and refresh) energy in mJ.
+    pub static_mj: f64,
+    /// Their sum.
+    pub total_mj: f64,
+    /// Mean power over the run in mW.
+    pub power_mw: f64,
+}
+
+/// The accelerator's energy over a run, and per frame.
+#[derive(Clone, Debug, Serialize)]
+pub struct AcceleratorEnergy {
+    /// Process node of the on-chip figures.
+    pub node: Node,
+    /// SRAM cell type.
+    pub cell: Cell,
+    /// Per unit, in [`UNITS`] order.
+    pub units: Vec<UnitEnergy>,
+    /// Area of the on-chip units in mm^2.
+    pub area_mm2: f64,
+    /// Energy of the run in mJ (the breakdown's sum).
+    pub run_mj: f64,
+    /// Mean power in mW.
+    pub power_mw: f64,
+    /// Energy of one frame in mJ: the run's (whole frames) or the run's per simulated ray
+    /// times the frame's estimated rays (sampled runs).
+    pub frame_mj: f64,
+    /// DRAM energy of the run above an idle memory's, in mJ (\[P2\] §6.2's convention).
+    pub dram_above_idle_mj: f64,
+    /// Million rays per second per mm^2.
+    pub mrps_per_mm2: f64,
+}
+
+fn counter(r: &RtReport, unit_prefix: &str, name: &str) -> f64 {
+    r.units
+        .iter()
+        .filter(|u| u.name.starts_with(unit_prefix))
+        .flat_map(|u| u.counters.iter())
+        .filter(|(k, _)| k == name)
+        .map(|(_, v)| *v as f64)
+        .sum()
+}
+
+/// The energy and area of the accelerator of run `r` at `node` with `cell` SRAMs.
+pub fn accelerator_energy(
+    r: &RtReport,
+    node: Node,
+    cell: Cell,
+) -> Result<AcceleratorEnergy, EnergyError> {
+    let c = &r.config;
+    let fpu = Fpu::at(node);
+    let trvs = c.trv_units as f64;
+    let seconds = r.seconds;
+    // Datapaths: one pipelined unit per operation.
+    let width = r.tree.width() as f64;
+    let mut trv_path = BOX_TEST.times(width);
+    match r.tree {
+        TreeKind::Mbvh4 => trv_path = trv_path.plus(SORT_NETWORK),
+        TreeKind::Cbvh => trv_path = trv_path.plus(DECODE_BOX.times(width)),
+        TreeKind::Bvh2 => {}
+    }
+    let visits = r.node_visits as f64;
+    let trv_dyn = BOX_TEST.times(r.box_tests as f64).energy_pj(&fpu)
+        + match r.tree {
+            TreeKind::Mbvh4 => SORT_NETWORK.times(visits).energy_pj(&fpu),
+            TreeKind::Cbvh => DECODE_BOX.times(r.box_tests as f64).energy_pj(&fpu),
+            TreeKind::Bvh2 => 0.0,
+        };
+    let ist_dyn = TRIANGLE_TEST.times(r.triangle_tests as f64).energy_pj(&fpu);
+    // Stacks: one SRAM per TRV unit.
+    let distance = c.uses_distance_stack(r.tree);
+    let entry = 8.0 + if distance { 4.0 } else { 0.0 };
+    let stack_bytes = c.stacks_per_trv as f64 * c.stack_entries as f64 * entry;
+    let stack = sram(stack_bytes, 1, node, cell)?;
+    let stack_ops = counter(r, "trv", "pushes") + counter(r, "trv", "pops");
+    let stack_dyn = stack_ops * stack.access_pj * entry / 64.0;
+    // Caches: the port reads a line (64 or 128 bytes).
+    let line = c.node_line(r.tree) as f64;
+    let port = ((line / 64.0).ceil() as u32).max(1);
+    let l1 = sram(c.l1_bytes as f64, port, node, cell)?;
+    let l2 = sram(c.l2_bytes as f64, port, node, cell)?;
+    let banks = c.prim_banks.max(1) as f64;
+    let bank = sram(c.prim_bytes as f64 / banks, 1, node, cell)?;
+    let stats = |name: &str| r.caches.iter().find(|x| x.name == name).map(|x| &x.stats);
+    let touches = |name: &str| stats(name).map_or(0.0, |s| (s.line_accesses + s.fills) as f64);
+    let cache_dyn = touches("l1") * l1.access_pj
+        + touches("node") * l2.access_pj
+        + touches("primitive") * bank.access_pj;
+    // FIFOs: each push writes and each pop reads a ray record.
+    let mut fifo_area = 0.0;
+    let mut fifo_leak = 0.0;
+    let mut fifo_dyn = 0.0;
+    for f in &r.fifos {
+        let m = sram(f.capacity.max(1) as f64 * RAY_RECORD_BYTES, 1, node, cell)?;
+        fifo_area += m.area_mm2 * f.count as f64;
+        fifo_leak += m.leak_mw * f.count as f64;
+        fifo_dyn += 2.0 * f.pushes as f64 * m.access_pj * RAY_RECORD_BYTES / 64.0;
+    }
+    let leak_mj = |mw: f64| mw * seconds; // mW x s = mJ
+    let dram = r.memory.energy_pj.as_ref();
+    let dram_total = dram.map_or(0.0, |e| e.total_pj()) * 1e-9;
+    let dram_static = dram.map_or(0.0, |e| e.background_pj + e.refresh_pj) * 1e-9;
+    let unit = |name: &'static str, area: f64, dynamic_mj: f64, static_mj: f64| UnitEnergy {
+        unit: name,
+        area_mm2: area,
+        dynamic_mj,
+        static_mj,
+        total_mj: dynamic_mj + static_mj,
+        power_mw: if seconds > 0.0 {
+            (dynamic_mj + static_mj) / seconds
+        } else {
+            0.0
+        },
+    };
+    let units = vec![
+        unit("TRV", trv_path.area_mm2(&fpu) * trvs, trv_dyn * 1e-9, 0.0),
+        unit("IST", TRIANGLE_TEST.area_mm2(&fpu), ist_dyn * 1e-9, 0.0),
+        unit(
+            "stack",
+            stack.area_mm2 * trvs,
+            stack_dyn * 1e-9,
+            leak_mj(stack.leak_mw * trvs),
+        ),
+        unit(
+            "cache",
+            l1.area_mm2 * trvs + l2.area_mm2 + bank.area_mm2 * banks,
+            cache_dyn * 1e-9,
+            leak_mj(l1.leak_mw * trvs + l2.leak_mw + bank.leak_mw * banks),
+        ),
+        unit("FIFO", fifo_area, fifo_dyn * 1e-9, leak_mj(fifo_leak)),
+        unit("DRAM", 0.0, dram_total - dram_static, dram_static),
+    ];
+    let run_mj: f64 = units.iter().map(|u| u.total_mj).sum();
+    let area_mm2: f64 = units.iter().map(|u| u.area_mm2).sum();
+    let frame_mj = if r.sample > 1 {
+        let frame_rays =
+            r.rays as f64 * (r.width as f64 * r.height as f64) / r.pixels.max(1) as f64;
+        run_mj / r.detailed_rays.max(1) as f64 * frame_rays
+    } else {
+        run_mj
+    };
+    Ok(AcceleratorEnergy {
+        node,
+        cell,
+        area_mm2,
+        power_mw: if seconds > 0.0 { run_mj / seconds } else { 0.0 },
+        run_mj,
+        frame_mj,
+        dram_above_idle_mj: dram.map_or(0.0, |e| e.above_idle_pj()) * 1e-9,
+        mrps_per_mm2: if area_mm2 > 0.0 {
+            r.mrps / area_mm2
+        } else {
+            0.0
+        },
+        units,
+    })
+}
