@@ -64,6 +64,24 @@ struct Summary {
     mergetree: Vec<MergeTreeRow>,
     cbvh: Vec<CbvhRow>,
     renders: Vec<RenderRow>,
+    accelerator: Vec<AcceleratorRow>,
+}
+
+/// One run of the demo's accelerator step (`accelerator` in `summary.json`).
+#[derive(Serialize)]
+struct AcceleratorRow {
+    tree: &'static str,
+    rays: &'static str,
+    width: u32,
+    height: u32,
+    ray_count: u64,
+    cycles: u64,
+    mrps: f64,
+    dram_mb: f64,
+    energy_mj: f64,
+    area_mm2: f64,
+    max_stack_depth: usize,
+    hits_match_software: bool,
 }
 
 /// One render of the demo's ray-tracing step (`renders` in `summary.json`).
@@ -245,6 +263,8 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
     let cbvh = cbvh_step(scene.as_ref(), n)?;
     // Step 6: ray tracing through both tree formats.
     let renders = render_step(ui, scene.as_ref(), n, &args.out)?;
+    // Step 7: the ray-tracing accelerator model with each tree.
+    let accelerator = accelerator_step(ui, scene.as_ref())?;
 
     let summary = Summary {
         schema: "arbor.demo.v1",
@@ -259,6 +279,7 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
         mergetree,
         cbvh,
         renders,
+        accelerator,
     };
     write_outputs(&args.out, &summary)?;
     println!("  outputs    {}", args.out.display());
@@ -273,6 +294,13 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
             "the {} tree rendered a different image than the binary tree at frame {}",
             bad.format,
             bad.frame
+        );
+    }
+    if let Some(bad) = summary.accelerator.iter().find(|r| !r.hits_match_software) {
+        anyhow::bail!(
+            "the accelerator model with the {} tree found hits that differ from the software tracer's ({} rays)",
+            bad.tree,
+            bad.rays
         );
     }
     if let Some(bad) = summary.builds.iter().find(|b| !b.valid) {
@@ -544,6 +572,73 @@ fn cbvh_step(scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<CbvhRow>> {
 
 /// Image size of the demo's renders (a quarter of [P4]'s 1280x720, to stay quick).
 const DEMO_RENDER_SIZE: (u32, u32) = (640, 360);
+
+/// Image size of the demo's accelerator step.
+const DEMO_ACCELERATOR_SIZE: (u32, u32) = (320, 180);
+
+/// The \[P4\] accelerator model (`sim::rtunit`) at frame 0 with each tree, primary and
+/// diffuse rays: cycles, MRPS, traffic, energy, and the check against the software tracer.
+fn accelerator_step(ui: &Ui, scene: &dyn scene::Scene) -> anyhow::Result<Vec<AcceleratorRow>> {
+    use sim::rtunit::{self, RayMode, RtConfig, TreeKind, Workload};
+    let mesh = scene.mesh_at(0.0).context("frame 0")?;
+    super::build::mesh_aabbs(&mesh)?;
+    let tris: Vec<geom::Triangle> = mesh.triangles_iter().collect();
+    let (w, h) = DEMO_ACCELERATOR_SIZE;
+    let camera = trace::PinholeCamera::new(&scene.info().camera, w, h)?;
+    println!(
+        "  accel      tree   rays      Mrays/s   cycles     DRAM MB   mJ/frame  stack  same hits"
+    );
+    let mut rows = Vec::new();
+    for kind in [TreeKind::Bvh2, TreeKind::Mbvh4, TreeKind::Cbvh] {
+        let tree = {
+            let _s = ui.spinner(&format!("building the {} tree", kind.name()));
+            rtunit::build_tree(kind, &tris)?
+        };
+        for (rays, name) in [(RayMode::Primary, "primary"), (RayMode::Diffuse, "diffuse")] {
+            let work = Workload {
+                triangles: &tris,
+                camera: &camera,
+                rays,
+                bounces: 4,
+                seed: 1,
+                sample: 1,
+                progress: None,
+            };
+            let r = {
+                let _s = ui.spinner(&format!("simulating the {} accelerator", kind.name()));
+                rtunit::run(&tree, &work, &RtConfig::default())?
+            };
+            let e = r.energy.as_ref();
+            let row = AcceleratorRow {
+                tree: kind.name(),
+                rays: name,
+                width: w,
+                height: h,
+                ray_count: r.rays,
+                cycles: r.cycles,
+                mrps: r.mrps,
+                dram_mb: r.frame_dram_mb,
+                energy_mj: e.map_or(0.0, |e| e.frame_mj),
+                area_mm2: e.map_or(0.0, |e| e.area_mm2),
+                max_stack_depth: r.max_stack_depth,
+                hits_match_software: r.hits_match_software,
+            };
+            println!(
+                "  accel      {:<6} {:<9} {:>7.1} {:>10} {:>9.3} {:>9.3} {:>6}  {}",
+                row.tree,
+                row.rays,
+                row.mrps,
+                row.cycles,
+                row.dram_mb,
+                row.energy_mj,
+                row.max_stack_depth,
+                if row.hits_match_software { "yes" } else { "NO" }
+            );
+            rows.push(row);
+        }
+    }
+    Ok(rows)
+}
 
 /// Renders frame 0 and the middle of the `n` walked frames with primary and diffuse rays
 /// (4 bounces, [P4] §3.2) through a binned SAH `Bvh2` and its `Mbvh4` collapse, checks
