@@ -40,6 +40,14 @@ pub enum Node {
 }
 
 impl Cell {
+    /// The name `parse` reads.
+    pub fn name(self) -> &'static str {
+        match self {
+            Cell::Hp => "hp",
+            Cell::Lop => "lop",
+        }
+    }
+
     /// Parses `hp` or `lop`.
     pub fn parse(s: &str) -> Result<Self, EnergyError> {
         match s.trim() {
@@ -63,6 +71,16 @@ impl Node {
             _ => Err(EnergyError(format!(
                 "unknown process node '{s}' (known: 45nm, 32nm, 28nm, 22nm)"
             ))),
+        }
+    }
+
+    /// The name `parse` reads (`45nm`, ...).
+    pub fn name(self) -> &'static str {
+        match self {
+            Node::Nm45 => "45nm",
+            Node::Nm32 => "32nm",
+            Node::Nm28 => "28nm",
+            Node::Nm22 => "22nm",
         }
     }
 
@@ -391,5 +409,11 @@ mod tests {
         assert!(e.contains("unknown process node '7nm'"), "{e}");
         assert_eq!(Node::parse("28nm").unwrap(), Node::Nm28);
         assert_eq!(Node::parse("45").unwrap(), Node::Nm45);
+        for n in [Node::Nm45, Node::Nm32, Node::Nm28, Node::Nm22] {
+            assert_eq!(Node::parse(n.name()).unwrap(), n);
+        }
+        for c in [Cell::Hp, Cell::Lop] {
+            assert_eq!(Cell::parse(c.name()).unwrap(), c);
+        }
     }
 }
