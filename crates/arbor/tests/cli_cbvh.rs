@@ -77,6 +77,17 @@ fn cbvh_bad_arguments_fail_with_one_line() {
             "2",
         ],
         vec!["cbvh", "/no/such/scene.ply"],
+        // Time options are checked as in every other command (issue 15).
+        vec!["cbvh", "proc:soup?n=100", "--time", "nan"],
+        vec!["cbvh", "proc:soup?n=100", "--frame", "100000"],
+        vec![
+            "cbvh",
+            "proc:cloth?n=200",
+            "--time",
+            "1",
+            "--refit-from",
+            "inf",
+        ],
     ] {
         let out = arbor(&args);
         assert!(!out.status.success(), "{args:?}");

@@ -113,6 +113,7 @@ fn bad_arguments_are_one_line_errors() {
     assert!(sim_error(&[CLOTH, "--set", "m=1000"]).contains("multiple of 2B"));
     assert!(sim_error(&[CLOTH, "--dram", "ddr9"]).contains("ddr9"));
     assert!(sim_error(&["/nonexistent.ply"]).contains("nonexistent"));
+    assert!(sim_error(&[CLOTH, "--time", "nan"]).contains("--time must be a finite"));
 }
 
 #[test]

@@ -341,12 +341,7 @@ pub fn timed_build(
 /// Checks the arguments that need no scene, so bad input fails before a long load.
 fn check_args(a: &BuildArgs) -> anyhow::Result<(BuildFn, BuildConfig)> {
     let f = builder(&a.builder)?;
-    if let Some(t0) = a.refit_from {
-        anyhow::ensure!(
-            t0.is_finite(),
-            "--refit-from must be a finite number of seconds, got {t0}"
-        );
-    }
+    super::check_seconds("--refit-from", a.refit_from)?;
     if let Some(t) = a.threads {
         anyhow::ensure!(
             (1..=MAX_THREADS).contains(&t),
@@ -443,24 +438,7 @@ pub fn run(args: &BuildArgs, ui: &Ui) -> anyhow::Result<()> {
     };
     let (scene, open) = open_scene(&args.scene, ui)?;
     let info = scene.info();
-    if let Some(t) = args.time {
-        anyhow::ensure!(
-            t.is_finite(),
-            "--time must be a finite number of seconds, got {t}"
-        );
-    }
-    let frames = info.timeline.frame_count();
-    if let Some(f) = args.frame {
-        anyhow::ensure!(
-            f < frames,
-            "--frame {f} is out of range: the scene has {frames} frame(s)"
-        );
-    }
-    let time_s = match (args.time, args.frame) {
-        (Some(t), _) => info.timeline.clamp(t),
-        (None, Some(f)) => info.timeline.time_of_frame(f),
-        (None, None) => 0.0,
-    };
+    let time_s = super::resolve_time(info, args.time, args.frame)?;
     let s = Instant::now();
     let mesh = {
         let _spinner = ui.spinner(&format!("sampling {} at t = {time_s} s", args.scene.scene));

@@ -175,11 +175,8 @@ pub fn run(a: &CbvhArgs, ui: &Ui) -> anyhow::Result<()> {
     let params = cfg.params;
     let (scene, _) = open_scene(&a.scene, ui)?;
     let timeline = scene.info().timeline;
-    let time_s = match (a.time, a.frame) {
-        (Some(t), _) => timeline.clamp(t),
-        (None, Some(f)) => timeline.time_of_frame(f),
-        (None, None) => 0.0,
-    };
+    super::check_seconds("--refit-from", a.refit_from)?;
+    let time_s = super::resolve_time(scene.info(), a.time, a.frame)?;
     if a.refit_from.is_some() && !scene.info().stable_topology {
         bail!("--refit-from needs a scene whose topology does not change over time");
     }

@@ -74,24 +74,7 @@ pub fn gather(
     frame: Option<u32>,
 ) -> anyhow::Result<InfoJson> {
     let info = scene.info();
-    if let Some(t) = time {
-        anyhow::ensure!(
-            t.is_finite(),
-            "--time must be a finite number of seconds, got {t}"
-        );
-    }
-    let frames = info.timeline.frame_count();
-    if let Some(f) = frame {
-        anyhow::ensure!(
-            f < frames,
-            "--frame {f} is out of range: the scene has {frames} frame(s)"
-        );
-    }
-    let t = match (time, frame) {
-        (Some(t), _) => info.timeline.clamp(t),
-        (None, Some(f)) => info.timeline.time_of_frame(f),
-        (None, None) => 0.0,
-    };
+    let t = super::resolve_time(info, time, frame)?;
     let start = Instant::now();
     let spinner = ui.spinner(&format!("sampling {spec} at t = {t} s"));
     let mesh = scene
@@ -112,7 +95,7 @@ pub fn gather(
         dropped_triangles: info.dropped_triangles,
         materials: mesh.material_names.len(),
         bounds: bounds_json(&mesh),
-        frames,
+        frames: info.timeline.frame_count(),
         duration_s: info.timeline.duration_s,
         fps: info.timeline.fps,
         stable_topology: info.stable_topology,

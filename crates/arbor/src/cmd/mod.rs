@@ -39,6 +39,40 @@ pub struct SceneArgs {
     pub animation: Option<String>,
 }
 
+/// Checks that a time option (`flag`, e.g. `--time`) is a finite number of seconds.
+pub fn check_seconds(flag: &str, t: Option<f32>) -> anyhow::Result<()> {
+    if let Some(t) = t {
+        anyhow::ensure!(
+            t.is_finite(),
+            "{flag} must be a finite number of seconds, got {t}"
+        );
+    }
+    Ok(())
+}
+
+/// The scene time the `--time T` / `--frame N` options of every command select: `T`
+/// clamped to the timeline, or frame `N`'s time, or 0; a non-finite `T` or a frame past the
+/// last is a one-line error. The one place these options are interpreted.
+pub fn resolve_time(
+    info: &scene::SceneInfo,
+    time: Option<f32>,
+    frame: Option<u32>,
+) -> anyhow::Result<f32> {
+    check_seconds("--time", time)?;
+    let frames = info.timeline.frame_count();
+    if let Some(f) = frame {
+        anyhow::ensure!(
+            f < frames,
+            "--frame {f} is out of range: the scene has {frames} frame(s)"
+        );
+    }
+    Ok(match (time, frame) {
+        (Some(t), _) => info.timeline.clamp(t),
+        (None, Some(f)) => info.timeline.time_of_frame(f),
+        (None, None) => 0.0,
+    })
+}
+
 /// Opens the scene named by `args`, with a progress bar when it takes a while, and
 /// returns it with the time the open took.
 pub fn open_scene(args: &SceneArgs, ui: &Ui) -> anyhow::Result<(Box<dyn Scene>, Duration)> {

@@ -515,24 +515,7 @@ pub fn run(a: &RenderArgs, ui: &Ui) -> anyhow::Result<()> {
 
     let (scene, _) = open_scene(&a.scene, ui)?;
     let info = scene.info();
-    if let Some(t) = a.time {
-        anyhow::ensure!(
-            t.is_finite(),
-            "--time must be a finite number of seconds, got {t}"
-        );
-    }
-    let frames = info.timeline.frame_count();
-    if let Some(f) = a.frame {
-        anyhow::ensure!(
-            f < frames,
-            "--frame {f} is out of range: the scene has {frames} frame(s)"
-        );
-    }
-    let time_s = match (a.time, a.frame) {
-        (Some(t), _) => info.timeline.clamp(t),
-        (None, Some(f)) => info.timeline.time_of_frame(f),
-        (None, None) => 0.0,
-    };
+    let time_s = super::resolve_time(info, a.time, a.frame)?;
     let mesh = {
         let _s = ui.spinner(&format!("sampling {} at t = {time_s} s", a.scene.scene));
         scene

@@ -186,7 +186,7 @@ pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
     // Fail on a bad memory name before loading the scene.
     sim::dram::open(dram, cfg.period_fs())?;
     let (scene, _) = open_scene(&a.scene, ui)?;
-    let t = scene.info().timeline.clamp(a.time.unwrap_or(0.0));
+    let t = super::resolve_time(scene.info(), a.time, None)?;
     let mesh = scene
         .mesh_at(t)
         .with_context(|| format!("cannot sample the scene at t = {t} s"))?;

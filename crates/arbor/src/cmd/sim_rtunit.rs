@@ -92,15 +92,10 @@ pub fn run_rtunit(a: &RtunitArgs, ui: &Ui) -> anyhow::Result<()> {
         rtunit::MAX_PIXELS
     );
     anyhow::ensure!(a.sample >= 1, "--sample must be at least 1");
-    if let Some(t) = a.time {
-        anyhow::ensure!(
-            t.is_finite(),
-            "--time must be a finite number of seconds, got {t}"
-        );
-    }
+    super::check_seconds("--time", a.time)?;
     let (scene, _) = open_scene(&a.scene, ui)?;
     let info = scene.info();
-    let t = info.timeline.clamp(a.time.unwrap_or(0.0));
+    let t = super::resolve_time(info, a.time, None)?;
     let mesh = scene
         .mesh_at(t)
         .with_context(|| format!("cannot sample the scene at t = {t} s"))?;
