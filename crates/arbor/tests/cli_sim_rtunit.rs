@@ -87,6 +87,31 @@ fn fifo_sizing_prints_the_sized_fifos() {
 }
 
 #[test]
+fn any_builder_can_make_the_tree() {
+    for (tree, builder) in [
+        ("bvh2", "hlbvh"),
+        ("cbvh", "lbvh"),
+        ("mbvh4", "mbvh4-collapse"),
+    ] {
+        let j = rt_json(&["--tree", tree, "--builder", builder]);
+        assert_eq!(j["hits_match_software"], true, "{tree} {builder}");
+    }
+    let e = error(&[
+        "sim",
+        "rtunit",
+        "--quiet",
+        CITY,
+        "--tree",
+        "bvh2",
+        "--builder",
+        "mbvh4-topdown",
+    ]);
+    assert!(e.contains("needs a binary tree"), "{e}");
+    let e = error(&["sim", "rtunit", "--quiet", CITY, "--builder", "nope"]);
+    assert!(e.contains("unknown builder 'nope'"), "{e}");
+}
+
+#[test]
 fn set_overrides_reach_the_model() {
     let j = rt_json(&["--set", "l2_bytes=65536", "--set", "trv_units=2"]);
     assert_eq!(j["config"]["l2_bytes"], 65536);

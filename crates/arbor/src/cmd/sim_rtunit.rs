@@ -19,6 +19,10 @@ pub struct RtunitArgs {
     /// from Wald's top-down builder, the thesis's proposal).
     #[arg(long, default_value = "bvh2")]
     tree: String,
+    /// Build the tree with this builder instead (any `arbor build` builder: a binary one
+    /// for bvh2 and cbvh, a 4-wide one for mbvh4), e.g. hlbvh for MergeTree's trees.
+    #[arg(long, value_name = "NAME")]
+    builder: Option<String>,
     /// How the mbvh4 tree is built: topdown (Wald's top-down builder, thesis P4 3.2) or
     /// collapse (the binned SAH tree collapsed to 4 wide: the same leaves as bvh2).
     #[arg(long, default_value = "topdown")]
@@ -77,6 +81,9 @@ pub fn run_rtunit(a: &RtunitArgs, ui: &Ui) -> anyhow::Result<()> {
         "diffuse" => RayMode::Diffuse,
         other => anyhow::bail!("unknown --rays '{other}' (known: primary, diffuse)"),
     };
+    if let Some(name) = &a.builder {
+        super::build::builder(name)?;
+    }
     let mbvh4 = match a.mbvh4_builder.as_str() {
         "topdown" => rtunit::Mbvh4Build::Topdown,
         "collapse" => rtunit::Mbvh4Build::Collapse,
@@ -109,7 +116,14 @@ pub fn run_rtunit(a: &RtunitArgs, ui: &Ui) -> anyhow::Result<()> {
             kind.name(),
             thousands(triangles.len() as u64)
         ));
-        rtunit::build_tree_with(kind, &triangles, mbvh4)?
+        match &a.builder {
+            None => rtunit::build_tree_with(kind, &triangles, mbvh4)?,
+            Some(name) => {
+                let (aabbs, _) = super::build::mesh_aabbs(&mesh)?;
+                let tree = super::build::builder(name)?(&aabbs, &Default::default())?;
+                rtunit::tree_from(kind, tree, &triangles)?
+            }
+        }
     };
     let bar = ui.progress(
         &format!(

@@ -286,12 +286,37 @@ pub fn build_tree_with(
     }
     let aabbs = bvh::triangle_aabbs(triangles);
     let tree_err = |e: &dyn std::fmt::Display| RtError::Tree(e.to_string());
-    let options = KernelOptions::thesis(kind.width() as u32);
-    Ok(match kind {
-        TreeKind::Bvh2 => {
-            let t = bvh::BinnedSahBuilder::default()
+    let binned = || {
+        bvh::BinnedSahBuilder::default()
+            .build(&aabbs)
+            .map_err(|e| tree_err(&e))
+    };
+    let tree = match (kind, mbvh4) {
+        (TreeKind::Bvh2 | TreeKind::Cbvh, _) => bvh::Tree::Bvh2(binned()?),
+        (TreeKind::Mbvh4, Mbvh4Build::Topdown) => bvh::Tree::Mbvh4(
+            bvh::Mbvh4TopDownBuilder::default()
                 .build(&aabbs)
-                .map_err(|e| tree_err(&e))?;
+                .map_err(|e| tree_err(&e))?,
+        ),
+        (TreeKind::Mbvh4, Mbvh4Build::Collapse) => {
+            bvh::Tree::Mbvh4(bvh::collapse(&binned()?).map_err(|e| tree_err(&e))?)
+        }
+    };
+    tree_from(kind, tree, triangles)
+}
+
+/// The accelerator's `kind` of tree from a tree built by any builder over `triangles`:
+/// a binary tree for `bvh2` (as is) and `cbvh` (compressed top-down, 6-bit relative
+/// coordinates), a 4-wide tree for `mbvh4`. The software tracer over it checks its links.
+pub fn tree_from(
+    kind: TreeKind,
+    tree: bvh::Tree,
+    triangles: &[Triangle],
+) -> Result<BuiltTree, RtError> {
+    let tree_err = |e: &dyn std::fmt::Display| RtError::Tree(e.to_string());
+    let options = KernelOptions::thesis(kind.width() as u32);
+    Ok(match (kind, tree) {
+        (TreeKind::Bvh2, bvh::Tree::Bvh2(t)) => {
             let image = TreeImage::bvh2(&t, triangles);
             let accel = trace::Bvh2Accel::new(t, triangles, options).map_err(|e| tree_err(&e))?;
             BuiltTree {
@@ -300,10 +325,7 @@ pub fn build_tree_with(
                 accel: trace::Accel::Bvh2(accel),
             }
         }
-        TreeKind::Cbvh => {
-            let t = bvh::BinnedSahBuilder::default()
-                .build(&aabbs)
-                .map_err(|e| tree_err(&e))?;
+        (TreeKind::Cbvh, bvh::Tree::Bvh2(t)) => {
             let (c, _) =
                 cbvh::compress_topdown(&t, &cbvh::Params::default()).map_err(|e| tree_err(&e))?;
             let image = TreeImage::cbvh(&c, triangles).map_err(|e| tree_err(&e))?;
@@ -314,18 +336,7 @@ pub fn build_tree_with(
                 accel: trace::Accel::Cbvh(accel),
             }
         }
-        TreeKind::Mbvh4 => {
-            let t = match mbvh4 {
-                Mbvh4Build::Topdown => bvh::Mbvh4TopDownBuilder::default()
-                    .build(&aabbs)
-                    .map_err(|e| tree_err(&e))?,
-                Mbvh4Build::Collapse => {
-                    let b = bvh::BinnedSahBuilder::default()
-                        .build(&aabbs)
-                        .map_err(|e| tree_err(&e))?;
-                    bvh::collapse(&b).map_err(|e| tree_err(&e))?
-                }
-            };
+        (TreeKind::Mbvh4, bvh::Tree::Mbvh4(t)) => {
             let image = TreeImage::mbvh4(&t, triangles);
             let accel = trace::Mbvh4Accel::new(t, triangles, options).map_err(|e| tree_err(&e))?;
             BuiltTree {
@@ -333,6 +344,21 @@ pub fn build_tree_with(
                 image,
                 accel: trace::Accel::Mbvh4(accel),
             }
+        }
+        (kind, t) => {
+            return Err(RtError::Tree(format!(
+                "the {} accelerator needs a {} tree, not a {}-wide one",
+                kind.name(),
+                if kind == TreeKind::Mbvh4 {
+                    "4-wide"
+                } else {
+                    "binary"
+                },
+                match t {
+                    bvh::Tree::Bvh2(_) => 2,
+                    bvh::Tree::Mbvh4(_) => 4,
+                }
+            )))
         }
     })
 }
