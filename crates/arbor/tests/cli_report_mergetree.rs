@@ -48,9 +48,27 @@ fn report(args: &[&str]) -> tempfile::TempDir {
 fn tiny_procedural_scenes_on_dramsim3() {
     let dir = report(&["--scenes", "proc:soup?n=3000&seed=2,proc:cloth?n=2000"]);
     let d = dir.path();
-    for f in ["report.md", "table3.csv", "sah.csv", "table6.csv"] {
+    for f in [
+        "report.md",
+        "table3.csv",
+        "sah.csv",
+        "table6.csv",
+        "table7.csv",
+        "table4.csv",
+    ] {
         assert!(d.join(f).is_file(), "{f} missing");
     }
+    // Table VII: one row per system with the thesis beside; DRAM the larger part.
+    let t7 = csv(&d.join("table7.csv"));
+    assert_eq!(t7.len(), 3);
+    for (r, system) in t7.iter().zip(["slow", "medium", "fast"]) {
+        assert_eq!(r["system"], system);
+        let num = |k: &str| r[k].parse::<f64>().unwrap();
+        assert!(num("logic_mw") > 0.0 && num("dram_above_idle_mw") > 0.0);
+        assert!((num("total_mw") - num("logic_mw") - num("dram_above_idle_mw")).abs() < 0.05);
+        assert!(num("thesis_total_mw") > 500.0);
+    }
+    assert_eq!(csv(&d.join("table4.csv")).len(), 5);
     // Table III: two scenes on the three systems, every tree the software builder's.
     let t3 = csv(&d.join("table3.csv"));
     assert_eq!(t3.len(), 6);

@@ -323,6 +323,66 @@ impl Flops {
     }
 }
 
+/// One unit's energy and area over a run (a row of \[P4\] Table 1 or \[P2\] Table IV).
+#[derive(Clone, Debug, Serialize)]
+pub struct UnitEnergy {
+    /// The unit.
+    pub unit: &'static str,
+    /// Area in mm^2 (DRAM: 0, off chip).
+    pub area_mm2: f64,
+    /// Dynamic energy in mJ.
+    pub dynamic_mj: f64,
+    /// Static (leakage; DRAM: background and refresh) energy in mJ.
+    pub static_mj: f64,
+    /// Their sum.
+    pub total_mj: f64,
+    /// Mean power over the run in mW.
+    pub power_mw: f64,
+}
+
+impl UnitEnergy {
+    /// A unit that spent `dynamic_mj` and `static_mj` over `seconds`.
+    pub fn new(
+        unit: &'static str,
+        area_mm2: f64,
+        dynamic_mj: f64,
+        static_mj: f64,
+        seconds: f64,
+    ) -> Self {
+        let total_mj = dynamic_mj + static_mj;
+        Self {
+            unit,
+            area_mm2,
+            dynamic_mj,
+            static_mj,
+            total_mj,
+            power_mw: if seconds > 0.0 {
+                total_mj / seconds
+            } else {
+                0.0
+            },
+        }
+    }
+
+    /// The DRAM of a run from the memory's counts: background and refresh energy as
+    /// static, the rest dynamic (zero when the backend has no energy model).
+    pub fn dram(mem: &crate::dram::MemStats, seconds: f64) -> Self {
+        let e = mem.energy_pj.as_ref();
+        let total = e.map_or(0.0, |e| e.total_pj()) * 1e-9;
+        let stat = e.map_or(0.0, |e| e.background_pj + e.refresh_pj) * 1e-9;
+        Self::new("DRAM", 0.0, total - stat, stat, seconds)
+    }
+}
+
+/// Energy of a 32-bit integer add or compare at 45 nm in pJ (Horowitz, ISSCC 2014;
+/// hardware.md §4), scaled linearly with the feature size by [`int_add_pj`].
+pub const HOROWITZ_45NM_INT_ADD_PJ: f64 = 0.1;
+
+/// A 32-bit integer add or compare at `node`, in pJ.
+pub fn int_add_pj(node: Node) -> f64 {
+    HOROWITZ_45NM_INT_ADD_PJ * node.nm() / 45.0
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

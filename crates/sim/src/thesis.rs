@@ -149,6 +149,26 @@ impl P2Scene {
     }
 }
 
+/// \[P2\] Table VII (lines 1745-1750), averaged over its 14 scenes, on the slow, medium and
+/// fast systems: memory traffic in GB/s, logic power, DRAM power and total power in mW.
+pub const P2_TABLE_VII: [[f64; 3]; 4] = [
+    [9.2, 13.9, 18.9],
+    [58.1, 61.8, 62.7],
+    [507.2, 814.8, 1112.4],
+    [565.3, 876.6, 1175.2],
+];
+
+/// \[P2\] Table IV (lines 1696-1704), Lion on the fast system: area in mm^2 and power in mW
+/// of the insertion sorters, multi-merge unit, hierarchy emitter, FIFOs and muxes, and the
+/// total.
+pub const P2_TABLE_IV: [(&str, f64, f64); 5] = [
+    ("Insertion sorters", 0.24, 25.8),
+    ("Multi-merge unit", 1.14, 17.2),
+    ("Hierarchy emitter", 0.03, 2.2),
+    ("FIFOs and muxes", 0.99, 16.0),
+    ("Total", 2.41, 61.2),
+];
+
 /// One row of \[P4\] Table 2 (lines 2502-2509): a scene and ray kind, the BVH and MBVH4
 /// accelerators' performance (MRPS), energy (mJ per frame), performance per area
 /// (MRPS/mm^2) and DRAM traffic (MB per frame), and the relative changes the table prints
@@ -299,6 +319,21 @@ mod tests {
         assert!(p2_scene("sibenik").is_none());
         // Table VII (lines 1745-1750): 9.2 GB/s of 12.8 is the 72 % of §6.3.1.
         assert!((9.2 / P2_BANDWIDTH_GBS[0] - P2_BUS_UTILIZATION[0]).abs() < 0.005);
+    }
+
+    #[test]
+    fn p2_tables_iv_and_vii_add_up() {
+        let parts: f64 = P2_TABLE_IV[..4].iter().map(|r| r.1).sum();
+        assert!((parts - P2_TABLE_IV[4].1).abs() < 0.015);
+        let power: f64 = P2_TABLE_IV[..4].iter().map(|r| r.2).sum();
+        assert!((power - P2_TABLE_IV[4].2).abs() < 0.05);
+        for k in 0..3 {
+            let total = P2_TABLE_VII[1][k] + P2_TABLE_VII[2][k];
+            assert!((total - P2_TABLE_VII[3][k]).abs() < 0.15, "{k}");
+            // Traffic within the peak bandwidth; DRAM about 90% of the power (§6.3.1: "over 90%").
+            assert!(P2_TABLE_VII[0][k] < P2_BANDWIDTH_GBS[k]);
+            assert!(P2_TABLE_VII[2][k] > 0.89 * P2_TABLE_VII[3][k]); // 89.7% on the slow system
+        }
     }
 
     #[test]

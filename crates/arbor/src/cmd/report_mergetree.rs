@@ -109,6 +109,8 @@ struct SimRow {
     energy_mj: Option<f64>,
     /// DRAM energy above an idle memory's ([P2] §6.2), mJ.
     energy_above_idle_mj: Option<f64>,
+    /// Energy and area at 28 nm (`sim::mergetree::energy`).
+    energy: Option<sim::mergetree::energy::MergeTreeEnergy>,
     toplevel_cycles: u64,
     /// Inner nodes written.
     nodes: u64,
@@ -252,6 +254,7 @@ pub fn run(a: &ReportMergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
     write_table3(&a.out, &mut md, &results)?;
     write_sah(&a.out, &mut md, &results)?;
     write_table6(&a.out, &mut md, &results)?;
+    write_table7(&a.out, &mut md, &results)?;
     write_fig6(&a.out, &mut md, &results)?;
     write_file(&a.out, "report.md", &md)?;
     println!("{md}");
@@ -391,6 +394,12 @@ fn simulate(s: &Scene, cfg: &MergeTreeConfig, dram: &str, trace: bool) -> anyhow
         row_hit_rate: (bursts > 0).then(|| m.row_hits as f64 / bursts as f64),
         energy_mj: m.energy_pj.map(|e| e.total_pj() * 1e-9),
         energy_above_idle_mj: m.energy_pj.map(|e| e.above_idle_pj() * 1e-9),
+        energy: sim::mergetree::energy::mergetree_energy(
+            &r,
+            sim::energy::Node::Nm28,
+            sim::energy::Cell::Hp,
+        )
+        .ok(),
         toplevel_cycles: r.toplevel_cycles,
         nodes: r.nodes,
         tree_matches_software: matches,
@@ -796,6 +805,125 @@ fn traffic_split(row: &SimRow) -> [u64; 4] {
         }
     }
     t
+}
+
+/// \[P2\] Tables IV and VII: MergeTree's power per memory system averaged over the scenes
+/// (traffic, logic, DRAM above idle, total) and the unit breakdown of the largest scene on
+/// the last system, beside the thesis's, from `sim::mergetree::energy` at 28 nm.
+fn write_table7(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> {
+    let mut csv = String::from(
+        "system,memory,scenes,traffic_gbs,thesis_traffic_gbs,logic_mw,thesis_logic_mw,dram_mw,dram_above_idle_mw,thesis_dram_mw,total_mw,thesis_total_mw,dram_share\n",
+    );
+    writeln!(md, "## Tables IV and VII analogues: MergeTree power\n")?;
+    writeln!(
+        md,
+        "Means over the scenes at 28 nm with CACTI hp SRAM cells (`sim::mergetree::energy`: the \
+         unit's memory blocks and operations, not synthesized logic; comparators, muxes and \
+         control are not counted). DRAM power is above an idle memory, as [P2] §6.2 reports it; \
+         total = logic + DRAM above idle. Ours / [P2] Table VII.\n"
+    )?;
+    writeln!(
+        md,
+        "| system | traffic GB/s | logic mW | DRAM mW | total mW | DRAM share |"
+    )?;
+    writeln!(md, "|---|---|---|---|---|---:|")?;
+    for k in 0..r.drams.len() {
+        let rows: Vec<&SimRow> = r.sims.iter().filter_map(|s| s.get(k)).collect();
+        let es: Vec<&sim::mergetree::energy::MergeTreeEnergy> =
+            rows.iter().filter_map(|row| row.energy.as_ref()).collect();
+        if es.is_empty() {
+            continue;
+        }
+        let n = es.len() as f64;
+        let mean = |f: &dyn Fn(&sim::mergetree::energy::MergeTreeEnergy) -> f64| {
+            es.iter().map(|e| f(e)).sum::<f64>() / n
+        };
+        let traffic = rows
+            .iter()
+            .map(|row| (row.bytes_read + row.bytes_written) as f64 / (row.ms * 1e-3) / 1e9)
+            .sum::<f64>()
+            / rows.len() as f64;
+        let (logic, dram, above) = (
+            mean(&|e| e.logic_mw),
+            mean(&|e| e.dram_mw),
+            mean(&|e| e.dram_above_idle_mw),
+        );
+        let total = logic + above;
+        let t = r
+            .thesis_system(k)
+            .map(|k| [0, 1, 2, 3].map(|i| thesis::P2_TABLE_VII[i][k]));
+        let pair = |ours: f64, i: usize| match t {
+            Some(t) => format!("{ours:.1} / {}", t[i]),
+            None => format!("{ours:.1}"),
+        };
+        writeln!(
+            md,
+            "| {} | {} | {} | {} | {} | {:.0}% |",
+            r.label(k),
+            pair(traffic, 0),
+            pair(logic, 1),
+            pair(above, 2),
+            pair(total, 3),
+            100.0 * above / total
+        )?;
+        let th = |i: usize| t.map_or(String::new(), |t| t[i].to_string());
+        writeln!(
+            csv,
+            "{},{},{},{traffic:.3},{},{logic:.2},{},{dram:.2},{above:.2},{},{total:.2},{},{:.4}",
+            r.label(k),
+            r.drams[k],
+            es.len(),
+            th(0),
+            th(1),
+            th(2),
+            th(3),
+            above / total
+        )?;
+    }
+    write_file(out, "table7.csv", &csv)?;
+    // Table IV: the largest scene on the last system.
+    let last = r.drams.len().saturating_sub(1);
+    let big = (0..r.scenes.len()).max_by_key(|&s| r.scenes[s].prims.len());
+    if let Some(e) = big
+        .and_then(|s| r.sims[s].get(last))
+        .and_then(|row| row.energy.as_ref())
+    {
+        let s = big.expect("some scene");
+        writeln!(
+            md,
+            "\nTable IV analogue: {} on {} (the thesis: Lion on the fast system); area mm^2 and power mW, ours / [P2].\n",
+            r.scenes[s].name,
+            r.label(last)
+        )?;
+        writeln!(md, "| unit | area | power |")?;
+        writeln!(md, "|---|---|---|")?;
+        let mut t4 = String::from("unit,area_mm2,thesis_area_mm2,power_mw,thesis_power_mw\n");
+        for (u, t) in e.units[..4].iter().zip(thesis::P2_TABLE_IV) {
+            writeln!(
+                md,
+                "| {} | {:.3} / {} | {:.1} / {} |",
+                u.unit, u.area_mm2, t.1, u.power_mw, t.2
+            )?;
+            writeln!(
+                t4,
+                "{},{:.4},{},{:.3},{}",
+                u.unit, u.area_mm2, t.1, u.power_mw, t.2
+            )?;
+        }
+        let t = thesis::P2_TABLE_IV[4];
+        writeln!(
+            md,
+            "| total | {:.3} / {} | {:.1} / {} |\n",
+            e.area_mm2, t.1, e.logic_mw, t.2
+        )?;
+        writeln!(
+            t4,
+            "Total,{:.4},{},{:.3},{}",
+            e.area_mm2, t.1, e.logic_mw, t.2
+        )?;
+        write_file(out, "table4.csv", &t4)?;
+    }
+    Ok(())
 }
 
 fn write_table6(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> {

@@ -99,6 +99,8 @@ struct Output<'a> {
     svg: Option<String>,
     sim_wall_ms: f64,
     sim_cycles_per_s: f64,
+    /// Energy and area at 28 nm with CACTI hp cells ([P2] §6.4's node).
+    energy: Option<sim::mergetree::energy::MergeTreeEnergy>,
 }
 
 /// Builds the configuration from the preset, the file and the overrides.
@@ -210,6 +212,12 @@ pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
         super::report::write_atomic(p, &report.trace_svg(&title))?;
     }
     let cps = report.cycles as f64 / (wall_ms / 1e3).max(1e-9);
+    let energy = sim::mergetree::energy::mergetree_energy(
+        &report,
+        sim::energy::Node::Nm28,
+        sim::energy::Cell::Hp,
+    )
+    .ok();
     if a.json {
         let out = Output {
             schema: "arbor.sim.mergetree.v1",
@@ -223,10 +231,23 @@ pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
             svg: a.svg.as_ref().map(|p| p.display().to_string()),
             sim_wall_ms: wall_ms,
             sim_cycles_per_s: cps,
+            energy,
         };
         println!("{}", serde_json::to_string_pretty(&out)?);
     } else {
         print_text(a, dram, &report, [matches, cbvh_matches], wall_ms);
+        if let Some(e) = &energy {
+            println!(
+                "power at 28 nm: logic {:.1} mW, DRAM {:.1} mW ({:.1} mW above idle); on-chip area {:.2} mm^2",
+                e.logic_mw, e.dram_mw, e.dram_above_idle_mw, e.area_mm2
+            );
+            for u in &e.units[..4] {
+                println!(
+                    "  {:<18} {:>6.3} mm^2 {:>8.2} mW",
+                    u.unit, u.area_mm2, u.power_mw
+                );
+            }
+        }
     }
     if matches == Some(false) {
         anyhow::bail!("the simulated tree differs from the software HLBVH tree");

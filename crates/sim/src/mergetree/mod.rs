@@ -30,6 +30,7 @@
 pub mod cbvh_unit;
 pub mod config;
 pub mod emitter;
+pub mod energy;
 pub mod heap;
 pub mod machine;
 pub mod merge;

@@ -27,7 +27,7 @@
 use serde::Serialize;
 
 use super::{RtReport, TreeKind};
-use crate::energy::{sram, Cell, EnergyError, Flops, Fpu, Node};
+use crate::energy::{sram, Cell, EnergyError, Flops, Fpu, Node, UnitEnergy};
 
 /// Bytes of a ray record in a FIFO.
 pub const RAY_RECORD_BYTES: f64 = 48.0;
@@ -55,23 +55,6 @@ pub const TRIANGLE_TEST: Flops = Flops {
 
 /// Where energy and area are counted: \[P4\] Table 1's columns.
 pub const UNITS: [&str; 6] = ["TRV", "IST", "stack", "cache", "FIFO", "DRAM"];
-
-/// One unit's figures over a run.
-#[derive(Clone, Debug, Serialize)]
-pub struct UnitEnergy {
-    /// One of [`UNITS`].
-    pub unit: &'static str,
-    /// Area in mm^2 (DRAM: 0, off chip).
-    pub area_mm2: f64,
-    /// Dynamic energy in mJ.
-    pub dynamic_mj: f64,
-    /// Static (leakage; DRAM: background and refresh) energy in mJ.
-    pub static_mj: f64,
-    /// Their sum.
-    pub total_mj: f64,
-    /// Mean power over the run in mW.
-    pub power_mw: f64,
-}
 
 /// The accelerator's energy over a run, and per frame.
 #[derive(Clone, Debug, Serialize)]
@@ -163,21 +146,10 @@ pub fn accelerator_energy(
         fifo_dyn += 2.0 * f.pushes as f64 * m.access_pj * RAY_RECORD_BYTES / 64.0;
     }
     let leak_mj = |mw: f64| mw * seconds; // mW x s = mJ
-    let dram = r.memory.energy_pj.as_ref();
-    let dram_total = dram.map_or(0.0, |e| e.total_pj()) * 1e-9;
-    let dram_static = dram.map_or(0.0, |e| e.background_pj + e.refresh_pj) * 1e-9;
-    let unit = |name: &'static str, area: f64, dynamic_mj: f64, static_mj: f64| UnitEnergy {
-        unit: name,
-        area_mm2: area,
-        dynamic_mj,
-        static_mj,
-        total_mj: dynamic_mj + static_mj,
-        power_mw: if seconds > 0.0 {
-            (dynamic_mj + static_mj) / seconds
-        } else {
-            0.0
-        },
+    let unit = |name, area, dynamic_mj, static_mj| {
+        UnitEnergy::new(name, area, dynamic_mj, static_mj, seconds)
     };
+    let dram = r.memory.energy_pj.as_ref();
     let units = vec![
         unit("TRV", trv_path.area_mm2(&fpu) * trvs, trv_dyn * 1e-9, 0.0),
         unit("IST", TRIANGLE_TEST.area_mm2(&fpu), ist_dyn * 1e-9, 0.0),
@@ -194,7 +166,7 @@ pub fn accelerator_energy(
             leak_mj(l1.leak_mw * trvs + l2.leak_mw + bank.leak_mw * banks),
         ),
         unit("FIFO", fifo_area, fifo_dyn * 1e-9, leak_mj(fifo_leak)),
-        unit("DRAM", 0.0, dram_total - dram_static, dram_static),
+        UnitEnergy::dram(&r.memory, seconds),
     ];
     let run_mj: f64 = units.iter().map(|u| u.total_mj).sum();
     let area_mm2: f64 = units.iter().map(|u| u.area_mm2).sum();
