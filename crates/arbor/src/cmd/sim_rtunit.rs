@@ -166,7 +166,7 @@ pub fn run_rtunit(a: &RtunitArgs, ui: &Ui) -> anyhow::Result<()> {
 
 fn print_report(r: &RtReport, first: Option<&RtReport>) {
     println!(
-        "{} accelerator, {} rays, {}x{} ({} pixels, 1 in {} tile chunks timed), {}",
+        "{} accelerator, {} rays, {}x{} ({} pixels{}), {}",
         r.tree.name(),
         match r.ray_kind {
             RayMode::Primary => "primary".to_string(),
@@ -175,7 +175,11 @@ fn print_report(r: &RtReport, first: Option<&RtReport>) {
         r.width,
         r.height,
         thousands(r.pixels),
-        r.sample,
+        if r.sample > 1 {
+            format!(" timed: 1 in {} tile chunks", r.sample)
+        } else {
+            String::new()
+        },
         r.memory_name
     );
     println!(
@@ -212,6 +216,23 @@ fn print_report(r: &RtReport, first: Option<&RtReport>) {
         r.config.stack_entries,
         if r.hits_match_software { "yes" } else { "NO" }
     );
+    if let Some(e) = &r.energy {
+        println!(
+            "  energy at {} ({} cells): {:.3} mJ per frame, {:.0} mW, {:.2} mm^2, {:.1} MRPS/mm^2",
+            e.node.name(),
+            e.cell.name(),
+            e.frame_mj,
+            e.power_mw,
+            e.area_mm2,
+            e.mrps_per_mm2
+        );
+        let parts: Vec<String> = e
+            .units
+            .iter()
+            .map(|u| format!("{} {:.0} mW", u.unit, u.power_mw))
+            .collect();
+        println!("    {}", parts.join(", "));
+    }
     println!("  caches:");
     for c in &r.caches {
         println!(
