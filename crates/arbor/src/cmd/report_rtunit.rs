@@ -5,7 +5,7 @@
 //! - `table2.md` / `table2.csv` / `table2.json`: the table (performance, traffic, energy
 //!   per frame, performance per area);
 //! - `table1.md`: \[P4\] Table 1's analogue (area and power per unit) on the first scene;
-//! - `sampling.md`: the first whole-frame scene sampled one in `--check-sample` tile
+//! - `sampling.md`: every whole-frame scene sampled one in `--check-sample` tile
 //!   chunks, against its whole-frame figures;
 //! - `report.md`: both, with the scene list.
 
@@ -125,8 +125,9 @@ pub fn run(a: &ReportRtunitArgs, ui: &Ui) -> anyhow::Result<()> {
             note: note.clone(),
         });
     }
-    let check = a.check_sample > 1 && scenes.iter().any(|s| s.sample == 1);
-    let total = 4 * scenes.len() as u64 + if check { 4 } else { 0 };
+    let whole = scenes.iter().filter(|s| s.sample == 1).count() as u64;
+    let check = a.check_sample > 1 && whole > 0;
+    let total = 4 * scenes.len() as u64 + if check { 4 * whole } else { 0 };
     let bar = ui.progress("accelerator runs (scene, rays, tree)", Unit::Items);
     let done = std::cell::Cell::new(0u64);
     let tick = |_what: &str| {
@@ -136,8 +137,8 @@ pub fn run(a: &ReportRtunitArgs, ui: &Ui) -> anyhow::Result<()> {
     let table = table2(&scenes, &cfg, a.bounces, tick)?;
     let mut checks = Vec::new();
     if check {
-        if let Some(s) = scenes.iter().find(|s| s.sample == 1) {
-            checks = sampling_check(&table, s, a.check_sample, &cfg, tick)?;
+        for s in scenes.iter().filter(|s| s.sample == 1) {
+            checks.extend(sampling_check(&table, s, a.check_sample, &cfg, tick)?);
         }
     }
     bar.update(total, total);
