@@ -194,6 +194,24 @@ pub struct CacheStats {
 }
 
 impl CacheStats {
+    /// Adds `o`'s counts to these (the statistics of several caches as one).
+    pub fn add(&mut self, o: &CacheStats) {
+        self.accesses += o.accesses;
+        self.split_accesses += o.split_accesses;
+        self.line_accesses += o.line_accesses;
+        self.hits += o.hits;
+        self.misses += o.misses;
+        self.merges += o.merges;
+        self.refused_mshr_full += o.refused_mshr_full;
+        self.refused_targets_full += o.refused_targets_full;
+        self.refused_bank_busy += o.refused_bank_busy;
+        self.refused_too_wide += o.refused_too_wide;
+        self.fills += o.fills;
+        self.evictions += o.evictions;
+        self.writebacks += o.writebacks;
+        self.write_throughs += o.write_throughs;
+    }
+
     /// Hits per line access (0 with no accesses).
     pub fn hit_rate(&self) -> f64 {
         if self.line_accesses == 0 {

@@ -80,16 +80,6 @@ pub struct AcceleratorEnergy {
     pub mrps_per_mm2: f64,
 }
 
-fn counter(r: &RtReport, unit_prefix: &str, name: &str) -> f64 {
-    r.units
-        .iter()
-        .filter(|u| u.name.starts_with(unit_prefix))
-        .flat_map(|u| u.counters.iter())
-        .filter(|(k, _)| k == name)
-        .map(|(_, v)| *v as f64)
-        .sum()
-}
-
 /// The energy and area of the accelerator of run `r` at `node` with `cell` SRAMs.
 pub fn accelerator_energy(
     r: &RtReport,
@@ -121,7 +111,8 @@ pub fn accelerator_energy(
     let entry = 8.0 + if distance { 4.0 } else { 0.0 };
     let stack_bytes = c.stacks_per_trv as f64 * c.stack_entries as f64 * entry;
     let stack = sram(stack_bytes, 1, node, cell)?;
-    let stack_ops = counter(r, "trv", "pushes") + counter(r, "trv", "pops");
+    let stack_ops = (super::unit_counter(&r.units, "trv", "pushes")
+        + super::unit_counter(&r.units, "trv", "pops")) as f64;
     let stack_dyn = stack_ops * stack.access_pj * entry / 64.0;
     // Caches: the port reads a line (64 or 128 bytes).
     let line = c.node_line(r.tree) as f64;

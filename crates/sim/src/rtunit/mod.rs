@@ -428,8 +428,8 @@ pub(crate) fn plan(width: u32, height: u32, sample: u32) -> Plan {
     let k = sample.max(1) as u64;
     let (tw, th) = (width.div_ceil(TILE), height.div_ceil(TILE));
     let chunks = ((tw * th) as u64).div_ceil(SAMPLE_CHUNK_TILES as u64);
-    let mut pixels = Vec::with_capacity((width * height) as usize);
-    let mut tiles = Vec::with_capacity((tw * th) as usize);
+    let mut pixels = Vec::with_capacity(width as usize * height as usize);
+    let mut tiles = Vec::with_capacity(tw as usize * th as usize);
     for ty in 0..th {
         for tx in 0..tw {
             let c = ((ty * tw + tx) / SAMPLE_CHUNK_TILES) as u64;
@@ -603,11 +603,7 @@ pub(crate) fn run_with(
     });
     sched.add(Box::new(scheduler));
     for i in 0..n {
-        sched.add(Box::new(model::Trv::new(
-            i,
-            cfg.trv_depth(kind),
-            kind.node_bytes(),
-        )));
+        sched.add(Box::new(model::Trv::new(i, cfg.trv_depth(kind))));
     }
     sched.add(Box::new(model::Ist::new(cfg)));
     sched.add(Box::new(model::NodeL2::new(node_line, n)));
@@ -629,12 +625,8 @@ pub(crate) fn run_with(
             entries: cfg.stack_entries,
         });
     }
-    let mut counters = std::collections::BTreeMap::<&str, u64>::new();
     let mut units = Vec::new();
     for u in &report.units {
-        for &(k, v) in &u.counters {
-            *counters.entry(k).or_default() += v;
-        }
         let a = &u.activity;
         units.push(UnitFigures {
             name: u.name.clone(),
@@ -652,18 +644,10 @@ pub(crate) fn run_with(
                 .collect(),
         });
     }
-    let count = |k: &str| counters.get(k).copied().unwrap_or(0);
-    let trv_loops: u64 = report
-        .units
-        .iter()
-        .filter(|u| u.name.starts_with("trv"))
-        .flat_map(|u| u.counters.iter())
-        .filter(|(k, _)| *k == "loops")
-        .map(|(_, v)| v)
-        .sum();
+    let count = |k: &str| unit_counter(&units, "", k);
     let mut l1 = CacheStats::default();
     for c in &world.l1 {
-        add_stats(&mut l1, c.stats());
+        l1.add(c.stats());
     }
     let caches = [
         ("l1", l1),
@@ -764,8 +748,8 @@ pub(crate) fn run_with(
         node_visits: count("node_visits"),
         box_tests: count("box_tests"),
         triangle_tests: count("triangle_tests"),
-        trv_loops,
-        ist_loops: count("loops") - trv_loops,
+        trv_loops: unit_counter(&units, "trv", "loops"),
+        ist_loops: unit_counter(&units, "ist", "loops"),
         caches,
         units,
         fifos,
@@ -784,21 +768,16 @@ pub(crate) fn run_with(
     Ok(out)
 }
 
-fn add_stats(a: &mut CacheStats, b: &CacheStats) {
-    a.accesses += b.accesses;
-    a.split_accesses += b.split_accesses;
-    a.line_accesses += b.line_accesses;
-    a.hits += b.hits;
-    a.misses += b.misses;
-    a.merges += b.merges;
-    a.refused_mshr_full += b.refused_mshr_full;
-    a.refused_targets_full += b.refused_targets_full;
-    a.refused_bank_busy += b.refused_bank_busy;
-    a.refused_too_wide += b.refused_too_wide;
-    a.fills += b.fills;
-    a.evictions += b.evictions;
-    a.writebacks += b.writebacks;
-    a.write_throughs += b.write_throughs;
+/// The sum of counter `name` over the units whose names start with `prefix` (all units
+/// for "").
+pub fn unit_counter(units: &[UnitFigures], prefix: &str, name: &str) -> u64 {
+    units
+        .iter()
+        .filter(|u| u.name.starts_with(prefix))
+        .flat_map(|u| u.counters.iter())
+        .filter(|(k, _)| k == name)
+        .map(|(_, v)| *v)
+        .sum()
 }
 
 /// Traces the paths of `pixels` (the camera pixels the model simulated) with the software

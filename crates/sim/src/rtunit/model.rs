@@ -358,13 +358,9 @@ impl Scheduler {
             return;
         }
         let first = self.next_pixel;
-        while let Some(&(start, mode)) = w.source.plan.tiles.get(self.tile) {
-            if mode != super::TileMode::Gap {
-                break;
-            }
+        while w.source.plan.tiles.get(self.tile).map(|t| t.1) == Some(super::TileMode::Gap) {
             self.tile += 1;
             self.next_pixel = w.source.plan.tiles.get(self.tile).map_or(plan_len, |t| t.0);
-            let _ = start;
         }
         if self.next_pixel > first {
             let pixels = w.source.plan.pixels[first..self.next_pixel].to_vec();
@@ -441,15 +437,18 @@ impl<'a> Unit<RtWorld<'a>> for Scheduler {
             }
             if let Some((start, rays)) = self.window.as_mut() {
                 *rays += 1;
-                // The chunk is over when the cursor is not inside a timed tile.
-                let tiles = &w.source.plan.tiles;
-                let at = tiles
-                    .partition_point(|t| t.0 <= self.next_pixel)
-                    .saturating_sub(1);
-                let in_timed = tiles
-                    .get(at)
-                    .is_some_and(|t| t.1 == super::TileMode::Timed && self.next_pixel > t.0);
-                if self.counted_in_flight == 0 && !in_timed {
+                // The chunk is over when no timed ray is in flight and the cursor is not
+                // inside a timed tile (looked up only then, not on every retire).
+                let in_timed = || {
+                    let tiles = &w.source.plan.tiles;
+                    let at = tiles
+                        .partition_point(|t| t.0 <= self.next_pixel)
+                        .saturating_sub(1);
+                    tiles
+                        .get(at)
+                        .is_some_and(|t| t.1 == super::TileMode::Timed && self.next_pixel > t.0)
+                };
+                if self.counted_in_flight == 0 && !in_timed() {
                     w.window_rays += *rays;
                     w.window_cycles += now + 1 - *start;
                     self.window = None;
@@ -623,7 +622,6 @@ pub(crate) struct Trv {
     /// Rays in the pipeline, with the cycle they leave it.
     pipe: VecDeque<(Cycle, u32)>,
     depth: Cycle,
-    node_line: u32,
     scratch: Vec<crate::kernel::cache::Ready<u32>>,
     visits: u64,
     pops: u64,
@@ -633,13 +631,12 @@ pub(crate) struct Trv {
 }
 
 impl Trv {
-    pub fn new(index: usize, depth: Cycle, node_line: u32) -> Self {
+    pub fn new(index: usize, depth: Cycle) -> Self {
         Self {
             index,
             name: format!("trv{index}"),
             pipe: VecDeque::new(),
             depth,
-            node_line,
             scratch: Vec::new(),
             visits: 0,
             pops: 0,
@@ -759,7 +756,8 @@ impl<'a> Unit<RtWorld<'a>> for Trv {
                         self.loops += 1;
                         state = State::Stalled(3);
                     } else {
-                        match w.l1[i].access(addr, self.node_line, AccessKind::Read, None, now) {
+                        match w.l1[i].access(addr, w.tree.node_bytes(), AccessKind::Read, None, now)
+                        {
                             Access::Hit { .. } => {
                                 let (tests, pushes) = visit(w, s, node);
                                 self.box_tests += tests;
@@ -1170,7 +1168,8 @@ impl<'a> Unit<RtWorld<'a>> for NodeL2 {
     }
 }
 
-/// A TRV's input FIFOs and a unit id helper for building the world.
+/// The unit ids of a world with `trv_units` TRV units: the scheduler, the TRVs, the IST
+/// unit and the shared node cache, in the order the scheduler adds them.
 pub(crate) fn unit_ids(trv_units: usize) -> (UnitId, Vec<UnitId>, UnitId, UnitId) {
     let trvs = (0..trv_units).map(|i| UnitId(1 + i as u32)).collect();
     (
