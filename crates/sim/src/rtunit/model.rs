@@ -440,6 +440,9 @@ impl<'a> Unit<RtWorld<'a>> for Scheduler {
                 // The chunk is over when no timed ray is in flight and the cursor is not
                 // inside a timed tile (looked up only then, not on every retire).
                 let in_timed = || {
+                    if self.next_pixel >= w.source.plan.pixels.len() {
+                        return false; // every pixel issued
+                    }
                     let tiles = &w.source.plan.tiles;
                     let at = tiles
                         .partition_point(|t| t.0 <= self.next_pixel)

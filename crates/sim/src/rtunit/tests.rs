@@ -420,6 +420,14 @@ fn a_sampled_run_warms_the_caches_and_stays_exact() {
         "lead and gap tiles are simulated uncounted"
     );
     assert!(a.counted_dram_bytes <= a.dram_bytes_read);
+    // A sampling factor above the number of chunks times one chunk; its measurement
+    // window closes at the end of the image.
+    w.sample = 1_000_000;
+    let one = run(&tree, &w, &cfg).unwrap();
+    // One retire per cycle bounds the rate at the clock (500 MRPS).
+    assert!(one.pixels > 0 && one.mrps > 0.0, "{}", one.mrps);
+    assert!(one.mrps <= cfg.clock_mhz as f64 + 1e-9, "{}", one.mrps);
+    assert!(one.hits_match_software);
     assert!(a.mrps > 0.0 && a.frame_dram_mb > 0.0);
 }
 
