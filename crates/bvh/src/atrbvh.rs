@@ -40,6 +40,7 @@ use crate::sah::SahParams;
 use crate::validate::validate;
 use crate::PARALLEL_MIN_PRIMS;
 use geom::Aabb;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 /// Relative SAH gain a treelet must show before its new topology replaces the old one:
 /// rejects float-noise "improvements", so repeated passes cannot drift or oscillate.
@@ -122,11 +123,39 @@ impl AtrbvhBuilder {
     }
 }
 
-/// Restructures `bvh` (any valid tree over `prims`) in place with ATRBVH.
+/// The work of an ATRBVH post-process, for cost models (`sim::system` counts the
+/// floating-point operations of a serial hardware unit from it).
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub struct AtrbvhWork {
+    /// Treelets formed over all passes, by their leaf count (index = leaves, up to
+    /// [`MAX_TREELET_SIZE`]); a treelet of fewer than 3 leaves is not rebuilt and not
+    /// counted.
+    pub treelets_by_leaves: Vec<u64>,
+    /// Treelets whose rebuilt topology replaced the old one.
+    pub accepted: u64,
+    /// Passes run.
+    pub passes: u32,
+    /// Inner nodes of the tree (each pass visits every one).
+    pub inner_nodes: u64,
+}
+
+impl AtrbvhWork {
+    /// Treelets formed.
+    pub fn treelets(&self) -> u64 {
+        self.treelets_by_leaves.iter().sum()
+    }
+}
+
+/// Restructures `bvh` (any valid tree over `prims`) in place with ATRBVH and returns the
+/// work it did.
 ///
 /// The tree is validated first (`prims` must be the boxes it was built over); an invalid
 /// tree or configuration is an error and leaves `bvh` untouched. The SAH never increases.
-pub fn optimize(bvh: &mut Bvh2, prims: &[Aabb], cfg: &AtrbvhConfig) -> Result<(), BuildError> {
+pub fn optimize(
+    bvh: &mut Bvh2,
+    prims: &[Aabb],
+    cfg: &AtrbvhConfig,
+) -> Result<AtrbvhWork, BuildError> {
     cfg.check()?;
     check_input(prims)?;
     validate(bvh, prims, u32::MAX)
@@ -173,10 +202,16 @@ fn area(b: &Aabb) -> f32 {
     }
 }
 
-fn optimize_checked(bvh: &mut Bvh2, cfg: &AtrbvhConfig) {
-    let Some(mut w) = Work::from_bvh(bvh) else {
-        return; // empty or single-leaf tree: nothing to restructure
+fn optimize_checked(bvh: &mut Bvh2, cfg: &AtrbvhConfig) -> AtrbvhWork {
+    let mut work = AtrbvhWork {
+        treelets_by_leaves: vec![0; MAX_TREELET_SIZE + 1],
+        ..Default::default()
     };
+    let Some(mut w) = Work::from_bvh(bvh) else {
+        return work; // empty or single-leaf tree: nothing to restructure
+    };
+    work.inner_nodes = w.nodes.len() as u64;
+    let counts = Counts::default();
     for it in 0..cfg.iterations {
         if it > 0 {
             w.nodes = w.relayout();
@@ -185,12 +220,35 @@ fn optimize_checked(bvh: &mut Bvh2, cfg: &AtrbvhConfig) {
             leaves: &w.leaves,
             treelet: cfg.treelet_size,
             c_inner: cfg.sah.c_inner,
+            counts: &counts,
         };
         pass(&ctx, &mut w.nodes, 0, 0);
+        work.passes += 1;
     }
+    for (k, c) in counts.by_leaves.iter().enumerate() {
+        work.treelets_by_leaves[k] = c.load(Ordering::Relaxed);
+    }
+    work.accepted = counts.accepted.load(Ordering::Relaxed);
     // Restructured treelets reuse node indices out of order; collapsing needs preorder.
     w.nodes = w.relayout();
     *bvh = w.into_bvh(bvh, cfg);
+    work
+}
+
+/// Treelet counters shared by the threads of a pass; each subtree pass adds its own
+/// counts once, at its end ([`Scratch::flush`]).
+struct Counts {
+    by_leaves: [AtomicU64; MAX_TREELET_SIZE + 1],
+    accepted: AtomicU64,
+}
+
+impl Default for Counts {
+    fn default() -> Self {
+        Self {
+            by_leaves: std::array::from_fn(|_| AtomicU64::new(0)),
+            accepted: AtomicU64::new(0),
+        }
+    }
 }
 
 impl Work {
@@ -428,6 +486,7 @@ struct Ctx<'a> {
     leaves: &'a [WLeaf],
     treelet: usize,
     c_inner: f32,
+    counts: &'a Counts,
 }
 
 /// Recursion depth below which large subtrees fork; deeper (or smaller) subtrees are
@@ -465,7 +524,9 @@ fn pass(ctx: &Ctx, nodes: &mut [WNode], base: u32, depth: u32) {
         [a] => pass(ctx, rest, a, depth + 1),
         _ => {}
     }
-    restructure(ctx, nodes, base, &mut Scratch::new());
+    let mut scratch = Scratch::new();
+    restructure(ctx, nodes, base, &mut scratch);
+    scratch.flush(ctx);
 }
 
 /// Inner node count of the subtree of node `c`, read from the slice starting at `base`.
@@ -499,6 +560,7 @@ fn pass_seq(ctx: &Ctx, nodes: &mut [WNode], base: u32) {
             }
         }
     }
+    scratch.flush(ctx);
 }
 
 /// Box, area and leaf count of a working child reference.
@@ -522,6 +584,9 @@ struct Scratch {
     dist: [[f32; MAX_TREELET_SIZE]; MAX_TREELET_SIZE],
     /// Merge records: (children, box, area); the last one is the treelet root.
     merges: [([u32; 2], Aabb, f32); MAX_TREELET_SIZE],
+    /// Treelets rebuilt by this scratch's passes, by leaf count, and how many were kept.
+    by_leaves: [u64; MAX_TREELET_SIZE + 1],
+    accepted: u64,
 }
 
 impl Scratch {
@@ -530,7 +595,21 @@ impl Scratch {
             boxes: [Aabb::EMPTY; MAX_TREELET_SIZE],
             dist: [[0.0; MAX_TREELET_SIZE]; MAX_TREELET_SIZE],
             merges: [([0; 2], Aabb::EMPTY, 0.0); MAX_TREELET_SIZE],
+            by_leaves: [0; MAX_TREELET_SIZE + 1],
+            accepted: 0,
         })
+    }
+
+    /// Adds this scratch's treelet counts to the pass's.
+    fn flush(&self, ctx: &Ctx) {
+        for (k, &n) in self.by_leaves.iter().enumerate() {
+            if n > 0 {
+                ctx.counts.by_leaves[k].fetch_add(n, Ordering::Relaxed);
+            }
+        }
+        ctx.counts
+            .accepted
+            .fetch_add(self.accepted, Ordering::Relaxed);
     }
 }
 
@@ -539,6 +618,8 @@ fn restructure(ctx: &Ctx, nodes: &mut [WNode], base: u32, scratch: &mut Scratch)
         boxes,
         dist,
         merges,
+        by_leaves,
+        accepted,
     } = scratch;
     let mut tl = [0u32; MAX_TREELET_SIZE];
     let mut internal = [0u32; MAX_TREELET_SIZE];
@@ -569,6 +650,7 @@ fn restructure(ctx: &Ctx, nodes: &mut [WNode], base: u32, scratch: &mut Scratch)
     if nl < 3 {
         return;
     }
+    by_leaves[nl] += 1;
     // Agglomerative rebuild over the active set `ids[..m]`.
     let mut ids = tl;
     for k in 0..nl {
@@ -628,6 +710,7 @@ fn restructure(ctx: &Ctx, nodes: &mut [WNode], base: u32, scratch: &mut Scratch)
     if ctx.c_inner <= 0.0 || !improved {
         return;
     }
+    *accepted += 1;
     for (step, &(child, bbox, a)) in merges[..nl - 1].iter().enumerate() {
         let id = if step == nl - 2 { base } else { internal[step] };
         let leaves = info(ctx, nodes, base, child[0]).2 + info(ctx, nodes, base, child[1]).2;
@@ -739,6 +822,45 @@ mod tests {
         let c = optimized("four cubes", &bad, &prims, &AtrbvhConfig::default());
         assert_eq!(c.nodes.len(), 1);
         assert!(c.nodes[0].children.iter().all(|r| r.count == 2));
+    }
+
+    /// The work record counts what the passes did: the four-cube tree is one treelet of 4
+    /// leaves per pass, accepted in the first pass only (the second finds the optimum);
+    /// a larger tree's counts do not depend on the thread count.
+    #[test]
+    fn work_counts_the_treelets() {
+        let prims = cubes_at(&[0.0, 10.0, 1.0, 11.0]);
+        let mut t = crate::LbvhBuilder::default().build(&prims).unwrap();
+        // The LBVH pairs the neighbours already; swap two leaves so a rebuild helps.
+        t.prim_indices.swap(1, 2);
+        crate::refit::refit_bvh2(&mut t, &prims).unwrap();
+        let cfg = AtrbvhConfig {
+            treelet_size: 4,
+            iterations: 2,
+            ..no_collapse()
+        };
+        let w = optimize(&mut t, &prims, &cfg).unwrap();
+        let mut want = vec![0u64; MAX_TREELET_SIZE + 1];
+        want[4] = 2;
+        assert_eq!(w.treelets_by_leaves, want);
+        assert_eq!((w.accepted, w.passes, w.inner_nodes), (1, 2, 3));
+        assert_eq!(w.treelets(), 2);
+        let prims = soup(30_000, 1.0, 5);
+        let lbvh = crate::LbvhBuilder::default().build(&prims).unwrap();
+        let run = |threads| {
+            let mut t = lbvh.clone();
+            let cfg = AtrbvhConfig {
+                threads,
+                ..Default::default()
+            };
+            optimize(&mut t, &prims, &cfg).unwrap()
+        };
+        let w1 = run(1);
+        // At least one treelet per 8 leaves' worth of inner nodes in each of two passes.
+        assert!(w1.treelets() > 2 * 30_000 / 8, "{w1:?}");
+        assert!(w1.accepted > 0 && w1.accepted <= w1.treelets());
+        assert_eq!(w1, run(2));
+        assert_eq!(w1, run(3));
     }
 
     /// A caterpillar of 100K leaves (depth 100K): no recursion may follow the tree depth,

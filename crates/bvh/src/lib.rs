@@ -30,7 +30,7 @@ pub mod toplevel;
 mod tree;
 mod validate;
 
-pub use atrbvh::{optimize, AtrbvhBuilder, AtrbvhConfig, MAX_TREELET_SIZE, MIN_GAIN};
+pub use atrbvh::{optimize, AtrbvhBuilder, AtrbvhConfig, AtrbvhWork, MAX_TREELET_SIZE, MIN_GAIN};
 #[doc(hidden)]
 pub use binned_sah::SortedSplitBench;
 pub use binned_sah::{BinnedSahBuilder, MAX_BINS};

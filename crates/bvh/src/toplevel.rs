@@ -10,7 +10,7 @@
 //! gives the Morton-prefix top that the uncut HLBVH would have, the starting point that
 //! ATRBVH optimizes for HLBVH+ATRBVH.
 
-use crate::atrbvh::{optimize, AtrbvhConfig};
+use crate::atrbvh::{optimize, AtrbvhConfig, AtrbvhWork};
 use crate::binned_sah::BinnedSahBuilder;
 use crate::bvh2::Bvh2;
 use crate::error::{in_pool, BuildError};
@@ -348,6 +348,11 @@ pub struct HlbvhAtrbvhBuilder {
 impl HlbvhAtrbvhBuilder {
     /// Builds a tree over the primitive boxes `aabbs`.
     pub fn build(&self, aabbs: &[Aabb]) -> Result<Bvh2, BuildError> {
+        Ok(self.build_with_work(aabbs)?.0)
+    }
+
+    /// [`Self::build`], with the work of the ATRBVH pass over the top tree.
+    pub fn build_with_work(&self, aabbs: &[Aabb]) -> Result<(Bvh2, AtrbvhWork), BuildError> {
         let hlbvh = HlbvhBuilder {
             threads: self.threads,
             ..self.hlbvh.clone()
@@ -357,11 +362,13 @@ impl HlbvhAtrbvhBuilder {
             threads: self.threads,
             ..self.atrbvh.clone()
         };
-        build_toplevel(&hlbvh, aabbs, |hl, boxes| {
+        let mut work = AtrbvhWork::default();
+        let tree = build_toplevel(&hlbvh, aabbs, |hl, boxes| {
             let mut top = morton_top(hl);
-            optimize(&mut top, boxes, &cfg)?;
+            work = optimize(&mut top, boxes, &cfg)?;
             Ok(top)
-        })
+        })?;
+        Ok((tree, work))
     }
 }
 
