@@ -13,6 +13,8 @@
 //! - [`analytic`]: analytic models of the builders MergeTree is compared with.
 //! - [`mergetree`]: the MergeTree HLBVH builder of \[P1\] and \[P2\].
 //! - [`rtunit`]: the ray-tracing accelerator of \[P4\] (TRV and IST pipelines, caches).
+//! - [`system`]: system energy per frame, build plus trace (\[P2\] §6.4), and tree
+//!   update policies over animations.
 //! - [`thesis`]: the thesis's published figures the models are compared with.
 #![warn(missing_docs)]
 
@@ -24,4 +26,5 @@ pub mod fifo;
 pub mod kernel;
 pub mod mergetree;
 pub mod rtunit;
+pub mod system;
 pub mod thesis;

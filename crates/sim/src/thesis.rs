@@ -158,6 +158,38 @@ pub const P2_TABLE_VII: [[f64; 3]; 4] = [
     [565.3, 876.6, 1175.2],
 ];
 
+/// \[P2\] Table VIII (lines 1774-1808): system energy (build, trace, total) normalized to
+/// binned SAH, averaged over the 14 scenes or the large (>500K triangles) ones, for
+/// (rays, scenes, builder); binned SAH is 1.0 by definition.
+pub const P2_TABLE_VIII: [(&str, &str, &str, [f64; 3]); 12] = [
+    ("primary", "all", "hlbvh", [0.32, 1.43, 0.71]),
+    ("primary", "all", "hlbvh+sah", [0.33, 1.14, 0.59]),
+    ("primary", "all", "hlbvh+atrbvh", [0.33, 1.12, 0.58]),
+    ("primary", "large", "hlbvh", [0.22, 1.48, 0.41]),
+    ("primary", "large", "hlbvh+sah", [0.22, 1.22, 0.37]),
+    ("primary", "large", "hlbvh+atrbvh", [0.22, 1.22, 0.37]),
+    ("diffuse", "all", "hlbvh", [0.32, 1.63, 1.10]),
+    ("diffuse", "all", "hlbvh+sah", [0.33, 1.34, 0.91]),
+    ("diffuse", "all", "hlbvh+atrbvh", [0.33, 1.28, 0.87]),
+    ("diffuse", "large", "hlbvh", [0.22, 1.65, 0.79]),
+    ("diffuse", "large", "hlbvh+sah", [0.22, 1.41, 0.68]),
+    ("diffuse", "large", "hlbvh+atrbvh", [0.22, 1.37, 0.65]),
+];
+
+/// The Table VIII entry of (`rays`, `scenes`, `builder`); binned SAH's is 1.0.
+pub fn p2_table8(rays: &str, scenes: &str, builder: &str) -> Option<[f64; 3]> {
+    if builder == "binned-sah"
+        && matches!(rays, "primary" | "diffuse")
+        && matches!(scenes, "all" | "large")
+    {
+        return Some([1.0; 3]);
+    }
+    P2_TABLE_VIII
+        .iter()
+        .find(|r| r.0 == rays && r.1 == scenes && r.2 == builder)
+        .map(|r| r.3)
+}
+
 /// \[P2\] Table IV (lines 1696-1704), Lion on the fast system: area in mm^2 and power in mW
 /// of the insertion sorters, multi-merge unit, hierarchy emitter, FIFOs and muxes, and the
 /// total.

@@ -42,6 +42,8 @@
 
 use bvh::{Bvh2, ChildRef};
 
+use crate::energy::Flops;
+
 /// Parameters of the modelled unit and formats.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct BinnedSahHwParams {
@@ -203,6 +205,36 @@ pub fn model(bvh: &Bvh2, p: &BinnedSahHwParams) -> BinnedSahHwTraffic {
     t
 }
 
+/// The operations of [`SweepFlops`] by kind, for the energy model (\[P2\] §6.4): per
+/// primitive 19 adds, subtracts, compares or min/max and 6 multiplies; per sweep the bin
+/// scales' 3 subtracts and 3 divisions, each a reciprocal (3 FLOPs, \[P2\] §6.4 after its
+/// ref. 33) and a multiply, then per axis and candidate plane 24 adds and 8 multiplies (the
+/// half areas' 3 multiplies each and the cost's 2). The totals differ from [`SweepFlops`]'s
+/// op counts only by the divisions' weight.
+pub const PER_PRIM_FLOPS: Flops = Flops {
+    adds: 19.0,
+    muls: 6.0,
+};
+
+/// The per-sweep part of [`PER_PRIM_FLOPS`]'s model for `bins` bins per axis.
+pub fn per_sweep_flops(bins: u64) -> Flops {
+    let candidates = 3.0 * bins.saturating_sub(1) as f64;
+    Flops {
+        adds: 3.0 + 24.0 * candidates,
+        muls: 3.0 * (3.0 + 1.0) + 8.0 * candidates,
+    }
+}
+
+/// The floating-point work of a binned SAH build that made `bvh` (one sweep per inner node
+/// over its subtree's primitives), by kind.
+pub fn energy_flops(bvh: &Bvh2, bins: u64) -> Flops {
+    let prims = subtree_prims(bvh);
+    let sweep = per_sweep_flops(bins);
+    prims.iter().fold(Flops::default(), |f, &n| {
+        f.plus(PER_PRIM_FLOPS.times(n as f64)).plus(sweep)
+    })
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -233,6 +265,33 @@ mod tests {
     #[test]
     fn subtree_counts() {
         assert_eq!(subtree_prims(&small_tree()), vec![17, 10, 7, 2]);
+    }
+
+    #[test]
+    fn energy_flops_split_the_op_counts() {
+        // Same operations as SweepFlops, the three divisions weighted 4 (reciprocal + mul).
+        assert_eq!(
+            PER_PRIM_FLOPS.adds + PER_PRIM_FLOPS.muls,
+            SweepFlops::PER_PRIM as f64
+        );
+        for bins in [1u64, 4, 16] {
+            let f = per_sweep_flops(bins);
+            assert_eq!(f.total(), (SweepFlops::per_sweep(bins) + 3 * 3) as f64);
+        }
+        // Hand count on the small tree: 17 + 10 + 7 + 2 primitives over 4 sweeps.
+        let f = energy_flops(&small_tree(), 4);
+        let want = PER_PRIM_FLOPS
+            .times(36.0)
+            .plus(per_sweep_flops(4).times(4.0));
+        assert_eq!(f, want);
+        let t = model(
+            &small_tree(),
+            &BinnedSahHwParams {
+                bins: 4,
+                ..Default::default()
+            },
+        );
+        assert_eq!(f.total(), (t.flops + 4 * 9) as f64);
     }
 
     #[test]

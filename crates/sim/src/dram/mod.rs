@@ -36,6 +36,7 @@ pub mod energy;
 pub mod lpddr;
 pub mod port;
 pub mod simple;
+pub mod stream;
 
 use serde::Serialize;
 

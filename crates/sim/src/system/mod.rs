@@ -1,0 +1,492 @@
+//! System energy per frame, \[P2\] §6.4: a BVH built for every frame by one of four
+//! builders, then a frame rendered by the \[P4\] BVH accelerator, on one mobile SoC
+//! (28 nm, the 25.6 GB/s LPDDR3 system, 500 MHz for every unit but MergeTree).
+//!
+//! The builders and how their energy is found:
+//! - `binned-sah`: the hardware binned SAH builder of Doyle et al. as \[P2\] §6.4 bounds
+//!   it: the DRAM traffic and floating-point operations of `analytic::binned_sah_hw` over
+//!   the tree `bvh::BinnedSahBuilder` makes (16 bins, leaves of up to 8, the tree the
+//!   accelerator's BVH uses too), FPUs fully used and the traffic as long consecutive
+//!   bursts (`dram::stream`); on-chip buffers are not charged (a lower bound, as \[P2\]'s);
+//! - `hlbvh`: the MergeTree cycle model (`mergetree`, preset `p2`, on the system's
+//!   memory) with its energy model (`mergetree::energy`);
+//! - `hlbvh+sah`: MergeTree with the toplevel binned SAH unit (`toplevel_sah`, cells of
+//!   `bvh::toplevel::default_threshold`), plus that unit's sweeps' floating-point work;
+//! - `hlbvh+atrbvh`: MergeTree emitting the same cells, then a serial ATRBVH unit over
+//!   the cell roots (treelets of 8, two passes, \[P2\] §6.2): its floating-point
+//!   operations counted from Arbor's ATRBVH code ([`atrbvh_flops`], one per cycle at
+//!   500 MHz), and its DRAM traffic as streams (the cell boxes read, each pass reading and
+//!   writing every top node, the top tree written).
+//!
+//! Every MergeTree tree is checked against the software builder's (the run fails
+//! otherwise), and every tree is traced by the accelerator model (`rtunit`, BVH2 nodes)
+//! with its energy at the same node (`rtunit::energy`); the trace's functional result is
+//! the software tracer's (checked in every run).
+
+pub mod report;
+
+use geom::{Aabb, Triangle};
+use serde::Serialize;
+use trace::PinholeCamera;
+
+use crate::analytic::binned_sah_hw::{self, BinnedSahHwParams};
+use crate::dram::{self, MemStats};
+use crate::energy::{Cell, EnergyError, Flops, Fpu, Node, UnitEnergy};
+use crate::mergetree::{self, energy::mergetree_energy, MergeTreeConfig};
+use crate::rtunit::{self, RayMode, RtConfig, TreeKind, Workload};
+
+/// Schema of the system report's JSON document.
+pub const SCHEMA: &str = "arbor.report.system.v1";
+
+/// The builders of \[P2\] §6.4.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub enum Builder {
+    /// Doyle et al.'s hardware binned SAH builder (lower bound).
+    #[serde(rename = "binned-sah")]
+    BinnedSah,
+    /// MergeTree's HLBVH.
+    #[serde(rename = "hlbvh")]
+    Hlbvh,
+    /// MergeTree with the toplevel binned SAH unit.
+    #[serde(rename = "hlbvh+sah")]
+    HlbvhSah,
+    /// MergeTree with a toplevel ATRBVH unit.
+    #[serde(rename = "hlbvh+atrbvh")]
+    HlbvhAtrbvh,
+}
+
+impl Builder {
+    /// All four, binned SAH (the reference) first.
+    pub const ALL: [Builder; 4] = [
+        Builder::BinnedSah,
+        Builder::Hlbvh,
+        Builder::HlbvhSah,
+        Builder::HlbvhAtrbvh,
+    ];
+
+    /// Name in reports and JSON.
+    pub fn name(self) -> &'static str {
+        match self {
+            Builder::BinnedSah => "binned-sah",
+            Builder::Hlbvh => "hlbvh",
+            Builder::HlbvhSah => "hlbvh+sah",
+            Builder::HlbvhAtrbvh => "hlbvh+atrbvh",
+        }
+    }
+}
+
+/// Errors of the system model.
+#[derive(Debug, thiserror::Error)]
+pub enum SystemError {
+    /// A parameter cannot be used.
+    #[error("{0}")]
+    Config(String),
+    /// A component model rejected its input.
+    #[error(transparent)]
+    Energy(#[from] EnergyError),
+    /// The memory system.
+    #[error(transparent)]
+    Dram(#[from] dram::DramError),
+    /// The MergeTree model.
+    #[error(transparent)]
+    MergeTree(#[from] mergetree::MergeTreeError),
+    /// The accelerator model.
+    #[error(transparent)]
+    Rt(#[from] rtunit::RtError),
+    /// A software builder.
+    #[error(transparent)]
+    Build(#[from] bvh::BuildError),
+}
+
+/// The modelled system.
+#[derive(Clone, Debug, Serialize)]
+pub struct SystemConfig {
+    /// Process node of every on-chip figure (\[P2\] §6.4: 28 nm).
+    pub node: Node,
+    /// SRAM cell type.
+    pub cell: Cell,
+    /// Memory system (\[P2\] §6.4: the 25.6 GB/s system, `lpddr3-1600-2x64`).
+    pub dram: String,
+    /// Clock of the binned SAH, ATRBVH and refit units and the accelerator, MHz (500).
+    pub unit_clock_mhz: u32,
+    /// MergeTree (preset `p2` on `dram`).
+    pub mergetree: MergeTreeConfig,
+    /// The accelerator (\[P4\] defaults, energy at `node`, on `dram`).
+    pub rt: RtConfig,
+    /// The binned SAH builder's traffic model.
+    #[serde(skip)]
+    pub binned: BinnedSahHwParams,
+    /// Diffuse bounces (\[P2\] §6.4: three).
+    pub bounces: u32,
+    /// Sampling seed of the diffuse rays.
+    pub seed: u64,
+}
+
+impl Default for SystemConfig {
+    fn default() -> Self {
+        let dram = "lpddr3-1600-2x64".to_string();
+        let rt = RtConfig {
+            energy_node: Node::Nm28,
+            dram: dram.clone(),
+            ..RtConfig::default()
+        };
+        let mergetree = MergeTreeConfig::p2();
+        Self {
+            node: Node::Nm28,
+            cell: Cell::Hp,
+            dram,
+            unit_clock_mhz: 500,
+            mergetree,
+            rt,
+            binned: BinnedSahHwParams::default(),
+            bounces: 3,
+            seed: 1,
+        }
+    }
+}
+
+impl SystemConfig {
+    /// Sets the node, memory system and clock everywhere they appear.
+    pub fn with(mut self, node: Node, cell: Cell, dram: &str) -> Self {
+        self.node = node;
+        self.cell = cell;
+        self.dram = dram.to_string();
+        self.rt.energy_node = node;
+        self.rt.sram_cell = cell;
+        self.rt.dram = dram.to_string();
+        self
+    }
+}
+
+/// One build's energy.
+#[derive(Clone, Debug, Serialize)]
+pub struct BuildEnergy {
+    /// Builder.
+    pub builder: Builder,
+    /// Build time in ms (binned SAH: the longer of its DRAM transfer and its FPU work at
+    /// one operation per FPU per cycle; see [`binned_sah_energy`]).
+    pub ms: f64,
+    /// DRAM traffic in bytes.
+    pub dram_bytes: u64,
+    /// Floating-point operations outside MergeTree (binned SAH, the toplevel units).
+    pub flops: f64,
+    /// Energy per unit (the last one the DRAM); they sum to `mj`.
+    pub units: Vec<UnitEnergy>,
+    /// Energy of the build in mJ.
+    pub mj: f64,
+    /// DRAM energy in mJ.
+    pub dram_mj: f64,
+    /// SAH of the tree (\[P2\]'s weights, `Bvh2::sah`).
+    pub sah: f64,
+}
+
+/// The work of the toplevel ATRBVH unit: FLOPs and DRAM bytes.
+fn atrbvh_traffic(roots: u64, top_inner: u64, passes: u32) -> (u64, u64) {
+    let node = 64;
+    let read = roots * 32 + passes as u64 * top_inner * node;
+    let write = passes as u64 * top_inner * node + top_inner * node;
+    (read, write)
+}
+
+/// Half area of a box: 3 subtracts, 3 multiplies, 2 adds.
+const HALF_AREA: Flops = Flops {
+    adds: 5.0,
+    muls: 3.0,
+};
+/// Union of two boxes: 6 min/max.
+const UNION: Flops = Flops {
+    adds: 6.0,
+    muls: 0.0,
+};
+
+/// Floating-point operations of rebuilding one treelet of `n` leaves, counted from
+/// `bvh::atrbvh`'s `restructure`: forming it (`k` area compares while it has `k` leaves,
+/// `k = 2 .. n-1`, and `n - 2` adds of the old area sum), the distance matrix
+/// (`n (n-1) / 2` unions and half areas), then each of the `n - 1` merges with `m` active
+/// leaves: `m (m-1) / 2` compares for the closest pair, one union and half area, one add
+/// of the new sum, and `m - 2` new distances; finally the gain test (1 multiply, 1
+/// compare).
+pub fn treelet_flops(n: u64) -> Flops {
+    let n = n as f64;
+    let ua = UNION.plus(HALF_AREA);
+    let form = Flops {
+        adds: ((2..n as u64).sum::<u64>() as f64) + (n - 2.0),
+        muls: 0.0,
+    };
+    let matrix = ua.times(n * (n - 1.0) / 2.0);
+    let mut merges = Flops::default();
+    let mut m = n;
+    while m >= 2.0 {
+        merges = merges
+            .plus(Flops {
+                adds: m * (m - 1.0) / 2.0 + 1.0,
+                muls: 0.0,
+            })
+            .plus(ua)
+            .plus(ua.times((m - 2.0).max(0.0)));
+        m -= 1.0;
+    }
+    form.plus(matrix).plus(merges).plus(Flops {
+        adds: 1.0,
+        muls: 1.0,
+    })
+}
+
+/// Floating-point operations of an ATRBVH post-process that did `work`.
+pub fn atrbvh_flops(work: &bvh::AtrbvhWork) -> Flops {
+    work.treelets_by_leaves
+        .iter()
+        .enumerate()
+        .fold(Flops::default(), |f, (n, &count)| {
+            if count == 0 {
+                f
+            } else {
+                f.plus(treelet_flops(n as u64).times(count as f64))
+            }
+        })
+}
+
+/// A unit that streams `read` and `write` bytes and does `flops` (one FPU operation per
+/// cycle per FPU of `fpus`, at `mhz`): its FPU energy and its DRAM bound, and the time
+/// (the longer of the two).
+fn streaming_unit(
+    name: &'static str,
+    flops: Flops,
+    fpus: f64,
+    read: u64,
+    write: u64,
+    cfg: &SystemConfig,
+) -> Result<(Vec<UnitEnergy>, f64, MemStats), SystemError> {
+    let (mem, dram_s) = dram::stream::streaming(&cfg.dram, read, write)?;
+    let fpu_s = flops.total() / (fpus * cfg.unit_clock_mhz as f64 * 1e6);
+    let seconds = dram_s.max(fpu_s);
+    let fpu_mj = flops.energy_pj(&Fpu::at(cfg.node)) * 1e-9;
+    Ok((
+        vec![
+            UnitEnergy::new(name, 0.0, fpu_mj, 0.0, seconds),
+            UnitEnergy::dram(&mem, seconds),
+        ],
+        seconds,
+        mem,
+    ))
+}
+
+/// FPUs of the binned SAH unit for its time estimate: \[P2\] does not give Doyle et al.'s
+/// count, so the time is bounded by DRAM alone unless the FPUs would be slower with one
+/// pipelined datapath per operation of a primitive's binning step (25).
+pub const BINNED_SAH_FPUS: f64 = 25.0;
+
+/// The binned SAH builder's lower-bound energy over `aabbs`, and its tree.
+pub fn binned_sah_energy(
+    aabbs: &[Aabb],
+    cfg: &SystemConfig,
+) -> Result<(BuildEnergy, bvh::Bvh2), SystemError> {
+    let tree = bvh::BinnedSahBuilder::default().build(aabbs)?;
+    let t = binned_sah_hw::model(&tree, &cfg.binned);
+    let flops = binned_sah_hw::energy_flops(&tree, cfg.binned.bins);
+    let (units, seconds, mem) = streaming_unit(
+        "binned SAH FPUs",
+        flops,
+        BINNED_SAH_FPUS,
+        t.sweep_read_bytes,
+        t.sweep_write_bytes + t.bvh_bytes,
+        cfg,
+    )?;
+    Ok((
+        finish(Builder::BinnedSah, units, seconds, &mem, flops, &tree),
+        tree,
+    ))
+}
+
+fn finish(
+    builder: Builder,
+    units: Vec<UnitEnergy>,
+    seconds: f64,
+    mem: &MemStats,
+    flops: Flops,
+    tree: &bvh::Bvh2,
+) -> BuildEnergy {
+    BuildEnergy {
+        builder,
+        ms: seconds * 1e3,
+        dram_bytes: mem.bytes_read + mem.bytes_written,
+        flops: flops.total(),
+        mj: units.iter().map(|u| u.total_mj).sum(),
+        dram_mj: units
+            .iter()
+            .filter(|u| u.unit == "DRAM")
+            .map(|u| u.total_mj)
+            .sum(),
+        units,
+        sah: tree.sah(),
+    }
+}
+
+/// One MergeTree run on `cfg`'s memory, checked against the software builder.
+fn mergetree_run(
+    aabbs: &[Aabb],
+    mt: &MergeTreeConfig,
+    cfg: &SystemConfig,
+) -> Result<mergetree::MergeTreeReport, SystemError> {
+    let port = dram::open(&cfg.dram, mt.period_fs())?;
+    let r = mergetree::simulate(aabbs, mt, port)?;
+    if !mergetree::tree_matches_software(&r, aabbs)? {
+        return Err(SystemError::Config(
+            "MergeTree model's tree differs from the software builder's".into(),
+        ));
+    }
+    Ok(r)
+}
+
+/// The energy of a MergeTree build `builder` over `aabbs` (`hlbvh`, `hlbvh+sah` or
+/// `hlbvh+atrbvh`), and its tree.
+pub fn mergetree_build_energy(
+    builder: Builder,
+    aabbs: &[Aabb],
+    cfg: &SystemConfig,
+) -> Result<(BuildEnergy, bvh::Bvh2), SystemError> {
+    let mut mt = cfg.mergetree.clone();
+    if builder != Builder::Hlbvh {
+        let bits = mergetree::software_builder(&mt).bits;
+        mt.highlevel_threshold = Some(bvh::toplevel::default_threshold(bits));
+        mt.toplevel_sah = builder == Builder::HlbvhSah;
+    }
+    let r = mergetree_run(aabbs, &mt, cfg)?;
+    let e = mergetree_energy(&r, cfg.node, cfg.cell)?;
+    let seconds = r.ms * 1e-3;
+    let mut units = e.units.clone();
+    let mut mem = r.memory.clone();
+    let mut flops = Flops::default();
+    let mut extra_s = 0.0;
+    let tree = match builder {
+        Builder::BinnedSah => {
+            return Err(SystemError::Config(
+                "binned SAH is not a MergeTree build".into(),
+            ))
+        }
+        Builder::Hlbvh => r.tree()?,
+        Builder::HlbvhSah => {
+            // The toplevel unit's sweeps run inside the MergeTree run (its time and
+            // node writes are there); its FPU work is added here.
+            let top = r.top_tree.as_ref().ok_or_else(|| {
+                SystemError::Config("MergeTree ran without its toplevel unit".into())
+            })?;
+            flops = binned_sah_hw::energy_flops(top, mt.toplevel_bins as u64);
+            let fpu_mj = flops.energy_pj(&Fpu::at(cfg.node)) * 1e-9;
+            units.insert(
+                units.len() - 1,
+                UnitEnergy::new("toplevel SAH FPUs", 0.0, fpu_mj, 0.0, seconds),
+            );
+            r.tree()?
+        }
+        Builder::HlbvhAtrbvh => {
+            let (tree, work) = bvh::HlbvhAtrbvhBuilder {
+                hlbvh: mergetree::software_builder(&mt),
+                ..Default::default()
+            }
+            .build_with_work(aabbs)?;
+            flops = atrbvh_flops(&work);
+            let (read, write) = atrbvh_traffic(r.highlevel_roots, work.inner_nodes, work.passes);
+            let (top_units, s, top_mem) =
+                streaming_unit("toplevel ATRBVH unit", flops, 1.0, read, write, cfg)?;
+            extra_s = s;
+            let dram = units.pop().expect("a DRAM row");
+            units.push(top_units[0].clone());
+            units.push(UnitEnergy::new(
+                "DRAM",
+                0.0,
+                dram.dynamic_mj + top_units[1].dynamic_mj,
+                dram.static_mj + top_units[1].static_mj,
+                seconds + s,
+            ));
+            mem.bytes_read += top_mem.bytes_read;
+            mem.bytes_written += top_mem.bytes_written;
+            tree
+        }
+    };
+    Ok((
+        finish(builder, units, seconds + extra_s, &mem, flops, &tree),
+        tree,
+    ))
+}
+
+/// The energy of `builder` over `aabbs`, and its tree.
+pub fn build_energy(
+    builder: Builder,
+    aabbs: &[Aabb],
+    cfg: &SystemConfig,
+) -> Result<(BuildEnergy, bvh::Bvh2), SystemError> {
+    match builder {
+        Builder::BinnedSah => binned_sah_energy(aabbs, cfg),
+        b => mergetree_build_energy(b, aabbs, cfg),
+    }
+}
+
+/// One frame's tracing energy.
+#[derive(Clone, Debug, Serialize)]
+pub struct TraceEnergy {
+    /// Builder of the tree.
+    pub builder: Builder,
+    /// Ray kind.
+    pub rays: RayMode,
+    /// Energy of the frame in mJ (sampled runs: per traced ray times the frame's rays).
+    pub frame_mj: f64,
+    /// DRAM part of the run's energy, as a fraction.
+    pub dram_fraction: f64,
+    /// Million rays per second.
+    pub mrps: f64,
+    /// DRAM traffic of the frame in MB.
+    pub frame_dram_mb: f64,
+    /// One in `sample` tile chunks timed.
+    pub sample: u32,
+}
+
+/// Traces one frame of `rays` through `tree` (a binary tree over `triangles`) with the
+/// accelerator.
+pub fn trace_energy(
+    builder: Builder,
+    tree: bvh::Bvh2,
+    triangles: &[Triangle],
+    camera: &PinholeCamera,
+    rays: RayMode,
+    sample: u32,
+    cfg: &SystemConfig,
+) -> Result<TraceEnergy, SystemError> {
+    let built = rtunit::tree_from(TreeKind::Bvh2, bvh::Tree::Bvh2(tree), triangles)?;
+    let work = Workload {
+        triangles,
+        camera,
+        rays,
+        bounces: cfg.bounces,
+        seed: cfg.seed,
+        sample,
+        progress: None,
+    };
+    let r = rtunit::run(&built, &work, &cfg.rt)?;
+    if !r.hits_match_software {
+        return Err(SystemError::Config(
+            "accelerator hits differ from the software tracer's".into(),
+        ));
+    }
+    let e = r
+        .energy
+        .as_ref()
+        .ok_or_else(|| SystemError::Config("the accelerator run has no energy".into()))?;
+    let dram = e
+        .units
+        .iter()
+        .find(|u| u.unit == "DRAM")
+        .map_or(0.0, |u| u.total_mj);
+    Ok(TraceEnergy {
+        builder,
+        rays,
+        frame_mj: e.frame_mj,
+        dram_fraction: if e.run_mj > 0.0 { dram / e.run_mj } else { 0.0 },
+        mrps: r.mrps,
+        frame_dram_mb: r.frame_dram_mb,
+        sample,
+    })
+}
+
+#[cfg(test)]
+mod tests;

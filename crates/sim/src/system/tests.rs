@@ -1,0 +1,254 @@
+//! Tests of the system energy model: hand-counted operation counts, breakdowns that add
+//! up, energy growing with the scene, the Table VIII averaging, the animation policies,
+//! and hostile inputs.
+
+use super::report::*;
+use super::*;
+use scene::LoadOptions;
+
+fn scene_at(spec: &str, t: f32, w: u32, h: u32) -> (Vec<Triangle>, PinholeCamera) {
+    let s = scene::open(spec, &LoadOptions::default()).expect("procedural scene");
+    let mesh = s.mesh_at(t).expect("mesh");
+    let tris: Vec<Triangle> = mesh.triangles_iter().collect();
+    let cam = PinholeCamera::new(&s.info().camera, w, h).expect("camera");
+    (tris, cam)
+}
+
+#[test]
+fn treelet_flops_by_hand() {
+    // n = 3: forming 2 compares + 1 add; matrix 3 pairs x (6 + 5 adds, 3 muls); merge with
+    // 3 active: 3 compares + 1 add + 2 x (11, 3); with 2 active: 1 + 1 + (11, 3); gain 1, 1.
+    let f = treelet_flops(3);
+    assert_eq!((f.adds, f.muls), (76.0, 19.0));
+    // Grows about as n^3.
+    assert!(treelet_flops(8).total() > 8.0 * treelet_flops(4).total() / 2.0);
+    let mut work = bvh::AtrbvhWork {
+        treelets_by_leaves: vec![0; 9],
+        ..Default::default()
+    };
+    work.treelets_by_leaves[3] = 2;
+    work.treelets_by_leaves[8] = 5;
+    let w = atrbvh_flops(&work);
+    let want = treelet_flops(3)
+        .times(2.0)
+        .plus(treelet_flops(8).times(5.0));
+    assert_eq!(w, want);
+}
+
+#[test]
+fn refit_flops_by_hand() {
+    let (tris, _) = scene_at("proc:cloth?n=2000", 0.0, 8, 8);
+    let aabbs = bvh::triangle_aabbs(&tris);
+    let t = bvh::BinnedSahBuilder::default().build(&aabbs).unwrap();
+    let leaves = t
+        .nodes
+        .iter()
+        .flat_map(|n| n.children)
+        .filter(|c| c.is_leaf())
+        .count() as f64;
+    let p = t.prim_indices.len() as f64;
+    let f = refit_flops(&t);
+    assert_eq!(f.adds, 6.0 * (p - leaves) + 6.0 * t.nodes.len() as f64);
+    let e = refit_energy(&t, &SystemConfig::default()).unwrap();
+    assert_eq!(e.len(), 2);
+    assert!(e.iter().all(|u| u.total_mj > 0.0));
+}
+
+#[test]
+fn every_build_adds_up_and_mergetree_spends_less_than_binned_sah() {
+    let cfg = SystemConfig::default();
+    let mut last: Option<Vec<f64>> = None;
+    for n in [60_000, 240_000] {
+        let (tris, _) = scene_at(&format!("proc:forest?n={n}"), 0.0, 8, 8);
+        let aabbs = bvh::triangle_aabbs(&tris);
+        let mut mj = Vec::new();
+        for b in Builder::ALL {
+            let (e, tree) = build_energy(b, &aabbs, &cfg).unwrap();
+            bvh::validate(&tree, &aabbs, u32::MAX).unwrap();
+            let sum: f64 = e.units.iter().map(|u| u.total_mj).sum();
+            assert!((sum - e.mj).abs() <= 1e-12 * e.mj, "{b:?}");
+            assert_eq!(e.units.last().unwrap().unit, "DRAM");
+            assert!(e.dram_mj > 0.5 * e.mj, "{b:?}: DRAM dominates ({e:?})");
+            assert!(e
+                .units
+                .iter()
+                .all(|u| u.dynamic_mj >= 0.0 && u.static_mj >= 0.0));
+            assert!((e.sah - tree.sah()).abs() < 1e-9 * e.sah);
+            mj.push(e.mj);
+        }
+        // MergeTree's traffic is a fraction of binned SAH's at this size ([P2] Table VI).
+        assert!(mj[1] < mj[0], "{n}: {mj:?}");
+        // The toplevel units add energy; they never make the build cheaper.
+        assert!(mj[2] >= mj[1] * 0.999 && mj[3] >= mj[1] * 0.999, "{mj:?}");
+        if let Some(l) = &last {
+            assert!(mj.iter().zip(l).all(|(a, b)| a > b), "{mj:?} vs {l:?}");
+        }
+        last = Some(mj);
+    }
+}
+
+#[test]
+fn a_scene_result_and_table8() {
+    let (tris, cam) = scene_at("proc:hairball?n=3000&seed=2", 0.0, 32, 24);
+    let cfg = SystemConfig::default();
+    let s = SystemScene {
+        name: "hairball".into(),
+        triangles: &tris,
+        camera: cam,
+        sample: 1,
+    };
+    let mut steps = 0;
+    let r = scene_result(&s, &cfg, |_| steps += 1).unwrap();
+    assert_eq!(steps, 12);
+    assert_eq!(r.builds.len(), 4);
+    assert_eq!(r.traces.len(), 8);
+    for t in &r.traces {
+        assert!(t.frame_mj > 0.0 && t.dram_fraction > 0.0 && t.dram_fraction < 1.0);
+    }
+    // Diffuse paths cost more than camera rays.
+    for b in Builder::ALL {
+        assert!(r.trace(b, RayMode::Diffuse).frame_mj > r.trace(b, RayMode::Primary).frame_mj);
+    }
+    // Table VIII over two copies of the scene with the second's energies doubled: the
+    // ratios are those of one scene (mean of equal ratios), binned SAH is exactly 1.
+    let mut r2 = r.clone();
+    r2.scene = "copy".into();
+    for b in &mut r2.builds {
+        b.mj *= 2.0;
+    }
+    for t in &mut r2.traces {
+        t.frame_mj *= 2.0;
+    }
+    let rows = table8(&[r.clone(), r2]);
+    // Only "all": no scene is large.
+    assert_eq!(rows.len(), 8);
+    for row in &rows {
+        assert_eq!(row.count, 2);
+        let rays = if row.rays == "primary" {
+            RayMode::Primary
+        } else {
+            RayMode::Diffuse
+        };
+        let b = Builder::ALL
+            .into_iter()
+            .find(|b| b.name() == row.builder)
+            .unwrap();
+        let want = r.total_mj(b, rays) / r.total_mj(Builder::BinnedSah, rays);
+        assert!((row.total - want).abs() < 1e-12, "{row:?}");
+        let want = r.build(b).mj / r.build(Builder::BinnedSah).mj;
+        assert!((row.build - want).abs() < 1e-12);
+        if b == Builder::BinnedSah {
+            assert_eq!((row.build, row.trace, row.total), (1.0, 1.0, 1.0));
+        }
+        assert!(row.thesis.is_some());
+    }
+    let rep = SystemReport::new(&cfg, 32, 24, vec![r], Vec::new());
+    assert_eq!(rep.schema, SCHEMA);
+    assert!(rep.table8_markdown().contains("hlbvh+atrbvh"));
+    assert_eq!(rep.scenes_csv().lines().count(), 5);
+    let (labels, series) = rep.fig7(RayMode::Primary);
+    assert_eq!(labels, vec!["hairball".to_string()]);
+    assert_eq!(series.len(), 4);
+    assert!((series[0].1[0][0] - rep.scenes[0].builds[0].mj * FPS).abs() < 1e-12);
+}
+
+#[test]
+fn animation_policies() {
+    let times = [0.0f32, 0.5, 1.0];
+    let mut frames = Vec::new();
+    let mut cam = None;
+    for &t in &times {
+        let (tris, c) = scene_at("proc:cloth?n=20000", t, 24, 16);
+        frames.push(tris);
+        cam = Some(c);
+    }
+    let sc = AnimationScene {
+        name: "cloth".into(),
+        frames,
+        times: times.to_vec(),
+        camera: cam.unwrap(),
+        sample: 1,
+    };
+    let cfg = SystemConfig::default();
+    for (threshold, always) in [(1e9, false), (1.0 + 1e-12, true)] {
+        let a = animation_study(&sc, &cfg, threshold, |_| {}).unwrap();
+        assert_eq!(a.rays.len(), 2);
+        for rays in &a.rays {
+            let [rebuild, refit, advised] = &rays.policies[..] else {
+                panic!("three policies")
+            };
+            assert!(rebuild
+                .frames
+                .iter()
+                .all(|f| f.rebuilt && f.refit_mj == 0.0));
+            assert!(rebuild
+                .frames
+                .iter()
+                .all(|f| (f.sah_ratio - 1.0).abs() < 1e-12));
+            assert!(refit.frames[0].rebuilt);
+            assert!(refit.frames[1..]
+                .iter()
+                .all(|f| !f.rebuilt && f.build_mj == 0.0 && f.refit_mj > 0.0));
+            // A refit is cheaper than a rebuild (above one multi-merge block).
+            assert!(refit.frames[1].refit_mj < rebuild.frames[1].build_mj);
+            // Frame 0 is the same tree everywhere: one trace, shared.
+            assert_eq!(rebuild.frames[0].trace_mj, refit.frames[0].trace_mj);
+            if !always {
+                // The tracker never advises: the advised policy is the refit policy.
+                for (x, y) in advised.frames.iter().zip(&refit.frames) {
+                    assert_eq!((x.rebuilt, x.trace_mj), (y.rebuilt, y.trace_mj));
+                }
+            } else {
+                // A threshold of 1 advises a rebuild whenever the refitted SAH rose above
+                // the last build's (the waving cloth's does): the advised frames are
+                // fresh builds (ratio 1) that paid for the refit too.
+                assert!(advised.frames[1..].iter().any(|f| f.rebuilt));
+                for f in advised.frames[1..].iter().filter(|f| f.rebuilt) {
+                    assert!(f.refit_mj > 0.0 && f.build_mj > 0.0);
+                    assert!((f.sah_ratio - 1.0).abs() < 1e-12);
+                }
+            }
+        }
+    }
+}
+
+#[test]
+fn hostile_inputs_are_one_line_errors() {
+    let (tris, cam) = scene_at("proc:cloth?n=500", 0.0, 8, 8);
+    let cam2 = cam;
+    let aabbs = bvh::triangle_aabbs(&tris);
+    let bad = SystemConfig::default().with(Node::Nm28, Cell::Hp, "ddr9");
+    for b in Builder::ALL {
+        let e = build_energy(b, &aabbs, &bad).unwrap_err().to_string();
+        assert!(e.contains("ddr9") && !e.contains('\n'), "{b:?}: {e}");
+    }
+    let s = SystemScene {
+        name: "empty".into(),
+        triangles: &[],
+        camera: cam,
+        sample: 1,
+    };
+    let e = scene_result(&s, &SystemConfig::default(), |_| {})
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("no triangles"), "{e}");
+    let sc = AnimationScene {
+        name: "uneven".into(),
+        frames: vec![tris.clone(), tris[1..].to_vec()],
+        times: vec![0.0, 1.0],
+        camera: cam2,
+        sample: 1,
+    };
+    let e = animation_study(&sc, &SystemConfig::default(), 1.3, |_| {})
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("different triangle counts"), "{e}");
+    let sc = AnimationScene {
+        frames: vec![tris.clone(), tris.clone()],
+        ..sc
+    };
+    let e = animation_study(&sc, &SystemConfig::default(), -1.0, |_| {})
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("threshold") && !e.contains('\n'), "{e}");
+}
