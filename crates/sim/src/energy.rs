@@ -383,9 +383,134 @@ pub fn int_add_pj(node: Node) -> f64 {
     HOROWITZ_45NM_INT_ADD_PJ * node.nm() / 45.0
 }
 
+/// Every process node with CACTI data.
+pub const NODES: [Node; 4] = [Node::Nm45, Node::Nm32, Node::Nm28, Node::Nm22];
+
+/// One row of the component tables: a block at a node.
+#[derive(Clone, Debug, Serialize)]
+pub struct ComponentRow {
+    /// `sram`, `fpu-add`, `fpu-mul`, `int-add` or `dram`.
+    pub kind: &'static str,
+    /// What it is (size, or the DRAM command).
+    pub what: String,
+    /// Node (empty for DRAM, which is off chip).
+    pub node: &'static str,
+    /// Energy per access or operation, pJ.
+    pub energy_pj: f64,
+    /// Leakage mW (SRAM; DRAM: standby power of one die).
+    pub static_mw: f64,
+    /// Area mm^2.
+    pub area_mm2: f64,
+}
+
+/// The component models' figures: SRAMs at the table's sizes and between them (the model
+/// interpolates), FPUs and integer adders at every node, for `cell` SRAMs; and the DRAM
+/// commands of the LPDDR3 die of the thesis's memory systems (per die).
+pub fn component_rows(cell: Cell) -> Vec<ComponentRow> {
+    let mut rows = Vec::new();
+    for node in NODES {
+        for kb in [8.0, 16.0, 24.0, 32.0, 64.0, 128.0, 256.0, 512.0] {
+            let f = sram(kb * 1024.0, 1, node, cell).expect("positive size");
+            rows.push(ComponentRow {
+                kind: "sram",
+                what: format!("{kb} KB {} (64-B access)", cell.name()),
+                node: node.name(),
+                energy_pj: f.access_pj,
+                static_mw: f.leak_mw,
+                area_mm2: f.area_mm2,
+            });
+        }
+        let fpu = Fpu::at(node);
+        for (kind, e, a) in [
+            ("fpu-add", fpu.add_pj, fpu.add_mm2),
+            ("fpu-mul", fpu.mul_pj, fpu.mul_mm2),
+            ("int-add", int_add_pj(node), 0.0),
+        ] {
+            rows.push(ComponentRow {
+                kind,
+                what: "32-bit".into(),
+                node: node.name(),
+                energy_pj: e,
+                static_mw: 0.0,
+                area_mm2: a,
+            });
+        }
+    }
+    let d = &crate::dram::energy::MICRON_4GB_LPDDR3_1600_X32;
+    for (what, e, st) in [
+        ("ACT", d.act_pj(), 0.0),
+        ("PRE", d.pre_pj(), 0.0),
+        ("RD burst", d.read_burst_pj(), 0.0),
+        ("WR burst", d.write_burst_pj(), 0.0),
+        ("REF", d.refresh_pj(), 0.0),
+        ("active standby", 0.0, d.active_standby_mw()),
+        ("precharged standby", 0.0, d.precharged_standby_mw()),
+    ] {
+        rows.push(ComponentRow {
+            kind: "dram",
+            what: format!("LPDDR3-1600 x32 die: {what}"),
+            node: "",
+            energy_pj: e,
+            static_mw: st,
+            area_mm2: 0.0,
+        });
+    }
+    rows
+}
+
+/// [`component_rows`] as Markdown.
+pub fn component_markdown(rows: &[ComponentRow]) -> String {
+    let mut m = String::from(
+        "| kind | what | node | energy pJ | static mW | area mm2 |\n|---|---|---|---:|---:|---:|\n",
+    );
+    for r in rows {
+        m += &format!(
+            "| {} | {} | {} | {:.3} | {:.3} | {:.4} |\n",
+            r.kind, r.what, r.node, r.energy_pj, r.static_mw, r.area_mm2
+        );
+    }
+    m
+}
+
+/// [`component_rows`] as CSV.
+pub fn component_csv(rows: &[ComponentRow]) -> String {
+    let mut c = String::from("kind,what,node,energy_pj,static_mw,area_mm2\n");
+    for r in rows {
+        c += &format!(
+            "{},\"{}\",{},{},{},{}\n",
+            r.kind, r.what, r.node, r.energy_pj, r.static_mw, r.area_mm2
+        );
+    }
+    c
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn component_rows_cover_every_node_and_match_the_models() {
+        let rows = component_rows(Cell::Hp);
+        for node in NODES {
+            let at: Vec<&ComponentRow> = rows.iter().filter(|r| r.node == node.name()).collect();
+            assert_eq!(at.len(), 8 + 3, "{node:?}");
+            // The 16 KB row is CACTI's own point.
+            let r16 = at.iter().find(|r| r.what.starts_with("16 KB")).unwrap();
+            assert_eq!(
+                r16.energy_pj,
+                sram(16384.0, 1, node, Cell::Hp).unwrap().access_pj
+            );
+            // SRAM energy, leakage and area grow with size.
+            let s: Vec<&&ComponentRow> = at.iter().filter(|r| r.kind == "sram").collect();
+            assert!(s.windows(2).all(|w| w[1].energy_pj > w[0].energy_pj
+                && w[1].static_mw > w[0].static_mw
+                && w[1].area_mm2 > w[0].area_mm2));
+        }
+        assert_eq!(rows.iter().filter(|r| r.kind == "dram").count(), 7);
+        let md = component_markdown(&rows);
+        assert_eq!(md.lines().count(), rows.len() + 2);
+        assert_eq!(component_csv(&rows).lines().count(), rows.len() + 1);
+    }
 
     #[test]
     fn sram_equals_the_cacti_table_at_its_points_and_interpolates_monotonically() {

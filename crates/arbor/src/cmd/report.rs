@@ -28,6 +28,12 @@ enum ReportKind {
     /// \[P4\] Table 2: the ray-tracing accelerator with BVH and MBVH4, primary and
     /// diffuse rays, performance and DRAM traffic beside the thesis's.
     Rtunit(super::report_rtunit::ReportRtunitArgs),
+    /// Energy and area: the component models' figures, \[P2\] Tables IV and VII (MergeTree)
+    /// and \[P4\] Tables 1 and 2 (the accelerator).
+    Energy(super::report_energy::ReportEnergyArgs),
+    /// \[P2\] §6.4, Table VIII and Fig. 7: system energy per frame (build plus trace) with
+    /// four builders, and tree-update policies over animations.
+    System(super::report_system::ReportSystemArgs),
 }
 
 /// Runs `arbor report`.
@@ -35,7 +41,9 @@ pub fn run(a: &ReportArgs, ui: &Ui) -> anyhow::Result<()> {
     match &a.kind {
         ReportKind::Cbvh(r) => super::report_cbvh::run(r, ui),
         ReportKind::Mergetree(r) => super::report_mergetree::run(r, ui),
-        ReportKind::Rtunit(r) => super::report_rtunit::run(r, ui),
+        ReportKind::Rtunit(r) => super::report_rtunit::run(r, ui).map(|_| ()),
+        ReportKind::Energy(r) => super::report_energy::run(r, ui),
+        ReportKind::System(r) => super::report_system::run(r, ui),
     }
 }
 
@@ -129,20 +137,37 @@ pub fn write_atomic(path: &Path, text: &str) -> anyhow::Result<()> {
 
 /// A grouped bar chart: one group per label, one bar per series (missing values skipped).
 pub fn bar_svg(title: &str, labels: &[String], series: &[(String, Vec<Option<f64>>)]) -> String {
+    let stacked: Vec<(String, Vec<Option<Vec<f64>>>)> = series
+        .iter()
+        .map(|(n, v)| (n.clone(), v.iter().map(|x| x.map(|x| vec![x])).collect()))
+        .collect();
+    stacked_bar_svg(title, labels, &stacked, &[])
+}
+
+/// A grouped bar chart whose bars are stacks of parts (e.g. build and trace energy): one
+/// group per label, one bar per series, the parts of a bar drawn bottom-up, the first in
+/// the series' colour and later ones lighter; `parts` names them in the legend.
+pub fn stacked_bar_svg(
+    title: &str,
+    labels: &[String],
+    series: &[(String, Vec<Option<Vec<f64>>>)],
+    parts: &[&str],
+) -> String {
     const COLORS: [&str; 6] = [
         "#1f77b4", "#aec7e8", "#d62728", "#ff9896", "#2ca02c", "#98df8a",
     ];
+    const OPACITY: [f64; 3] = [1.0, 0.45, 0.25];
     // Wide enough for the labels (about 7 px per character) and the legend (150 px per
-    // series), and at least 760 px.
+    // series and part), and at least 760 px.
     let longest = labels.iter().map(|l| l.chars().count()).max().unwrap_or(0);
     let w = (80.0 + labels.len() as f64 * (7.0 * longest as f64 + 8.0))
-        .max(80.0 + 150.0 * series.len() as f64)
+        .max(80.0 + 150.0 * (series.len() + parts.len()) as f64)
         .max(760.0);
     let (h, left, bottom, top) = (360.0, 60.0, 40.0, 40.0);
     let max = series
         .iter()
         .flat_map(|s| s.1.iter().flatten())
-        .cloned()
+        .map(|v| v.iter().sum::<f64>())
         .fold(0.0f64, f64::max)
         .max(1e-9);
     let plot_h = h - bottom - top;
@@ -165,18 +190,26 @@ pub fn bar_svg(title: &str, labels: &[String], series: &[(String, Vec<Option<f64
     }
     for (gi, l) in labels.iter().enumerate() {
         let gx = left + gi as f64 * group_w + group_w * 0.1;
-        for (si, (_, vals)) in series.iter().enumerate() {
-            if let Some(Some(v)) = vals.get(gi) {
-                let bh = plot_h * v / max;
+        for (si, (name, vals)) in series.iter().enumerate() {
+            let Some(Some(v)) = vals.get(gi) else {
+                continue;
+            };
+            let mut base = h - bottom;
+            for (pi, &part) in v.iter().enumerate() {
+                let bh = plot_h * part / max;
+                let what = parts.get(pi).map_or(String::new(), |p| format!(" {p}"));
                 let _ = writeln!(
                     s,
-                    "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"{:.1}\" height=\"{bh:.1}\" fill=\"{}\"><title>{}: {v:.4}</title></rect>",
+                    "<rect x=\"{:.1}\" y=\"{:.1}\" width=\"{:.1}\" height=\"{bh:.1}\" fill=\"{}\" fill-opacity=\"{}\"><title>{}{}: {part:.4}</title></rect>",
                     gx + si as f64 * bar_w,
-                    h - bottom - bh,
+                    base - bh,
                     bar_w.max(1.0),
                     COLORS[si % COLORS.len()],
-                    xml(&series[si].0)
+                    OPACITY[pi.min(OPACITY.len() - 1)],
+                    xml(name),
+                    xml(&what)
                 );
+                base -= bh;
             }
         }
         let _ = writeln!(
@@ -187,13 +220,22 @@ pub fn bar_svg(title: &str, labels: &[String], series: &[(String, Vec<Option<f64
             xml(l)
         );
     }
-    for (si, (name, _)) in series.iter().enumerate() {
-        let x = left + si as f64 * 150.0;
+    let legend = series
+        .iter()
+        .enumerate()
+        .map(|(si, (name, _))| (COLORS[si % COLORS.len()], 1.0, name.as_str()))
+        .chain(
+            parts
+                .iter()
+                .enumerate()
+                .map(|(pi, p)| ("#555", OPACITY[pi.min(OPACITY.len() - 1)], *p)),
+        );
+    for (i, (color, opacity, name)) in legend.enumerate() {
+        let x = left + i as f64 * 150.0;
         let _ = writeln!(
             s,
-            "<rect x=\"{x}\" y=\"{:.1}\" width=\"10\" height=\"10\" fill=\"{}\"/><text x=\"{:.1}\" y=\"{:.1}\">{}</text>",
+            "<rect x=\"{x}\" y=\"{:.1}\" width=\"10\" height=\"10\" fill=\"{color}\" fill-opacity=\"{opacity}\"/><text x=\"{:.1}\" y=\"{:.1}\">{}</text>",
             h - 14.0,
-            COLORS[si % COLORS.len()],
             x + 14.0,
             h - 5.0,
             xml(name)
@@ -220,6 +262,15 @@ mod tests {
         assert_eq!(short_name("proc:cloth?n=5"), "cloth");
         let svg = bar_svg("t<", &["a".into()], &[("s".into(), vec![Some(1.0)])]);
         assert!(svg.contains("t&lt;") && svg.ends_with("</svg>\n"));
+        // Stacked: two parts per bar, the second on top of the first.
+        let svg = stacked_bar_svg(
+            "s",
+            &["a".into()],
+            &[("x".into(), vec![Some(vec![1.0, 3.0])])],
+            &["build", "trace"],
+        );
+        assert_eq!(svg.matches("<title>").count(), 2);
+        assert!(svg.contains("x build: 1.0000") && svg.contains("x trace: 3.0000"));
         let dir = tempfile::tempdir().unwrap();
         write_file(dir.path(), "x.csv", "a\n").unwrap();
         write_file(dir.path(), "x.csv", "b\n").unwrap();

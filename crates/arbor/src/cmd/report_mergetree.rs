@@ -60,6 +60,23 @@ pub struct ReportMergetreeArgs {
     /// frame; the procedural cloth is exactly flat at 0).
     #[arg(long, value_name = "SECONDS", default_value_t = 1.0)]
     time: f32,
+    /// Write the files without printing the report (`arbor report energy` runs this one).
+    #[arg(skip)]
+    quiet: bool,
+}
+
+impl ReportMergetreeArgs {
+    /// The default report into `out` over `scenes` (`None`: the default list), quietly.
+    pub fn quiet(out: PathBuf, scenes: Option<Vec<String>>, scene_dir: PathBuf) -> Self {
+        Self {
+            out,
+            scenes,
+            scene_dir,
+            drams: thesis::P2_SYSTEMS.map(String::from).to_vec(),
+            time: 1.0,
+            quiet: true,
+        }
+    }
 }
 
 /// Real scenes of the default list (files under `--scene-dir`): the four of \[P2\] Tables
@@ -257,8 +274,10 @@ pub fn run(a: &ReportMergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
     write_table7(&a.out, &mut md, &results)?;
     write_fig6(&a.out, &mut md, &results)?;
     write_file(&a.out, "report.md", &md)?;
-    println!("{md}");
-    println!("wrote {}", a.out.display());
+    if !a.quiet {
+        println!("{md}");
+        println!("wrote {}", a.out.display());
+    }
     Ok(())
 }
 
@@ -811,6 +830,13 @@ fn traffic_split(row: &SimRow) -> [u64; 4] {
 /// (traffic, logic, DRAM above idle, total) and the unit breakdown of the largest scene on
 /// the last system, beside the thesis's, from `sim::mergetree::energy` at 28 nm.
 fn write_table7(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> {
+    let start = md.len();
+    write_table7_into(out, md, r)?;
+    write_file(out, "table7.md", &md[start..])
+}
+
+/// [`write_table7`]'s tables, appended to `md`.
+fn write_table7_into(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> {
     let mut csv = String::from(
         "system,memory,scenes,traffic_gbs,thesis_traffic_gbs,logic_mw,thesis_logic_mw,dram_mw,dram_above_idle_mw,thesis_dram_mw,total_mw,thesis_total_mw,dram_share\n",
     );

@@ -43,12 +43,44 @@ pub struct ReportRtunitArgs {
     /// Scenes of more than 1M triangles are timed one in N tile chunks (1: whole frames).
     #[arg(long, default_value_t = 16, value_name = "N")]
     large_sample: u32,
+    /// Time every scene one in N tile chunks (default: whole frames below 1M triangles,
+    /// `--large-sample` above).
+    #[arg(long, value_name = "N")]
+    sample: Option<u32>,
     /// The sampling factor of the sampling check (0: no check).
     #[arg(long, default_value_t = 16, value_name = "N")]
     check_sample: u32,
     /// Override an accelerator parameter (repeatable), as in `arbor sim rtunit`.
     #[arg(long = "set", value_name = "KEY=VALUE")]
     set: Vec<String>,
+    /// Write the files without printing the tables (`arbor report energy` runs this one).
+    #[arg(skip)]
+    quiet: bool,
+}
+
+impl ReportRtunitArgs {
+    /// The report into `out` over `scenes` (`None`: the default list) with scenes timed one
+    /// in `sample` tile chunks, without the sampling check, quietly.
+    pub fn quiet(
+        out: PathBuf,
+        scenes: Option<Vec<String>>,
+        scene_dir: PathBuf,
+        sample: u32,
+    ) -> Self {
+        Self {
+            out,
+            scenes,
+            scene_dir,
+            width: 1280,
+            height: 720,
+            bounces: 4,
+            large_sample: sample,
+            sample: Some(sample),
+            check_sample: 0,
+            set: Vec::new(),
+            quiet: true,
+        }
+    }
 }
 
 /// The thesis's scenes our default scenes stand for: (our spec, thesis name, note).
@@ -73,12 +105,13 @@ const DEFAULT_SCENES: [(&str, Option<&str>, &str); 5] = [
 ];
 
 /// Runs `arbor report rtunit`.
-pub fn run(a: &ReportRtunitArgs, ui: &Ui) -> anyhow::Result<()> {
+pub fn run(a: &ReportRtunitArgs, ui: &Ui) -> anyhow::Result<sim::rtunit::report::Table2> {
     let mut cfg = RtConfig::default();
     for s in &a.set {
         cfg.set_pair(s)?;
     }
     anyhow::ensure!(a.large_sample >= 1, "--large-sample must be at least 1");
+    anyhow::ensure!(a.sample != Some(0), "--sample must be at least 1");
     let specs: Vec<(String, Option<&'static str>, String)> = match &a.scenes {
         Some(list) => list
             .iter()
@@ -111,10 +144,10 @@ pub fn run(a: &ReportRtunitArgs, ui: &Ui) -> anyhow::Result<()> {
     }
     let mut scenes = Vec::new();
     for (name, tris, camera, thesis, note) in &loaded {
-        let sample = if tris.len() > 1_000_000 {
-            a.large_sample
-        } else {
-            1
+        let sample = match a.sample {
+            Some(n) => n,
+            None if tris.len() > 1_000_000 => a.large_sample,
+            None => 1,
         };
         scenes.push(ReportScene {
             name: name.clone(),
@@ -176,11 +209,13 @@ pub fn run(a: &ReportRtunitArgs, ui: &Ui) -> anyhow::Result<()> {
         );
     }
     write_file(&a.out, "report.md", &report)?;
-    println!("{md}");
-    println!("{t1}");
-    if !checks.is_empty() {
-        println!("{sampling}");
+    if !a.quiet {
+        println!("{md}");
+        println!("{t1}");
+        if !checks.is_empty() {
+            println!("{sampling}");
+        }
+        println!("wrote {}", a.out.join("report.md").display());
     }
-    println!("wrote {}", a.out.join("report.md").display());
-    Ok(())
+    Ok(table)
 }

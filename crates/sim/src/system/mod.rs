@@ -176,6 +176,9 @@ pub struct BuildEnergy {
     pub mj: f64,
     /// DRAM energy in mJ.
     pub dram_mj: f64,
+    /// The part of `dram_mj` above an idle memory's over the same time (\[P2\] §6.2's
+    /// convention: an idle memory's background and refresh subtracted), mJ.
+    pub dram_above_idle_mj: f64,
     /// SAH of the tree (\[P2\]'s weights, `Bvh2::sah`).
     pub sah: f64,
 }
@@ -292,21 +295,44 @@ pub fn binned_sah_energy(
         t.sweep_write_bytes + t.bvh_bytes,
         cfg,
     )?;
+    let above = above_idle_mj(&mem);
     Ok((
-        finish(Builder::BinnedSah, units, seconds, &mem, flops, &tree),
+        finish(
+            Builder::BinnedSah,
+            units,
+            seconds,
+            above,
+            &mem,
+            flops,
+            &tree,
+        ),
         tree,
     ))
+}
+
+impl BuildEnergy {
+    /// The build's energy with the DRAM counted above idle.
+    pub fn mj_above_idle(&self) -> f64 {
+        self.mj - self.dram_mj + self.dram_above_idle_mj
+    }
+}
+
+/// DRAM energy above an idle memory's in mJ, from a run's counts.
+fn above_idle_mj(mem: &MemStats) -> f64 {
+    mem.energy_pj.as_ref().map_or(0.0, |e| e.above_idle_pj()) * 1e-9
 }
 
 fn finish(
     builder: Builder,
     units: Vec<UnitEnergy>,
     seconds: f64,
+    above_idle_mj: f64,
     mem: &MemStats,
     flops: Flops,
     tree: &bvh::Bvh2,
 ) -> BuildEnergy {
     BuildEnergy {
+        dram_above_idle_mj: above_idle_mj,
         builder,
         ms: seconds * 1e3,
         dram_bytes: mem.bytes_read + mem.bytes_written,
@@ -358,6 +384,7 @@ pub fn mergetree_build_energy(
     let mut mem = r.memory.clone();
     let mut flops = Flops::default();
     let mut extra_s = 0.0;
+    let mut above = above_idle_mj(&r.memory);
     let tree = match builder {
         Builder::BinnedSah => {
             return Err(SystemError::Config(
@@ -399,13 +426,14 @@ pub fn mergetree_build_energy(
                 dram.static_mj + top_units[1].static_mj,
                 seconds + s,
             ));
+            above += above_idle_mj(&top_mem);
             mem.bytes_read += top_mem.bytes_read;
             mem.bytes_written += top_mem.bytes_written;
             tree
         }
     };
     Ok((
-        finish(builder, units, seconds + extra_s, &mem, flops, &tree),
+        finish(builder, units, seconds + extra_s, above, &mem, flops, &tree),
         tree,
     ))
 }
@@ -431,6 +459,8 @@ pub struct TraceEnergy {
     pub rays: RayMode,
     /// Energy of the frame in mJ (sampled runs: per traced ray times the frame's rays).
     pub frame_mj: f64,
+    /// `frame_mj` with the DRAM counted above an idle memory's.
+    pub frame_mj_above_idle: f64,
     /// DRAM part of the run's energy, as a fraction.
     pub dram_fraction: f64,
     /// Million rays per second.
@@ -477,10 +507,17 @@ pub fn trace_energy(
         .iter()
         .find(|u| u.unit == "DRAM")
         .map_or(0.0, |u| u.total_mj);
+    // The frame's share of the run (1 for whole frames).
+    let scale = if e.run_mj > 0.0 {
+        e.frame_mj / e.run_mj
+    } else {
+        0.0
+    };
     Ok(TraceEnergy {
         builder,
         rays,
         frame_mj: e.frame_mj,
+        frame_mj_above_idle: (e.run_mj - dram + e.dram_above_idle_mj) * scale,
         dram_fraction: if e.run_mj > 0.0 { dram / e.run_mj } else { 0.0 },
         mrps: r.mrps,
         frame_dram_mb: r.frame_dram_mb,

@@ -72,6 +72,11 @@ impl SceneResult {
         self.build(b).mj + self.trace(b, rays).frame_mj
     }
 
+    /// [`Self::total_mj`] with the DRAM counted above idle.
+    pub fn total_mj_above_idle(&self, b: Builder, rays: RayMode) -> f64 {
+        self.build(b).mj_above_idle() + self.trace(b, rays).frame_mj_above_idle
+    }
+
     /// Whether the scene counts as large.
     pub fn large(&self) -> bool {
         self.triangles > LARGE_TRIANGLES
@@ -141,6 +146,9 @@ pub struct Table8Row {
     pub trace: f64,
     /// Build plus trace relative to binned SAH's.
     pub total: f64,
+    /// The same three with the DRAM energy counted above an idle memory's (\[P2\] §6.2's
+    /// convention for memory power).
+    pub above_idle: [f64; 3],
     /// \[P2\] Table VIII's build, trace and total (fractions).
     pub thesis: Option<[f64; 3]>,
 }
@@ -172,6 +180,16 @@ pub fn table8(results: &[SceneResult]) -> Vec<Table8Row> {
                     build: mean(&|s| s.build(b).mj / s.build(sah).mj),
                     trace: mean(&|s| s.trace(b, rays).frame_mj / s.trace(sah, rays).frame_mj),
                     total: mean(&|s| s.total_mj(b, rays) / s.total_mj(sah, rays)),
+                    above_idle: [
+                        mean(&|s| s.build(b).mj_above_idle() / s.build(sah).mj_above_idle()),
+                        mean(&|s| {
+                            s.trace(b, rays).frame_mj_above_idle
+                                / s.trace(sah, rays).frame_mj_above_idle
+                        }),
+                        mean(&|s| {
+                            s.total_mj_above_idle(b, rays) / s.total_mj_above_idle(sah, rays)
+                        }),
+                    ],
                     thesis: crate::thesis::p2_table8(ray_name(rays), set, b.name()),
                 });
             }
@@ -225,14 +243,14 @@ impl SystemReport {
     /// Table VIII as Markdown, ours beside the thesis's.
     pub fn table8_markdown(&self) -> String {
         let mut m = String::from(
-            "| rays | scenes | n | builder | build | thesis | trace | thesis | total | thesis | total diff (pp) |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
+            "| rays | scenes | n | builder | build | thesis | trace | thesis | total | thesis | total diff (pp) | above idle: build, trace, total |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n",
         );
         for r in &self.table8 {
             let t = r.thesis;
             let th = |k: usize| t.map_or("-".into(), |t| pct(t[k]));
             let _ = writeln!(
                 m,
-                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |",
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {}, {}, {} |",
                 r.rays,
                 r.scenes,
                 r.count,
@@ -244,6 +262,9 @@ impl SystemReport {
                 pct(r.total),
                 th(2),
                 t.map_or("-".into(), |t| format!("{:+.0}", 100.0 * (r.total - t[2]))),
+                pct(r.above_idle[0]),
+                pct(r.above_idle[1]),
+                pct(r.above_idle[2]),
             );
         }
         m
@@ -252,13 +273,13 @@ impl SystemReport {
     /// Table VIII as CSV.
     pub fn table8_csv(&self) -> String {
         let mut c = String::from(
-            "rays,scenes,count,builder,build,trace,total,thesis_build,thesis_trace,thesis_total\n",
+            "rays,scenes,count,builder,build,trace,total,thesis_build,thesis_trace,thesis_total,build_above_idle,trace_above_idle,total_above_idle\n",
         );
         for r in &self.table8 {
             let t = |k: usize| r.thesis.map_or(String::new(), |t| format!("{:.2}", t[k]));
             let _ = writeln!(
                 c,
-                "{},{},{},{},{:.4},{:.4},{:.4},{},{},{}",
+                "{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{:.4},{:.4},{:.4}",
                 r.rays,
                 r.scenes,
                 r.count,
@@ -268,7 +289,10 @@ impl SystemReport {
                 r.total,
                 t(0),
                 t(1),
-                t(2)
+                t(2),
+                r.above_idle[0],
+                r.above_idle[1],
+                r.above_idle[2]
             );
         }
         c

@@ -74,6 +74,8 @@ fn every_build_adds_up_and_mergetree_spends_less_than_binned_sah() {
                 .iter()
                 .all(|u| u.dynamic_mj >= 0.0 && u.static_mj >= 0.0));
             assert!((e.sah - tree.sah()).abs() < 1e-9 * e.sah);
+            assert!(e.dram_above_idle_mj > 0.0 && e.dram_above_idle_mj < e.dram_mj);
+            assert!(e.mj_above_idle() < e.mj);
             mj.push(e.mj);
         }
         // MergeTree's traffic is a fraction of binned SAH's at this size ([P2] Table VI).
@@ -104,6 +106,7 @@ fn a_scene_result_and_table8() {
     assert_eq!(r.traces.len(), 8);
     for t in &r.traces {
         assert!(t.frame_mj > 0.0 && t.dram_fraction > 0.0 && t.dram_fraction < 1.0);
+        assert!(t.frame_mj_above_idle > 0.0 && t.frame_mj_above_idle < t.frame_mj);
     }
     // Diffuse paths cost more than camera rays.
     for b in Builder::ALL {
@@ -139,6 +142,7 @@ fn a_scene_result_and_table8() {
         assert!((row.build - want).abs() < 1e-12);
         if b == Builder::BinnedSah {
             assert_eq!((row.build, row.trace, row.total), (1.0, 1.0, 1.0));
+            assert_eq!(row.above_idle, [1.0; 3]);
         }
         assert!(row.thesis.is_some());
     }

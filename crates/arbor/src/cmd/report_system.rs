@@ -1,0 +1,330 @@
+//! `arbor report system`: \[P2\] §6.4's system energy per frame (a BVH built by each of
+//! four builders, then a frame traced by the \[P4\] BVH accelerator, on a 28 nm mobile
+//! SoC with the 25.6 GB/s memory), and the animation study beyond the thesis. The model
+//! and the tables are library code (`sim::system`); this command loads the scenes, runs
+//! them (two at a time on two cores) and writes:
+//! - `table8.md` / `table8.csv`: the Table VIII analogue beside the thesis's;
+//! - `scenes.md` / `scenes.csv`: per scene and builder, build and trace energy;
+//! - `fig7-primary.svg` / `fig7-diffuse.svg`: the Fig. 7 analogue (power at 30 FPS,
+//!   build and trace stacked, four builders per scene);
+//! - `animation.md`: energy per frame of the animated scenes under three policies;
+//! - `system.json`: the whole document (`arbor.report.system.v1`), also printed by
+//!   `--json`;
+//! - `report.md`: all of it.
+
+use super::report::{stacked_bar_svg, view_camera, write_file, SHARED_SCENES};
+use super::report_cbvh_trace::load_traced;
+use crate::progress::{Ui, Unit};
+use anyhow::Context;
+use rayon::prelude::*;
+use sim::energy::{Cell, Node};
+use sim::rtunit::RayMode;
+use sim::system::report::{
+    animation_study, scene_result, AnimationResult, AnimationScene, SceneResult, SystemReport,
+    SystemScene, LARGE_TRIANGLES,
+};
+use sim::system::SystemConfig;
+use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
+use trace::PinholeCamera;
+
+/// Arguments of `arbor report system`.
+#[derive(clap::Args, Debug)]
+pub struct ReportSystemArgs {
+    /// Output folder (created if missing).
+    #[arg(long, value_name = "DIR", default_value = "arbor-out/report-system")]
+    out: PathBuf,
+    /// Static scenes, comma separated: mesh files or procedural specs. Default: the shared
+    /// real scenes that exist (others are skipped with a message) and two large
+    /// procedural scenes.
+    #[arg(long, value_name = "LIST", value_delimiter = ',')]
+    scenes: Option<Vec<String>>,
+    /// Animated scenes of the policy study, comma separated (`none`: no study). Default:
+    /// the shared horse gallop (keyframes) where it exists and a procedural cloth.
+    #[arg(long, value_name = "LIST", value_delimiter = ',')]
+    animation: Option<Vec<String>>,
+    /// Folder of the shared real scenes.
+    #[arg(long, value_name = "DIR", default_value = SHARED_SCENES)]
+    scene_dir: PathBuf,
+    /// Image width ([P2] 6.4: 1280).
+    #[arg(long, default_value_t = 1280)]
+    width: u32,
+    /// Image height ([P2] 6.4: 720).
+    #[arg(long, default_value_t = 720)]
+    height: u32,
+    /// Diffuse bounces ([P2] 6.4: three).
+    #[arg(long, default_value_t = 3)]
+    bounces: u32,
+    /// Time one in N chunks of 16 pixel tiles of each frame, warming the caches with the
+    /// others (1: whole frames; `arbor report rtunit` checks the error of sampling).
+    #[arg(long, default_value_t = 8, value_name = "N")]
+    sample: u32,
+    /// Frames of each animated scene, spread evenly over its timeline.
+    #[arg(long, default_value_t = 8)]
+    frames: u32,
+    /// SAH ratio above which the refit tracker advises a rebuild.
+    #[arg(long, default_value_t = bvh::RefitTracker::DEFAULT_THRESHOLD)]
+    threshold: f64,
+    /// Process node of the on-chip figures ([P2] 6.4: 28nm).
+    #[arg(long, default_value = "28nm")]
+    node: String,
+    /// SRAM cell type (hp or lop).
+    #[arg(long, default_value = "hp")]
+    cell: String,
+    /// Memory system ([P2] 6.4: the 25.6 GB/s system).
+    #[arg(long, default_value = "lpddr3-1600-2x64")]
+    dram: String,
+    /// Print the report as JSON (`arbor.report.system.v1`) on standard output.
+    #[arg(long)]
+    json: bool,
+}
+
+/// Real scenes of the default list (files under `--scene-dir`).
+const REAL: [&str; 5] = [
+    "bunny.ply",
+    "sibenik.ply",
+    "crytek-sponza.ply",
+    "conference.ply",
+    "dragon.ply",
+];
+
+/// Procedural scenes of the default list: large scenes beside Dragon (\[P2\]'s large
+/// scenes are 0.75M to 1.6M triangles).
+const PROCEDURAL: [&str; 2] = ["proc:hairball?n=1000000", "proc:city?n=1500000"];
+
+/// Animated scenes of the default list.
+const ANIMATED: [&str; 2] = ["horse-gallop", "proc:cloth?n=92000"];
+
+/// Runs `arbor report system`.
+pub fn run(a: &ReportSystemArgs, ui: &Ui) -> anyhow::Result<()> {
+    anyhow::ensure!(a.sample >= 1, "--sample must be at least 1");
+    anyhow::ensure!((1..=1000).contains(&a.frames), "--frames must be 1 to 1000");
+    anyhow::ensure!(
+        a.threshold.is_finite() && a.threshold > 0.0,
+        "--threshold must be a positive number"
+    );
+    let cfg = SystemConfig {
+        bounces: a.bounces,
+        ..SystemConfig::default()
+    }
+    .with(Node::parse(&a.node)?, Cell::parse(&a.cell)?, &a.dram);
+    // Fail on a bad memory name before anything runs.
+    sim::dram::stream::streaming(&cfg.dram, 0, 0)?;
+    let specs = scene_specs(a, ui);
+    let anim_specs = animation_specs(a, ui);
+    anyhow::ensure!(
+        !specs.is_empty() || !anim_specs.is_empty(),
+        "no scenes to report on"
+    );
+    std::fs::create_dir_all(&a.out)
+        .with_context(|| format!("cannot create {}", a.out.display()))?;
+    let mut loaded = Vec::new();
+    for spec in &specs {
+        let _s = ui.spinner(&format!("loading {spec}"));
+        let (name, tris, camera) = load_traced(spec)?;
+        anyhow::ensure!(!tris.is_empty(), "{spec}: the scene has no triangles");
+        loaded.push((name, tris, PinholeCamera::new(&camera, a.width, a.height)?));
+    }
+    let mut animated = Vec::new();
+    for spec in &anim_specs {
+        let _s = ui.spinner(&format!("loading {spec}"));
+        animated.push(load_animation(spec, a)?);
+    }
+    // Progress: one step per build and trace (static), per frame build and trace run
+    // (animated, an upper bound: shared trees are traced once).
+    let total = 12 * loaded.len() as u64 + animated.len() as u64 * a.frames as u64 * 7;
+    let bar = ui.progress("system energy runs", Unit::Items);
+    let done = AtomicU64::new(0);
+    let tick = || {
+        let d = done.fetch_add(1, Ordering::Relaxed) + 1;
+        bar.update(d.min(total), total);
+    };
+    let scenes: Vec<SceneResult> = loaded
+        .par_iter()
+        .map(|(name, tris, camera)| {
+            let s = SystemScene {
+                name: name.clone(),
+                triangles: tris,
+                camera: *camera,
+                sample: a.sample,
+            };
+            scene_result(&s, &cfg, |_| tick()).with_context(|| format!("scene {name}"))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    let animation: Vec<AnimationResult> = animated
+        .par_iter()
+        .map(|s| {
+            animation_study(s, &cfg, a.threshold, |_| tick())
+                .with_context(|| format!("animated scene {}", s.name))
+        })
+        .collect::<anyhow::Result<_>>()?;
+    bar.update(total, total);
+    bar.finish();
+    let rep = SystemReport::new(&cfg, a.width, a.height, scenes, animation);
+    write_report(a, &rep)?;
+    if a.json {
+        println!("{}", serde_json::to_string_pretty(&rep)?);
+    } else {
+        println!("{}", rep.table8_markdown());
+        if !rep.animation.is_empty() {
+            println!("{}", rep.animation_markdown());
+        }
+        println!("wrote {}", a.out.join("report.md").display());
+    }
+    Ok(())
+}
+
+/// The static scenes to run.
+fn scene_specs(a: &ReportSystemArgs, ui: &Ui) -> Vec<String> {
+    match &a.scenes {
+        Some(list) if list.len() == 1 && list[0] == "none" => Vec::new(),
+        Some(list) => list.clone(),
+        None => REAL
+            .iter()
+            .filter_map(|f| {
+                let p = a.scene_dir.join(f);
+                if p.exists() {
+                    Some(p.display().to_string())
+                } else {
+                    ui.warn(&format!("{} not found: skipped", p.display()));
+                    None
+                }
+            })
+            .chain(PROCEDURAL.iter().map(|s| s.to_string()))
+            .collect(),
+    }
+}
+
+/// The animated scenes to study.
+fn animation_specs(a: &ReportSystemArgs, ui: &Ui) -> Vec<String> {
+    match &a.animation {
+        Some(list) if list.len() == 1 && list[0] == "none" => Vec::new(),
+        Some(list) => list.clone(),
+        None => ANIMATED
+            .iter()
+            .filter_map(|s| {
+                if s.starts_with("proc:") {
+                    return Some(s.to_string());
+                }
+                let p = a.scene_dir.join(s);
+                if p.exists() {
+                    Some(p.display().to_string())
+                } else {
+                    ui.warn(&format!("{} not found: skipped", p.display()));
+                    None
+                }
+            })
+            .collect(),
+    }
+}
+
+/// `--frames` frames of `spec` spread evenly over its timeline.
+fn load_animation(spec: &str, a: &ReportSystemArgs) -> anyhow::Result<AnimationScene> {
+    let scene = scene::open(spec, &scene::LoadOptions::default())
+        .with_context(|| format!("cannot open {spec}"))?;
+    let info = scene.info();
+    anyhow::ensure!(
+        info.stable_topology,
+        "{spec}: its triangles change between frames, so a tree cannot be refitted"
+    );
+    let duration = info.timeline.duration_s;
+    anyhow::ensure!(
+        duration > 0.0,
+        "{spec}: a static scene (the animation study needs an animated one)"
+    );
+    let n = a.frames;
+    let times: Vec<f32> = (0..n)
+        .map(|k| {
+            if n == 1 {
+                0.0
+            } else {
+                duration * k as f32 / (n - 1) as f32
+            }
+        })
+        .collect();
+    let mut frames = Vec::new();
+    for &t in &times {
+        let mesh = scene
+            .mesh_at(t)
+            .with_context(|| format!("cannot sample {spec} at {t} s"))?;
+        super::build::mesh_aabbs(&mesh)?;
+        frames.push(mesh.triangles_iter().collect::<Vec<_>>());
+    }
+    let name = super::report::short_name(spec);
+    let camera = view_camera(&name, info.camera);
+    Ok(AnimationScene {
+        name,
+        frames,
+        times,
+        camera: PinholeCamera::new(&camera, a.width, a.height)?,
+        sample: a.sample,
+    })
+}
+
+/// Writes every file of the report.
+fn write_report(a: &ReportSystemArgs, rep: &SystemReport) -> anyhow::Result<()> {
+    let out = &a.out;
+    let t8 = rep.table8_markdown();
+    write_file(out, "table8.md", &t8)?;
+    write_file(out, "table8.csv", &rep.table8_csv())?;
+    let sc = rep.scenes_markdown();
+    write_file(out, "scenes.md", &sc)?;
+    write_file(out, "scenes.csv", &rep.scenes_csv())?;
+    for (rays, file) in [
+        (RayMode::Primary, "fig7-primary.svg"),
+        (RayMode::Diffuse, "fig7-diffuse.svg"),
+    ] {
+        if rep.scenes.is_empty() {
+            break;
+        }
+        let (labels, series) = rep.fig7(rays);
+        let series: Vec<(String, Vec<Option<Vec<f64>>>)> = series
+            .into_iter()
+            .map(|(b, v)| {
+                (
+                    b.to_string(),
+                    v.into_iter().map(|x| Some(x.to_vec())).collect(),
+                )
+            })
+            .collect();
+        let title = format!(
+            "System power at 30 FPS (mW), {} rays: build + trace (cf. [P2] Fig. 7)",
+            sim::system::report::ray_name(rays)
+        );
+        write_file(
+            out,
+            file,
+            &stacked_bar_svg(&title, &labels, &series, &["build", "trace"]),
+        )?;
+    }
+    let anim = rep.animation_markdown();
+    if !rep.animation.is_empty() {
+        write_file(out, "animation.md", &anim)?;
+    }
+    write_file(out, "system.json", &serde_json::to_string_pretty(rep)?)?;
+    let mut md = String::from("# System energy per frame ([P2] §6.4) from Arbor's models\n\n");
+    md += &format!(
+        "{}x{}, {} diffuse bounces, {} on {}, one in {} tile chunks timed per frame; scenes over {} triangles are large.\n\n",
+        rep.width,
+        rep.height,
+        rep.config.bounces,
+        rep.config.node.name(),
+        rep.config.dram,
+        a.sample,
+        LARGE_TRIANGLES
+    );
+    md += "## Table VIII: energy relative to binned SAH (mean of per-scene ratios)\n\n";
+    md += &t8;
+    md += "\n## Per scene\n\n";
+    md += &sc;
+    md += "\n![primary](fig7-primary.svg)\n\n![diffuse](fig7-diffuse.svg)\n";
+    if !rep.animation.is_empty() {
+        md += &format!(
+            "\n## Animation: rebuild, refit, refit with advised rebuilds (threshold {})\n\n",
+            a.threshold
+        );
+        md += &anim;
+    }
+    write_file(out, "report.md", &md)?;
+    Ok(())
+}
