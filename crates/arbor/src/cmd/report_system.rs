@@ -315,6 +315,8 @@ fn write_report(a: &ReportSystemArgs, rep: &SystemReport) -> anyhow::Result<()> 
     );
     md += "## Table VIII: energy relative to binned SAH (mean of per-scene ratios)\n\n";
     md += &t8;
+    md += "\n## Build and trace balance\n\nBinned SAH's build energy over its system energy, the same share as [P2]'s Table VIII row implies ((trace - total) / (trace - build)), and our build and trace ratios weighted with the thesis's share.\n\n";
+    md += &rep.balance_markdown();
     md += "\n## Per scene\n\n";
     md += &sc;
     md += "\n![primary](fig7-primary.svg)\n\n![diffuse](fig7-diffuse.svg)\n";

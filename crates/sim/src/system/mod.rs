@@ -179,6 +179,12 @@ pub struct BuildEnergy {
     /// The part of `dram_mj` above an idle memory's over the same time (\[P2\] §6.2's
     /// convention: an idle memory's background and refresh subtracted), mJ.
     pub dram_above_idle_mj: f64,
+    /// The idle memory's energy (standby and refresh) over the part of the build time in
+    /// which a streamed unit computes but its DRAM does not transfer, mJ: not in `mj`,
+    /// whose streamed DRAM is the full-utilization lower bound (the memory charged only
+    /// while it transfers). MergeTree's memory model runs for the whole build, so only
+    /// binned SAH and the ATRBVH unit, whose FPUs are slower than their streams, have it.
+    pub dram_wait_mj: f64,
     /// SAH of the tree (\[P2\]'s weights, `Bvh2::sah`).
     pub sah: f64,
 }
@@ -259,11 +265,12 @@ fn streaming_unit(
     read: u64,
     write: u64,
     cfg: &SystemConfig,
-) -> Result<(Vec<UnitEnergy>, f64, MemStats), SystemError> {
+) -> Result<(Vec<UnitEnergy>, f64, MemStats, f64), SystemError> {
     let (mem, dram_s) = dram::stream::streaming(&cfg.dram, read, write)?;
     let fpu_s = flops.total() / (fpus * cfg.unit_clock_mhz as f64 * 1e6);
     let seconds = dram_s.max(fpu_s);
     let fpu_mj = flops.energy_pj(&Fpu::at(cfg.node)) * 1e-9;
+    let wait_mj = dram_wait_mj(&mem, dram_s, seconds);
     Ok((
         vec![
             UnitEnergy::new(name, 0.0, fpu_mj, 0.0, seconds),
@@ -271,7 +278,20 @@ fn streaming_unit(
         ],
         seconds,
         mem,
+        wait_mj,
     ))
+}
+
+/// The idle memory's energy over `seconds - dram_s` (the time a streamed unit computes
+/// after its `dram_s` of transfers), at the idle power of `mem`'s own run (its idle
+/// energy over its transfer time), mJ.
+pub fn dram_wait_mj(mem: &MemStats, dram_s: f64, seconds: f64) -> f64 {
+    match mem.energy_pj.as_ref() {
+        Some(e) if dram_s > 0.0 && seconds > dram_s => {
+            e.idle_pj * 1e-9 / dram_s * (seconds - dram_s)
+        }
+        _ => 0.0,
+    }
 }
 
 /// FPUs of the binned SAH unit for its time estimate: \[P2\] does not give Doyle et al.'s
@@ -287,7 +307,7 @@ pub fn binned_sah_energy(
     let tree = bvh::BinnedSahBuilder::default().build(aabbs)?;
     let t = binned_sah_hw::model(&tree, &cfg.binned);
     let flops = binned_sah_hw::energy_flops(&tree, cfg.binned.bins);
-    let (units, seconds, mem) = streaming_unit(
+    let (units, seconds, mem, wait) = streaming_unit(
         "binned SAH FPUs",
         flops,
         BINNED_SAH_FPUS,
@@ -296,24 +316,29 @@ pub fn binned_sah_energy(
         cfg,
     )?;
     let above = above_idle_mj(&mem);
-    Ok((
-        finish(
-            Builder::BinnedSah,
-            units,
-            seconds,
-            above,
-            &mem,
-            flops,
-            &tree,
-        ),
-        tree,
-    ))
+    let mut e = finish(
+        Builder::BinnedSah,
+        units,
+        seconds,
+        above,
+        &mem,
+        flops,
+        &tree,
+    );
+    e.dram_wait_mj = wait;
+    Ok((e, tree))
 }
 
 impl BuildEnergy {
     /// The build's energy with the DRAM counted above idle.
     pub fn mj_above_idle(&self) -> f64 {
         self.mj - self.dram_mj + self.dram_above_idle_mj
+    }
+
+    /// The build's energy with the memory's idle energy charged while streamed units
+    /// compute ([`BuildEnergy::dram_wait_mj`]).
+    pub fn mj_with_dram_wait(&self) -> f64 {
+        self.mj + self.dram_wait_mj
     }
 }
 
@@ -333,6 +358,7 @@ fn finish(
 ) -> BuildEnergy {
     BuildEnergy {
         dram_above_idle_mj: above_idle_mj,
+        dram_wait_mj: 0.0,
         builder,
         ms: seconds * 1e3,
         dram_bytes: mem.bytes_read + mem.bytes_written,
@@ -385,6 +411,7 @@ pub fn mergetree_build_energy(
     let mut flops = Flops::default();
     let mut extra_s = 0.0;
     let mut above = above_idle_mj(&r.memory);
+    let mut wait = 0.0;
     let tree = match builder {
         Builder::BinnedSah => {
             return Err(SystemError::Config(
@@ -414,9 +441,10 @@ pub fn mergetree_build_energy(
             .build_with_work(aabbs)?;
             flops = atrbvh_flops(&work);
             let (read, write) = atrbvh_traffic(r.highlevel_roots, work.inner_nodes, work.passes);
-            let (top_units, s, top_mem) =
+            let (top_units, s, top_mem, w) =
                 streaming_unit("toplevel ATRBVH unit", flops, 1.0, read, write, cfg)?;
             extra_s = s;
+            wait = w;
             let dram = units.pop().expect("a DRAM row");
             units.push(top_units[0].clone());
             units.push(UnitEnergy::new(
@@ -432,10 +460,9 @@ pub fn mergetree_build_energy(
             tree
         }
     };
-    Ok((
-        finish(builder, units, seconds + extra_s, above, &mem, flops, &tree),
-        tree,
-    ))
+    let mut e = finish(builder, units, seconds + extra_s, above, &mem, flops, &tree);
+    e.dram_wait_mj = wait;
+    Ok((e, tree))
 }
 
 /// The energy of `builder` over `aabbs`, and its tree.

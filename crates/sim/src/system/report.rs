@@ -77,6 +77,12 @@ impl SceneResult {
         self.build(b).mj_above_idle() + self.trace(b, rays).frame_mj_above_idle
     }
 
+    /// [`Self::total_mj`] with the memory's idle energy charged while streamed units
+    /// compute.
+    pub fn total_mj_with_dram_wait(&self, b: Builder, rays: RayMode) -> f64 {
+        self.build(b).mj_with_dram_wait() + self.trace(b, rays).frame_mj
+    }
+
     /// Whether the scene counts as large.
     pub fn large(&self) -> bool {
         self.triangles > LARGE_TRIANGLES
@@ -149,8 +155,31 @@ pub struct Table8Row {
     /// The same three with the DRAM energy counted above an idle memory's (\[P2\] §6.2's
     /// convention for memory power).
     pub above_idle: [f64; 3],
+    /// The same three with the idle memory's energy charged while streamed units compute
+    /// (`BuildEnergy::dram_wait_mj`; binned SAH's FPU-bound build time, not its
+    /// transfer time, then sets its DRAM's standby time).
+    pub with_dram_wait: [f64; 3],
     /// \[P2\] Table VIII's build, trace and total (fractions).
     pub thesis: Option<[f64; 3]>,
+    /// Binned SAH's build energy over its build plus trace energy, mean over the scenes:
+    /// how much of the reference system's energy the builder choice can save.
+    pub sah_build_share: f64,
+    /// The same share as \[P2\]'s row implies: a total `X` of build `B` and trace `T`
+    /// ratios with share `s` is `X = s B + (1 - s) T`, so `s = (T - X) / (T - B)`
+    /// (exact for a ratio of sums; Table VIII's means of per-scene ratios make it an
+    /// estimate). None for binned SAH, whose ratios are all 1.
+    pub thesis_build_share: Option<f64>,
+    /// Our build and trace ratios weighted with the thesis's share,
+    /// `s B + (1 - s) T`: the total we would report if our scenes and viewpoints had
+    /// \[P2\]'s balance of build and trace energy.
+    pub total_at_thesis_share: Option<f64>,
+}
+
+/// The build share `(T - X) / (T - B)` implied by build, trace and total ratios
+/// `[B, T, X]`, when it is defined (`T != B`).
+pub fn implied_build_share(r: [f64; 3]) -> Option<f64> {
+    let [b, t, x] = r;
+    ((t - b).abs() > 1e-9).then(|| (t - x) / (t - b))
 }
 
 /// The Table VIII analogue: for each ray kind and scene set (all, large; a set without
@@ -170,15 +199,20 @@ pub fn table8(results: &[SceneResult]) -> Vec<Table8Row> {
             let mean = |f: &dyn Fn(&SceneResult) -> f64| {
                 scenes.iter().map(|s| f(s)).sum::<f64>() / scenes.len() as f64
             };
+            let sah = Builder::BinnedSah;
+            let sah_build_share = mean(&|s| s.build(sah).mj / s.total_mj(sah, rays));
             for b in Builder::ALL {
-                let sah = Builder::BinnedSah;
+                let build = mean(&|s| s.build(b).mj / s.build(sah).mj);
+                let trace = mean(&|s| s.trace(b, rays).frame_mj / s.trace(sah, rays).frame_mj);
+                let thesis = crate::thesis::p2_table8(ray_name(rays), set, b.name());
+                let thesis_build_share = thesis.and_then(implied_build_share);
                 rows.push(Table8Row {
                     rays: ray_name(rays),
                     scenes: set,
                     builder: b.name(),
                     count: scenes.len(),
-                    build: mean(&|s| s.build(b).mj / s.build(sah).mj),
-                    trace: mean(&|s| s.trace(b, rays).frame_mj / s.trace(sah, rays).frame_mj),
+                    build,
+                    trace,
                     total: mean(&|s| s.total_mj(b, rays) / s.total_mj(sah, rays)),
                     above_idle: [
                         mean(&|s| s.build(b).mj_above_idle() / s.build(sah).mj_above_idle()),
@@ -190,7 +224,21 @@ pub fn table8(results: &[SceneResult]) -> Vec<Table8Row> {
                             s.total_mj_above_idle(b, rays) / s.total_mj_above_idle(sah, rays)
                         }),
                     ],
-                    thesis: crate::thesis::p2_table8(ray_name(rays), set, b.name()),
+                    with_dram_wait: [
+                        mean(&|s| {
+                            s.build(b).mj_with_dram_wait() / s.build(sah).mj_with_dram_wait()
+                        }),
+                        trace,
+                        mean(&|s| {
+                            s.total_mj_with_dram_wait(b, rays)
+                                / s.total_mj_with_dram_wait(sah, rays)
+                        }),
+                    ],
+                    thesis,
+                    sah_build_share,
+                    thesis_build_share,
+                    total_at_thesis_share: thesis_build_share
+                        .map(|s| s * build + (1.0 - s) * trace),
                 });
             }
         }
@@ -243,14 +291,14 @@ impl SystemReport {
     /// Table VIII as Markdown, ours beside the thesis's.
     pub fn table8_markdown(&self) -> String {
         let mut m = String::from(
-            "| rays | scenes | n | builder | build | thesis | trace | thesis | total | thesis | total diff (pp) | above idle: build, trace, total |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n",
+            "| rays | scenes | n | builder | build | thesis | trace | thesis | total | thesis | total diff (pp) | above idle: build, trace, total | DRAM wait: build, total |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
         );
         for r in &self.table8 {
             let t = r.thesis;
             let th = |k: usize| t.map_or("-".into(), |t| pct(t[k]));
             let _ = writeln!(
                 m,
-                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {}, {}, {} |",
+                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {}, {}, {} | {}, {} |",
                 r.rays,
                 r.scenes,
                 r.count,
@@ -265,6 +313,33 @@ impl SystemReport {
                 pct(r.above_idle[0]),
                 pct(r.above_idle[1]),
                 pct(r.above_idle[2]),
+                pct(r.with_dram_wait[0]),
+                pct(r.with_dram_wait[2]),
+            );
+        }
+        m
+    }
+
+    /// The balance of build and trace energy behind each Table VIII total, ours beside
+    /// the thesis's implied one, and our ratios re-weighted with the thesis's balance, as
+    /// Markdown.
+    pub fn balance_markdown(&self) -> String {
+        let mut m = String::from(
+            "| rays | scenes | builder | binned SAH build share | thesis (implied) | total | at thesis share | thesis total |\n|---|---|---|---|---|---|---|---|\n",
+        );
+        let opt = |x: Option<f64>| x.map_or("-".into(), pct);
+        for r in self.table8.iter().filter(|r| r.builder != "binned-sah") {
+            let _ = writeln!(
+                m,
+                "| {} | {} | {} | {} | {} | {} | {} | {} |",
+                r.rays,
+                r.scenes,
+                r.builder,
+                pct(r.sah_build_share),
+                opt(r.thesis_build_share),
+                pct(r.total),
+                opt(r.total_at_thesis_share),
+                opt(r.thesis.map(|t| t[2])),
             );
         }
         m
@@ -273,13 +348,14 @@ impl SystemReport {
     /// Table VIII as CSV.
     pub fn table8_csv(&self) -> String {
         let mut c = String::from(
-            "rays,scenes,count,builder,build,trace,total,thesis_build,thesis_trace,thesis_total,build_above_idle,trace_above_idle,total_above_idle\n",
+            "rays,scenes,count,builder,build,trace,total,thesis_build,thesis_trace,thesis_total,build_above_idle,trace_above_idle,total_above_idle,sah_build_share,thesis_build_share,total_at_thesis_share,build_with_dram_wait,total_with_dram_wait\n",
         );
         for r in &self.table8 {
             let t = |k: usize| r.thesis.map_or(String::new(), |t| format!("{:.2}", t[k]));
+            let o = |x: Option<f64>| x.map_or(String::new(), |x| format!("{x:.4}"));
             let _ = writeln!(
                 c,
-                "{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{:.4},{:.4},{:.4}",
+                "{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{:.4},{:.4},{:.4},{:.4},{},{},{:.4},{:.4}",
                 r.rays,
                 r.scenes,
                 r.count,
@@ -292,7 +368,12 @@ impl SystemReport {
                 t(2),
                 r.above_idle[0],
                 r.above_idle[1],
-                r.above_idle[2]
+                r.above_idle[2],
+                r.sah_build_share,
+                o(r.thesis_build_share),
+                o(r.total_at_thesis_share),
+                r.with_dram_wait[0],
+                r.with_dram_wait[2]
             );
         }
         c
@@ -301,7 +382,7 @@ impl SystemReport {
     /// Per scene and builder: build figures and both traces, as CSV.
     pub fn scenes_csv(&self) -> String {
         let mut c = String::from(
-            "scene,triangles,builder,sah,build_ms,build_dram_mb,build_mj,build_dram_mj,primary_mj,diffuse_mj,primary_mrps,diffuse_mrps,primary_dram_mb,diffuse_dram_mb,sample\n",
+            "scene,triangles,builder,sah,build_ms,build_dram_mb,build_mj,build_dram_mj,build_dram_wait_mj,primary_mj,diffuse_mj,primary_mrps,diffuse_mrps,primary_dram_mb,diffuse_dram_mb,sample\n",
         );
         for s in &self.scenes {
             for b in Builder::ALL {
@@ -309,7 +390,7 @@ impl SystemReport {
                 let (p, d) = (s.trace(b, RayMode::Primary), s.trace(b, RayMode::Diffuse));
                 let _ = writeln!(
                     c,
-                    "{},{},{},{:.3},{:.4},{:.3},{:.4},{:.4},{:.4},{:.4},{:.2},{:.2},{:.2},{:.2},{}",
+                    "{},{},{},{:.3},{:.4},{:.3},{:.4},{:.4},{:.4},{:.4},{:.4},{:.2},{:.2},{:.2},{:.2},{}",
                     s.scene,
                     s.triangles,
                     b.name(),
@@ -318,6 +399,7 @@ impl SystemReport {
                     e.dram_bytes as f64 / 1e6,
                     e.mj,
                     e.dram_mj,
+                    e.dram_wait_mj,
                     p.frame_mj,
                     d.frame_mj,
                     p.mrps,

@@ -76,6 +76,27 @@ fn every_build_adds_up_and_mergetree_spends_less_than_binned_sah() {
             assert!((e.sah - tree.sah()).abs() < 1e-9 * e.sah);
             assert!(e.dram_above_idle_mj > 0.0 && e.dram_above_idle_mj < e.dram_mj);
             assert!(e.mj_above_idle() < e.mj);
+            // Only the streamed units wait on FPUs: MergeTree's memory runs the whole build.
+            match b {
+                Builder::Hlbvh | Builder::HlbvhSah => assert_eq!(e.dram_wait_mj, 0.0),
+                _ => assert!(e.dram_wait_mj >= 0.0),
+            }
+            if b == Builder::BinnedSah {
+                // 25 FPUs at 500 MHz are slower than the 25.6 GB/s stream: the idle
+                // memory's energy over the difference, at the stream's own idle power.
+                let t = binned_sah_hw::model(&tree, &cfg.binned);
+                let (mem, dram_s) = dram::stream::streaming(
+                    &cfg.dram,
+                    t.sweep_read_bytes,
+                    t.sweep_write_bytes + t.bvh_bytes,
+                )
+                .unwrap();
+                let idle_w = mem.energy_pj.as_ref().unwrap().idle_pj * 1e-12 / dram_s;
+                assert!(e.ms * 1e-3 > dram_s, "FPU-bound: {} ms", e.ms);
+                let want = idle_w * (e.ms * 1e-3 - dram_s) * 1e3;
+                assert!((e.dram_wait_mj - want).abs() < 1e-9 * want, "{e:?}");
+                assert!(e.mj_with_dram_wait() > e.mj);
+            }
             mj.push(e.mj);
         }
         // MergeTree's traffic is a fraction of binned SAH's at this size ([P2] Table VI).
@@ -143,8 +164,19 @@ fn a_scene_result_and_table8() {
         if b == Builder::BinnedSah {
             assert_eq!((row.build, row.trace, row.total), (1.0, 1.0, 1.0));
             assert_eq!(row.above_idle, [1.0; 3]);
+            assert_eq!(row.with_dram_wait, [1.0; 3]);
         }
+        assert_eq!(row.with_dram_wait[1], row.trace);
         assert!(row.thesis.is_some());
+        // The balance: binned SAH's build share is the mean of its per-scene shares
+        // (equal here), and the thesis's is defined for every builder but binned SAH.
+        let share = r.build(Builder::BinnedSah).mj / r.total_mj(Builder::BinnedSah, rays);
+        assert!((row.sah_build_share - share).abs() < 1e-12);
+        assert_eq!(row.thesis_build_share.is_some(), b != Builder::BinnedSah);
+        if let Some(s) = row.thesis_build_share {
+            let want = s * row.build + (1.0 - s) * row.trace;
+            assert!((row.total_at_thesis_share.unwrap() - want).abs() < 1e-12);
+        }
     }
     let rep = SystemReport::new(&cfg, 32, 24, vec![r], Vec::new());
     assert_eq!(rep.schema, SCHEMA);
@@ -154,6 +186,33 @@ fn a_scene_result_and_table8() {
     assert_eq!(labels, vec!["hairball".to_string()]);
     assert_eq!(series.len(), 4);
     assert!((series[0].1[0][0] - rep.scenes[0].builds[0].mj * FPS).abs() < 1e-12);
+}
+
+#[test]
+fn dram_wait_by_hand() {
+    // 64 MB on the medium system: 2.5 ms of transfer; a unit running 3x as long waits
+    // 5 ms at the stream's idle power.
+    let (mem, s) = dram::stream::streaming("lpddr3-1600-2x64", 64_000_000, 0).unwrap();
+    assert!((s - 2.5e-3).abs() < 1e-12, "{s}");
+    let idle_mj = mem.energy_pj.as_ref().unwrap().idle_pj * 1e-9;
+    assert!((dram_wait_mj(&mem, s, 3.0 * s) - 2.0 * idle_mj).abs() < 1e-12 * idle_mj);
+    // No wait when the memory is the bottleneck.
+    assert_eq!(dram_wait_mj(&mem, s, s), 0.0);
+    assert_eq!(dram_wait_mj(&mem, s, 0.5 * s), 0.0);
+}
+
+#[test]
+fn implied_build_share_by_hand() {
+    // [P2] Table VIII, primary rays, all scenes, HLBVH: build 32%, trace 143%, total 71%:
+    // s = (1.43 - 0.71) / (1.43 - 0.32) = 0.72 / 1.11.
+    let s = implied_build_share([0.32, 1.43, 0.71]).unwrap();
+    assert!((s - 0.72 / 1.11).abs() < 1e-12);
+    // Re-weighting the thesis's own ratios with that share gives back its total.
+    assert!((s * 0.32 + (1.0 - s) * 1.43 - 0.71).abs() < 1e-12);
+    // A system whose total is its build ratio spends everything on the build.
+    assert_eq!(implied_build_share([0.5, 2.0, 0.5]), Some(1.0));
+    // Equal build and trace ratios leave the share undefined.
+    assert_eq!(implied_build_share([1.0, 1.0, 1.0]), None);
 }
 
 #[test]
