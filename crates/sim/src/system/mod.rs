@@ -315,18 +315,14 @@ pub fn binned_sah_energy(
         t.sweep_write_bytes + t.bvh_bytes,
         cfg,
     )?;
-    let above = above_idle_mj(&mem);
-    let mut e = finish(
-        Builder::BinnedSah,
-        units,
-        seconds,
-        above,
-        &mem,
-        flops,
-        &tree,
-    );
-    e.dram_wait_mj = wait;
-    Ok((e, tree))
+    let dram = DramAccounting {
+        above_idle_mj: above_idle_mj(&mem),
+        wait_mj: wait,
+    };
+    Ok((
+        finish(Builder::BinnedSah, units, seconds, dram, &mem, flops, &tree),
+        tree,
+    ))
 }
 
 impl BuildEnergy {
@@ -347,18 +343,26 @@ fn above_idle_mj(mem: &MemStats) -> f64 {
     mem.energy_pj.as_ref().map_or(0.0, |e| e.above_idle_pj()) * 1e-9
 }
 
+/// A build's DRAM energy under the other accountings than `BuildEnergy::dram_mj`'s.
+struct DramAccounting {
+    /// `BuildEnergy::dram_above_idle_mj`.
+    above_idle_mj: f64,
+    /// `BuildEnergy::dram_wait_mj`.
+    wait_mj: f64,
+}
+
 fn finish(
     builder: Builder,
     units: Vec<UnitEnergy>,
     seconds: f64,
-    above_idle_mj: f64,
+    dram: DramAccounting,
     mem: &MemStats,
     flops: Flops,
     tree: &bvh::Bvh2,
 ) -> BuildEnergy {
     BuildEnergy {
-        dram_above_idle_mj: above_idle_mj,
-        dram_wait_mj: 0.0,
+        dram_above_idle_mj: dram.above_idle_mj,
+        dram_wait_mj: dram.wait_mj,
         builder,
         ms: seconds * 1e3,
         dram_bytes: mem.bytes_read + mem.bytes_written,
@@ -460,9 +464,14 @@ pub fn mergetree_build_energy(
             tree
         }
     };
-    let mut e = finish(builder, units, seconds + extra_s, above, &mem, flops, &tree);
-    e.dram_wait_mj = wait;
-    Ok((e, tree))
+    let dram = DramAccounting {
+        above_idle_mj: above,
+        wait_mj: wait,
+    };
+    Ok((
+        finish(builder, units, seconds + extra_s, dram, &mem, flops, &tree),
+        tree,
+    ))
 }
 
 /// The energy of `builder` over `aabbs`, and its tree.

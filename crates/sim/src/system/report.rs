@@ -328,7 +328,11 @@ impl SystemReport {
             "| rays | scenes | builder | binned SAH build share | thesis (implied) | total | at thesis share | thesis total |\n|---|---|---|---|---|---|---|---|\n",
         );
         let opt = |x: Option<f64>| x.map_or("-".into(), pct);
-        for r in self.table8.iter().filter(|r| r.builder != "binned-sah") {
+        for r in self
+            .table8
+            .iter()
+            .filter(|r| r.builder != Builder::BinnedSah.name())
+        {
             let _ = writeln!(
                 m,
                 "| {} | {} | {} | {} | {} | {} | {} | {} |",
