@@ -8,13 +8,31 @@ use std::time::{Duration, Instant};
 /// How long work may run before a progress bar appears.
 const SHOW_AFTER: Duration = Duration::from_secs(1);
 
+/// Where `--json` documents go: collected here instead of printed (Python's `arbor.run`).
+pub type JsonSink = Arc<Mutex<Vec<serde_json::Value>>>;
+
 /// User-interface settings shared by all subcommands.
 pub struct Ui {
     /// No progress bars and no warnings.
     pub quiet: bool,
+    /// Collect `--json` documents here instead of printing them (None: print to stdout).
+    pub json: Option<JsonSink>,
 }
 
 impl Ui {
+    /// Prints a command's `--json` document on stdout, or hands it to the caller that ran
+    /// the command as a library ([`crate::run_capture`]).
+    pub fn emit_json<T: serde::Serialize>(&self, doc: &T) -> anyhow::Result<()> {
+        match &self.json {
+            Some(sink) => {
+                let v = serde_json::to_value(doc)?;
+                sink.lock().unwrap_or_else(|p| p.into_inner()).push(v);
+            }
+            None => println!("{}", serde_json::to_string_pretty(doc)?),
+        }
+        Ok(())
+    }
+
     /// Prints a warning to stderr unless quiet.
     pub fn warn(&self, msg: &str) {
         if !self.quiet {

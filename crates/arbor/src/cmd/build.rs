@@ -543,7 +543,7 @@ pub fn run(args: &BuildArgs, ui: &Ui) -> anyhow::Result<()> {
         tree_bytes: tree.bytes(),
     };
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&j)?);
+        ui.emit_json(&j)?;
     } else {
         print_text(&j);
     }

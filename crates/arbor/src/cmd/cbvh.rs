@@ -277,7 +277,7 @@ pub fn run(a: &CbvhArgs, ui: &Ui) -> anyhow::Result<()> {
         encode_ms,
     };
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&out)?);
+        ui.emit_json(&out)?;
     } else {
         print_text(&out);
     }

@@ -117,7 +117,7 @@ pub fn run(args: &InfoArgs, ui: &Ui) -> anyhow::Result<()> {
         args.frame,
     )?;
     if args.json {
-        println!("{}", serde_json::to_string_pretty(&j)?);
+        ui.emit_json(&j)?;
         return Ok(());
     }
     let bounds = match &j.bounds {

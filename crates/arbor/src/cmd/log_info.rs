@@ -37,7 +37,7 @@ pub fn run(a: &LogInfoArgs, ui: &Ui) -> anyhow::Result<()> {
             log: a.log.display().to_string(),
             summary: &s,
         };
-        println!("{}", serde_json::to_string_pretty(&j)?);
+        ui.emit_json(&j)?;
         return Ok(());
     }
     let h = s.header.expect("summaries of files have headers");

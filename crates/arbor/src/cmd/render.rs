@@ -661,7 +661,7 @@ pub fn run(a: &RenderArgs, ui: &Ui) -> anyhow::Result<()> {
         })?;
     }
     if a.json {
-        println!("{text}");
+        ui.emit_json(&j)?;
     } else {
         print_text(&j);
     }

@@ -163,7 +163,7 @@ pub fn run(a: &ReportSystemArgs, ui: &Ui) -> anyhow::Result<()> {
     let rep = SystemReport::new(&cfg, a.width, a.height, scenes, animation);
     write_report(a, &rep)?;
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&rep)?);
+        ui.emit_json(&rep)?;
     } else {
         println!("{}", rep.table8_markdown());
         if !rep.animation.is_empty() {

@@ -31,3 +31,12 @@ pub fn run(args: &SimArgs, ui: &Ui) -> anyhow::Result<()> {
         SimCommand::Rtunit(a) => sim_rtunit::run_rtunit(a, ui),
     }
 }
+
+/// Checks the options of `arbor sim ...` without loading a scene or simulating.
+pub fn check(args: &SimArgs) -> anyhow::Result<()> {
+    match &args.model {
+        SimCommand::Mergetree(a) => sim_mergetree::check_mergetree(a),
+        SimCommand::Dram(a) => sim_dram::check_dram(a),
+        SimCommand::Rtunit(a) => sim_rtunit::check_rtunit(a),
+    }
+}

@@ -89,7 +89,15 @@ fn lcg(state: &mut u64) -> u64 {
     *state >> 17
 }
 
-pub fn run_dram(a: &DramArgs, ui: &Ui) -> anyhow::Result<()> {
+/// Checks the options of `a` (ranges and the memory system) without simulating: what a
+/// sweep checks before it runs.
+pub fn check_dram(a: &DramArgs) -> anyhow::Result<()> {
+    check_ranges(a)?;
+    sim::dram::open(&a.system, sim::clock::period_fs_from_hz(a.unit_mhz * 1e6))?;
+    Ok(())
+}
+
+fn check_ranges(a: &DramArgs) -> anyhow::Result<()> {
     anyhow::ensure!(
         a.unit_mhz.is_finite() && a.unit_mhz >= 1.0 && a.unit_mhz <= 100_000.0,
         "--unit-mhz must be between 1 and 100000, got {}",
@@ -105,6 +113,11 @@ pub fn run_dram(a: &DramArgs, ui: &Ui) -> anyhow::Result<()> {
         "--bytes must be between 1 and 16 GiB, got {}",
         a.bytes
     );
+    Ok(())
+}
+
+pub fn run_dram(a: &DramArgs, ui: &Ui) -> anyhow::Result<()> {
+    check_ranges(a)?;
     let unit_period_fs = sim::clock::period_fs_from_hz(a.unit_mhz * 1e6);
     let mut port = sim::dram::open(&a.system, unit_period_fs)?;
     let requests = a.bytes.div_ceil(a.request_bytes as u64);
@@ -199,7 +212,7 @@ pub fn run_dram(a: &DramArgs, ui: &Ui) -> anyhow::Result<()> {
         stats,
     };
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&out)?);
+        ui.emit_json(&out)?;
         return Ok(());
     }
     print_text(&out);

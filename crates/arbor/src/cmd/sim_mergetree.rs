@@ -178,15 +178,27 @@ fn config_of(a: &MergetreeArgs) -> anyhow::Result<MergeTreeConfig> {
     config_from(preset, a.config.as_deref(), &set)
 }
 
-pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
+/// The configuration and memory system of `a`, checked without loading the scene.
+fn config_and_dram(a: &MergetreeArgs) -> anyhow::Result<(MergeTreeConfig, &str)> {
     let cfg = config_of(a)?;
     let dram = a.dram.as_deref().unwrap_or(if a.cbvh.is_some() {
         "lpddr3-1600-2x32"
     } else {
         "lpddr3-1600-1x64"
     });
-    // Fail on a bad memory name before loading the scene.
     sim::dram::open(dram, cfg.period_fs())?;
+    Ok((cfg, dram))
+}
+
+/// Checks the options of `a` (preset, file, `--set` keys and values, memory system)
+/// without loading the scene or simulating: what a sweep checks before it runs.
+pub fn check_mergetree(a: &MergetreeArgs) -> anyhow::Result<()> {
+    config_and_dram(a).map(|_| ())
+}
+
+pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
+    // Fail on a bad option or memory name before loading the scene.
+    let (cfg, dram) = config_and_dram(a)?;
     let (scene, _) = open_scene(&a.scene, ui)?;
     let t = super::resolve_time(scene.info(), a.time, None)?;
     let mesh = scene
@@ -233,7 +245,7 @@ pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
             sim_cycles_per_s: cps,
             energy,
         };
-        println!("{}", serde_json::to_string_pretty(&out)?);
+        ui.emit_json(&out)?;
     } else {
         print_text(a, dram, &report, [matches, cbvh_matches], wall_ms);
         if let Some(e) = &energy {

@@ -73,8 +73,9 @@ fn config_of(a: &RtunitArgs) -> anyhow::Result<RtConfig> {
     Ok(cfg)
 }
 
-/// Runs `arbor sim rtunit`.
-pub fn run_rtunit(a: &RtunitArgs, ui: &Ui) -> anyhow::Result<()> {
+/// The options of `a` that need no scene, checked: tree kind, ray set, MBVH4 builder and
+/// the configuration.
+fn options_of(a: &RtunitArgs) -> anyhow::Result<(TreeKind, RayMode, rtunit::Mbvh4Build, RtConfig)> {
     let kind = TreeKind::parse(&a.tree)?;
     let rays = match a.rays.as_str() {
         "primary" => RayMode::Primary,
@@ -100,6 +101,18 @@ pub fn run_rtunit(a: &RtunitArgs, ui: &Ui) -> anyhow::Result<()> {
     );
     anyhow::ensure!(a.sample >= 1, "--sample must be at least 1");
     super::check_seconds("--time", a.time)?;
+    Ok((kind, rays, mbvh4, cfg))
+}
+
+/// Checks the options of `a` without loading the scene or simulating: what a sweep checks
+/// before it runs.
+pub fn check_rtunit(a: &RtunitArgs) -> anyhow::Result<()> {
+    options_of(a).map(|_| ())
+}
+
+/// Runs `arbor sim rtunit`.
+pub fn run_rtunit(a: &RtunitArgs, ui: &Ui) -> anyhow::Result<()> {
+    let (kind, rays, mbvh4, cfg) = options_of(a)?;
     let (scene, _) = open_scene(&a.scene, ui)?;
     let info = scene.info();
     let t = super::resolve_time(info, a.time, None)?;
@@ -151,7 +164,7 @@ pub fn run_rtunit(a: &RtunitArgs, ui: &Ui) -> anyhow::Result<()> {
     bar.finish();
     let (first, r) = result.context("accelerator simulation failed")?;
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&r)?);
+        ui.emit_json(&r)?;
     } else {
         print_report(&r, first.as_ref());
     }

@@ -1,0 +1,397 @@
+"""Type stubs of ``arbor._arbor``, the native module (PyO3, ``python/src``).
+
+Every function raises :class:`ArborError` with a one-line message on bad input (a bad spec,
+option, array shape, dtype, NaN or out-of-range index) or a failed run; none crashes the
+interpreter. Long work (scene loads, builds, refits, traces, encodes) runs with the GIL
+released.
+
+Arrays in: any array-like that numpy converts to the documented dtype and shape; an array
+that already is C-contiguous, aligned and of that dtype is used without a copy. Arrays
+out: fresh arrays that own (or view) memory moved from Rust, no extra copy.
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any, Final, Literal, final
+
+import numpy as np
+import numpy.typing as npt
+
+__version__: str
+
+__all__ = [
+    "ArborError",
+    "__version__",
+    "run_json",
+    "check_args",
+    "Camera",
+    "Mesh",
+    "Scene",
+    "Bvh",
+    "builders",
+    "DEFAULT_BUILDER",
+    "Hits",
+    "Rays",
+    "trace",
+    "trace_brute_force",
+    "camera_rays",
+    "NO_HIT",
+    "encode_cbvh",
+]
+
+#: Primitive id of a ray that hit nothing (``2**32 - 1``).
+NO_HIT: Final[int]
+#: The builder :meth:`Bvh.build` uses when none is named.
+DEFAULT_BUILDER: Final[str]
+
+_F32 = npt.NDArray[np.float32]
+_U32 = npt.NDArray[np.uint32]
+
+class ArborError(Exception):
+    """An Arbor error: bad input, a bad option or a failed run; the message is the one line
+    the ``arbor`` command prints."""
+
+def run_json(args: list[str]) -> str:
+    """Runs one ``arbor`` command line (without the program name) quietly and returns the
+    JSON documents it produced, as a JSON array (text)."""
+
+def check_args(args: list[str]) -> None:
+    """Checks a command line without running it (raises :class:`ArborError`)."""
+
+# ---------------------------------------------------------------------------- scenes
+
+@final
+class Camera:
+    """A pinhole camera: eye, target, up and vertical field of view in degrees."""
+
+    def __new__(
+        cls,
+        eye: tuple[float, float, float] | list[float],
+        target: tuple[float, float, float] | list[float],
+        up: tuple[float, float, float] | list[float] = (0.0, 1.0, 0.0),
+        vfov_deg: float = 45.0,
+    ) -> Camera: ...
+    @staticmethod
+    def framing(bounds: npt.ArrayLike) -> Camera:
+        """The camera that frames ``bounds`` ((2, 3): min row, max row), as a scene's
+        default camera does."""
+    @property
+    def eye(self) -> tuple[float, float, float]: ...
+    @property
+    def target(self) -> tuple[float, float, float]: ...
+    @property
+    def up(self) -> tuple[float, float, float]: ...
+    @property
+    def vfov_deg(self) -> float: ...
+
+@final
+class Mesh:
+    """A triangle mesh at one time. Triangle ``i`` is ``indices[i]``; in a scene with
+    stable topology, ``i`` is the same primitive in every frame."""
+
+    @property
+    def vertices(self) -> _F32:
+        """Vertex positions, float32 (N, 3)."""
+    @property
+    def indices(self) -> _U32:
+        """Vertex indices of each triangle, uint32 (M, 3)."""
+    @property
+    def material_ids(self) -> _U32:
+        """Material id of each triangle, uint32 (M,) (index into ``material_names``)."""
+    @property
+    def material_names(self) -> list[str]: ...
+    @property
+    def time(self) -> float:
+        """The time sampled, in seconds (after clamping)."""
+    @property
+    def bounds(self) -> _F32:
+        """Bounds of the referenced vertices, float32 (2, 3): min row, max row (``+inf``
+        over ``-inf`` for an empty mesh)."""
+    @property
+    def triangle_count(self) -> int: ...
+    @property
+    def vertex_count(self) -> int: ...
+    def __len__(self) -> int: ...
+
+@final
+class Scene:
+    """A scene opened from a spec, as every ``arbor`` command takes it: a mesh file (OBJ,
+    PLY), a glTF 2.0 file (``.gltf``/``.glb``, skins and animation), a directory or glob of
+    frame files, or ``proc:NAME?key=value&...``."""
+
+    def __new__(cls, spec: str, *, fps: float | None = None, animation: str | None = None) -> Scene:
+        """Opens ``spec``; ``fps`` numbers the frames of a frame sequence, ``animation``
+        picks a glTF animation by index or name."""
+    def mesh(self, time: float | None = None, frame: int | None = None) -> Mesh:
+        """The mesh at ``time`` seconds (clamped to the timeline) or of frame ``frame``;
+        time 0 when neither is given."""
+    def time_of_frame(self, frame: int) -> float: ...
+    @property
+    def name(self) -> str: ...
+    @property
+    def spec(self) -> str: ...
+    @property
+    def format(self) -> str:
+        """``ply``, ``obj``, ``gltf``, ``keyframes`` or ``procedural``."""
+    @property
+    def frame_count(self) -> int: ...
+    @property
+    def duration(self) -> float:
+        """Length of the animation in seconds (0 for a static scene)."""
+    @property
+    def fps(self) -> float: ...
+    @property
+    def stable_topology(self) -> bool:
+        """True when every frame has the same triangles in the same order (refittable)."""
+    @property
+    def dropped_triangles(self) -> int:
+        """Triangles dropped at load for NaN or infinite coordinates (static files)."""
+    @property
+    def camera(self) -> Camera:
+        """The scene's default camera."""
+    @property
+    def triangle_count(self) -> int:
+        """Triangles at time 0 (sampled once, on first use)."""
+
+# ------------------------------------------------------------------------------ BVHs
+
+_BuilderName = Literal[
+    "lbvh",
+    "hlbvh",
+    "hlbvh+sah",
+    "hlbvh+atrbvh",
+    "binned-sah",
+    "sweep-sah",
+    "atrbvh",
+    "mbvh4-collapse",
+    "mbvh4-topdown",
+]
+
+def builders() -> list[str]:
+    """Names of every builder, in ``arbor build``'s order."""
+
+@final
+class Bvh:
+    """A built tree: the binary ``Bvh2`` (64-byte nodes of [P2] §4.1) or the 4-wide
+    ``Mbvh4`` (128-byte nodes of [P4] §3.1), with its leaf table.
+
+    ``nodes`` is a structured array in the exact memory and tree-file layout. ``Bvh2``:
+    ``bounds`` float32 (2, 2, 3) = [child][min, max][x, y, z] and ``children`` (2,) of
+    (``index``, ``count``) uint32. ``Mbvh4``: ``min_x`` ... ``max_z`` float32 (4,) and
+    ``children`` (4,). A child with ``count > 0`` is a leaf of
+    ``leaf_order[index:index + count]``; ``count == 0`` is inner node ``index``, or no
+    child when ``index == 2**32 - 1``.
+    """
+
+    @staticmethod
+    def build(
+        vertices: npt.ArrayLike,
+        indices: npt.ArrayLike,
+        builder: _BuilderName | str = "binned-sah",
+        *,
+        max_leaf: int | None = None,
+        bins: int | None = None,
+        collapse_from: str | None = None,
+        threads: int | None = None,
+    ) -> Bvh:
+        """Builds a tree over triangles with a builder of ``arbor build`` and its options
+        (``max_leaf`` 1..1024, default 8; ``bins`` 8, 16 or 32 for the binned builders;
+        ``collapse_from`` for ``mbvh4-collapse``; ``threads``: default all cores)."""
+    @staticmethod
+    def load(path: str | os.PathLike[str]) -> Bvh:
+        """Reads a tree file (``arbor build --out``); it is checksummed and validated."""
+    def save(self, path: str | os.PathLike[str]) -> None:
+        """Writes the tree file atomically."""
+    def refit(self, vertices: npt.ArrayLike, indices: npt.ArrayLike | None = None) -> None:
+        """Refits the boxes to moved vertices (same triangles; ``indices`` default to those
+        the tree was built over)."""
+    def validate(
+        self,
+        vertices: npt.ArrayLike | None = None,
+        indices: npt.ArrayLike | None = None,
+        *,
+        max_leaf: int | None = None,
+    ) -> None:
+        """Checks every invariant over the triangles (default: those last built or refitted
+        over); raises :class:`ArborError` naming the first violation."""
+    def sah(self, c_inner: float = 1.2, c_leaf: float = 0.0, c_tri: float = 1.0) -> float:
+        """SAH cost normalized by the scene box, in binary units (a 4-wide node costs
+        ``2 c_inner``); the defaults are the thesis weights."""
+    def collapse(self) -> Bvh:
+        """The 4-wide tree collapsed from this binary one."""
+    def stats(self) -> dict[str, Any]: ...
+    @property
+    def nodes(self) -> npt.NDArray[np.void]:
+        """The nodes as a structured array (a copy)."""
+    @property
+    def node_dtype(self) -> np.dtype[np.void]: ...
+    @property
+    def leaf_order(self) -> _U32:
+        """The leaf table: triangle indices in leaf order, uint32 (a copy)."""
+    @property
+    def primitive_indices(self) -> _U32:
+        """Same as ``leaf_order``."""
+    @property
+    def bounds(self) -> _F32:
+        """Scene box, float32 (2, 3)."""
+    @property
+    def kind(self) -> Literal["Bvh2", "Mbvh4"]: ...
+    @property
+    def width(self) -> int: ...
+    @property
+    def builder(self) -> str: ...
+    @property
+    def max_leaf(self) -> int:
+        """The leaf size limit the tree was built with (``validate``'s default)."""
+    @property
+    def node_count(self) -> int: ...
+    @property
+    def leaf_count(self) -> int: ...
+    @property
+    def primitive_count(self) -> int: ...
+    @property
+    def depth(self) -> int:
+        """Longest root-to-leaf path, in nodes."""
+    @property
+    def max_leaf_size(self) -> int: ...
+    @property
+    def mean_children(self) -> float: ...
+    @property
+    def node_bytes(self) -> int: ...
+    @property
+    def bytes(self) -> int:
+        """Bytes of the nodes plus the leaf table."""
+    def __eq__(self, other: object, /) -> bool: ...
+
+# --------------------------------------------------------------------------- tracing
+
+_KernelName = Literal["bvh2", "mbvh4", "mbvh8", "cbvh"]
+
+@final
+class Hits:
+    """Results of :func:`trace`, one entry per ray. ``t`` is ``inf`` and ``primitive`` is
+    :data:`NO_HIT` on a miss. ``u`` and ``v`` are the barycentric weights of the
+    triangle's vertices 1 and 2 (the hit is ``(1-u-v) p0 + u p1 + v p2``)."""
+
+    @property
+    def t(self) -> _F32: ...
+    @property
+    def primitive(self) -> _U32: ...
+    @property
+    def u(self) -> _F32: ...
+    @property
+    def v(self) -> _F32: ...
+    @property
+    def hit(self) -> npt.NDArray[np.bool_]: ...
+    @property
+    def node_visits(self) -> _U32: ...
+    @property
+    def box_tests(self) -> _U32: ...
+    @property
+    def tri_tests(self) -> _U32: ...
+    @property
+    def leaf_visits(self) -> _U32: ...
+    @property
+    def pops(self) -> _U32: ...
+    @property
+    def culled_pops(self) -> _U32: ...
+    @property
+    def max_stack_depth(self) -> _U32: ...
+    @property
+    def kernel(self) -> str: ...
+    @property
+    def totals(self) -> dict[str, int]:
+        """Counters summed over all rays (``max_stack_depth``: the maximum)."""
+    def __len__(self) -> int: ...
+
+def trace(
+    bvh: Bvh,
+    vertices: npt.ArrayLike,
+    indices: npt.ArrayLike,
+    origins: npt.ArrayLike,
+    directions: npt.ArrayLike,
+    tmin: float | npt.ArrayLike | None = None,
+    tmax: float | npt.ArrayLike | None = None,
+    *,
+    kernel: _KernelName | None = None,
+    distance_stack: bool = True,
+    any_hit: bool = False,
+) -> Hits:
+    """Traces rays (origins and directions float32 (N, 3); ``tmin``/``tmax`` a number or
+    (N,), default 0 and ``inf``) through ``bvh``, built over ``indices`` into ``vertices``. ``kernel`` defaults to
+    the tree's own format; a binary tree can also be traced as ``mbvh4``, ``mbvh8`` or
+    ``cbvh`` (collapsed or compressed first). ``any_hit``: stop at the first hit found."""
+
+def trace_brute_force(
+    vertices: npt.ArrayLike,
+    indices: npt.ArrayLike,
+    origins: npt.ArrayLike,
+    directions: npt.ArrayLike,
+    tmin: float | npt.ArrayLike | None = None,
+    tmax: float | npt.ArrayLike | None = None,
+) -> Hits:
+    """The closest hits by testing every triangle (the crate's reference); ``tmin`` and
+    ``tmax`` as in :func:`trace`. Counters: ``tri_tests`` is the triangle count."""
+
+@final
+class Rays:
+    """A ray set: origins and directions float32 (N, 3), ``tmin``/``tmax`` (N,), and the
+    ``pixel`` (``y * width + x``) and ``bounce`` (0 = primary) of each ray."""
+
+    @property
+    def origins(self) -> _F32: ...
+    @property
+    def directions(self) -> _F32: ...
+    @property
+    def tmin(self) -> _F32: ...
+    @property
+    def tmax(self) -> _F32: ...
+    @property
+    def pixel(self) -> _U32: ...
+    @property
+    def bounce(self) -> npt.NDArray[np.uint8]: ...
+    @property
+    def width(self) -> int: ...
+    @property
+    def height(self) -> int: ...
+    @property
+    def kind(self) -> str: ...
+    def __len__(self) -> int: ...
+
+def camera_rays(
+    camera: Camera,
+    width: int,
+    height: int,
+    kind: Literal["primary", "diffuse"] = "primary",
+    *,
+    bvh: Bvh | None = None,
+    vertices: npt.ArrayLike | None = None,
+    indices: npt.ArrayLike | None = None,
+    bounces: int = 4,
+    seed: int = 1,
+) -> Rays:
+    """The rays of a ``width`` x ``height`` image: ``primary`` (one per pixel centre,
+    row-major, unit directions), or ``diffuse`` (the paths of ``arbor render --rays
+    diffuse``, found by tracing through ``bvh``: each pixel's primary ray and up to
+    ``bounces`` cosine-weighted bounces, in the renderer's tile order)."""
+
+# ----------------------------------------------------------------------------- CBVH
+
+def encode_cbvh(
+    bvh: Bvh,
+    vertices: npt.ArrayLike | None = None,
+    indices: npt.ArrayLike | None = None,
+    *,
+    encoder: Literal["bottomup", "topdown"] = "bottomup",
+    coords: Literal["modulo", "relative"] = "modulo",
+    treelet: int = 1,
+    bits: int = 6,
+    min_scale_exp: int = -30,
+) -> dict[str, Any]:
+    """Compresses a binary tree into a CBVH ([P3]) and returns its statistics (fields of
+    ``arbor cbvh --json`` plus sizes): nodes, node_bytes, uncompressed_node_bytes,
+    compression_ratio, backtrack_steps, backtrack_depth_hist, nodes_written, max_stack,
+    enclosure_violations, decoded_encloses_original, sah, sah_uncompressed,
+    sah_vs_uncompressed, encode_ms, and the options. The decoded boxes are checked against
+    the triangles (default: those the tree was last built or refitted over)."""
