@@ -412,16 +412,10 @@ def run_point(point: Point) -> dict[str, Any]:
     """Runs one point and returns its record; a failure is a record with status
     ``failed`` and the error, never an exception. What pool workers and Ray tasks call."""
     from . import run
-    from ._arbor import ArborError, __version__
+    from ._arbor import ArborError
 
-    record: dict[str, Any] = {
-        "id": point.id,
-        "command": " ".join(point.command),
-        "scene": point.scene,
-        "params": dict(point.params),
-        "arbor_version": __version__,
-        "host": socket.gethostname(),
-    }
+    record = _record_head(point)
+    record["host"] = socket.gethostname()
     start = time.perf_counter()
     try:
         docs = run(*point.argv())
@@ -483,7 +477,8 @@ def _run_pool(
             raise
 
 
-def _crashed(point: Point, e: BaseException) -> dict[str, Any]:
+def _record_head(point: Point) -> dict[str, Any]:
+    """The fields of a record that name the point and the tool."""
     from ._arbor import __version__
 
     return {
@@ -492,6 +487,12 @@ def _crashed(point: Point, e: BaseException) -> dict[str, Any]:
         "scene": point.scene,
         "params": dict(point.params),
         "arbor_version": __version__,
+    }
+
+
+def _crashed(point: Point, e: BaseException) -> dict[str, Any]:
+    return {
+        **_record_head(point),
         "host": None,
         "status": "failed",
         "error": f"the worker running the point died: {type(e).__name__}: {e}",
@@ -747,7 +748,6 @@ class _progress:
     def __init__(self, total: int, skipped: int, name: str, show: bool) -> None:
         from tqdm import tqdm
 
-        self.total = total
         self.bar = tqdm(
             total=total,
             initial=skipped,
@@ -756,16 +756,16 @@ class _progress:
             disable=not show,
             file=sys.stderr,
         )
-        self.n = skipped
         self._post(0)
 
     def _post(self, failed: int) -> None:
-        self.bar.set_postfix(failed=failed, remaining=self.total - self.n, refresh=False)
+        remaining = self.bar.total - self.bar.n
+        self.bar.set_postfix(failed=failed, remaining=remaining, refresh=False)
 
     def update(self, failed: int) -> None:
-        self.n += 1
-        self._post(failed)
         self.bar.update(1)
+        self._post(failed)
+        self.bar.refresh()
 
     def close(self) -> None:
         self.bar.close()

@@ -32,8 +32,17 @@ pub(crate) fn aabbs(v: &[Vec3], ix: &[[u32; 3]]) -> Result<Vec<Aabb>, String> {
     bvh::indexed_triangle_aabbs(v, ix).map_err(|e| format!("cannot compute triangle bounds: {e}"))
 }
 
-/// The build configuration of `arbor build`'s options, checked with its rules and messages
-/// (named after the Python arguments).
+/// How `Bvh.build` spells the options in messages.
+const PY_NAMES: cli::OptionNames = cli::OptionNames {
+    builder: "builder",
+    threads: "threads",
+    max_leaf: "max_leaf",
+    collapse_from: "collapse_from",
+    bins: "bins",
+};
+
+/// The build configuration of `arbor build`'s options, checked by its own rules
+/// (`cmd::build::build_config`), the messages naming the Python arguments.
 fn config(
     builder: &str,
     max_leaf: Option<u32>,
@@ -41,57 +50,8 @@ fn config(
     collapse_from: Option<&str>,
     threads: Option<usize>,
 ) -> Result<(cli::BuildFn, BuildConfig), String> {
-    let f = cli::builder(builder).map_err(|e| arbor::one_line(&e))?;
-    if let Some(t) = threads {
-        if !(1..=cli::MAX_THREADS).contains(&t) {
-            return Err(format!(
-                "threads must be between 1 and {}, got {t}",
-                cli::MAX_THREADS
-            ));
-        }
-    }
-    let mut cfg = BuildConfig::default();
-    if let Some(m) = max_leaf {
-        if !(1..=cli::MAX_LEAF_LIMIT).contains(&m) {
-            return Err(format!(
-                "max_leaf must be between 1 and {}, got {m}",
-                cli::MAX_LEAF_LIMIT
-            ));
-        }
-        cfg.max_leaf = m;
-    }
-    if let Some(from) = collapse_from {
-        if builder != cli::COLLAPSE {
-            return Err(format!(
-                "collapse_from applies only to builder {}",
-                cli::COLLAPSE
-            ));
-        }
-        cli::builder(from).map_err(|e| arbor::one_line(&e))?;
-        let binary: Vec<&'static str> = cli::available_builders()
-            .filter(|n| !cli::is_wide(n))
-            .collect();
-        cfg.collapse_from = binary.iter().copied().find(|n| *n == from).ok_or_else(|| {
-            format!(
-                "collapse_from needs a binary builder, not {from}; valid names: {}",
-                binary.join(", ")
-            )
-        })?;
-    }
-    if let Some(b) = bins {
-        const BINNED: [&str; 3] = ["binned-sah", "hlbvh+sah", "mbvh4-topdown"];
-        if !BINNED.contains(&builder) {
-            return Err(format!(
-                "bins applies only to builders {}",
-                BINNED.join(", ")
-            ));
-        }
-        if !cli::BIN_CHOICES.contains(&b) {
-            return Err(format!("bins must be 8, 16 or 32, got {b}"));
-        }
-        cfg.bins = b;
-    }
-    Ok((f, cfg))
+    cli::build_config(&PY_NAMES, builder, threads, max_leaf, collapse_from, bins)
+        .map_err(|e| arbor::one_line(&e))
 }
 
 /// Runs `f` in a pool of `threads` workers, or in the global pool.

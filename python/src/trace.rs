@@ -2,7 +2,7 @@
 //! per-ray counters (`trace::RayStats`), the brute-force reference, and the ray sets of a
 //! camera (primary rays, and the diffuse paths of `arbor render --rays diffuse`).
 
-use crate::arrays::{err, n3_array, per_ray, points, resolve, PerRay};
+use crate::arrays::{err, n3_array, per_ray, points, resolve, PerRay, Points};
 use crate::bvh::Bvh;
 use crate::detached;
 use crate::scene::Camera;
@@ -180,36 +180,78 @@ fn accel_of(
     })
 }
 
-/// Checked rays from the arrays.
-fn rays(
-    o: &[Vec3],
-    d: &[Vec3],
-    tmin: (f32, Option<&[f32]>),
-    tmax: (f32, Option<&[f32]>),
-) -> Result<Vec<Ray>, String> {
-    if o.len() != d.len() {
-        return Err(format!(
-            "origins and directions differ in length: {} and {}",
-            o.len(),
-            d.len()
-        ));
+/// The ray arguments of a trace call, read from Python: origins, directions and ranges.
+struct RayArrays<'py> {
+    origins: Points<'py>,
+    directions: Points<'py>,
+    tmin: PerRay<'py>,
+    tmax: PerRay<'py>,
+}
+
+impl<'py> RayArrays<'py> {
+    fn new(
+        origins: &Bound<'py, PyAny>,
+        directions: &Bound<'py, PyAny>,
+        tmin: Option<&Bound<'py, PyAny>>,
+        tmax: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Self> {
+        let origins = points("origins", origins)?;
+        let n = origins.as_vec3()?.len();
+        Ok(Self {
+            origins,
+            directions: points("directions", directions)?,
+            tmin: per_ray("tmin", tmin, 0.0, n)?,
+            tmax: per_ray("tmax", tmax, f32::INFINITY, n)?,
+        })
     }
-    let mut out = Vec::with_capacity(o.len());
-    for i in 0..o.len() {
-        if !o[i].is_finite() {
-            return Err(format!("origins[{i}] is not finite: {}", o[i]));
-        }
-        if !d[i].is_finite() || d[i] == Vec3::ZERO {
+
+    /// The arrays' contents, which can cross into a detached closure.
+    fn slices(&self) -> PyResult<RaySlices<'_>> {
+        Ok(RaySlices {
+            o: self.origins.as_vec3()?,
+            d: self.directions.as_vec3()?,
+            tmin: self.tmin.parts()?,
+            tmax: self.tmax.parts()?,
+        })
+    }
+}
+
+/// The contents of [`RayArrays`].
+struct RaySlices<'a> {
+    o: &'a [Vec3],
+    d: &'a [Vec3],
+    tmin: (f32, Option<&'a [f32]>),
+    tmax: (f32, Option<&'a [f32]>),
+}
+
+impl RaySlices<'_> {
+    /// Checked rays from the arrays.
+    fn rays(&self) -> Result<Vec<Ray>, String> {
+        let (o, d, tmin, tmax) = (self.o, self.d, self.tmin, self.tmax);
+        if o.len() != d.len() {
             return Err(format!(
-                "directions[{i}] must be finite and not zero, got {}",
-                d[i]
+                "origins and directions differ in length: {} and {}",
+                o.len(),
+                d.len()
             ));
         }
-        let t0 = PerRay::at(&tmin.1, tmin.0, i);
-        let t1 = PerRay::at(&tmax.1, tmax.0, i);
-        out.push(Ray::with_range(o[i], d[i], t0, t1));
+        let mut out = Vec::with_capacity(o.len());
+        for i in 0..o.len() {
+            if !o[i].is_finite() {
+                return Err(format!("origins[{i}] is not finite: {}", o[i]));
+            }
+            if !d[i].is_finite() || d[i] == Vec3::ZERO {
+                return Err(format!(
+                    "directions[{i}] must be finite and not zero, got {}",
+                    d[i]
+                ));
+            }
+            let t0 = PerRay::at(&tmin.1, tmin.0, i);
+            let t1 = PerRay::at(&tmax.1, tmax.0, i);
+            out.push(Ray::with_range(o[i], d[i], t0, t1));
+        }
+        Ok(out)
     }
-    Ok(out)
 }
 
 /// One ray's output from a hit.
@@ -270,12 +312,8 @@ fn trace_rays<'py>(
     let vs = v.as_vec3()?;
     let ix = crate::arrays::indices(indices, vs.len())?;
     let ixs = ix.get()?;
-    let o = points("origins", origins)?;
-    let d = points("directions", directions)?;
-    let (os, ds) = (o.as_vec3()?, d.as_vec3()?);
-    let t0 = per_ray("tmin", tmin, 0.0, os.len())?;
-    let t1 = per_ray("tmax", tmax, f32::INFINITY, os.len())?;
-    let (t0, t1) = (t0.parts()?, t1.parts()?);
+    let ray_arrays = RayArrays::new(origins, directions, tmin, tmax)?;
+    let ray_slices = ray_arrays.slices()?;
     let tree = &bvh.tree;
     let options = KernelOptions { distance_stack };
     let query = if any_hit { Query::Any } else { Query::Closest };
@@ -287,7 +325,7 @@ fn trace_rays<'py>(
                 ixs.len()
             ));
         }
-        let rays = rays(os, ds, t0, t1)?;
+        let rays = ray_slices.rays()?;
         let tris = resolve(vs, ixs)?;
         let accel = accel_of(tree, kernel, &tris, options)?;
         Ok((trace_all(&accel, &rays, query), accel.format_name()))
@@ -312,14 +350,10 @@ fn trace_brute_force<'py>(
     let vs = v.as_vec3()?;
     let ix = crate::arrays::indices(indices, vs.len())?;
     let ixs = ix.get()?;
-    let o = points("origins", origins)?;
-    let d = points("directions", directions)?;
-    let (os, ds) = (o.as_vec3()?, d.as_vec3()?);
-    let t0 = per_ray("tmin", tmin, 0.0, os.len())?;
-    let t1 = per_ray("tmax", tmax, f32::INFINITY, os.len())?;
-    let (t0, t1) = (t0.parts()?, t1.parts()?);
+    let ray_arrays = RayArrays::new(origins, directions, tmin, tmax)?;
+    let ray_slices = ray_arrays.slices()?;
     let outs = detached(py, || {
-        let rays = rays(os, ds, t0, t1)?;
+        let rays = ray_slices.rays()?;
         let tris = resolve(vs, ixs)?;
         Ok::<_, String>(
             rays.par_iter()

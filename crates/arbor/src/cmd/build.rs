@@ -124,7 +124,7 @@ pub static BUILDERS: &[(&str, BuildFn)] = &[
     }),
     (COLLAPSE, |p, c| {
         // The binary build and the collapse together are the 4-wide build.
-        let from = binary_builder_name(c.collapse_from)?;
+        let from = binary_builder_name(c.collapse_from, CLI_NAMES.collapse_from)?;
         let Tree::Bvh2(t) = builder(from)?(p, c)? else {
             anyhow::bail!("--collapse-from {from} did not build a binary tree")
         };
@@ -183,13 +183,14 @@ pub fn builder(name: &str) -> anyhow::Result<BuildFn> {
     }
 }
 
-/// The registered name of binary builder `name` (what `--collapse-from` accepts).
-fn binary_builder_name(name: &str) -> anyhow::Result<&'static str> {
+/// The registered name of binary builder `name` (what `--collapse-from` accepts; `option`
+/// is how messages spell that option).
+fn binary_builder_name(name: &str, option: &str) -> anyhow::Result<&'static str> {
     builder(name)?;
     match available_builders().find(|n| *n == name && !is_wide(n)) {
         Some(n) => Ok(n),
         None => bail!(
-            "--collapse-from needs a binary builder, not {name}; valid names: {}",
+            "{option} needs a binary builder, not {name}; valid names: {}",
             available_builders()
                 .filter(|n| !is_wide(n))
                 .collect::<Vec<_>>()
@@ -338,47 +339,95 @@ pub fn timed_build(
     Ok((t, elapsed))
 }
 
-/// Checks the arguments that need no scene, so bad input fails before a long load.
-fn check_args(a: &BuildArgs) -> anyhow::Result<(BuildFn, BuildConfig)> {
-    let f = builder(&a.builder)?;
-    super::check_seconds("--refit-from", a.refit_from)?;
-    if let Some(t) = a.threads {
+/// How the build options are spelled in messages: the command line's flags, or another
+/// front end's argument names (the Python package's `max_leaf=`).
+pub struct OptionNames {
+    pub builder: &'static str,
+    pub threads: &'static str,
+    pub max_leaf: &'static str,
+    pub collapse_from: &'static str,
+    pub bins: &'static str,
+}
+
+/// The command line's spelling of the build options.
+pub const CLI_NAMES: OptionNames = OptionNames {
+    builder: "--builder",
+    threads: "--threads",
+    max_leaf: "--max-leaf",
+    collapse_from: "--collapse-from",
+    bins: "--bins",
+};
+
+/// The builder and configuration of `arbor build`'s options, checked with its rules (the
+/// one place they live: the command line and the Python package both call it); `names`
+/// spells the options in the messages.
+pub fn build_config(
+    names: &OptionNames,
+    builder_name: &str,
+    threads: Option<usize>,
+    max_leaf: Option<u32>,
+    collapse_from: Option<&str>,
+    bins: Option<usize>,
+) -> anyhow::Result<(BuildFn, BuildConfig)> {
+    let f = builder(builder_name)?;
+    if let Some(t) = threads {
         anyhow::ensure!(
             (1..=MAX_THREADS).contains(&t),
-            "--threads must be between 1 and {MAX_THREADS}, got {t}"
+            "{} must be between 1 and {MAX_THREADS}, got {t}",
+            names.threads
         );
     }
     let mut cfg = BuildConfig::default();
-    if let Some(m) = a.max_leaf {
+    if let Some(m) = max_leaf {
         anyhow::ensure!(
             (1..=MAX_LEAF_LIMIT).contains(&m),
-            "--max-leaf must be between 1 and {MAX_LEAF_LIMIT}, got {m}"
+            "{} must be between 1 and {MAX_LEAF_LIMIT}, got {m}",
+            names.max_leaf
         );
         cfg.max_leaf = m;
     }
-    if let Some(from) = &a.collapse_from {
+    if let Some(from) = collapse_from {
         anyhow::ensure!(
-            a.builder == COLLAPSE,
-            "--collapse-from applies only to --builder {COLLAPSE}"
+            builder_name == COLLAPSE,
+            "{} applies only to {} {COLLAPSE}",
+            names.collapse_from,
+            names.builder
         );
-        cfg.collapse_from = binary_builder_name(from)?;
+        cfg.collapse_from = binary_builder_name(from, names.collapse_from)?;
     }
-    if let Some(b) = a.bins {
+    if let Some(b) = bins {
         anyhow::ensure!(
-            BINNED.contains(&a.builder.as_str()),
-            "--bins applies only to --builder {}",
+            BINNED.contains(&builder_name),
+            "{} applies only to {} {}",
+            names.bins,
+            names.builder,
             BINNED.join(", ")
         );
         anyhow::ensure!(
             BIN_CHOICES.contains(&b),
-            "--bins must be 8, 16 or 32, got {b}"
+            "{} must be 8, 16 or 32, got {b}",
+            names.bins
         );
         cfg.bins = b;
     }
+    Ok((f, cfg))
+}
+
+/// Checks the arguments that need no scene, so bad input fails before a long load.
+fn check_args(a: &BuildArgs) -> anyhow::Result<(BuildFn, BuildConfig)> {
+    let checked = build_config(
+        &CLI_NAMES,
+        &a.builder,
+        a.threads,
+        a.max_leaf,
+        a.collapse_from.as_deref(),
+        a.bins,
+    )?;
+    super::check_seconds("--refit-from", a.refit_from)?;
     if let Some(out) = &a.out {
         check_out_path(out)?;
     }
-    Ok((f, cfg))
+    Ok(checked)
 }
 
 /// Fails early when `--out` cannot be written: a directory, or a missing parent folder.
@@ -634,15 +683,18 @@ mod tests {
         let e = builder("nope").err().unwrap().to_string();
         assert!(e.contains("lbvh") && e.contains("mbvh4-topdown"), "{e}");
         assert_eq!(available_builders().count(), BUILDERS.len());
-        assert_eq!(binary_builder_name("hlbvh").unwrap(), "hlbvh");
-        let e = binary_builder_name("mbvh4-topdown")
+        assert_eq!(
+            binary_builder_name("hlbvh", CLI_NAMES.collapse_from).unwrap(),
+            "hlbvh"
+        );
+        let e = binary_builder_name("mbvh4-topdown", CLI_NAMES.collapse_from)
             .unwrap_err()
             .to_string();
         assert!(
             e.contains("binary builder") && e.contains("sweep-sah"),
             "{e}"
         );
-        assert!(binary_builder_name("nope").is_err());
+        assert!(binary_builder_name("nope", CLI_NAMES.collapse_from).is_err());
     }
 
     #[test]
