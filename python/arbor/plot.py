@@ -42,6 +42,11 @@ def read_results(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
     return rows
 
 
+def _number(v: Any) -> bool:
+    """Whether `v` can be drawn: a number that is not NaN (booleans are not numbers here)."""
+    return isinstance(v, (int, float)) and not isinstance(v, bool) and not math.isnan(v)
+
+
 def _label(v: Any) -> str:
     if isinstance(v, str):
         name = v.rsplit("/", 1)[-1]
@@ -84,6 +89,9 @@ def plot(
         if col not in rows[0]:
             known = ", ".join(k for k in rows[0] if k.startswith(("param.", "result.")))
             raise PlotError(f"no column '{col}' (columns: scene, {known})")
+    for metric in ys:
+        if not any(_number(r[metric]) for r in rows):
+            raise PlotError(f"column '{metric}' has no numeric values to plot")
     out_path = Path(out)
     if out_path.suffix.lower() not in (".svg", ".png"):
         raise PlotError(f"{out_path}: the picture's name must end in .svg or .png")
@@ -108,8 +116,8 @@ def plot(
                     for r in rows
                     if r[by] == lv
                     and (facet is None or r[facet] == fv)
-                    and isinstance(r[metric], (int, float))
-                    and not (isinstance(r[metric], float) and math.isnan(r[metric]))
+                    and r[x] is not None
+                    and _number(r[metric])
                 )
                 if pts:
                     ax.plot([p[0] for p in pts], [p[1] for p in pts], marker="o", label=_label(lv))

@@ -193,6 +193,8 @@ def test_pool_resume_and_results(tmp_path: Path) -> None:
     )
     text = svg.read_text()
     assert "<svg" in text and text.count("<path") > 4
+    with pytest.raises(plot.PlotError, match="'result.dram' has no numeric values"):
+        plot.plot(out, "param.set.m", "result.dram", tmp_path / "r.svg")
     with pytest.raises(plot.PlotError, match="no column 'result.nope'"):
         plot.plot(out, "param.set.m", "result.nope", tmp_path / "q.svg")
 
