@@ -12,7 +12,7 @@ mod ray;
 mod triangle;
 
 pub use aabb::Aabb;
-pub use glam::{Mat4, Quat, Vec3, Vec4};
+pub use glam::{BVec4A, Mat4, Quat, Vec3, Vec4};
 pub use intersect::{
     intersect_triangle_watertight, intersect_triangles4_watertight, ray_aabb, Hits4, RayPrecomp,
     TriangleHit, Triangles4, SLAB_FAR_SCALE,
