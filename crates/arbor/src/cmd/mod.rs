@@ -6,6 +6,7 @@ pub mod bench_trace;
 pub mod build;
 pub mod cbvh;
 pub mod demo;
+pub mod energy_args;
 pub mod info;
 pub mod log_info;
 pub mod render;

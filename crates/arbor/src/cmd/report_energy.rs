@@ -17,7 +17,7 @@ use super::report_rtunit::{self, ReportRtunitArgs};
 use crate::progress::Ui;
 use anyhow::Context;
 use serde::Serialize;
-use sim::energy::{component_csv, component_markdown, component_rows, Cell, ComponentRow};
+use sim::energy::{component_csv, component_markdown, component_rows, ComponentRow};
 use std::path::PathBuf;
 
 /// Arguments of `arbor report energy`.
@@ -40,9 +40,8 @@ pub struct ReportEnergyArgs {
     /// Folder of the shared real scenes.
     #[arg(long, value_name = "DIR", default_value = SHARED_SCENES)]
     scene_dir: PathBuf,
-    /// SRAM cell type of the component table (hp or lop).
-    #[arg(long, default_value = "hp")]
-    cell: String,
+    #[command(flatten)]
+    energy: super::energy_args::EnergyArgs,
     /// Print `arbor.report.energy.v1` on standard output.
     #[arg(long)]
     json: bool,
@@ -59,7 +58,7 @@ struct EnergyDoc<'a> {
 
 /// Runs `arbor report energy`.
 pub fn run(a: &ReportEnergyArgs, ui: &Ui) -> anyhow::Result<()> {
-    let cell = Cell::parse(&a.cell)?;
+    let conv = a.energy.conventions()?;
     anyhow::ensure!(a.sample >= 1, "--sample must be at least 1");
     let p4_scenes = match &a.p4_scenes {
         Some(s) => s.clone(),
@@ -75,19 +74,21 @@ pub fn run(a: &ReportEnergyArgs, ui: &Ui) -> anyhow::Result<()> {
     };
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("cannot create {}", a.out.display()))?;
-    let rows = component_rows(cell);
+    let rows = component_rows(&conv);
     let comp = component_markdown(&rows);
     write_file(&a.out, "components.md", &comp)?;
     write_file(&a.out, "components.csv", &component_csv(&rows))?;
     let p2 = a.out.join("p2");
     report_mergetree::run(
-        &ReportMergetreeArgs::quiet(p2.clone(), a.scenes.clone(), a.scene_dir.clone()),
+        &ReportMergetreeArgs::quiet(p2.clone(), a.scenes.clone(), a.scene_dir.clone())
+            .with_energy(a.energy.clone()),
         ui,
     )
     .context("the MergeTree tables ([P2] IV and VII)")?;
     let p4 = a.out.join("p4");
     let table = report_rtunit::run(
-        &ReportRtunitArgs::quiet(p4.clone(), Some(p4_scenes), a.scene_dir.clone(), a.sample),
+        &ReportRtunitArgs::quiet(p4.clone(), Some(p4_scenes), a.scene_dir.clone(), a.sample)
+            .with_set(a.energy.as_set()),
         ui,
     )
     .context("the accelerator tables ([P4] 1 and 2)")?;
@@ -96,8 +97,8 @@ pub fn run(a: &ReportEnergyArgs, ui: &Ui) -> anyhow::Result<()> {
     };
     let mut md = String::from("# Energy and area from Arbor's component models\n\n");
     md += &format!(
-        "## Components ({} SRAM cells; `docs/energy-model.md` gives every source)\n\n",
-        cell.name()
+        "## Components ({}; `docs/energy-model.md` gives every source)\n\n",
+        conv.describe()
     );
     md += &comp;
     md += "\n## [P2] Tables VII and IV: MergeTree (files in `p2/`)\n\n";

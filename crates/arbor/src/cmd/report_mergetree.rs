@@ -60,6 +60,8 @@ pub struct ReportMergetreeArgs {
     /// frame; the procedural cloth is exactly flat at 0).
     #[arg(long, value_name = "SECONDS", default_value_t = 1.0)]
     time: f32,
+    #[command(flatten)]
+    energy: super::energy_args::EnergyArgs,
     /// Write the files without printing the report (`arbor report energy` runs this one).
     #[arg(skip)]
     quiet: bool,
@@ -74,8 +76,15 @@ impl ReportMergetreeArgs {
             scene_dir,
             drams: thesis::P2_SYSTEMS.map(String::from).to_vec(),
             time: 1.0,
+            energy: Default::default(),
             quiet: true,
         }
+    }
+
+    /// The same with the energy conventions of `energy`.
+    pub fn with_energy(mut self, energy: super::energy_args::EnergyArgs) -> Self {
+        self.energy = energy;
+        self
     }
 }
 
@@ -203,6 +212,8 @@ struct Results {
     sw: Vec<SoftwareRow>,
     /// [`Job::BoxGrid`] per scene.
     boxgrid: Vec<SimRow>,
+    /// The conventions of the energy figures.
+    energy: sim::energy::Conventions,
 }
 
 /// Runs `arbor report mergetree`.
@@ -212,6 +223,7 @@ pub fn run(a: &ReportMergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
         "--drams needs at least one memory system"
     );
     let cfg = MergeTreeConfig::p2();
+    let energy = a.energy.conventions()?;
     for d in &a.drams {
         sim::dram::open(d, cfg.period_fs())?;
     }
@@ -245,7 +257,7 @@ pub fn run(a: &ReportMergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
             prims,
         });
     }
-    let results = simulate_all(scenes, &a.drams, ui)?;
+    let results = simulate_all(scenes, &a.drams, &energy, ui)?;
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("cannot create {}", a.out.display()))?;
     let mut md = String::new();
@@ -282,7 +294,12 @@ pub fn run(a: &ReportMergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
 }
 
 /// Runs every job in parallel with a progress bar over the runs.
-fn simulate_all(scenes: Vec<Scene>, drams: &[String], ui: &Ui) -> anyhow::Result<Results> {
+fn simulate_all(
+    scenes: Vec<Scene>,
+    drams: &[String],
+    energy: &sim::energy::Conventions,
+    ui: &Ui,
+) -> anyhow::Result<Results> {
     let mut jobs = Vec::new();
     for scene in 0..scenes.len() {
         jobs.extend((0..drams.len()).map(|system| Job::Sim { scene, system }));
@@ -307,7 +324,7 @@ fn simulate_all(scenes: Vec<Scene>, drams: &[String], ui: &Ui) -> anyhow::Result
     let out: Vec<anyhow::Result<Done>> = jobs
         .par_iter()
         .map(|&job| {
-            let r = run_job(job, &scenes, drams);
+            let r = run_job(job, &scenes, drams, energy);
             bar.update(done.fetch_add(1, Ordering::Relaxed) + 1, total);
             r
         })
@@ -321,6 +338,7 @@ fn simulate_all(scenes: Vec<Scene>, drams: &[String], ui: &Ui) -> anyhow::Result
         boxgrid: vec![SimRow::default(); n],
         drams: drams.to_vec(),
         scenes,
+        energy: *energy,
     };
     for r in out {
         match r? {
@@ -353,7 +371,12 @@ fn simulate_all(scenes: Vec<Scene>, drams: &[String], ui: &Ui) -> anyhow::Result
     Ok(res)
 }
 
-fn run_job(job: Job, scenes: &[Scene], drams: &[String]) -> anyhow::Result<Done> {
+fn run_job(
+    job: Job,
+    scenes: &[Scene],
+    drams: &[String],
+    energy: &sim::energy::Conventions,
+) -> anyhow::Result<Done> {
     match job {
         Job::Sim { scene, system } => {
             let s = &scenes[scene];
@@ -362,6 +385,7 @@ fn run_job(job: Job, scenes: &[Scene], drams: &[String]) -> anyhow::Result<Done>
                 &MergeTreeConfig::p2(),
                 &drams[system],
                 s.name == FIG6_SCENE,
+                energy,
             )?;
             Ok(Done::Sim(scene, system, row))
         }
@@ -373,12 +397,12 @@ fn run_job(job: Job, scenes: &[Scene], drams: &[String]) -> anyhow::Result<Done>
                 toplevel_sah: true,
                 ..MergeTreeConfig::p2()
             };
-            let row = simulate(&scenes[scene], &cfg, &drams[0], false)?;
+            let row = simulate(&scenes[scene], &cfg, &drams[0], false, energy)?;
             Ok(Done::Toplevel(scene, row))
         }
         Job::Software { scene } => Ok(Done::Software(scene, software(&scenes[scene])?)),
         Job::BoxGrid { scene } => {
-            let row = simulate(&scenes[scene], &box_grid_config(), &drams[0], false)?;
+            let row = simulate(&scenes[scene], &box_grid_config(), &drams[0], false, energy)?;
             Ok(Done::BoxGrid(scene, row))
         }
     }
@@ -394,7 +418,13 @@ fn box_grid_config() -> MergeTreeConfig {
 }
 
 /// One MergeTree simulation, checked node for node against the software builder.
-fn simulate(s: &Scene, cfg: &MergeTreeConfig, dram: &str, trace: bool) -> anyhow::Result<SimRow> {
+fn simulate(
+    s: &Scene,
+    cfg: &MergeTreeConfig,
+    dram: &str,
+    trace: bool,
+    energy: &sim::energy::Conventions,
+) -> anyhow::Result<SimRow> {
     let port = sim::dram::open(dram, cfg.period_fs())?;
     let start = Instant::now();
     let r = mergetree::simulate(&s.prims, cfg, port)
@@ -413,12 +443,7 @@ fn simulate(s: &Scene, cfg: &MergeTreeConfig, dram: &str, trace: bool) -> anyhow
         row_hit_rate: (bursts > 0).then(|| m.row_hits as f64 / bursts as f64),
         energy_mj: m.energy_pj.map(|e| e.total_pj() * 1e-9),
         energy_above_idle_mj: m.energy_pj.map(|e| e.above_idle_pj() * 1e-9),
-        energy: sim::mergetree::energy::mergetree_energy(
-            &r,
-            sim::energy::Node::Nm28,
-            sim::energy::Cell::Hp,
-        )
-        .ok(),
+        energy: sim::mergetree::energy::mergetree_energy(&r, sim::energy::Node::Nm28, energy).ok(),
         toplevel_cycles: r.toplevel_cycles,
         nodes: r.nodes,
         tree_matches_software: matches,
@@ -843,10 +868,11 @@ fn write_table7_into(out: &Path, md: &mut String, r: &Results) -> anyhow::Result
     writeln!(md, "## Tables IV and VII analogues: MergeTree power\n")?;
     writeln!(
         md,
-        "Means over the scenes at 28 nm with CACTI hp SRAM cells (`sim::mergetree::energy`: the \
+        "Means over the scenes at 28 nm ({}; `sim::mergetree::energy`: the \
          unit's memory blocks and operations, not synthesized logic; comparators, muxes and \
          control are not counted). DRAM power is above an idle memory, as [P2] §6.2 reports it; \
-         total = logic + DRAM above idle. Ours / [P2] Table VII.\n"
+         total = logic + DRAM above idle. Ours / [P2] Table VII.\n",
+        r.energy.describe()
     )?;
     writeln!(
         md,

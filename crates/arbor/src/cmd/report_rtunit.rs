@@ -81,6 +81,12 @@ impl ReportRtunitArgs {
             quiet: true,
         }
     }
+
+    /// The same with `--set` overrides.
+    pub fn with_set(mut self, set: Vec<String>) -> Self {
+        self.set = set;
+        self
+    }
 }
 
 /// The thesis's scenes our default scenes stand for: (our spec, thesis name, note).

@@ -17,7 +17,7 @@ use super::report_cbvh_trace::load_traced;
 use crate::progress::{Ui, Unit};
 use anyhow::Context;
 use rayon::prelude::*;
-use sim::energy::{Cell, Node};
+use sim::energy::Node;
 use sim::rtunit::RayMode;
 use sim::system::report::{
     animation_study, scene_result, AnimationResult, AnimationScene, SceneResult, SystemReport,
@@ -68,9 +68,8 @@ pub struct ReportSystemArgs {
     /// Process node of the on-chip figures ([P2] 6.4: 28nm).
     #[arg(long, default_value = "28nm")]
     node: String,
-    /// SRAM cell type (hp or lop).
-    #[arg(long, default_value = "hp")]
-    cell: String,
+    #[command(flatten)]
+    energy: super::energy_args::EnergyArgs,
     /// Memory system ([P2] 6.4: the 25.6 GB/s system).
     #[arg(long, default_value = "lpddr3-1600-2x64")]
     dram: String,
@@ -107,7 +106,7 @@ pub fn run(a: &ReportSystemArgs, ui: &Ui) -> anyhow::Result<()> {
         bounces: a.bounces,
         ..SystemConfig::default()
     }
-    .with(Node::parse(&a.node)?, Cell::parse(&a.cell)?, &a.dram);
+    .with(Node::parse(&a.node)?, a.energy.conventions()?, &a.dram);
     // Fail on a bad memory name before anything runs.
     sim::dram::stream::streaming(&cfg.dram, 0, 0)?;
     let specs = scene_specs(a, ui);
@@ -304,11 +303,12 @@ fn write_report(a: &ReportSystemArgs, rep: &SystemReport) -> anyhow::Result<()> 
     write_file(out, "system.json", &serde_json::to_string_pretty(rep)?)?;
     let mut md = String::from("# System energy per frame ([P2] §6.4) from Arbor's models\n\n");
     md += &format!(
-        "{}x{}, {} diffuse bounces, {} on {}, one in {} tile chunks timed per frame; scenes over {} triangles are large.\n\n",
+        "{}x{}, {} diffuse bounces, {} ({}) on {}, one in {} tile chunks timed per frame; scenes over {} triangles are large.\n\n",
         rep.width,
         rep.height,
         rep.config.bounces,
         rep.config.node.name(),
+        rep.config.energy.describe(),
         rep.config.dram,
         a.sample,
         LARGE_TRIANGLES

@@ -64,6 +64,8 @@ pub struct MergetreeArgs {
     /// Skip the node-for-node comparison with the software builder.
     #[arg(long)]
     no_check: bool,
+    #[command(flatten)]
+    energy: super::energy_args::EnergyArgs,
     /// Print JSON (schema `arbor.sim.mergetree.v1`) instead of text.
     #[arg(long)]
     json: bool,
@@ -99,7 +101,7 @@ struct Output<'a> {
     svg: Option<String>,
     sim_wall_ms: f64,
     sim_cycles_per_s: f64,
-    /// Energy and area at 28 nm with CACTI hp cells ([P2] §6.4's node).
+    /// Energy and area at 28 nm ([P2] §6.4's node) under `--energy`'s conventions.
     energy: Option<sim::mergetree::energy::MergeTreeEnergy>,
 }
 
@@ -199,6 +201,7 @@ pub fn check_mergetree(a: &MergetreeArgs) -> anyhow::Result<()> {
 pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
     // Fail on a bad option or memory name before loading the scene.
     let (cfg, dram) = config_and_dram(a)?;
+    let conv = a.energy.conventions()?;
     let (scene, _) = open_scene(&a.scene, ui)?;
     let t = super::resolve_time(scene.info(), a.time, None)?;
     let mesh = scene
@@ -224,12 +227,8 @@ pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
         super::report::write_atomic(p, &report.trace_svg(&title))?;
     }
     let cps = report.cycles as f64 / (wall_ms / 1e3).max(1e-9);
-    let energy = sim::mergetree::energy::mergetree_energy(
-        &report,
-        sim::energy::Node::Nm28,
-        sim::energy::Cell::Hp,
-    )
-    .ok();
+    let energy =
+        sim::mergetree::energy::mergetree_energy(&report, sim::energy::Node::Nm28, &conv).ok();
     if a.json {
         let out = Output {
             schema: "arbor.sim.mergetree.v1",

@@ -231,9 +231,9 @@ fn print_report(r: &RtReport, first: Option<&RtReport>) {
     );
     if let Some(e) = &r.energy {
         println!(
-            "  energy at {} ({} cells): {:.3} mJ per frame, {:.0} mW, {:.2} mm^2, {:.1} MRPS/mm^2",
+            "  energy at {} ({}): {:.3} mJ per frame, {:.0} mW, {:.2} mm^2, {:.1} MRPS/mm^2",
             e.node.name(),
-            e.cell.name(),
+            e.conventions.describe(),
             e.frame_mj,
             e.power_mw,
             e.area_mm2,

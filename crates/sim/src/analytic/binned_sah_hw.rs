@@ -110,9 +110,9 @@ impl BinnedSahHwTraffic {
 /// Floating-point operations of Wald's binned SAH, per primitive and per sweep.
 ///
 /// Per primitive in a sweep: its centroid (3 adds, 3 multiplies), its bin on each axis
-/// (3 subtracts, 3 multiplies), growing that bin's box and count (6 min/max), and the
-/// partition test against the parent's plane (1 compare) with the child's centroid bounds
-/// (6 min/max): 25. Per sweep: the bin scale per axis (3 subtracts, 3 divides), then per
+/// (3 subtracts, 3 multiplies), growing the box of its bin on each of the three axes
+/// (3 x 6 min/max; the counts are integer adds), and the partition test against the
+/// parent's plane (1 compare) with the child's centroid bounds (6 min/max): 37. Per sweep: the bin scale per axis (3 subtracts, 3 divides), then per
 /// axis and candidate plane (`bins - 1` of them) the left and right box sweeps (2 x 6
 /// min/max), their half areas (2 x 8: 3 subtracts, 3 multiplies, 2 adds), the cost
 /// `nL aL + nR aR` (3) and the comparison with the best (1).
@@ -121,7 +121,7 @@ pub struct SweepFlops;
 
 impl SweepFlops {
     /// Operations per primitive per sweep.
-    pub const PER_PRIM: u64 = 6 + 6 + 6 + 1 + 6;
+    pub const PER_PRIM: u64 = 6 + 6 + 3 * 6 + 1 + 6;
 
     /// Operations per sweep independent of its size, for `bins` bins per axis.
     pub fn per_sweep(bins: u64) -> u64 {
@@ -206,13 +206,13 @@ pub fn model(bvh: &Bvh2, p: &BinnedSahHwParams) -> BinnedSahHwTraffic {
 }
 
 /// The operations of [`SweepFlops`] by kind, for the energy model (\[P2\] §6.4): per
-/// primitive 19 adds, subtracts, compares or min/max and 6 multiplies; per sweep the bin
+/// primitive 31 adds, subtracts, compares or min/max and 6 multiplies; per sweep the bin
 /// scales' 3 subtracts and 3 divisions, each a reciprocal (3 FLOPs, \[P2\] §6.4 after its
 /// ref. 33) and a multiply, then per axis and candidate plane 24 adds and 8 multiplies (the
 /// half areas' 3 multiplies each and the cost's 2). The totals differ from [`SweepFlops`]'s
 /// op counts only by the divisions' weight.
 pub const PER_PRIM_FLOPS: Flops = Flops {
-    adds: 19.0,
+    adds: 31.0,
     muls: 6.0,
 };
 
@@ -339,7 +339,9 @@ mod tests {
 
     #[test]
     fn flop_constants() {
-        assert_eq!(SweepFlops::PER_PRIM, 25);
+        // 3 + 3 centroid, 3 + 3 bin indices, 3 x 6 bin-box min/max, 1 partition compare,
+        // 6 centroid-bound min/max.
+        assert_eq!(SweepFlops::PER_PRIM, 37);
         // 16 bins: 6 + 3 axes x 15 planes x 32.
         assert_eq!(SweepFlops::per_sweep(16), 1446);
     }

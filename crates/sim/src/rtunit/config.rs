@@ -121,6 +121,9 @@ pub struct RtConfig {
     pub ist_rays: u32,
     /// Starting capacity of every FIFO between units ([P4] §3: 32).
     pub fifo_entries: u32,
+    /// FLOPs charged for the IST unit's division ([P4] §3.2: 11, Markstein's algorithm;
+    /// [P2] §6.4 charges a reciprocal as 3).
+    pub ist_div_flops: u32,
     /// Per-class FIFO capacities after sizing (0: `fifo_entries`): new rays, TRV to IST,
     /// IST to TRV, finished rays, L1 misses, L1 fills.
     pub fifo_sizes: [u32; 6],
@@ -128,8 +131,10 @@ pub struct RtConfig {
     pub max_cycles: u64,
     /// Process node of the energy and area figures ([P4] §3.2: 45 nm).
     pub energy_node: crate::energy::Node,
-    /// SRAM cell type of the energy figures (CACTI hp).
-    pub sram_cell: crate::energy::Cell,
+    /// The conventions of the energy and area figures (the thesis's by default:
+    /// `crate::energy::Conventions`; keys `energy`, `sram_cell`, `fpu_energy`,
+    /// `ram_figures`, `wide_port`, `dram_energy`).
+    pub energy: crate::energy::Conventions,
     /// Stop with an error when no ray has finished for this many cycles (rays that loop
     /// for ever because the caches cannot hold a line until its ray comes back).
     pub livelock_cycles: u64,
@@ -168,6 +173,12 @@ pub const KEYS: &[&str] = &[
     "decode_stages",
     "ist_stages",
     "ist_rays",
+    "ist_div_flops",
+    "energy",
+    "fpu_energy",
+    "ram_figures",
+    "wide_port",
+    "dram_energy",
     "fifo_entries",
     "fifo_sched_trv",
     "fifo_trv_ist",
@@ -205,12 +216,13 @@ impl Default for RtConfig {
             decode_stages: 2,
             ist_stages: 20,
             ist_rays: 16,
+            ist_div_flops: 11,
             fifo_entries: 32,
             fifo_sizes: [0; 6],
             max_cycles: 50_000_000_000,
             livelock_cycles: 10_000_000,
             energy_node: crate::energy::Node::Nm45,
-            sram_cell: crate::energy::Cell::Hp,
+            energy: crate::energy::Conventions::default(),
         }
     }
 }
@@ -236,6 +248,13 @@ impl RtConfig {
         };
         let num32 = |min: u64, max: u64| num(min, max).map(|v| v as u32);
         const MIB: u64 = 1 << 20;
+        if self
+            .energy
+            .set(key, value)
+            .map_err(|e| bad(&e.to_string()))?
+        {
+            return Ok(());
+        }
         match key {
             "clock_mhz" => self.clock_mhz = num32(1, 100_000)?,
             "dram" => self.dram = value.to_string(),
@@ -265,16 +284,13 @@ impl RtConfig {
             "decode_stages" => self.decode_stages = num(0, 1000)?,
             "ist_stages" => self.ist_stages = num(1, 1000)?,
             "ist_rays" => self.ist_rays = num32(1, 4096)?,
+            "ist_div_flops" => self.ist_div_flops = num32(0, 1000)?,
             "fifo_entries" => self.fifo_entries = num32(1, 1 << 16)?,
             "max_cycles" => self.max_cycles = num(1, u64::MAX / 2)?,
             "livelock_cycles" => self.livelock_cycles = num(1, u64::MAX / 2)?,
             "energy_node" => {
                 self.energy_node =
                     crate::energy::Node::parse(value).map_err(|e| bad(&e.to_string()))?
-            }
-            "sram_cell" => {
-                self.sram_cell =
-                    crate::energy::Cell::parse(value).map_err(|e| bad(&e.to_string()))?
             }
             k => match k
                 .strip_prefix("fifo_")

@@ -761,7 +761,7 @@ pub(crate) fn run_with(
         wall_seconds: 0.0,
     };
     out.energy = Some(
-        energy::accelerator_energy(&out, cfg.energy_node, cfg.sram_cell)
+        energy::accelerator_energy(&out, cfg.energy_node, &cfg.energy)
             .map_err(|e| RtError::Config(ConfigError(e.to_string())))?,
     );
     out.wall_seconds = start.elapsed().as_secs_f64();

@@ -291,7 +291,7 @@ impl Table2 {
             "{}x{} pixels, diffuse paths of up to {} bounces after the primary hit, one sample per pixel; \
              {} MHz, {} TRV units of {} stacks, {} KB L1 per TRV, {} KB node and {} KB primitive caches, {}. \
              MB = 10^6 bytes per frame (sampled runs: the misses of the timed tiles' rays per timed pixel, times the frame's pixels). \
-             Energy per frame and area at {} with {} SRAM cells (`sim::rtunit::energy`: FPUs and memory blocks counted as [P4] §3.2 does; \
+             Energy per frame and area at {} ({}; `sim::rtunit::energy`: FPUs and memory blocks counted as [P4] §3.2 does; \
              sampled runs: the run's energy per simulated ray times the frame's rays).",
             self.width,
             self.height,
@@ -304,7 +304,7 @@ impl Table2 {
             self.config.prim_bytes >> 10,
             self.config.dram,
             self.config.energy_node.name(),
-            self.config.sram_cell.name(),
+            self.config.energy.describe(),
         );
         let _ = writeln!(m);
         for r in &self.rows {

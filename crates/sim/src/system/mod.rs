@@ -31,7 +31,7 @@ use trace::PinholeCamera;
 
 use crate::analytic::binned_sah_hw::{self, BinnedSahHwParams};
 use crate::dram::{self, MemStats};
-use crate::energy::{Cell, EnergyError, Flops, Fpu, Node, UnitEnergy};
+use crate::energy::{Conventions, DramConvention, EnergyError, Flops, Fpu, Node, UnitEnergy};
 use crate::mergetree::{self, energy::mergetree_energy, MergeTreeConfig};
 use crate::rtunit::{self, RayMode, RtConfig, TreeKind, Workload};
 
@@ -103,8 +103,8 @@ pub enum SystemError {
 pub struct SystemConfig {
     /// Process node of every on-chip figure (\[P2\] §6.4: 28 nm).
     pub node: Node,
-    /// SRAM cell type.
-    pub cell: Cell,
+    /// The conventions of every energy figure (the thesis's by default).
+    pub energy: Conventions,
     /// Memory system (\[P2\] §6.4: the 25.6 GB/s system, `lpddr3-1600-2x64`).
     pub dram: String,
     /// Clock of the binned SAH, ATRBVH and refit units and the accelerator, MHz (500).
@@ -128,12 +128,15 @@ impl Default for SystemConfig {
         let rt = RtConfig {
             energy_node: Node::Nm28,
             dram: dram.clone(),
+            // [P2] §6.4: "Reciprocal calculation is estimated to take as much energy as 3
+            // FLOPs".
+            ist_div_flops: 3,
             ..RtConfig::default()
         };
         let mergetree = MergeTreeConfig::p2();
         Self {
             node: Node::Nm28,
-            cell: Cell::Hp,
+            energy: Conventions::default(),
             dram,
             unit_clock_mhz: 500,
             mergetree,
@@ -146,13 +149,13 @@ impl Default for SystemConfig {
 }
 
 impl SystemConfig {
-    /// Sets the node, memory system and clock everywhere they appear.
-    pub fn with(mut self, node: Node, cell: Cell, dram: &str) -> Self {
+    /// Sets the node, energy conventions and memory system everywhere they appear.
+    pub fn with(mut self, node: Node, energy: Conventions, dram: &str) -> Self {
         self.node = node;
-        self.cell = cell;
+        self.energy = energy;
         self.dram = dram.to_string();
         self.rt.energy_node = node;
-        self.rt.sram_cell = cell;
+        self.rt.energy = energy;
         self.rt.dram = dram.to_string();
         self
     }
@@ -269,12 +272,16 @@ fn streaming_unit(
     let (mem, dram_s) = dram::stream::streaming(&cfg.dram, read, write)?;
     let fpu_s = flops.total() / (fpus * cfg.unit_clock_mhz as f64 * 1e6);
     let seconds = dram_s.max(fpu_s);
-    let fpu_mj = flops.energy_pj(&Fpu::at(cfg.node)) * 1e-9;
-    let wait_mj = dram_wait_mj(&mem, dram_s, seconds);
+    let fpu_mj = flops.energy_pj(&Fpu::at(cfg.node, cfg.energy.fpu)) * 1e-9;
+    let wait_mj = match cfg.energy.dram {
+        DramConvention::Full => dram_wait_mj(&mem, dram_s, seconds),
+        // The idle memory's energy is what this convention leaves out.
+        DramConvention::AboveIdle => 0.0,
+    };
     Ok((
         vec![
             UnitEnergy::new(name, 0.0, fpu_mj, 0.0, seconds),
-            UnitEnergy::dram(&mem, seconds),
+            UnitEnergy::dram(&mem, seconds, cfg.energy.dram),
         ],
         seconds,
         mem,
@@ -296,8 +303,9 @@ pub fn dram_wait_mj(mem: &MemStats, dram_s: f64, seconds: f64) -> f64 {
 
 /// FPUs of the binned SAH unit for its time estimate: \[P2\] does not give Doyle et al.'s
 /// count, so the time is bounded by DRAM alone unless the FPUs would be slower with one
-/// pipelined datapath per operation of a primitive's binning step (25).
-pub const BINNED_SAH_FPUS: f64 = 25.0;
+/// pipelined datapath per operation of a primitive's binning step (37,
+/// `binned_sah_hw::SweepFlops::PER_PRIM`).
+pub const BINNED_SAH_FPUS: f64 = 37.0;
 
 /// The binned SAH builder's lower-bound energy over `aabbs`, and its tree.
 pub fn binned_sah_energy(
@@ -408,7 +416,7 @@ pub fn mergetree_build_energy(
         mt.toplevel_sah = builder == Builder::HlbvhSah;
     }
     let r = mergetree_run(aabbs, &mt, cfg)?;
-    let e = mergetree_energy(&r, cfg.node, cfg.cell)?;
+    let e = mergetree_energy(&r, cfg.node, &cfg.energy)?;
     let seconds = r.ms * 1e-3;
     let mut units = e.units.clone();
     let mut mem = r.memory.clone();
@@ -430,7 +438,7 @@ pub fn mergetree_build_energy(
                 SystemError::Config("MergeTree ran without its toplevel unit".into())
             })?;
             flops = binned_sah_hw::energy_flops(top, mt.toplevel_bins as u64);
-            let fpu_mj = flops.energy_pj(&Fpu::at(cfg.node)) * 1e-9;
+            let fpu_mj = flops.energy_pj(&Fpu::at(cfg.node, cfg.energy.fpu)) * 1e-9;
             units.insert(
                 units.len() - 1,
                 UnitEnergy::new("toplevel SAH FPUs", 0.0, fpu_mj, 0.0, seconds),

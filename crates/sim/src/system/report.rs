@@ -655,11 +655,11 @@ pub fn refit_energy(tree: &bvh::Bvh2, cfg: &SystemConfig) -> Result<Vec<UnitEner
         UnitEnergy::new(
             "refit FPUs",
             0.0,
-            flops.energy_pj(&Fpu::at(cfg.node)) * 1e-9,
+            flops.energy_pj(&Fpu::at(cfg.node, cfg.energy.fpu)) * 1e-9,
             0.0,
             seconds,
         ),
-        UnitEnergy::dram(&mem, seconds),
+        UnitEnergy::dram(&mem, seconds, cfg.energy.dram),
     ])
 }
 
