@@ -161,3 +161,67 @@ fn report_energy_components_and_reproductions() {
     ]);
     assert!(e.contains("unknown SRAM cell type"), "{e}");
 }
+
+#[test]
+fn report_sensitivity_json_and_errors() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().to_str().unwrap();
+    let j = json_of(&[
+        "report",
+        "sensitivity",
+        "--quiet",
+        "--json",
+        "--scenes",
+        HAIRBALL,
+        "--only",
+        "dram_energy,trv_stages",
+        "--width",
+        "32",
+        "--height",
+        "24",
+        "--sample",
+        "1",
+        "--out",
+        out,
+    ]);
+    assert_eq!(j["schema"], "arbor.report.sensitivity.v1");
+    let rows = j["rows"].as_array().unwrap();
+    // One small scene: primary and diffuse, all scenes, three builders, three columns.
+    assert_eq!(rows.len(), 18);
+    for r in rows {
+        for k in ["figure", "thesis", "default", "low", "high", "driver"] {
+            assert!(r.get(k).is_some(), "{k} missing in {r}");
+        }
+        let (lo, d, hi) = (
+            r["low"].as_f64().unwrap(),
+            r["default"].as_f64().unwrap(),
+            r["high"].as_f64().unwrap(),
+        );
+        assert!(lo <= d && d <= hi, "{r}");
+    }
+    // The default, full DRAM energy, TRV depths 4 and 8.
+    assert_eq!(j["variants"].as_array().unwrap().len(), 4);
+    for f in ["sensitivity.md", "sensitivity.csv", "sensitivity.json"] {
+        assert!(dir.path().join(f).is_file(), "{f}");
+    }
+    let e = error(&[
+        "report",
+        "sensitivity",
+        "--quiet",
+        "--only",
+        "warp_drive",
+        "--out",
+        out,
+    ]);
+    assert!(e.contains("unknown assumption 'warp_drive'"), "{e}");
+    let e = error(&[
+        "report",
+        "sensitivity",
+        "--quiet",
+        "--energy",
+        "fpu_energy=abacus",
+        "--out",
+        out,
+    ]);
+    assert!(e.contains("abacus"), "{e}");
+}

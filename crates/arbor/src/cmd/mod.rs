@@ -17,6 +17,7 @@ pub mod report_cbvh_trace;
 pub mod report_energy;
 pub mod report_mergetree;
 pub mod report_rtunit;
+pub mod report_sensitivity;
 pub mod report_system;
 pub mod sim;
 pub mod sim_dram;

@@ -34,6 +34,9 @@ enum ReportKind {
     /// \[P2\] §6.4, Table VIII and Fig. 7: system energy per frame (build plus trace) with
     /// four builders, and tree-update policies over animations.
     System(super::report_system::ReportSystemArgs),
+    /// Every open assumption of the \[P2\] §6.4 system model swept over its documented
+    /// range: each Table VIII figure's default, low, high and driving assumption.
+    Sensitivity(super::report_sensitivity::ReportSensitivityArgs),
 }
 
 /// Runs `arbor report`.
@@ -44,6 +47,7 @@ pub fn run(a: &ReportArgs, ui: &Ui) -> anyhow::Result<()> {
         ReportKind::Rtunit(r) => super::report_rtunit::run(r, ui).map(|_| ()),
         ReportKind::Energy(r) => super::report_energy::run(r, ui),
         ReportKind::System(r) => super::report_system::run(r, ui),
+        ReportKind::Sensitivity(r) => super::report_sensitivity::run(r, ui),
     }
 }
 

@@ -175,13 +175,23 @@ pub fn run(a: &ReportSystemArgs, ui: &Ui) -> anyhow::Result<()> {
 
 /// The static scenes to run.
 fn scene_specs(a: &ReportSystemArgs, ui: &Ui) -> Vec<String> {
-    match &a.scenes {
+    static_scene_specs(a.scenes.as_deref(), &a.scene_dir, ui)
+}
+
+/// The static scenes of the system study: `scenes` (`none`: no scene) or the default list,
+/// the shared real scenes that exist under `scene_dir` and the procedural ones.
+pub fn static_scene_specs(
+    scenes: Option<&[String]>,
+    scene_dir: &std::path::Path,
+    ui: &Ui,
+) -> Vec<String> {
+    match scenes {
         Some(list) if list.len() == 1 && list[0] == "none" => Vec::new(),
-        Some(list) => list.clone(),
+        Some(list) => list.to_vec(),
         None => REAL
             .iter()
             .filter_map(|f| {
-                let p = a.scene_dir.join(f);
+                let p = scene_dir.join(f);
                 if p.exists() {
                     Some(p.display().to_string())
                 } else {

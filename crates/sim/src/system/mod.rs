@@ -24,6 +24,7 @@
 //! the software tracer's (checked in every run).
 
 pub mod report;
+pub mod sensitivity;
 
 use geom::{Aabb, Triangle};
 use serde::Serialize;
@@ -149,6 +150,46 @@ impl Default for SystemConfig {
 }
 
 impl SystemConfig {
+    /// Sets `key` to `value`: `node`, `bounces`, `seed`, an energy convention
+    /// (`crate::energy::Conventions::KEYS`, `energy`) or any accelerator key
+    /// (`RtConfig::set`), everywhere it appears.
+    pub fn set(&mut self, key: &str, value: &str) -> Result<(), SystemError> {
+        let bad = |why: &str| SystemError::Config(format!("bad value '{value}' for {key}: {why}"));
+        match key {
+            "node" => {
+                let n = Node::parse(value)?;
+                *self = self.clone().with(n, self.energy, &self.dram.clone());
+            }
+            "bounces" => {
+                self.bounces = value
+                    .trim()
+                    .parse()
+                    .ok()
+                    .filter(|b| *b <= 64)
+                    .ok_or_else(|| bad("expected 0 to 64"))?
+            }
+            "seed" => {
+                self.seed = value
+                    .trim()
+                    .parse()
+                    .map_err(|_| bad("expected a non-negative integer"))?
+            }
+            "dram" => return Err(bad("the memory system is set with --dram")),
+            _ => {
+                let mut e = self.energy;
+                if e.set(key, value)? {
+                    self.energy = e;
+                    self.rt.energy = e;
+                } else {
+                    self.rt
+                        .set(key, value)
+                        .map_err(|e| SystemError::Config(e.to_string()))?;
+                }
+            }
+        }
+        Ok(())
+    }
+
     /// Sets the node, energy conventions and memory system everywhere they appear.
     pub fn with(mut self, node: Node, energy: Conventions, dram: &str) -> Self {
         self.node = node;
@@ -386,8 +427,44 @@ fn finish(
     }
 }
 
+/// The cycle-level runs already done over one scene, keyed by everything that sets their
+/// result, so that configurations differing only in what is computed from the runs (the
+/// energy conventions, the IST division's FLOPs) reuse them. A memo belongs to one scene.
+#[derive(Default)]
+pub struct SimMemo {
+    mergetree: std::collections::HashMap<String, mergetree::MergeTreeReport>,
+    rt: std::collections::HashMap<String, rtunit::RtReport>,
+    /// Runs simulated, and runs answered from the memo.
+    pub simulated: u64,
+    /// Runs answered from the memo.
+    pub reused: u64,
+}
+
+impl SimMemo {
+    fn key<T: Serialize>(parts: &T) -> String {
+        serde_json::to_string(parts).expect("configurations serialize")
+    }
+}
+
 /// One MergeTree run on `cfg`'s memory, checked against the software builder.
 fn mergetree_run(
+    aabbs: &[Aabb],
+    mt: &MergeTreeConfig,
+    cfg: &SystemConfig,
+    memo: &mut SimMemo,
+) -> Result<mergetree::MergeTreeReport, SystemError> {
+    let key = SimMemo::key(&(mt, &cfg.dram));
+    if let Some(r) = memo.mergetree.get(&key) {
+        memo.reused += 1;
+        return Ok(r.clone());
+    }
+    let r = mergetree_run_uncached(aabbs, mt, cfg)?;
+    memo.simulated += 1;
+    memo.mergetree.insert(key, r.clone());
+    Ok(r)
+}
+
+fn mergetree_run_uncached(
     aabbs: &[Aabb],
     mt: &MergeTreeConfig,
     cfg: &SystemConfig,
@@ -409,13 +486,22 @@ pub fn mergetree_build_energy(
     aabbs: &[Aabb],
     cfg: &SystemConfig,
 ) -> Result<(BuildEnergy, bvh::Bvh2), SystemError> {
+    mergetree_build_energy_memo(builder, aabbs, cfg, &mut SimMemo::default())
+}
+
+fn mergetree_build_energy_memo(
+    builder: Builder,
+    aabbs: &[Aabb],
+    cfg: &SystemConfig,
+    memo: &mut SimMemo,
+) -> Result<(BuildEnergy, bvh::Bvh2), SystemError> {
     let mut mt = cfg.mergetree.clone();
     if builder != Builder::Hlbvh {
         let bits = mergetree::software_builder(&mt).bits;
         mt.highlevel_threshold = Some(bvh::toplevel::default_threshold(bits));
         mt.toplevel_sah = builder == Builder::HlbvhSah;
     }
-    let r = mergetree_run(aabbs, &mt, cfg)?;
+    let r = mergetree_run(aabbs, &mt, cfg, memo)?;
     let e = mergetree_energy(&r, cfg.node, &cfg.energy)?;
     let seconds = r.ms * 1e-3;
     let mut units = e.units.clone();
@@ -488,9 +574,19 @@ pub fn build_energy(
     aabbs: &[Aabb],
     cfg: &SystemConfig,
 ) -> Result<(BuildEnergy, bvh::Bvh2), SystemError> {
+    build_energy_memo(builder, aabbs, cfg, &mut SimMemo::default())
+}
+
+/// [`build_energy`] reusing the runs of `memo` (one memo per scene).
+pub fn build_energy_memo(
+    builder: Builder,
+    aabbs: &[Aabb],
+    cfg: &SystemConfig,
+    memo: &mut SimMemo,
+) -> Result<(BuildEnergy, bvh::Bvh2), SystemError> {
     match builder {
         Builder::BinnedSah => binned_sah_energy(aabbs, cfg),
-        b => mergetree_build_energy(b, aabbs, cfg),
+        b => mergetree_build_energy_memo(b, aabbs, cfg, memo),
     }
 }
 
@@ -526,17 +622,84 @@ pub fn trace_energy(
     sample: u32,
     cfg: &SystemConfig,
 ) -> Result<TraceEnergy, SystemError> {
-    let built = rtunit::tree_from(TreeKind::Bvh2, bvh::Tree::Bvh2(tree), triangles)?;
-    let work = Workload {
+    let t = TraceJob {
+        builder,
         triangles,
         camera,
         rays,
-        bounces: cfg.bounces,
-        seed: cfg.seed,
         sample,
-        progress: None,
     };
-    let r = rtunit::run(&built, &work, &cfg.rt)?;
+    trace_energy_memo(&t, tree, cfg, &mut SimMemo::default())
+}
+
+/// What [`trace_energy`] traces.
+pub struct TraceJob<'a> {
+    /// Builder of the tree.
+    pub builder: Builder,
+    /// The scene's triangles.
+    pub triangles: &'a [Triangle],
+    /// The camera.
+    pub camera: &'a PinholeCamera,
+    /// Ray kind.
+    pub rays: RayMode,
+    /// One in `sample` tile chunks timed.
+    pub sample: u32,
+}
+
+/// [`trace_energy`] reusing the runs of `memo`: a run whose timing configuration, builder,
+/// ray kind, sampling and seed match is not simulated again, only its energy recomputed
+/// under `cfg`'s conventions (the tree of a builder is the same for the same scene and
+/// MergeTree configuration, which [`build_energy_memo`]'s key holds).
+pub fn trace_energy_memo(
+    t: &TraceJob<'_>,
+    tree: bvh::Bvh2,
+    cfg: &SystemConfig,
+    memo: &mut SimMemo,
+) -> Result<TraceEnergy, SystemError> {
+    let (builder, rays, sample) = (t.builder, t.rays, t.sample);
+    let mut timing = cfg.rt.clone();
+    timing.energy = Conventions::default();
+    timing.ist_div_flops = 0;
+    timing.energy_node = Node::Nm45;
+    let key = SimMemo::key(&(
+        &timing,
+        builder,
+        rays,
+        sample,
+        cfg.bounces,
+        cfg.seed,
+        &cfg.mergetree,
+        t.camera.width(),
+        t.camera.height(),
+    ));
+    let r = match memo.rt.get(&key) {
+        Some(r) => {
+            memo.reused += 1;
+            let mut r = r.clone();
+            r.config = cfg.rt.clone();
+            r.energy = Some(
+                rtunit::energy::accelerator_energy(&r, cfg.rt.energy_node, &cfg.rt.energy)
+                    .map_err(SystemError::Energy)?,
+            );
+            r
+        }
+        None => {
+            let built = rtunit::tree_from(TreeKind::Bvh2, bvh::Tree::Bvh2(tree), t.triangles)?;
+            let work = Workload {
+                triangles: t.triangles,
+                camera: t.camera,
+                rays,
+                bounces: cfg.bounces,
+                seed: cfg.seed,
+                sample,
+                progress: None,
+            };
+            let r = rtunit::run(&built, &work, &cfg.rt)?;
+            memo.simulated += 1;
+            memo.rt.insert(key, r.clone());
+            r
+        }
+    };
     if !r.hits_match_software {
         return Err(SystemError::Config(
             "accelerator hits differ from the software tracer's".into(),

@@ -12,8 +12,8 @@ use serde::Serialize;
 use trace::PinholeCamera;
 
 use super::{
-    build_energy, trace_energy, BuildEnergy, Builder, SystemConfig, SystemError, TraceEnergy,
-    SCHEMA,
+    build_energy, build_energy_memo, trace_energy, trace_energy_memo, BuildEnergy, Builder,
+    SimMemo, SystemConfig, SystemError, TraceEnergy, TraceJob, SCHEMA,
 };
 use crate::dram;
 use crate::energy::{Flops, Fpu, UnitEnergy};
@@ -94,6 +94,16 @@ impl SceneResult {
 pub fn scene_result(
     s: &SystemScene<'_>,
     cfg: &SystemConfig,
+    progress: impl FnMut(&str),
+) -> Result<SceneResult, SystemError> {
+    scene_result_memo(s, cfg, &mut SimMemo::default(), progress)
+}
+
+/// [`scene_result`] reusing the cycle-level runs of `memo`, which belongs to this scene.
+pub fn scene_result_memo(
+    s: &SystemScene<'_>,
+    cfg: &SystemConfig,
+    memo: &mut SimMemo,
     mut progress: impl FnMut(&str),
 ) -> Result<SceneResult, SystemError> {
     if s.triangles.is_empty() {
@@ -104,19 +114,18 @@ pub fn scene_result(
     let mut traces = Vec::new();
     for b in Builder::ALL {
         progress(&format!("{} build {}", s.name, b.name()));
-        let (e, tree) = build_energy(b, &aabbs, cfg)?;
+        let (e, tree) = build_energy_memo(b, &aabbs, cfg, memo)?;
         builds.push(e);
         for rays in [RayMode::Primary, RayMode::Diffuse] {
             progress(&format!("{} trace {} {}", s.name, b.name(), ray_name(rays)));
-            traces.push(trace_energy(
-                b,
-                tree.clone(),
-                s.triangles,
-                &s.camera,
+            let job = TraceJob {
+                builder: b,
+                triangles: s.triangles,
+                camera: &s.camera,
                 rays,
-                s.sample,
-                cfg,
-            )?);
+                sample: s.sample,
+            };
+            traces.push(trace_energy_memo(&job, tree.clone(), cfg, memo)?);
         }
     }
     Ok(SceneResult {
