@@ -138,6 +138,23 @@ pub struct RtConfig {
     /// Stop with an error when no ray has finished for this many cycles (rays that loop
     /// for ever because the caches cannot hold a line until its ray comes back).
     pub livelock_cycles: u64,
+    /// A TRV pipeline whose head cannot leave (its FIFO to the IST unit or the scheduler
+    /// is full) stalls as a whole: no ray enters and the rays behind the head do not
+    /// advance (Arbor's reading of an in-order pipeline: true). `false` is the earlier
+    /// model: rays keep entering a blocked pipeline and the ones behind the head age.
+    pub trv_block_stalls: bool,
+    /// Lines the shared node cache hands to the L1 fill FIFOs per cycle, over all TRV
+    /// units (Arbor's assumption: 1, one read port; 0 = any number, the earlier model).
+    pub l2_ports: u32,
+    /// Lines a cache installs per cycle: each L1 from its fill FIFO, the shared node cache
+    /// and the primitive cache from DRAM (Arbor's assumption: 1, one write port; 0 = any
+    /// number, the earlier model).
+    pub fill_ports: u32,
+    /// TRV cycles per stack entry that a pop with the distance stack discards beyond the
+    /// closest hit: the pop stage holds the pipeline's entrance (and the ray) that many
+    /// cycles longer (Arbor's assumption: 1, one stack read per cycle; 0 = free culling,
+    /// the earlier model).
+    pub cull_cycles_per_entry: u64,
 }
 
 /// The FIFO classes of [`RtConfig::fifo_sizes`], in order.
@@ -190,6 +207,10 @@ pub const KEYS: &[&str] = &[
     "livelock_cycles",
     "energy_node",
     "sram_cell",
+    "trv_block_stalls",
+    "l2_ports",
+    "fill_ports",
+    "cull_cycles_per_entry",
 ];
 
 impl Default for RtConfig {
@@ -223,6 +244,10 @@ impl Default for RtConfig {
             livelock_cycles: 10_000_000,
             energy_node: crate::energy::Node::Nm45,
             energy: crate::energy::Conventions::default(),
+            trv_block_stalls: true,
+            l2_ports: 1,
+            fill_ports: 1,
+            cull_cycles_per_entry: 1,
         }
     }
 }
@@ -292,6 +317,16 @@ impl RtConfig {
                 self.energy_node =
                     crate::energy::Node::parse(value).map_err(|e| bad(&e.to_string()))?
             }
+            "trv_block_stalls" => {
+                self.trv_block_stalls = match value {
+                    "true" | "1" | "yes" | "on" => true,
+                    "false" | "0" | "no" | "off" => false,
+                    _ => return Err(bad("expected true or false")),
+                }
+            }
+            "l2_ports" => self.l2_ports = num32(0, 1024)?,
+            "fill_ports" => self.fill_ports = num32(0, 1024)?,
+            "cull_cycles_per_entry" => self.cull_cycles_per_entry = num(0, 1000)?,
             k => match k
                 .strip_prefix("fifo_")
                 .and_then(|c| FIFO_KEYS.iter().position(|&f| f == c))

@@ -603,10 +603,10 @@ pub(crate) fn run_with(
     });
     sched.add(Box::new(scheduler));
     for i in 0..n {
-        sched.add(Box::new(model::Trv::new(i, cfg.trv_depth(kind))));
+        sched.add(Box::new(model::Trv::new(i, cfg.trv_depth(kind), cfg)));
     }
     sched.add(Box::new(model::Ist::new(cfg)));
-    sched.add(Box::new(model::NodeL2::new(node_line, n)));
+    sched.add(Box::new(model::NodeL2::new(node_line, n, cfg)));
     let report = sched.run(&mut world);
     if let Some(at) = world.livelock {
         return Err(RtError::Kernel(format!(

@@ -167,16 +167,19 @@ impl Slot {
     }
 
     /// Pops the stack: with the distance stack, entries beyond the closest hit are
-    /// dropped in the same pass.
-    fn pop(&mut self, distance_stack: bool) {
+    /// dropped in the same pass. Returns the entries dropped (the pass's extra cycles are
+    /// [`RtConfig::cull_cycles_per_entry`] each, charged by the TRV unit).
+    fn pop(&mut self, distance_stack: bool) -> u64 {
         let cull = cull_distance(self.best_t);
+        let mut culled = 0;
         self.next = loop {
             match self.stack.pop() {
                 None => break Next::Done,
-                Some((_, t)) if distance_stack && t > cull => continue,
+                Some((_, t)) if distance_stack && t > cull => culled += 1,
                 Some((c, _)) => break Self::continue_with(c),
             }
         };
+        culled
     }
 }
 
@@ -619,33 +622,56 @@ fn warm(
 /// its node from the L1 node cache in the first stage, tests the node's children, sorts
 /// the hits and performs the stack operations. A ray whose node misses loops through the
 /// pipeline with its results invalidated and tries again ("looping for next chance").
+///
+/// Time inside the pipeline runs on a clock that stops while the pipeline stalls
+/// (`vt = now - stalled`): a head that cannot leave for its FIFO freezes every stage and
+/// the entrance ([`RtConfig::trv_block_stalls`]). A pop that culls `k` distance-stack
+/// entries holds the first stage for `k * cull_cycles_per_entry` more cycles: nothing
+/// enters meanwhile and the ray leaves that much later.
 pub(crate) struct Trv {
     pub index: usize,
     name: String,
-    /// Rays in the pipeline, with the cycle they leave it.
+    /// Rays in the pipeline, with the pipeline-clock cycle they leave it.
     pipe: VecDeque<(Cycle, u32)>,
     depth: Cycle,
+    /// Cycles the pipeline has stood still (blocked head).
+    stalled: Cycle,
+    /// The cycle the head was last found blocked (its stall is counted at the next step).
+    blocked_at: Option<Cycle>,
+    /// Pipeline-clock cycle from which the first stage takes a ray again.
+    entry_free: Cycle,
+    block_stalls: bool,
+    fill_ports: u32,
+    cull_cost: Cycle,
     scratch: Vec<crate::kernel::cache::Ready<u32>>,
     visits: u64,
     pops: u64,
     loops: u64,
     box_tests: u64,
     pushes: u64,
+    culled: u64,
 }
 
 impl Trv {
-    pub fn new(index: usize, depth: Cycle) -> Self {
+    pub fn new(index: usize, depth: Cycle, cfg: &RtConfig) -> Self {
         Self {
             index,
             name: format!("trv{index}"),
             pipe: VecDeque::new(),
             depth,
+            stalled: 0,
+            blocked_at: None,
+            entry_free: 0,
+            block_stalls: cfg.trv_block_stalls,
+            fill_ports: cfg.fill_ports,
+            cull_cost: cfg.cull_cycles_per_entry,
             scratch: Vec::new(),
             visits: 0,
             pops: 0,
             loops: 0,
             box_tests: 0,
             pushes: 0,
+            culled: 0,
         }
     }
 }
@@ -655,8 +681,9 @@ const TRV_STALLS: &[&str] = &["loop", "ist_full", "done_full", "miss_fifo_full"]
 /// The node visit: tests the children of `node` against the ray within the cull distance,
 /// continues with the nearest hit child and pushes the others, farthest first (the
 /// compare-and-swap of the BVH unit, the sorting network of the MBVH4 unit).
-/// Returns the box tests and the stack pushes.
-fn visit(w: &mut RtWorld<'_>, s: u32, node: u32) -> (u64, u64) {
+/// Returns the box tests, the stack pushes and the entries a pop culled (a node with no
+/// hit child pops in the same pass).
+fn visit(w: &mut RtWorld<'_>, s: u32, node: u32) -> (u64, u64, u64) {
     let (tree, dist, cap) = (w.tree, w.distance_stack, w.stack_entries);
     let slot = &mut w.slots[s as usize];
     let cull = cull_distance(slot.best_t);
@@ -671,8 +698,9 @@ fn visit(w: &mut RtWorld<'_>, s: u32, node: u32) -> (u64, u64) {
     // Stable by distance: equal distances keep the child order.
     hits[..n].sort_by(|a, b| a.0.total_cmp(&b.0));
     let pushes = n.saturating_sub(1) as u64;
+    let mut culled = 0;
     if n == 0 {
-        slot.pop(dist);
+        culled = slot.pop(dist);
     } else {
         for &(t, c) in hits[1..n].iter().rev() {
             slot.stack.push((c, t));
@@ -688,7 +716,7 @@ fn visit(w: &mut RtWorld<'_>, s: u32, node: u32) -> (u64, u64) {
             });
         }
     }
-    (tests, pushes)
+    (tests, pushes, culled)
 }
 
 impl<'a> Unit<RtWorld<'a>> for Trv {
@@ -707,17 +735,28 @@ impl<'a> Unit<RtWorld<'a>> for Trv {
             cx.set_state(State::Idle);
             return Wake::Done;
         }
-        while let Some(line) = w.fill[i].pop(cx) {
+        // The cycles since the head was found blocked stood still (the head was blocked
+        // in each: nothing it waits on changed, or this unit would have been stepped).
+        if let Some(b) = self.blocked_at.take() {
+            self.stalled += now - b;
+        }
+        let vt = now - self.stalled;
+        let mut installed = 0;
+        while self.fill_ports == 0 || installed < self.fill_ports {
+            let Some(line) = w.fill[i].pop(cx) else {
+                break;
+            };
             self.scratch.clear();
             w.l1[i]
                 .fill(line, now, &mut self.scratch)
                 .expect("the L1 fetched this line");
+            installed += 1;
         }
         let mut state = State::Idle;
         // The pipeline's exit: a ray for the IST unit or a finished one leaves.
         let mut blocked_exit = false;
         if let Some(&(t, s)) = self.pipe.front() {
-            if t <= now {
+            if t <= vt {
                 let out = match w.slots[s as usize].next {
                     Next::Ist { .. } => Some((&mut w.to_ist[i], 1u8)),
                     Next::Done => Some((&mut w.done[i], 2u8)),
@@ -733,10 +772,18 @@ impl<'a> Unit<RtWorld<'a>> for Trv {
                 }
             }
         }
-        // The pipeline's entrance.
-        let head_reenters = matches!(self.pipe.front(), Some(&(t, s)) if t <= now
-            && matches!(w.slots[s as usize].next, Next::Fetch(_) | Next::Pop));
-        let entering = if head_reenters {
+        let frozen = blocked_exit && self.block_stalls;
+        if frozen {
+            self.blocked_at = Some(now);
+        }
+        // The pipeline's entrance: closed while the pipeline stands still or the first
+        // stage is still culling.
+        let entry_busy = vt < self.entry_free;
+        let entering = if frozen || entry_busy {
+            None
+        } else if matches!(self.pipe.front(), Some(&(t, s)) if t <= vt
+            && matches!(w.slots[s as usize].next, Next::Fetch(_) | Next::Pop))
+        {
             self.pipe.pop_front().map(|(_, s)| s)
         } else if let Some(s) = w.from_ist[i].pop(cx) {
             w.slots[s as usize].next = Next::Pop;
@@ -744,11 +791,14 @@ impl<'a> Unit<RtWorld<'a>> for Trv {
         } else {
             w.new_ray[i].pop(cx)
         };
+        if entry_busy && !frozen && state == State::Idle {
+            state = State::Busy;
+        }
         if let Some(s) = entering {
-            let leave = now + self.depth;
+            let mut culled = 0;
             match w.slots[s as usize].next {
                 Next::Pop => {
-                    w.slots[s as usize].pop(w.distance_stack);
+                    culled = w.slots[s as usize].pop(w.distance_stack);
                     self.pops += 1;
                     state = State::Busy;
                 }
@@ -762,10 +812,11 @@ impl<'a> Unit<RtWorld<'a>> for Trv {
                         match w.l1[i].access(addr, w.tree.node_bytes(), AccessKind::Read, None, now)
                         {
                             Access::Hit { .. } => {
-                                let (tests, pushes) = visit(w, s, node);
+                                let (tests, pushes, c) = visit(w, s, node);
                                 self.box_tests += tests;
                                 self.pushes += pushes;
                                 self.visits += 1;
+                                culled = c;
                                 state = State::Busy;
                             }
                             Access::Miss { fetch } => {
@@ -787,33 +838,55 @@ impl<'a> Unit<RtWorld<'a>> for Trv {
                 }
                 Next::Ist { .. } | Next::Done => unreachable!("rays enter to fetch or pop"),
             }
-            self.pipe.push_back((leave, s));
+            self.culled += culled;
+            let extra = culled * self.cull_cost;
+            self.entry_free = vt + 1 + extra;
+            self.pipe.push_back((vt + extra + self.depth, s));
         }
         cx.set_state(state);
-        let inputs = w.fill[i].can_pop(cx) || w.from_ist[i].can_pop(cx) || w.new_ray[i].can_pop(cx);
+        let more_fills = w.fill[i].can_pop(cx);
+        let rays_in = w.from_ist[i].can_pop(cx) || w.new_ray[i].can_pop(cx);
         // A pass this cycle: step next cycle too, to report the state of that cycle.
         let passed = entering.is_some();
+        if passed || more_fills || (rays_in && !frozen && self.entry_free <= vt + 1) {
+            return Wake::Next;
+        }
+        if frozen {
+            // Until the FIFO the head waits on is popped (or a ray arrives, above).
+            return Wake::OnEvent;
+        }
+        // In real cycles (the pipeline runs until something blocks it again).
+        let entry_at = (self.entry_free > vt).then(|| self.entry_free + self.stalled);
         match self.pipe.front() {
-            _ if inputs || passed => Wake::Next,
-            Some(&(t, _)) if t <= now => {
+            Some(&(t, s)) if t <= vt => {
                 if blocked_exit {
                     Wake::OnEvent
+                } else if matches!(w.slots[s as usize].next, Next::Fetch(_) | Next::Pop) {
+                    // A head waiting for the first stage to finish culling.
+                    Wake::At(entry_at.unwrap_or(now + 1).max(now + 1))
                 } else {
                     Wake::Next
                 }
             }
-            Some(&(t, _)) => Wake::At(t),
-            None => Wake::Done,
+            Some(&(t, _)) => {
+                let head = t + self.stalled;
+                Wake::At(entry_at.map_or(head, |e| e.min(head)).max(now + 1))
+            }
+            None => match entry_at {
+                Some(e) => Wake::At(e.max(now + 1)),
+                None => Wake::Done,
+            },
         }
     }
 
     fn describe(&self, w: &RtWorld<'a>) -> String {
         format!(
-            "{} rays in the pipeline, head {:?}",
+            "{} rays in the pipeline, head {:?}, stalled {} cycles",
             self.pipe.len(),
             self.pipe
                 .front()
-                .map(|&(t, s)| (t, w.slots[s as usize].next))
+                .map(|&(t, s)| (t + self.stalled, w.slots[s as usize].next)),
+            self.stalled
         )
     }
 
@@ -824,6 +897,8 @@ impl<'a> Unit<RtWorld<'a>> for Trv {
             ("pushes", self.pushes),
             ("pops", self.pops),
             ("loops", self.loops),
+            ("culled", self.culled),
+            ("stalled_cycles", self.stalled),
         ]
     }
 }
@@ -846,6 +921,7 @@ pub(crate) struct Ist {
     capacity: usize,
     depth: Cycle,
     line: u32,
+    fill_ports: u32,
     stacks_per_trv: u32,
     scratch: Vec<crate::kernel::cache::Ready<u32>>,
     tests: u64,
@@ -856,6 +932,7 @@ impl Ist {
     pub fn new(cfg: &RtConfig) -> Self {
         Self {
             line: cfg.prim_line_bytes,
+            fill_ports: cfg.fill_ports,
             ready: VecDeque::new(),
             looping: VecDeque::new(),
             out: VecDeque::new(),
@@ -909,12 +986,12 @@ impl<'a> Unit<RtWorld<'a>> for Ist {
             cx.set_state(State::Idle);
             return Wake::Done;
         }
-        while let Some(r) = w.mem.pop(cx) {
-            self.scratch.clear();
-            w.prim
-                .fill(r.tag, now, &mut self.scratch)
+        let (prim, scratch) = (&mut w.prim, &mut self.scratch);
+        pop_responses(&mut w.mem, cx, self.fill_ports, |r| {
+            scratch.clear();
+            prim.fill(r.tag, now, scratch)
                 .expect("the primitive cache fetched this line");
-        }
+        });
         send_lines(&mut w.mem, cx, &mut self.mem_q, self.line);
         let mut state = State::Idle;
         // Return finished rays.
@@ -999,7 +1076,8 @@ impl<'a> Unit<RtWorld<'a>> for Ist {
             wake = wake.min(t.max(now + 1));
         }
         let acted = matches!(state, State::Busy | State::Stalled(0));
-        if acted || inputs || !self.ready.is_empty() || !self.mem_q.is_empty() {
+        let responses = w.mem.has_response(cx.me());
+        if acted || inputs || responses || !self.ready.is_empty() || !self.mem_q.is_empty() {
             Wake::Next
         } else if wake != Cycle::MAX {
             Wake::At(wake)
@@ -1052,24 +1130,51 @@ fn test_triangle(slot: &mut Slot, tri: &Triangle, entry: u32, prim: u32) {
 
 /// The node cache shared by the TRV units: takes one L1 miss per cycle (round robin),
 /// answers hits after its latency and misses when DRAM returns the line; requests for a
-/// line already being fetched wait in its MSHR.
+/// line already being fetched wait in its MSHR. It hands at most `l2_ports` lines per
+/// cycle to the L1 fill FIFOs (the earliest ready first, ties by TRV index) and installs
+/// at most `fill_ports` lines from DRAM per cycle; the others wait for later cycles.
 pub(crate) struct NodeL2 {
     out: BinaryHeap<Reverse<(Cycle, u32, u64)>>,
     mem_q: VecDeque<u64>,
     rr: RoundRobin,
     line: u32,
+    ports: u32,
+    fill_ports: u32,
     ready: Vec<crate::kernel::cache::Ready<u32>>,
+    fills: u64,
+    peak_fills: u64,
 }
 
 impl NodeL2 {
-    pub fn new(line: u32, trv_units: usize) -> Self {
+    pub fn new(line: u32, trv_units: usize, cfg: &RtConfig) -> Self {
         Self {
             line,
             out: BinaryHeap::new(),
             mem_q: VecDeque::new(),
             rr: RoundRobin::new(trv_units, 1).expect("at least one TRV"),
+            ports: cfg.l2_ports,
+            fill_ports: cfg.fill_ports,
             ready: Vec::new(),
+            fills: 0,
+            peak_fills: 0,
         }
+    }
+}
+
+/// Pops at most `ports` (0: any number) memory responses of the stepping unit.
+fn pop_responses(
+    mem: &mut Memory,
+    cx: &Ctx,
+    ports: u32,
+    mut install: impl FnMut(crate::dram::MemResponse),
+) {
+    let mut n = 0;
+    while ports == 0 || n < ports {
+        let Some(r) = mem.pop(cx) else {
+            break;
+        };
+        install(r);
+        n += 1;
     }
 }
 
@@ -1091,19 +1196,21 @@ impl<'a> Unit<RtWorld<'a>> for NodeL2 {
             cx.set_state(State::Idle);
             return Wake::Done;
         }
-        while let Some(r) = w.mem.pop(cx) {
-            self.ready.clear();
-            w.l2.fill(r.tag, now, &mut self.ready)
+        let (l2, ready, out) = (&mut w.l2, &mut self.ready, &mut self.out);
+        pop_responses(&mut w.mem, cx, self.fill_ports, |r| {
+            ready.clear();
+            l2.fill(r.tag, now, ready)
                 .expect("the node cache fetched this line");
-            for rd in &self.ready {
-                self.out.push(Reverse((rd.ready_at, rd.tag, r.tag)));
+            for rd in ready.iter() {
+                out.push(Reverse((rd.ready_at, rd.tag, r.tag)));
             }
-        }
+        });
         send_lines(&mut w.mem, cx, &mut self.mem_q, self.line);
         let mut state = State::Idle;
         let mut fill_blocked = false;
+        let mut handed = 0;
         while let Some(&Reverse((t, trv, line))) = self.out.peek() {
-            if t > now {
+            if t > now || (self.ports > 0 && handed >= self.ports) {
                 break;
             }
             if w.fill[trv as usize].push(cx, line).is_err() {
@@ -1112,7 +1219,10 @@ impl<'a> Unit<RtWorld<'a>> for NodeL2 {
                 break;
             }
             self.out.pop();
+            handed += 1;
         }
+        self.fills += handed as u64;
+        self.peak_fills = self.peak_fills.max(handed as u64);
         let (cache, out, mem_q, miss) = (&mut w.l2, &mut self.out, &mut self.mem_q, &mut w.miss);
         let counted_bytes = &mut w.counted_bytes;
         let line_bytes = self.line;
@@ -1151,7 +1261,7 @@ impl<'a> Unit<RtWorld<'a>> for NodeL2 {
             state = State::Stalled(1);
         }
         cx.set_state(state);
-        let inputs = w.miss.iter().any(|f| f.can_pop(cx));
+        let inputs = w.miss.iter().any(|f| f.can_pop(cx)) || w.mem.has_response(cx.me());
         match self.out.peek() {
             _ if granted > 0 || inputs || !self.mem_q.is_empty() => Wake::Next,
             Some(&Reverse((t, _, _))) if !fill_blocked => Wake::At(t.max(now + 1)),
@@ -1168,6 +1278,13 @@ impl<'a> Unit<RtWorld<'a>> for NodeL2 {
             self.mem_q.len(),
             w.l2.mshrs_in_use()
         )
+    }
+
+    fn counters(&self) -> Vec<(&'static str, u64)> {
+        vec![
+            ("fills", self.fills),
+            ("peak_fills_per_cycle", self.peak_fills),
+        ]
     }
 }
 
