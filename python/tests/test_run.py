@@ -118,3 +118,32 @@ def test_command_line_rules() -> None:
         cli.option_args("Bad Name", 1)
     with pytest.raises(ValueError):
         cli.value_text(float("nan"))
+
+
+def test_report_sensitivity_from_python(tmp_path: Path) -> None:
+    docs = arbor.run(
+        "report",
+        "sensitivity",
+        "--scenes",
+        "proc:hairball?n=3000&seed=2",
+        "--only",
+        "fpu_energy",
+        "--width",
+        "32",
+        "--height",
+        "24",
+        "--sample",
+        "1",
+        "--out",
+        str(tmp_path),
+        "--json",
+    )
+    assert len(docs) == 1
+    d = docs[0]
+    assert d["schema"] == "arbor.report.sensitivity.v1"
+    assert [v["key"] for v in d["variants"]] == ["default", "fpu_energy"]
+    # The FPU variant reuses every cycle-level run of the default.
+    assert d["reused"] == d["simulated"]
+    for r in d["rows"]:
+        assert r["low"] <= r["default"] <= r["high"]
+        assert r["thesis"] is not None

@@ -119,9 +119,21 @@ pub fn assumptions() -> Vec<Assumption> {
             "IST pipeline depth (Arbor's assumption)",
         ),
         a(
+            "cull_cycles_per_entry",
+            "1",
+            &["0", "2"],
+            "cycles per culled stack entry (Arbor's assumption)",
+        ),
+        a(
+            "l2_ports",
+            "1",
+            &["0"],
+            "lines the node cache returns per cycle (0: unlimited, the earlier model)",
+        ),
+        a(
             SAMPLE_KEY,
             "the scenes'",
-            &["4", "16"],
+            &["8", "64"],
             "one in N tile chunks timed (sampling error)",
         ),
     ]
