@@ -126,6 +126,8 @@ def test_report_sensitivity_from_python(tmp_path: Path) -> None:
         "sensitivity",
         "--scenes",
         "proc:hairball?n=3000&seed=2",
+        "--p4-scene",
+        "none",
         "--only",
         "fpu_energy",
         "--width",

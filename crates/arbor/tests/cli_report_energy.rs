@@ -173,6 +173,8 @@ fn report_sensitivity_json_and_errors() {
         "--json",
         "--scenes",
         HAIRBALL,
+        "--p4-scene",
+        "none",
         "--only",
         "dram_energy,trv_stages",
         "--width",

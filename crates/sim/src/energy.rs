@@ -389,8 +389,9 @@ pub enum DramConvention {
 pub struct Conventions {
     /// SRAM cell type: `lop` by default. The thesis synthesized on 28 nm FDSOI "with
     /// multi-threshold voltage optimizations" (\[P2\] §6.2), and \[P4\] Table 1's caches draw
-    /// 90 mW in all with primary rays, below the 357 mW that CACTI's hp cells leak at 45 nm
-    /// for the same five arrays.
+    /// 90 mW in all with primary rays, below the 360 mW that CACTI's hp cells leak at 45 nm
+    /// for the same arrays (four 16 KB L1s, the 128 KB node cache, two 64 KB primitive
+    /// banks).
     pub cell: Cell,
     /// FPU energy per operation.
     pub fpu: FpuSource,

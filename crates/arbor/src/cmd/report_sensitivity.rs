@@ -14,7 +14,7 @@ use crate::progress::{Ui, Unit};
 use anyhow::Context;
 use sim::energy::Node;
 use sim::system::report::SystemScene;
-use sim::system::sensitivity::{assumptions, run as sweep, Assumption};
+use sim::system::sensitivity::{assumptions, run as sweep, Assumption, P4Scene};
 use sim::system::SystemConfig;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
@@ -37,6 +37,10 @@ pub struct ReportSensitivityArgs {
     /// Folder of the shared real scenes.
     #[arg(long, value_name = "DIR", default_value = SHARED_SCENES)]
     scene_dir: PathBuf,
+    /// Scene of the [P4] Table 2 part (BVH2 against MBVH4 at [P4]'s settings), or `none`.
+    /// Default: Crytek Sponza under --scene-dir, [P4]'s scene, when it exists.
+    #[arg(long, value_name = "SCENE")]
+    p4_scene: Option<String>,
     /// Only these assumptions, comma separated keys (default: all; `--list` shows them).
     #[arg(long, value_name = "KEYS", value_delimiter = ',')]
     only: Option<Vec<String>>,
@@ -67,6 +71,16 @@ pub struct ReportSensitivityArgs {
     /// Print the document (`arbor.report.sensitivity.v1`) on standard output.
     #[arg(long)]
     json: bool,
+}
+
+/// \[P4\] Table 2's name of a scene of ours (`Crytek` for Crytek Sponza), or "" when the
+/// thesis has no row for it.
+fn thesis_p4_name(name: &str) -> &'static str {
+    let n = name.to_ascii_lowercase();
+    ["Crytek", "Fairy", "Hairball", "Rungholt"]
+        .into_iter()
+        .find(|t| n.contains(&t.to_ascii_lowercase()))
+        .unwrap_or("")
 }
 
 /// The assumptions `--only` keeps, or an error naming the unknown key.
@@ -122,7 +136,21 @@ pub fn run(a: &ReportSensitivityArgs, ui: &Ui) -> anyhow::Result<()> {
             a.sample,
         )
     };
-    anyhow::ensure!(!specs.is_empty(), "no scenes to study");
+    let p4_spec = match (&a.p4_scene, a.quick) {
+        (_, true) => None,
+        (Some(s), _) if s == "none" => None,
+        (Some(s), _) => Some(s.clone()),
+        (None, _) => {
+            let p = a.scene_dir.join("crytek-sponza.ply");
+            if p.is_file() {
+                Some(p.display().to_string())
+            } else {
+                ui.warn(&format!("{} not found: no [P4] part", p.display()));
+                None
+            }
+        }
+    };
+    anyhow::ensure!(!specs.is_empty() || p4_spec.is_some(), "no scenes to study");
     std::fs::create_dir_all(&a.out)
         .with_context(|| format!("cannot create {}", a.out.display()))?;
     let mut loaded = Vec::new();
@@ -141,12 +169,29 @@ pub fn run(a: &ReportSensitivityArgs, ui: &Ui) -> anyhow::Result<()> {
             sample,
         })
         .collect();
-    // One step per build and trace of every variant and scene.
+    let p4_loaded = match &p4_spec {
+        Some(spec) => {
+            let _s = ui.spinner(&format!("loading {spec}"));
+            let (name, tris, camera) = load_traced(spec)?;
+            anyhow::ensure!(!tris.is_empty(), "{spec}: the scene has no triangles");
+            Some((name, tris, PinholeCamera::new(&camera, width, height)?))
+        }
+        None => None,
+    };
+    let p4 = p4_loaded.as_ref().map(|(name, tris, camera)| P4Scene {
+        thesis_scene: thesis_p4_name(name),
+        name: name.clone(),
+        triangles: tris,
+        camera: *camera,
+        sample,
+    });
+    // One step per build and trace of every variant and scene, and per variant of the
+    // [P4] part.
     let variants = 1 + picked.iter().map(|x| x.values.len()).sum::<usize>();
-    let total = (12 * variants * scenes.len()) as u64;
+    let total = ((12 * scenes.len() + usize::from(p4.is_some())) * variants) as u64;
     let bar = ui.progress("sensitivity runs", Unit::Items);
     let done = AtomicU64::new(0);
-    let rep = sweep(&scenes, &cfg, &picked, |_| {
+    let rep = sweep(&scenes, p4.as_ref(), &cfg, &picked, |_| {
         let d = done.fetch_add(1, Ordering::Relaxed) + 1;
         bar.update(d.min(total), total);
     })?;
@@ -156,7 +201,8 @@ pub fn run(a: &ReportSensitivityArgs, ui: &Ui) -> anyhow::Result<()> {
         "{}x{}, {} ({}) on {}, one in {} tile chunks timed; scenes: {}. Each assumption is \
          set to each of its values with the others at their defaults; low and high are \
          the extremes over all variants, the driver the assumption whose values spread the \
-         figure most. Figures are Table VIII's energies relative to binned SAH. {} \
+         figure most. Table VIII's figures are energies relative to binned SAH; [P4] Table \
+         2's are MBVH4's changes over BVH2 at [P4]'s settings (45 nm, 4 bounces). {} \
          cycle-level runs simulated, {} reused between variants.\n\n",
         width,
         height,

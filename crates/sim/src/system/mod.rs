@@ -444,6 +444,38 @@ impl SimMemo {
     fn key<T: Serialize>(parts: &T) -> String {
         serde_json::to_string(parts).expect("configurations serialize")
     }
+
+    /// An accelerator run with `cfg`: from the memo when a run with the same `tag` (what
+    /// else sets the run: tree, rays, sampling, camera) and the same timing configuration
+    /// was done, with its energy recomputed under `cfg`'s node, conventions and IST
+    /// division; else `run()`, remembered.
+    pub fn rt_run<T: Serialize>(
+        &mut self,
+        tag: &T,
+        cfg: &RtConfig,
+        run: impl FnOnce() -> Result<rtunit::RtReport, SystemError>,
+    ) -> Result<rtunit::RtReport, SystemError> {
+        let mut timing = cfg.clone();
+        timing.energy = Conventions::default();
+        timing.ist_div_flops = 0;
+        timing.energy_node = Node::Nm45;
+        let key = Self::key(&(&timing, tag));
+        if let Some(r) = self.rt.get(&key) {
+            self.reused += 1;
+            let mut r = r.clone();
+            r.config = cfg.clone();
+            r.energy = Some(rtunit::energy::accelerator_energy(
+                &r,
+                cfg.energy_node,
+                &cfg.energy,
+            )?);
+            return Ok(r);
+        }
+        let r = run()?;
+        self.simulated += 1;
+        self.rt.insert(key, r.clone());
+        Ok(r)
+    }
 }
 
 /// One MergeTree run on `cfg`'s memory, checked against the software builder.
@@ -657,12 +689,7 @@ pub fn trace_energy_memo(
     memo: &mut SimMemo,
 ) -> Result<TraceEnergy, SystemError> {
     let (builder, rays, sample) = (t.builder, t.rays, t.sample);
-    let mut timing = cfg.rt.clone();
-    timing.energy = Conventions::default();
-    timing.ist_div_flops = 0;
-    timing.energy_node = Node::Nm45;
-    let key = SimMemo::key(&(
-        &timing,
+    let tag = (
         builder,
         rays,
         sample,
@@ -671,35 +698,20 @@ pub fn trace_energy_memo(
         &cfg.mergetree,
         t.camera.width(),
         t.camera.height(),
-    ));
-    let r = match memo.rt.get(&key) {
-        Some(r) => {
-            memo.reused += 1;
-            let mut r = r.clone();
-            r.config = cfg.rt.clone();
-            r.energy = Some(
-                rtunit::energy::accelerator_energy(&r, cfg.rt.energy_node, &cfg.rt.energy)
-                    .map_err(SystemError::Energy)?,
-            );
-            r
-        }
-        None => {
-            let built = rtunit::tree_from(TreeKind::Bvh2, bvh::Tree::Bvh2(tree), t.triangles)?;
-            let work = Workload {
-                triangles: t.triangles,
-                camera: t.camera,
-                rays,
-                bounces: cfg.bounces,
-                seed: cfg.seed,
-                sample,
-                progress: None,
-            };
-            let r = rtunit::run(&built, &work, &cfg.rt)?;
-            memo.simulated += 1;
-            memo.rt.insert(key, r.clone());
-            r
-        }
-    };
+    );
+    let r = memo.rt_run(&tag, &cfg.rt, || {
+        let built = rtunit::tree_from(TreeKind::Bvh2, bvh::Tree::Bvh2(tree), t.triangles)?;
+        let work = Workload {
+            triangles: t.triangles,
+            camera: t.camera,
+            rays,
+            bounces: cfg.bounces,
+            seed: cfg.seed,
+            sample,
+            progress: None,
+        };
+        Ok(rtunit::run(&built, &work, &cfg.rt)?)
+    })?;
     if !r.hits_match_software {
         return Err(SystemError::Config(
             "accelerator hits differ from the software tracer's".into(),

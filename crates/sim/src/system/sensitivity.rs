@@ -16,6 +16,7 @@ use serde::Serialize;
 
 use super::report::{scene_result_memo, table8, SceneResult, SystemScene};
 use super::{SimMemo, SystemConfig, SystemError};
+use crate::rtunit::{self, RayMode, RtConfig, TreeKind, Workload};
 
 /// Schema of the JSON document.
 pub const SCHEMA: &str = "arbor.report.sensitivity.v1";
@@ -209,25 +210,124 @@ fn figures(results: &[SceneResult]) -> Vec<(String, f64, Option<f64>)> {
     v
 }
 
-/// Runs the default model and every value of every assumption over `scenes`. `progress`
+/// The \[P4\] part of the study: one scene traced by the BVH2 and the MBVH4 accelerator at
+/// \[P4\]'s settings (45 nm, 4 bounces, the IST division as 11 FLOPs), whose Table 2
+/// changes (MBVH4 over BVH2: performance, energy per frame, performance per area, DRAM
+/// traffic) are figures of the study beside the thesis's row for `thesis_scene`.
+pub struct P4Scene<'a> {
+    /// Short name.
+    pub name: String,
+    /// \[P4\] Table 2's scene name (`Crytek` for Crytek Sponza), for the thesis's values.
+    pub thesis_scene: &'static str,
+    /// Its triangles.
+    pub triangles: &'a [geom::Triangle],
+    /// The camera.
+    pub camera: trace::PinholeCamera,
+    /// One in `sample` tile chunks timed.
+    pub sample: u32,
+}
+
+/// Bounces of \[P4\] §3.2's diffuse paths.
+pub const P4_BOUNCES: u32 = 4;
+
+/// \[P4\] Table 2's changes for one variant: per ray kind, MBVH4 over BVH2 minus one.
+fn p4_figures(
+    p4: &P4Scene<'_>,
+    trees: &[rtunit::BuiltTree; 2],
+    cfg: &RtConfig,
+    sample: u32,
+    memo: &mut SimMemo,
+) -> Result<Vec<(String, f64, Option<f64>)>, SystemError> {
+    let mut v = Vec::new();
+    for rays in [RayMode::Primary, RayMode::Diffuse] {
+        let mut runs = Vec::new();
+        for tree in trees {
+            let tag = (
+                "p4",
+                tree.kind,
+                rays,
+                sample,
+                p4.camera.width(),
+                p4.camera.height(),
+            );
+            let r = memo.rt_run(&tag, cfg, || {
+                let work = Workload {
+                    triangles: p4.triangles,
+                    camera: &p4.camera,
+                    rays,
+                    bounces: P4_BOUNCES,
+                    seed: 1,
+                    sample,
+                    progress: None,
+                };
+                Ok(rtunit::run(tree, &work, cfg)?)
+            })?;
+            if !r.hits_match_software {
+                return Err(SystemError::Config(format!(
+                    "{}: accelerator hits differ from the software tracer's",
+                    p4.name
+                )));
+            }
+            runs.push(r);
+        }
+        let e = |r: &rtunit::RtReport| {
+            r.energy
+                .as_ref()
+                .map_or((0.0, 0.0), |e| (e.frame_mj, e.mrps_per_mm2))
+        };
+        let (b, m) = (&runs[0], &runs[1]);
+        let ray = super::report::ray_name(rays);
+        let thesis = crate::thesis::p4_row(p4.thesis_scene, ray).map(|t| t.change_pct);
+        let change = |x: f64, y: f64| if x > 0.0 { y / x - 1.0 } else { 0.0 };
+        for (i, (what, value)) in [
+            ("perf", change(b.mrps, m.mrps)),
+            ("energy", change(e(b).0, e(m).0)),
+            ("perf/area", change(e(b).1, e(m).1)),
+            ("traffic", change(b.frame_dram_mb, m.frame_dram_mb)),
+        ]
+        .into_iter()
+        .enumerate()
+        {
+            v.push((
+                format!("P4 Table 2 {} {ray} MBVH4 {what} change", p4.name),
+                value,
+                thesis.map(|t| t[i] / 100.0),
+            ));
+        }
+    }
+    Ok(v)
+}
+
+/// Runs the default model and every value of every assumption over `scenes` (Table VIII's
+/// figures) and `p4` (\[P4\] Table 2's changes; its accelerator takes the same keys at
+/// \[P4\]'s node and IST division). `progress`
 /// is told what runs. An assumption with a key the configuration does not know is an
 /// error before anything runs.
 pub fn run(
     scenes: &[SystemScene<'_>],
+    p4: Option<&P4Scene<'_>>,
     base: &SystemConfig,
     assumptions: &[Assumption],
     progress: impl Fn(&str) + Sync,
 ) -> Result<SensitivityReport, SystemError> {
-    if scenes.is_empty() {
+    if scenes.is_empty() && p4.is_none() {
         return Err(SystemError::Config(
             "no scenes for the sensitivity study".into(),
         ));
     }
-    // (key, value, config, sample override)
+    // (key, value, config, sample override); the [P4] accelerator's configuration per
+    // variant beside it.
+    let p4_base = RtConfig {
+        energy: base.energy,
+        dram: "lpddr3-1600-2x32".into(),
+        ..RtConfig::default()
+    };
     let mut variants: Vec<(String, String, SystemConfig, Option<u32>)> =
         vec![("default".into(), String::new(), base.clone(), None)];
+    let mut p4_cfgs = vec![p4_base.clone()];
     for a in assumptions {
         for &v in &a.values {
+            let mut rt = p4_base.clone();
             if a.key == SAMPLE_KEY {
                 let k: u32 = v
                     .parse()
@@ -239,7 +339,10 @@ pub fn run(
                 let mut c = base.clone();
                 c.set(a.key, v)?;
                 variants.push((a.key.into(), v.into(), c, None));
+                rt.set(a.key, v)
+                    .map_err(|e| SystemError::Config(e.to_string()))?;
             }
+            p4_cfgs.push(rt);
         }
     }
     // Scenes in parallel, each with its own memo over all the variants.
@@ -276,8 +379,22 @@ pub fn run(
             results[i].push(r);
         }
     }
-    let per_variant: Vec<Vec<(String, f64, Option<f64>)>> =
+    let mut per_variant: Vec<Vec<(String, f64, Option<f64>)>> =
         results.iter().map(|r| figures(r)).collect();
+    if let Some(p4) = p4 {
+        let trees = [
+            rtunit::build_tree(TreeKind::Bvh2, p4.triangles)?,
+            rtunit::build_tree(TreeKind::Mbvh4, p4.triangles)?,
+        ];
+        let mut memo = SimMemo::default();
+        for (i, ((key, value, _, sample), rt)) in variants.iter().zip(&p4_cfgs).enumerate() {
+            progress(&format!("{key}={value}: [P4] {}", p4.name));
+            let f = p4_figures(p4, &trees, rt, sample.unwrap_or(p4.sample), &mut memo)?;
+            per_variant[i].extend(f);
+        }
+        simulated += memo.simulated;
+        reused += memo.reused;
+    }
     let mut rows = Vec::new();
     for (f, (name, default, thesis)) in per_variant[0].iter().enumerate() {
         let values: Vec<f64> = per_variant.iter().map(|v| v[f].1).collect();
@@ -433,7 +550,7 @@ mod tests {
             .into_iter()
             .filter(|a| a.key == "fpu_energy" || a.key == "l2_latency")
             .collect();
-        let rep = run(&scenes, &base, &pick, |_| {}).unwrap();
+        let rep = run(&scenes, None, &base, &pick, |_| {}).unwrap();
         assert_eq!(rep.variants.len(), 1 + 1 + 2);
         // Per variant: 3 MergeTree runs and 8 traces; the FPU variant reuses all 11, the
         // latency variants reuse the MergeTree runs and trace again.
@@ -484,6 +601,39 @@ mod tests {
         assert_eq!(rep.csv().lines().count(), rep.rows.len() + 1);
     }
 
+    /// The [P4] part alone: four accelerator runs for the default, reused by an energy
+    /// convention (which moves the energy change but not the speed or traffic), simulated
+    /// again for a timing parameter; eight figures with Table 2's Crytek values.
+    #[test]
+    fn the_p4_part_reuses_runs_and_carries_the_thesis_changes() {
+        let (tris, cam) = scene("proc:hairball?n=2000&seed=5");
+        let p4 = P4Scene {
+            name: "hairball".into(),
+            thesis_scene: "Crytek",
+            triangles: &tris,
+            camera: cam,
+            sample: 1,
+        };
+        let pick: Vec<Assumption> = assumptions()
+            .into_iter()
+            .filter(|a| a.key == "fpu_energy" || a.key == "stacks_per_trv")
+            .collect();
+        let rep = run(&[], Some(&p4), &SystemConfig::default(), &pick, |_| {}).unwrap();
+        assert_eq!((rep.simulated, rep.reused), (4 + 4, 4));
+        assert_eq!(rep.rows.len(), 8);
+        let row = |f: &str| rep.rows.iter().find(|r| r.figure.ends_with(f)).unwrap();
+        assert_eq!(row("primary MBVH4 perf change").thesis, Some(0.87));
+        assert_eq!(row("diffuse MBVH4 traffic change").thesis, Some(-0.30));
+        // The FPU source moves no speed or traffic figure.
+        let fpu = &rep.variants[1];
+        assert_eq!(fpu.key, "fpu_energy");
+        for (f, (name, v)) in fpu.figures.iter().enumerate() {
+            if name.contains("perf change") || name.contains("traffic") {
+                assert_eq!(*v, rep.variants[0].figures[f].1, "{name}");
+            }
+        }
+    }
+
     #[test]
     fn unknown_keys_and_bad_values_fail_before_running() {
         let (tris, cam) = scene("proc:hairball?n=500&seed=3");
@@ -501,13 +651,13 @@ mod tests {
                 what: "",
             };
             let ran = std::sync::atomic::AtomicBool::new(false);
-            let e = run(&scenes, &SystemConfig::default(), &[a], |_| {
+            let e = run(&scenes, None, &SystemConfig::default(), &[a], |_| {
                 ran.store(true, std::sync::atomic::Ordering::Relaxed)
             })
             .unwrap_err()
             .to_string();
             assert!(!ran.into_inner() && !e.contains('\n'), "{key}: {e}");
         }
-        assert!(run(&[], &SystemConfig::default(), &assumptions(), |_| {}).is_err());
+        assert!(run(&[], None, &SystemConfig::default(), &assumptions(), |_| {}).is_err());
     }
 }
