@@ -152,6 +152,40 @@ mod tests {
         simulate(&random_boxes(n, 7), &cfg, port).unwrap()
     }
 
+    /// The multi-merge unit of preset `p2` at 28 nm under the thesis's conventions, by
+    /// hand from hardware.md §3.1: the 256 KB scratchpad is the lop cache table's 42 pJ,
+    /// 67 mW, 0.49 mm^2 times the 28 nm hp scratchpad-to-cache ratios at 16 KB (35.04 / 41,
+    /// 7.6 / 8.3, 0.0196 / 0.06): 35.895 pJ, 61.349 mW, 0.16007 mm^2; the 256-entry heap
+    /// (2 KB) is the lop table extrapolated to 2 KB (21 x (23/21)^-3 = 15.983 pJ,
+    /// 4.8 x (8.9/4.8)^-3 = 0.75307 mW, 0.06 x (0.08/0.06)^-3 = 0.025313 mm^2) times the
+    /// ratios at 2 KB (scratchpad 0.98727 pJ per word x 8, 1.02470 mW, 0.0028249 mm^2
+    /// over the hp table's 35.540 pJ, 1.32520 mW, 0.025313 mm^2): 3.5504 pJ, 0.58232 mW,
+    /// 0.0028249 mm^2. Static power 61.931 mW, area 0.16290 mm^2 (a unit slip of any
+    /// power of ten fails).
+    #[test]
+    fn the_multi_merge_unit_by_hand() {
+        let r = build(20_000);
+        assert_eq!(r.config.fan_in(), 256);
+        let e = mergetree_energy(&r, Node::Nm28, &Conventions::default()).unwrap();
+        let mm = &e.units[1];
+        assert_eq!(mm.unit, "Multi-merge unit");
+        let seconds = r.ms * 1e-3;
+        let close = |got: f64, want: f64| (got / want - 1.0).abs() < 1e-4;
+        assert!(close(mm.static_mj / seconds, 61.931), "{mm:?}");
+        assert!(close(mm.area_mm2, 0.16290), "{mm:?}");
+        // Dynamic: a 32-byte element is half a 64-byte access, written once when loaded
+        // and read once when merged; a heap operation touches one 8-byte entry per level
+        // (8 levels for 256 queues).
+        let loaded = r.bytes_read as f64 / 32.0;
+        let merged = r.stalls.merge_outputs as f64;
+        let want_pj =
+            (loaded + merged) * 35.895 * 0.5 + r.stalls.heap_ops as f64 * 8.0 * 3.5504 * 8.0 / 64.0;
+        assert!(
+            close(mm.dynamic_mj, want_pj * 1e-9),
+            "{mm:?} want {want_pj} pJ"
+        );
+    }
+
     #[test]
     fn the_breakdown_adds_up_dram_dominates_and_energy_grows_with_the_scene() {
         let full = Conventions {
