@@ -12,10 +12,8 @@ use super::report_cbvh_trace::load_traced;
 use super::report_system::static_scene_specs;
 use crate::progress::{Ui, Unit};
 use anyhow::Context;
-use sim::energy::Node;
 use sim::system::report::SystemScene;
 use sim::system::sensitivity::{assumptions, run as sweep, Assumption, P4Scene};
-use sim::system::SystemConfig;
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
 use trace::PinholeCamera;
@@ -50,24 +48,12 @@ pub struct ReportSensitivityArgs {
     /// A small study in about a minute: a 50K-triangle procedural scene at 320x180.
     #[arg(long)]
     quick: bool,
-    /// Image width ([P2] 6.4: 1280).
-    #[arg(long, default_value_t = 1280)]
-    width: u32,
-    /// Image height ([P2] 6.4: 720).
-    #[arg(long, default_value_t = 720)]
-    height: u32,
+    #[command(flatten)]
+    soc: super::report_system::SocArgs,
     /// Time one in N chunks of 16 pixel tiles of each frame (the `sample` assumption
     /// varies it).
     #[arg(long, default_value_t = 16, value_name = "N")]
     sample: u32,
-    /// Process node of the on-chip figures ([P2] 6.4: 28nm).
-    #[arg(long, default_value = "28nm")]
-    node: String,
-    #[command(flatten)]
-    energy: super::energy_args::EnergyArgs,
-    /// Memory system ([P2] 6.4: the 25.6 GB/s system).
-    #[arg(long, default_value = "lpddr3-1600-2x64")]
-    dram: String,
     /// Print the document (`arbor.report.sensitivity.v1`) on standard output.
     #[arg(long)]
     json: bool,
@@ -119,8 +105,7 @@ pub fn run(a: &ReportSensitivityArgs, ui: &Ui) -> anyhow::Result<()> {
         return Ok(());
     }
     anyhow::ensure!(a.sample >= 1, "--sample must be at least 1");
-    let cfg = SystemConfig::default().with(Node::parse(&a.node)?, a.energy.conventions()?, &a.dram);
-    sim::dram::stream::streaming(&cfg.dram, 0, 0)?;
+    let cfg = a.soc.config()?;
     let (specs, width, height, sample) = if a.quick {
         (
             vec!["proc:hairball?n=50000".to_string()],
@@ -131,8 +116,8 @@ pub fn run(a: &ReportSensitivityArgs, ui: &Ui) -> anyhow::Result<()> {
     } else {
         (
             static_scene_specs(a.scenes.as_deref(), &a.scene_dir, ui),
-            a.width,
-            a.height,
+            a.soc.width,
+            a.soc.height,
             a.sample,
         )
     };

@@ -46,12 +46,8 @@ pub struct ReportSystemArgs {
     /// Folder of the shared real scenes.
     #[arg(long, value_name = "DIR", default_value = SHARED_SCENES)]
     scene_dir: PathBuf,
-    /// Image width ([P2] 6.4: 1280).
-    #[arg(long, default_value_t = 1280)]
-    width: u32,
-    /// Image height ([P2] 6.4: 720).
-    #[arg(long, default_value_t = 720)]
-    height: u32,
+    #[command(flatten)]
+    soc: SocArgs,
     /// Diffuse bounces ([P2] 6.4: three).
     #[arg(long, default_value_t = 3)]
     bounces: u32,
@@ -65,17 +61,43 @@ pub struct ReportSystemArgs {
     /// SAH ratio above which the refit tracker advises a rebuild.
     #[arg(long, default_value_t = bvh::RefitTracker::DEFAULT_THRESHOLD)]
     threshold: f64,
-    /// Process node of the on-chip figures ([P2] 6.4: 28nm).
-    #[arg(long, default_value = "28nm")]
-    node: String,
-    #[command(flatten)]
-    energy: super::energy_args::EnergyArgs,
-    /// Memory system ([P2] 6.4: the 25.6 GB/s system).
-    #[arg(long, default_value = "lpddr3-1600-2x64")]
-    dram: String,
     /// Print the report as JSON (`arbor.report.system.v1`) on standard output.
     #[arg(long)]
     json: bool,
+}
+
+/// The modelled SoC and frame of the system studies ([P2] §6.4), shared by `arbor report
+/// system` and `arbor report sensitivity`.
+#[derive(clap::Args, Debug)]
+pub struct SocArgs {
+    /// Image width ([P2] 6.4: 1280).
+    #[arg(long, default_value_t = 1280)]
+    pub width: u32,
+    /// Image height ([P2] 6.4: 720).
+    #[arg(long, default_value_t = 720)]
+    pub height: u32,
+    /// Process node of the on-chip figures ([P2] 6.4: 28nm).
+    #[arg(long, default_value = "28nm")]
+    pub node: String,
+    #[command(flatten)]
+    pub energy: super::energy_args::EnergyArgs,
+    /// Memory system ([P2] 6.4: the 25.6 GB/s system).
+    #[arg(long, default_value = "lpddr3-1600-2x64")]
+    pub dram: String,
+}
+
+impl SocArgs {
+    /// The system configuration of these options (a bad memory name is an error here,
+    /// before anything runs).
+    pub fn config(&self) -> anyhow::Result<SystemConfig> {
+        let cfg = SystemConfig::default().with(
+            Node::parse(&self.node)?,
+            self.energy.conventions()?,
+            &self.dram,
+        );
+        sim::dram::stream::streaming(&cfg.dram, 0, 0)?;
+        Ok(cfg)
+    }
 }
 
 /// Real scenes of the default list (files under `--scene-dir`).
@@ -104,11 +126,8 @@ pub fn run(a: &ReportSystemArgs, ui: &Ui) -> anyhow::Result<()> {
     );
     let cfg = SystemConfig {
         bounces: a.bounces,
-        ..SystemConfig::default()
-    }
-    .with(Node::parse(&a.node)?, a.energy.conventions()?, &a.dram);
-    // Fail on a bad memory name before anything runs.
-    sim::dram::stream::streaming(&cfg.dram, 0, 0)?;
+        ..a.soc.config()?
+    };
     let specs = scene_specs(a, ui);
     let anim_specs = animation_specs(a, ui);
     anyhow::ensure!(
@@ -122,7 +141,11 @@ pub fn run(a: &ReportSystemArgs, ui: &Ui) -> anyhow::Result<()> {
         let _s = ui.spinner(&format!("loading {spec}"));
         let (name, tris, camera) = load_traced(spec)?;
         anyhow::ensure!(!tris.is_empty(), "{spec}: the scene has no triangles");
-        loaded.push((name, tris, PinholeCamera::new(&camera, a.width, a.height)?));
+        loaded.push((
+            name,
+            tris,
+            PinholeCamera::new(&camera, a.soc.width, a.soc.height)?,
+        ));
     }
     let mut animated = Vec::new();
     for spec in &anim_specs {
@@ -159,7 +182,7 @@ pub fn run(a: &ReportSystemArgs, ui: &Ui) -> anyhow::Result<()> {
         .collect::<anyhow::Result<_>>()?;
     bar.update(total, total);
     bar.finish();
-    let rep = SystemReport::new(&cfg, a.width, a.height, scenes, animation);
+    let rep = SystemReport::new(&cfg, a.soc.width, a.soc.height, scenes, animation);
     write_report(a, &rep)?;
     if a.json {
         ui.emit_json(&rep)?;
@@ -265,7 +288,7 @@ fn load_animation(spec: &str, a: &ReportSystemArgs) -> anyhow::Result<AnimationS
         name,
         frames,
         times,
-        camera: PinholeCamera::new(&camera, a.width, a.height)?,
+        camera: PinholeCamera::new(&camera, a.soc.width, a.soc.height)?,
         sample: a.sample,
     })
 }
