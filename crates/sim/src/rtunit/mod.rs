@@ -47,6 +47,8 @@ mod model;
 pub mod report;
 #[cfg(test)]
 mod tests;
+#[cfg(test)]
+mod tests_limits;
 mod tree;
 
 pub use config::{sized_fifo, ConfigError, RtConfig, TreeKind, FIFO_CLASSES, KEYS};
