@@ -113,3 +113,39 @@ fn times_out_of_range_are_errors() {
     common::json("info", &[cloth, "--time", &d.to_string()]);
     common::json("info", &[cloth, "--time", "0"]);
 }
+
+/// Images, logs and statistics are ordinary files: mode 0644 under umask 022 (not the
+/// 0600 of a temporary file).
+#[cfg(unix)]
+#[test]
+fn outputs_have_ordinary_permissions() {
+    use std::os::unix::fs::PermissionsExt;
+    let dir = tempfile::tempdir().unwrap();
+    let files = ["a.png", "a.log", "a.json", "h.png", "d.pfm"];
+    let p = |f: &str| dir.path().join(f).to_str().unwrap().to_string();
+    let script = format!(
+        "umask 022; exec \"$0\" render 'proc:soup?n=50' --width 8 --height 8 --quiet \
+         --out {} --log {} --stats {} --heatmap {} --depth {}",
+        p(files[0]),
+        p(files[1]),
+        p(files[2]),
+        p(files[3]),
+        p(files[4])
+    );
+    let out = std::process::Command::new("sh")
+        .args(["-c", &script, env!("CARGO_BIN_EXE_arbor")])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for f in files {
+        let mode = std::fs::metadata(dir.path().join(f))
+            .unwrap()
+            .permissions()
+            .mode();
+        assert_eq!(mode & 0o777, 0o644, "{f}: mode {:o}", mode & 0o777);
+    }
+}

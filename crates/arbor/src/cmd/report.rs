@@ -115,24 +115,12 @@ pub fn write_file(dir: &Path, name: &str, text: &str) -> anyhow::Result<()> {
     write_atomic(&dir.join(name), text)
 }
 
-/// Writes `text` to `path` atomically: a temporary file in the same folder is written,
-/// synced and renamed over the destination, so an existing file is never left
-/// half-written.
+/// Writes `text` to `path` atomically: a temporary file in the same folder
+/// ([`trace::image::temp_file_beside`], with ordinary permissions) is written, synced and
+/// renamed over the destination, so an existing file is never left half-written.
 pub fn write_atomic(path: &Path, text: &str) -> anyhow::Result<()> {
     let fail = || format!("cannot write {}", path.display());
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    let mut tb = tempfile::Builder::new();
-    tb.prefix(".arbor-").suffix(".tmp");
-    // Temporary files are private (0600); the result gets ordinary permissions.
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        tb.permissions(std::fs::Permissions::from_mode(0o666));
-    }
-    let mut tmp = tb.tempfile_in(dir).with_context(fail)?;
+    let mut tmp = trace::image::temp_file_beside(path, ".arbor-").with_context(fail)?;
     tmp.write_all(text.as_bytes()).with_context(fail)?;
     tmp.as_file().sync_all().with_context(fail)?;
     tmp.persist(path).map_err(|e| e.error).with_context(fail)?;
