@@ -149,3 +149,36 @@ fn outputs_have_ordinary_permissions() {
         assert_eq!(mode & 0o777, 0o644, "{f}: mode {:o}", mode & 0o777);
     }
 }
+
+/// The reports' `--scene-dir` default is found when `arbor` runs, not compiled in:
+/// `$ARBOR_SCENE_DIR`, else the nearest `shared/scenes` above the current folder.
+#[test]
+fn scene_dir_default_is_found_at_run_time() {
+    let default_of = |cmd: &mut std::process::Command| {
+        let out = cmd.args(["report", "cbvh", "--help"]).output().unwrap();
+        assert!(out.status.success());
+        let text = String::from_utf8(out.stdout).unwrap();
+        let line = text.lines().find(|l| l.contains("--scene-dir")).unwrap();
+        let d = line.split("[default: ").nth(1).unwrap();
+        d.trim_end().trim_end_matches(']').to_string()
+    };
+    let exe = env!("CARGO_BIN_EXE_arbor");
+    let dir = tempfile::tempdir().unwrap();
+    let d = default_of(
+        std::process::Command::new(exe)
+            .env("ARBOR_SCENE_DIR", "/no/such/scenes")
+            .current_dir(dir.path()),
+    );
+    assert_eq!(d, "/no/such/scenes");
+    // A checkout beside a shared folder: found from a folder inside the checkout.
+    let inside = dir.path().join("repo").join("crates");
+    let scenes = dir.path().join("shared").join("scenes");
+    std::fs::create_dir_all(&inside).unwrap();
+    std::fs::create_dir_all(&scenes).unwrap();
+    let d = default_of(
+        std::process::Command::new(exe)
+            .env_remove("ARBOR_SCENE_DIR")
+            .current_dir(&inside),
+    );
+    assert_eq!(std::path::Path::new(&d), scenes);
+}

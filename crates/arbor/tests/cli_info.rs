@@ -308,4 +308,10 @@ fn demo_runs_and_writes_its_outputs() {
         assert!(std::path::Path::new(row["svg"].as_str().unwrap()).exists());
     }
     assert!(mt[0]["cycles"].as_u64() > mt[2]["cycles"].as_u64());
+    // The bundled scene is recorded by name, not by a path compiled into the binary or
+    // a temporary file.
+    assert_eq!(summary["info"]["scene"], "CesiumMan.glb (bundled)");
+    let text = std::fs::read_to_string(out_dir.join("summary.json")).unwrap();
+    assert!(!text.contains(env!("CARGO_MANIFEST_DIR")), "{text}");
+    assert!(!text.contains("arbor-scene-"), "{text}");
 }

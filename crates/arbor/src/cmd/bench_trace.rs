@@ -17,7 +17,7 @@
 
 use super::bench::{aligned_table, markdown_report, RunInfo};
 pub use super::bench_build::Format;
-use super::report::{view_camera, write_atomic, SHARED_SCENES};
+use super::report::{shared_scenes, view_camera, write_atomic};
 use super::{open_scene, thousands, SceneArgs};
 use crate::progress::Ui;
 use anyhow::Context;
@@ -136,17 +136,22 @@ fn check_args(a: &BenchTraceArgs) -> anyhow::Result<()> {
 }
 
 /// The scenes to run: the given ones, or the defaults that exist.
-fn scene_list(a: &BenchTraceArgs, notes: &mut Vec<String>) -> Vec<String> {
+fn scene_list(
+    a: &BenchTraceArgs,
+    bundled: Option<&super::demo::BundledScene>,
+    notes: &mut Vec<String>,
+) -> Vec<String> {
     if !a.scenes.is_empty() {
         return a.scenes.clone();
     }
-    let mut v = vec![super::demo::DEFAULT_SCENE.to_string()];
+    let mut v: Vec<String> = bundled.iter().map(|b| b.path.clone()).collect();
+    let dir = shared_scenes();
     for s in DEFAULT_SHARED {
-        let p = std::path::Path::new(SHARED_SCENES).join(format!("{s}.ply"));
+        let p = dir.join(format!("{s}.ply"));
         if p.exists() {
             v.push(p.display().to_string());
         } else {
-            notes.push(format!("{s}: not found in {SHARED_SCENES}, skipped"));
+            notes.push(format!("{s}: not found in {}, skipped", dir.display()));
         }
     }
     v
@@ -199,7 +204,11 @@ pub fn run(a: &BenchTraceArgs, ui: &Ui) -> anyhow::Result<()> {
         );
     }
     let mut rows = Vec::new();
-    for spec in scene_list(a, &mut notes) {
+    let bundled = match a.scenes.is_empty() {
+        true => Some(super::demo::bundled_scene()?),
+        false => None,
+    };
+    for spec in scene_list(a, bundled.as_ref(), &mut notes) {
         let sargs = SceneArgs {
             scene: spec.clone(),
             fps: None,

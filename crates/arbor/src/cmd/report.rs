@@ -51,9 +51,50 @@ pub fn run(a: &ReportArgs, ui: &Ui) -> anyhow::Result<()> {
     }
 }
 
-/// The folder of the shared real scenes, `../shared/scenes` beside the repository (the
-/// default of every report's `--scene-dir`).
-pub const SHARED_SCENES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/scenes");
+/// The default of every report's `--scene-dir` (`default_value = SHARED_SCENES`): the
+/// folder [`shared_scenes`] finds when the command line is parsed.
+pub const SHARED_SCENES: SharedScenes = SharedScenes;
+
+/// See [`SHARED_SCENES`].
+#[derive(Clone, Copy, Debug)]
+pub struct SharedScenes;
+
+impl clap::builder::IntoResettable<clap::builder::OsStr> for SharedScenes {
+    fn into_resettable(self) -> clap::builder::Resettable<clap::builder::OsStr> {
+        static DIR: std::sync::OnceLock<&'static str> = std::sync::OnceLock::new();
+        let dir = DIR.get_or_init(|| {
+            let s = shared_scenes().display().to_string();
+            Box::leak(s.into_boxed_str())
+        });
+        clap::builder::Resettable::Value((*dir).into())
+    }
+}
+
+/// The folder of the shared real scenes (`--scene-dir`'s default), found at run time: the
+/// environment variable `ARBOR_SCENE_DIR` if it is set; else the nearest `shared/scenes`
+/// folder in or above the current folder (`../shared/scenes` from the repository's root),
+/// else in or above the folder of the `arbor` executable; else `../shared/scenes`.
+pub fn shared_scenes() -> std::path::PathBuf {
+    if let Some(d) = std::env::var_os("ARBOR_SCENE_DIR").filter(|d| !d.is_empty()) {
+        return d.into();
+    }
+    let exe_dir = std::env::current_exe()
+        .ok()
+        .and_then(|e| e.parent().map(Path::to_path_buf));
+    for start in [std::env::current_dir().ok(), exe_dir]
+        .into_iter()
+        .flatten()
+    {
+        if let Some(d) = start
+            .ancestors()
+            .map(|a| a.join("shared").join("scenes"))
+            .find(|d| d.is_dir())
+        {
+            return d;
+        }
+    }
+    Path::new("..").join("shared").join("scenes")
+}
 
 /// Cameras inside the architectural scenes of `shared/scenes` (their default cameras frame
 /// them from outside, where a ray sees a few walls): (scene, eye, target, vertical field
