@@ -605,6 +605,9 @@ fn cbvh_step(scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<CbvhRow>> {
 /// Image size of the demo's renders (a quarter of [P4]'s 1280x720, to stay quick).
 const DEMO_RENDER_SIZE: (u32, u32) = (640, 360);
 
+/// Samples per pixel of the demo's diffuse picture (`render-diffuse.png`).
+const DEMO_DIFFUSE_SPP: u32 = 16;
+
 /// Image size of the demo's accelerator step.
 const DEMO_ACCELERATOR_SIZE: (u32, u32) = (320, 180);
 
@@ -740,7 +743,24 @@ fn render_step(
                         _ => "render-primary",
                     };
                     let p = out.join(format!("{name}.png"));
-                    trace::image::write_color_png(&p, &img)?;
+                    if kind == RayKind::Diffuse {
+                        // The picture: more samples per pixel, smoothed across pixels
+                        // of similar depth, exposed from its own luminance (the
+                        // counters printed are the first sample's).
+                        let mut picture = img.clone();
+                        super::render::add_samples(
+                            accel,
+                            shading,
+                            &settings,
+                            &mut picture,
+                            DEMO_DIFFUSE_SPP,
+                        )?;
+                        super::render::denoise(&mut picture);
+                        super::render::expose(&mut picture);
+                        trace::image::write_color_png(&p, &picture)?;
+                    } else {
+                        trace::image::write_color_png(&p, &img)?;
+                    }
                     image = Some(p.display().to_string());
                     if kind == RayKind::Primary {
                         let h = out.join("heatmap-primary.png");
