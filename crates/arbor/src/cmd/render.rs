@@ -129,7 +129,7 @@ pub struct RenderArgs {
     /// Compression of `--format cbvh`.
     #[command(flatten)]
     cbvh: CbvhOptions,
-    /// Rays: primary, diffuse (path tracing, 1 sample per pixel) or shadow (primary plus
+    /// Rays: primary, diffuse (path tracing, --spp samples per pixel) or shadow (primary plus
     /// one occlusion ray per hit).
     #[arg(long, value_name = "KIND", default_value = "primary")]
     rays: String,
