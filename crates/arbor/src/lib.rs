@@ -40,7 +40,7 @@ pub enum Command {
     /// sim dram`).
     Sim(cmd::sim::SimArgs),
     /// Compress a scene's LBVH into a CBVH (or refit one) and report backtracking, traffic
-    /// and quality ([P3]).
+    /// and quality (\[P3\]).
     Cbvh(cmd::cbvh::CbvhArgs),
     /// Trace an image through a BVH (primary, diffuse or shadow rays); write the image,
     /// depth buffer, heatmap, statistics and traversal log.

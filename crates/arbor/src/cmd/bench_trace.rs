@@ -2,11 +2,11 @@
 //! single-ray `rtcIntersect1` and obvhs's CWBVH traversal, on the same rays, in one process
 //! and one run, as ratios (issue 4, "Speed, against Embree").
 //!
-//! For every scene, each tracer builds its own tree (Arbor: binned SAH as in [P4] §3.2,
+//! For every scene, each tracer builds its own tree (Arbor: binned SAH as in \[P4\] §3.2,
 //! collapsed to 4 and 8 wide, and the native top-down MBVH4; Embree: its default scene,
 //! build quality MEDIUM, plain and ROBUST; obvhs: CWBVH from PLOC, `medium_build`), then two
 //! ray sets from an Arbor render are traced: the primary rays (coherent) and the diffuse
-//! bounce rays of a path-traced render with 4 bounces ([P4] §3.2; incoherent). Per ray set
+//! bounce rays of a path-traced render with 4 bounces (\[P4\] §3.2; incoherent). Per ray set
 //! and thread count, `--rounds` rounds time every tracer once in turn, so that load from
 //! other processes falls on all alike, and each tracer's best round counts, both in wall
 //! time and in worker-thread CPU time (steadier on a shared machine). Every tracer's hits
