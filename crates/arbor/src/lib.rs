@@ -13,12 +13,12 @@ pub mod progress;
 #[global_allocator]
 static TEST_ALLOC: alloc::Counting = alloc::Counting;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, FromArgMatches, Subcommand};
 use std::sync::{Arc, Mutex};
 
 /// Arbor: BVH construction, compression and traversal for animated ray tracing, and
 /// cycle-level models of the hardware that does it.
-#[derive(Parser)]
+#[derive(clap::Parser)]
 #[command(name = "arbor", version, about, long_about = None)]
 pub struct Cli {
     /// Hide progress bars and warnings.
@@ -36,10 +36,11 @@ pub enum Command {
     Demo(cmd::demo::DemoArgs),
     /// Build a BVH over a scene with a named builder, validate it, report SAH and timings.
     Build(cmd::build::BuildArgs),
-    /// Run a cycle-level hardware model (`arbor sim mergetree`, `arbor sim dram`).
+    /// Run a cycle-level hardware model (`arbor sim mergetree`, `arbor sim rtunit`, `arbor
+    /// sim dram`).
     Sim(cmd::sim::SimArgs),
     /// Compress a scene's LBVH into a CBVH (or refit one) and report backtracking, traffic
-    /// and quality ([P3]).
+    /// and quality (\[P3\]).
     Cbvh(cmd::cbvh::CbvhArgs),
     /// Trace an image through a BVH (primary, diffuse or shadow rays); write the image,
     /// depth buffer, heatmap, statistics and traversal log.
@@ -48,11 +49,29 @@ pub enum Command {
     LogInfo(cmd::log_info::LogInfoArgs),
     /// Regenerate a table or figure of the thesis (CSV, Markdown, SVG).
     Report(cmd::report::ReportArgs),
-    /// Benchmark Arbor against peer libraries in one run (`arbor bench build`).
+    /// Benchmark Arbor against peer libraries in one run (`arbor bench build`, `arbor bench
+    /// trace`).
     Bench(cmd::bench::BenchArgs),
 }
 
 impl Cli {
+    /// The command line's parser: the derived one with the doc comments' Markdown escapes
+    /// (`\[P2\]`, which rustdoc needs) removed from every help text, and negative numbers
+    /// accepted as option values (`--time -5`) in every subcommand.
+    pub fn command() -> clap::Command {
+        polish(<Cli as CommandFactory>::command())
+    }
+
+    /// Parses a command line (`argv` with the program name first) with [`Cli::command`].
+    pub fn try_parse_from<I, T>(argv: I) -> Result<Cli, clap::Error>
+    where
+        I: IntoIterator<Item = T>,
+        T: Into<std::ffi::OsString> + Clone,
+    {
+        let mut matches = Self::command().try_get_matches_from(argv)?;
+        <Cli as FromArgMatches>::from_arg_matches_mut(&mut matches)
+    }
+
     /// Runs the parsed command with `ui`.
     pub fn run(self, ui: &progress::Ui) -> anyhow::Result<()> {
         let ui = progress::Ui {
@@ -72,6 +91,48 @@ impl Cli {
             Command::Bench(a) => cmd::bench::run(&a, ui),
         }
     }
+}
+
+/// `cmd` and its subcommands, recursively, with help texts free of Markdown escapes,
+/// negative numbers accepted as values, and a missing subcommand an ordinary error (one
+/// line, like every other) instead of a help page.
+fn polish(cmd: clap::Command) -> clap::Command {
+    fn plain(s: &clap::builder::StyledStr) -> String {
+        s.to_string().replace("\\[", "[").replace("\\]", "]")
+    }
+    let mut cmd = cmd
+        .allow_negative_numbers(true)
+        .arg_required_else_help(false);
+    if let Some(a) = cmd.get_about().map(plain) {
+        cmd = cmd.about(a);
+    }
+    if let Some(a) = cmd.get_long_about().map(plain) {
+        cmd = cmd.long_about(a);
+    }
+    cmd.mut_args(|mut arg| {
+        if let Some(h) = arg.get_help().map(plain) {
+            arg = arg.help(h);
+        }
+        if let Some(h) = arg.get_long_help().map(plain) {
+            arg = arg.long_help(h);
+        }
+        arg
+    })
+    .mut_subcommands(polish)
+}
+
+/// A command-line parsing error as one line, without clap's `error: ` prefix: its message
+/// and detail lines, without the usage and help hints that follow.
+pub fn arg_error_line(e: &clap::Error) -> String {
+    // clap's message: "error: ...", indented detail lines, a blank line, then usage.
+    let text = e.to_string();
+    let msg: Vec<&str> = text
+        .lines()
+        .map(str::trim)
+        .take_while(|l| !l.is_empty() && !l.starts_with("Usage:"))
+        .collect();
+    let line = msg.join(" ");
+    line.strip_prefix("error: ").unwrap_or(&line).to_string()
 }
 
 /// An error as the command line prints it: one line, the error and its causes, outermost
@@ -111,18 +172,7 @@ pub fn run_capture<S: AsRef<str>>(args: &[S]) -> Result<Vec<serde_json::Value>, 
 /// is clap's message, first line, without its `error: ` prefix.
 fn parse<S: AsRef<str>>(args: &[S]) -> Result<Cli, String> {
     let argv = std::iter::once("arbor").chain(args.iter().map(|s| s.as_ref()));
-    Cli::try_parse_from(argv).map_err(|e| {
-        // clap's message: "error: ...", indented detail lines, a blank line, then usage;
-        // keep the message and its details on one line.
-        let text = e.to_string();
-        let msg: Vec<&str> = text
-            .lines()
-            .map(str::trim)
-            .take_while(|l| !l.is_empty() && !l.starts_with("Usage:"))
-            .collect();
-        let line = msg.join(" ");
-        line.strip_prefix("error: ").unwrap_or(&line).to_string()
-    })
+    Cli::try_parse_from(argv).map_err(|e| arg_error_line(&e))
 }
 
 /// Checks a command line without running it: the parser, and for `arbor sim ...` the

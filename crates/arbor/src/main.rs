@@ -7,11 +7,22 @@
 #[global_allocator]
 static ALLOC: arbor::alloc::Counting = arbor::alloc::Counting;
 
-use clap::Parser;
 use std::process::ExitCode;
 
 fn main() -> ExitCode {
-    let cli = arbor::Cli::parse();
+    let cli = match arbor::Cli::try_parse_from(std::env::args_os()) {
+        Ok(cli) => cli,
+        // `--help` and `--version`: their text on stdout, status 0.
+        Err(e) if !e.use_stderr() => e.exit(),
+        // A bad command line is an error like any other: one line, status 1.
+        Err(e) => {
+            eprintln!(
+                "arbor: error: {} (see 'arbor --help')",
+                arbor::arg_error_line(&e)
+            );
+            return ExitCode::FAILURE;
+        }
+    };
     let ui = arbor::progress::Ui {
         quiet: false,
         json: None,

@@ -308,4 +308,35 @@ fn demo_runs_and_writes_its_outputs() {
         assert!(std::path::Path::new(row["svg"].as_str().unwrap()).exists());
     }
     assert!(mt[0]["cycles"].as_u64() > mt[2]["cycles"].as_u64());
+    // The bundled scene is recorded by name, not by a path compiled into the binary or
+    // a temporary file.
+    assert_eq!(summary["info"]["scene"], "CesiumMan.glb (bundled)");
+    let text = std::fs::read_to_string(out_dir.join("summary.json")).unwrap();
+    assert!(!text.contains(env!("CARGO_MANIFEST_DIR")), "{text}");
+    assert!(!text.contains("arbor-scene-"), "{text}");
+    // The diffuse picture shows the scene: neither mostly white nor mostly black.
+    let (w, h, rgb) = read_png(&out_dir.join("render-diffuse.png"));
+    let n = (w * h) as usize;
+    let lum: Vec<u32> = rgb
+        .chunks(3)
+        .map(|p| (2126 * p[0] as u32 + 7152 * p[1] as u32 + 722 * p[2] as u32) / 10000)
+        .collect();
+    let bright = lum.iter().filter(|&&l| l >= 250).count();
+    let dark = lum.iter().filter(|&&l| l < 5).count();
+    assert!(bright * 2 < n, "{bright} of {n} pixels white");
+    assert!(dark * 2 < n, "{dark} of {n} pixels black");
+    // And the figure (about 5% of the picture) is lit: lighter than any of the backdrop.
+    let lit = lum.iter().filter(|&&l| l >= 150).count();
+    assert!(lit * 40 > n, "only {lit} of {n} pixels lit");
+}
+
+/// A PNG's width, height and 8-bit RGB pixels.
+fn read_png(p: &Path) -> (u32, u32, Vec<u8>) {
+    let dec = png::Decoder::new(std::fs::File::open(p).unwrap());
+    let mut r = dec.read_info().unwrap();
+    let mut buf = vec![0; r.output_buffer_size()];
+    let info = r.next_frame(&mut buf).unwrap();
+    assert_eq!(info.color_type, png::ColorType::Rgb);
+    buf.truncate(info.buffer_size());
+    (info.width, info.height, buf)
 }

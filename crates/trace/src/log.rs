@@ -329,14 +329,8 @@ fn io_err(path: &Path, source: std::io::Error) -> TraceError {
 impl LogWriter {
     /// Starts a log at `path` (written in full only by [`LogWriter::finish`]).
     pub fn create(path: &Path, header: &LogHeader) -> Result<Self, TraceError> {
-        let dir = match path.parent() {
-            Some(p) if !p.as_os_str().is_empty() => p,
-            _ => Path::new("."),
-        };
-        let tmp = tempfile::Builder::new()
-            .prefix(".arbor-log-")
-            .tempfile_in(dir)
-            .map_err(|e| io_err(path, e))?;
+        let tmp =
+            crate::image::temp_file_beside(path, ".arbor-log-").map_err(|e| io_err(path, e))?;
         let mut file = BufWriter::with_capacity(1 << 20, tmp);
         file.write_all(&header.encode())
             .map_err(|e| io_err(path, e))?;

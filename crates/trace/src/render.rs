@@ -5,8 +5,10 @@
 //!   (`albedo * (0.15 + 0.85 |cos|)`).
 //! - `diffuse`: path tracing with one sample per pixel ([P2] §6.4 uses 3 bounces, [P4]
 //!   §3.2 four): the primary ray, then up to `bounces` cosine-weighted diffuse bounces, no
-//!   next event estimation; a path that escapes sees a white sky of radiance 1, and each
-//!   bounce multiplies the throughput by the surface albedo. Secondary rays are traced
+//!   next event estimation; a bounce that escapes sees a white sky (radiance 1 straight
+//!   up, 0.4 straight down: [`sky`], so that surfaces facing up are lighter), and each
+//!   bounce multiplies the throughput by the surface albedo (a primary ray that misses
+//!   sees the dim backdrop of the other modes, so that the lit scene stands out). Secondary rays are traced
 //!   when the preceding ray of their path is complete, as in [P4] §3.2.
 //! - `shadow`: primary rays plus one any-hit (occlusion) ray per hit towards a fixed
 //!   directional light.
@@ -348,13 +350,11 @@ impl<T: Traverse> Tracer<'_, T> {
         out
     }
 
-    /// Colour of a primary ray that hits nothing: the sky (white for diffuse renders, a
-    /// dim gradient otherwise).
+    /// Colour of a primary ray that hits nothing: a dim backdrop, lighter towards the top,
+    /// in every mode (diffuse paths are lit by a white sky, but a white backdrop would
+    /// hide a lit figure).
     fn miss_color(&self, d: Vec3) -> Vec3 {
-        match self.settings.rays {
-            RayKind::Diffuse => Vec3::ONE,
-            _ => Vec3::splat(0.05 + 0.1 * (0.5 + 0.5 * d.y)),
-        }
+        Vec3::splat(0.05 + 0.1 * (0.5 + 0.5 * d.y))
     }
 
     /// A diffuse path after its primary hit `first`.
@@ -390,12 +390,18 @@ impl<T: Traverse> Tracer<'_, T> {
                 counts,
                 obs,
             ) {
-                None => return throughput, // the sky, radiance 1
+                None => return throughput * sky(ray.dir),
                 Some(h) => hit = h,
             }
         }
         Vec3::ZERO
     }
+}
+
+/// Radiance of the sky that lights diffuse paths, seen in direction `d` (unit): white, 1
+/// straight up (+y) and 0.4 straight down.
+pub fn sky(d: Vec3) -> f32 {
+    0.7 + 0.3 * d.y.clamp(-1.0, 1.0)
 }
 
 /// The next ray of a diffuse path: from the hit `hit` on `tri` (whose normal facing the

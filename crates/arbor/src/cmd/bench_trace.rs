@@ -2,11 +2,11 @@
 //! single-ray `rtcIntersect1` and obvhs's CWBVH traversal, on the same rays, in one process
 //! and one run, as ratios (issue 4, "Speed, against Embree").
 //!
-//! For every scene, each tracer builds its own tree (Arbor: binned SAH as in [P4] §3.2,
+//! For every scene, each tracer builds its own tree (Arbor: binned SAH as in \[P4\] §3.2,
 //! collapsed to 4 and 8 wide, and the native top-down MBVH4; Embree: its default scene,
 //! build quality MEDIUM, plain and ROBUST; obvhs: CWBVH from PLOC, `medium_build`), then two
 //! ray sets from an Arbor render are traced: the primary rays (coherent) and the diffuse
-//! bounce rays of a path-traced render with 4 bounces ([P4] §3.2; incoherent). Per ray set
+//! bounce rays of a path-traced render with 4 bounces (\[P4\] §3.2; incoherent). Per ray set
 //! and thread count, `--rounds` rounds time every tracer once in turn, so that load from
 //! other processes falls on all alike, and each tracer's best round counts, both in wall
 //! time and in worker-thread CPU time (steadier on a shared machine). Every tracer's hits
@@ -17,7 +17,7 @@
 
 use super::bench::{aligned_table, markdown_report, RunInfo};
 pub use super::bench_build::Format;
-use super::report::{view_camera, write_atomic, SHARED_SCENES};
+use super::report::{shared_scenes, view_camera, write_atomic};
 use super::{open_scene, thousands, SceneArgs};
 use crate::progress::Ui;
 use anyhow::Context;
@@ -136,17 +136,22 @@ fn check_args(a: &BenchTraceArgs) -> anyhow::Result<()> {
 }
 
 /// The scenes to run: the given ones, or the defaults that exist.
-fn scene_list(a: &BenchTraceArgs, notes: &mut Vec<String>) -> Vec<String> {
+fn scene_list(
+    a: &BenchTraceArgs,
+    bundled: Option<&super::demo::BundledScene>,
+    notes: &mut Vec<String>,
+) -> Vec<String> {
     if !a.scenes.is_empty() {
         return a.scenes.clone();
     }
-    let mut v = vec![super::demo::DEFAULT_SCENE.to_string()];
+    let mut v: Vec<String> = bundled.iter().map(|b| b.path.clone()).collect();
+    let dir = shared_scenes();
     for s in DEFAULT_SHARED {
-        let p = std::path::Path::new(SHARED_SCENES).join(format!("{s}.ply"));
+        let p = dir.join(format!("{s}.ply"));
         if p.exists() {
             v.push(p.display().to_string());
         } else {
-            notes.push(format!("{s}: not found in {SHARED_SCENES}, skipped"));
+            notes.push(format!("{s}: not found in {}, skipped", dir.display()));
         }
     }
     v
@@ -199,7 +204,11 @@ pub fn run(a: &BenchTraceArgs, ui: &Ui) -> anyhow::Result<()> {
         );
     }
     let mut rows = Vec::new();
-    for spec in scene_list(a, &mut notes) {
+    let bundled = match a.scenes.is_empty() {
+        true => Some(super::demo::bundled_scene()?),
+        false => None,
+    };
+    for spec in scene_list(a, bundled.as_ref(), &mut notes) {
         let sargs = SceneArgs {
             scene: spec.clone(),
             fps: None,

@@ -21,9 +21,36 @@ use std::io::Write;
 use std::path::PathBuf;
 use std::time::Instant;
 
-/// The scene `arbor demo` runs on when none is given: a skinned glTF character shipped in
-/// the repository (see `scenes/README.md` for its licence).
-pub const DEFAULT_SCENE: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/CesiumMan.glb");
+/// The name of the scene `arbor demo` runs on when none is given: a skinned glTF character
+/// shipped in the repository (`scenes/`; see `scenes/README.md` for its licence) and
+/// compiled into the binary, so that an installed `arbor` needs no source tree.
+pub const DEFAULT_SCENE: &str = "CesiumMan.glb";
+
+/// The bundled scene's bytes.
+const BUNDLED_BYTES: &[u8] = include_bytes!("../../../../scenes/CesiumMan.glb");
+
+/// The bundled scene written to a private temporary folder (removed when dropped), for the
+/// loaders, which read files.
+pub struct BundledScene {
+    _dir: tempfile::TempDir,
+    /// The file's path, to open as a scene spec.
+    pub path: String,
+}
+
+/// Writes the bundled scene [`DEFAULT_SCENE`] out for the loaders.
+pub fn bundled_scene() -> anyhow::Result<BundledScene> {
+    let dir = tempfile::Builder::new()
+        .prefix("arbor-scene-")
+        .tempdir()
+        .context("cannot create a temporary folder for the bundled scene")?;
+    let path = dir.path().join(DEFAULT_SCENE);
+    std::fs::write(&path, BUNDLED_BYTES)
+        .with_context(|| format!("cannot write {}", path.display()))?;
+    Ok(BundledScene {
+        path: path.display().to_string(),
+        _dir: dir,
+    })
+}
 
 /// Arguments of `arbor demo`.
 #[derive(clap::Args, Debug)]
@@ -182,12 +209,17 @@ const BUILD_STEP_EXTRA_FRAMES: u32 = 3;
 
 /// Runs `arbor demo`.
 pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
-    let spec = args
-        .scene
-        .clone()
-        .unwrap_or_else(|| DEFAULT_SCENE.to_string());
+    // The bundled scene is recorded by its name, not by where it was unpacked.
+    let mut bundled = None;
+    let (path, spec) = match &args.scene {
+        Some(s) => (s.clone(), s.clone()),
+        None => {
+            let b: &BundledScene = bundled.insert(bundled_scene()?);
+            (b.path.clone(), format!("{DEFAULT_SCENE} (bundled)"))
+        }
+    };
     let sargs = SceneArgs {
-        scene: spec.clone(),
+        scene: path,
         fps: None,
         animation: None,
     };
@@ -573,6 +605,9 @@ fn cbvh_step(scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<CbvhRow>> {
 /// Image size of the demo's renders (a quarter of [P4]'s 1280x720, to stay quick).
 const DEMO_RENDER_SIZE: (u32, u32) = (640, 360);
 
+/// Samples per pixel of the demo's diffuse picture (`render-diffuse.png`).
+const DEMO_DIFFUSE_SPP: u32 = 16;
+
 /// Image size of the demo's accelerator step.
 const DEMO_ACCELERATOR_SIZE: (u32, u32) = (320, 180);
 
@@ -708,7 +743,24 @@ fn render_step(
                         _ => "render-primary",
                     };
                     let p = out.join(format!("{name}.png"));
-                    trace::image::write_color_png(&p, &img)?;
+                    if kind == RayKind::Diffuse {
+                        // The picture: more samples per pixel, smoothed across pixels
+                        // of similar depth, exposed from its own luminance (the
+                        // counters printed are the first sample's).
+                        let mut picture = img.clone();
+                        super::render::add_samples(
+                            accel,
+                            shading,
+                            &settings,
+                            &mut picture,
+                            DEMO_DIFFUSE_SPP,
+                        )?;
+                        super::render::denoise(&mut picture);
+                        super::render::expose(&mut picture);
+                        trace::image::write_color_png(&p, &picture)?;
+                    } else {
+                        trace::image::write_color_png(&p, &img)?;
+                    }
                     image = Some(p.display().to_string());
                     if kind == RayKind::Primary {
                         let h = out.join("heatmap-primary.png");

@@ -54,9 +54,10 @@ pub fn check_seconds(flag: &str, t: Option<f32>) -> anyhow::Result<()> {
     Ok(())
 }
 
-/// The scene time the `--time T` / `--frame N` options of every command select: `T`
-/// clamped to the timeline, or frame `N`'s time, or 0; a non-finite `T` or a frame past the
-/// last is a one-line error. The one place these options are interpreted.
+/// The scene time the `--time T` / `--frame N` options of every command select: `T`, or
+/// frame `N`'s time, or 0; a non-finite `T`, a `T` outside the timeline (0 to the
+/// animation's length; 0 for a static scene) or a frame past the last is a one-line error.
+/// The one place these options are interpreted.
 pub fn resolve_time(
     info: &scene::SceneInfo,
     time: Option<f32>,
@@ -69,6 +70,22 @@ pub fn resolve_time(
             f < frames,
             "--frame {f} is out of range: the scene has {frames} frame(s)"
         );
+    }
+    if let Some(t) = time {
+        let end = info.timeline.duration_s.max(0.0);
+        // A little slack for times written with a few decimals.
+        let slack = 1e-4 * end.max(1.0);
+        if end > 0.0 {
+            anyhow::ensure!(
+                (-slack..=end + slack).contains(&t),
+                "--time {t} is out of range: the scene's animation runs from 0 to {end} s"
+            );
+        } else {
+            anyhow::ensure!(
+                t.abs() <= slack,
+                "--time {t} is out of range: the scene is static (time 0 only)"
+            );
+        }
     }
     Ok(match (time, frame) {
         (Some(t), _) => info.timeline.clamp(t),

@@ -20,6 +20,97 @@ use trace::{Accel, KernelOptions, RayKind, RayStats, RenderSettings, Traverse};
 /// Largest `--width`/`--height`.
 pub const MAX_SIDE: u32 = 16_384;
 
+/// Averages `spp - 1` more samples per pixel (seeds `settings.seed + 1`, ...) into the
+/// colours of `img`, a diffuse render of `settings` with `accel`; its depth buffer,
+/// counters and statistics stay those of the first sample.
+pub fn add_samples<T: trace::Traverse>(
+    accel: &T,
+    shading: trace::Shading<'_>,
+    settings: &RenderSettings,
+    img: &mut trace::Render,
+    spp: u32,
+) -> anyhow::Result<()> {
+    if spp <= 1 {
+        return Ok(());
+    }
+    let mut sum: Vec<[f64; 3]> = img.color.iter().map(|c| c.map(|x| x as f64)).collect();
+    for k in 1..spp {
+        let s = RenderSettings {
+            seed: settings.seed.wrapping_add(k as u64),
+            ..settings.clone()
+        };
+        let more = trace::render(accel, shading, &s, None, None).context("rendering failed")?;
+        for (acc, c) in sum.iter_mut().zip(&more.color) {
+            for i in 0..3 {
+                acc[i] += c[i] as f64;
+            }
+        }
+    }
+    for (c, acc) in img.color.iter_mut().zip(&sum) {
+        *c = acc.map(|x| (x / spp as f64) as f32);
+    }
+    Ok(())
+}
+
+/// Smooths a diffuse render's noise: each pixel that hit the scene becomes the mean of the
+/// pixels within 2 of it (a 5x5 window) whose primary hit lies at a depth within 3% of
+/// its own, so that edges between surfaces at different depths stay sharp. The backdrop
+/// is left alone.
+pub fn denoise(img: &mut trace::Render) {
+    let (w, h) = (img.width as usize, img.height as usize);
+    let src = img.color.clone();
+    for y in 0..h {
+        for x in 0..w {
+            let i = y * w + x;
+            let d = img.depth[i];
+            if !d.is_finite() {
+                continue;
+            }
+            let (mut acc, mut n) = ([0.0f32; 3], 0u32);
+            for yy in y.saturating_sub(2)..(y + 3).min(h) {
+                for xx in x.saturating_sub(2)..(x + 3).min(w) {
+                    let j = yy * w + xx;
+                    if (img.depth[j] - d).abs() <= 0.03 * d {
+                        for c in 0..3 {
+                            acc[c] += src[j][c];
+                        }
+                        n += 1;
+                    }
+                }
+            }
+            img.color[i] = acc.map(|a| a / n as f32);
+        }
+    }
+}
+
+/// Mean luminance of the pixels a diffuse picture is exposed to ([`expose`]).
+pub const EXPOSURE_TARGET: f32 = 0.3;
+
+/// Exposes a diffuse render's picture from its own luminance: scales the colours of the
+/// pixels whose primary ray hit the scene (not the backdrop) so that their mean luminance
+/// is [`EXPOSURE_TARGET`], brightening by at most 16 times and never darkening (a scene
+/// lit through a window is mostly dark at first). Returns the factor.
+pub fn expose(img: &mut trace::Render) -> f32 {
+    let lum = |c: &[f32; 3]| 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2];
+    let (mut sum, mut n) = (0.0f64, 0u64);
+    for (c, d) in img.color.iter().zip(&img.depth) {
+        if d.is_finite() {
+            sum += lum(c) as f64;
+            n += 1;
+        }
+    }
+    if n == 0 || sum <= 0.0 {
+        return 1.0;
+    }
+    let k = (EXPOSURE_TARGET / (sum / n as f64) as f32).clamp(1.0, 16.0);
+    for (c, d) in img.color.iter_mut().zip(&img.depth) {
+        if d.is_finite() {
+            *c = c.map(|x| x * k);
+        }
+    }
+    k
+}
+
 /// Arguments of `arbor render`.
 #[derive(clap::Args, Debug)]
 pub struct RenderArgs {
@@ -38,7 +129,7 @@ pub struct RenderArgs {
     /// Compression of `--format cbvh`.
     #[command(flatten)]
     cbvh: CbvhOptions,
-    /// Rays: primary, diffuse (path tracing, 1 sample per pixel) or shadow (primary plus
+    /// Rays: primary, diffuse (path tracing, --spp samples per pixel) or shadow (primary plus
     /// one occlusion ray per hit).
     #[arg(long, value_name = "KIND", default_value = "primary")]
     rays: String,
@@ -69,6 +160,14 @@ pub struct RenderArgs {
     /// Vertical field of view in degrees.
     #[arg(long, value_name = "DEG")]
     fov: Option<f32>,
+    /// Samples per pixel of the diffuse image (seeds SEED, SEED+1, ...); the statistics,
+    /// depth buffer, heatmap and log are those of the first sample.
+    #[arg(long, value_name = "N", default_value_t = 1)]
+    spp: u32,
+    /// Write the diffuse image as traced: no smoothing of the noise across pixels of
+    /// similar depth and no exposure from the image's luminance.
+    #[arg(long)]
+    raw: bool,
     /// Sampling seed (diffuse rays).
     #[arg(long, default_value_t = 1)]
     seed: u64,
@@ -427,6 +526,11 @@ pub fn run(a: &RenderArgs, ui: &Ui) -> anyhow::Result<()> {
         );
     }
     anyhow::ensure!(
+        (1..=1024).contains(&a.spp),
+        "--spp must be between 1 and 1024, got {}",
+        a.spp
+    );
+    anyhow::ensure!(
         (1..=MAX_SIDE).contains(&a.width) && (1..=MAX_SIDE).contains(&a.height),
         "--width and --height must be between 1 and {MAX_SIDE}, got {}x{}",
         a.width,
@@ -581,7 +685,15 @@ pub fn run(a: &RenderArgs, ui: &Ui) -> anyhow::Result<()> {
     let img =
         pool.install(|| trace::render(&accel, shading, &settings, log.as_mut(), Some(&progress)));
     bar.finish();
-    let img = img.context("rendering failed")?;
+    let mut img = img.context("rendering failed")?;
+    if kind == RayKind::Diffuse {
+        let _s = (a.spp > 1).then(|| ui.spinner(&format!("{} more samples per pixel", a.spp - 1)));
+        pool.install(|| add_samples(&accel, shading, &settings, &mut img, a.spp))?;
+        if !a.raw {
+            denoise(&mut img);
+            expose(&mut img);
+        }
+    }
     let log_bytes = match log {
         Some(w) => Some(w.finish().context("cannot finish the traversal log")?),
         None => None,
@@ -757,5 +869,54 @@ fn print_text(j: &RenderJson) {
             b as f64 / (1024.0 * 1024.0),
             b as f64 / j.rays.max(1) as f64
         );
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A 4x1 render: two backdrop pixels, then two hits at different depths.
+    fn strip(color: [[f32; 3]; 4], depth: [f32; 4]) -> trace::Render {
+        trace::Render {
+            width: 4,
+            height: 1,
+            color: color.to_vec(),
+            depth: depth.to_vec(),
+            prim: vec![0; 4],
+            node_visits: vec![0; 4],
+            tri_tests: vec![0; 4],
+            stats: Default::default(),
+        }
+    }
+
+    #[test]
+    fn exposure_brightens_the_scene_not_the_backdrop() {
+        let inf = f32::INFINITY;
+        let mut img = strip(
+            [[0.1; 3], [0.1; 3], [0.01; 3], [0.03; 3]],
+            [inf, inf, 1.0, 1.0],
+        );
+        let k = expose(&mut img);
+        assert!((k - 15.0).abs() < 1e-3, "{k}");
+        assert_eq!(img.color[0], [0.1; 3]);
+        assert!((img.color[2][0] - 0.15).abs() < 1e-4 && (img.color[3][0] - 0.45).abs() < 1e-4);
+        // Never darker: a bright image stays as it is.
+        let mut img = strip([[0.9; 3]; 4], [1.0; 4]);
+        assert_eq!(expose(&mut img), 1.0);
+        assert_eq!(img.color[0], [0.9; 3]);
+    }
+
+    #[test]
+    fn denoise_averages_within_a_surface_only() {
+        let inf = f32::INFINITY;
+        let mut img = strip(
+            [[0.5; 3], [0.0; 3], [1.0; 3], [9.0; 3]],
+            [inf, 1.0, 1.0, 5.0],
+        );
+        denoise(&mut img);
+        // The backdrop is untouched; the two pixels at depth 1 share their mean; the
+        // pixel at depth 5 keeps its own colour.
+        assert_eq!(img.color, vec![[0.5; 3], [0.5; 3], [0.5; 3], [9.0; 3]]);
     }
 }

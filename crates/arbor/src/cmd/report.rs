@@ -51,9 +51,50 @@ pub fn run(a: &ReportArgs, ui: &Ui) -> anyhow::Result<()> {
     }
 }
 
-/// The folder of the shared real scenes, `../shared/scenes` beside the repository (the
-/// default of every report's `--scene-dir`).
-pub const SHARED_SCENES: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../../shared/scenes");
+/// The default of every report's `--scene-dir` (`default_value = SHARED_SCENES`): the
+/// folder [`shared_scenes`] finds when the command line is parsed.
+pub const SHARED_SCENES: SharedScenes = SharedScenes;
+
+/// See [`SHARED_SCENES`].
+#[derive(Clone, Copy, Debug)]
+pub struct SharedScenes;
+
+impl clap::builder::IntoResettable<clap::builder::OsStr> for SharedScenes {
+    fn into_resettable(self) -> clap::builder::Resettable<clap::builder::OsStr> {
+        static DIR: std::sync::OnceLock<&'static str> = std::sync::OnceLock::new();
+        let dir = DIR.get_or_init(|| {
+            let s = shared_scenes().display().to_string();
+            Box::leak(s.into_boxed_str())
+        });
+        clap::builder::Resettable::Value((*dir).into())
+    }
+}
+
+/// The folder of the shared real scenes (`--scene-dir`'s default), found at run time: the
+/// environment variable `ARBOR_SCENE_DIR` if it is set; else the nearest `shared/scenes`
+/// folder in or above the current folder (`../shared/scenes` from the repository's root),
+/// else in or above the folder of the `arbor` executable; else `../shared/scenes`.
+pub fn shared_scenes() -> std::path::PathBuf {
+    if let Some(d) = std::env::var_os("ARBOR_SCENE_DIR").filter(|d| !d.is_empty()) {
+        return d.into();
+    }
+    let exe_dir = std::env::current_exe()
+        .ok()
+        .and_then(|e| e.parent().map(Path::to_path_buf));
+    for start in [std::env::current_dir().ok(), exe_dir]
+        .into_iter()
+        .flatten()
+    {
+        if let Some(d) = start
+            .ancestors()
+            .map(|a| a.join("shared").join("scenes"))
+            .find(|d| d.is_dir())
+        {
+            return d;
+        }
+    }
+    Path::new("..").join("shared").join("scenes")
+}
 
 /// Cameras inside the architectural scenes of `shared/scenes` (their default cameras frame
 /// them from outside, where a ray sees a few walls): (scene, eye, target, vertical field
@@ -115,24 +156,12 @@ pub fn write_file(dir: &Path, name: &str, text: &str) -> anyhow::Result<()> {
     write_atomic(&dir.join(name), text)
 }
 
-/// Writes `text` to `path` atomically: a temporary file in the same folder is written,
-/// synced and renamed over the destination, so an existing file is never left
-/// half-written.
+/// Writes `text` to `path` atomically: a temporary file in the same folder
+/// ([`trace::image::temp_file_beside`], with ordinary permissions) is written, synced and
+/// renamed over the destination, so an existing file is never left half-written.
 pub fn write_atomic(path: &Path, text: &str) -> anyhow::Result<()> {
     let fail = || format!("cannot write {}", path.display());
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    let mut tb = tempfile::Builder::new();
-    tb.prefix(".arbor-").suffix(".tmp");
-    // Temporary files are private (0600); the result gets ordinary permissions.
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        tb.permissions(std::fs::Permissions::from_mode(0o666));
-    }
-    let mut tmp = tb.tempfile_in(dir).with_context(fail)?;
+    let mut tmp = trace::image::temp_file_beside(path, ".arbor-").with_context(fail)?;
     tmp.write_all(text.as_bytes()).with_context(fail)?;
     tmp.as_file().sync_all().with_context(fail)?;
     tmp.persist(path).map_err(|e| e.error).with_context(fail)?;
