@@ -50,7 +50,7 @@ mod tests;
 mod tree;
 
 pub use config::{sized_fifo, ConfigError, RtConfig, TreeKind, FIFO_CLASSES, KEYS};
-pub use model::RayResult;
+pub use model::{RayResult, TrafficSplit};
 pub use tree::TreeImage;
 
 use std::time::Instant;
@@ -210,6 +210,9 @@ pub struct RtReport {
     /// DRAM traffic of the whole frame in MB (1e6 bytes): exact with `sample` = 1; for a
     /// sampled run the counted bytes per timed pixel times the frame's pixels.
     pub frame_dram_mb: f64,
+    /// `counted_dram_bytes` split into first touches (a line's first fetch in the run) and
+    /// re-fetches (after eviction), of node lines and triangle lines.
+    pub traffic_split: TrafficSplit,
     /// Fraction of the data bus's peak used.
     pub bus_utilization: f64,
     /// Deepest stack of any ray (entries).
@@ -236,6 +239,8 @@ pub struct RtReport {
     pub fifos: Vec<FifoFigures>,
     /// Nodes of the tree.
     pub tree_nodes: usize,
+    /// Leaves of the tree (leaf child slots).
+    pub tree_leaves: u64,
     /// Bytes of the tree's memory image (nodes and triangles).
     pub tree_bytes: u64,
     /// The memory system's counts.
@@ -267,6 +272,14 @@ pub enum Mbvh4Build {
     /// The binned SAH binary tree collapsed to 4 wide (same leaves as the BVH2): a what-if
     /// that separates the node layout from the builder.
     Collapse,
+    /// Wald's top-down builder with the 4-wide node cost in its leaf decision
+    /// ([`bvh::Mbvh4TopDownBuilder::wide_node_cost`]).
+    TopdownCost,
+    /// The binned SAH tree collapsed SAH-optimally (same leaves, [`bvh::collapse_sah_optimal`]).
+    CollapseSah,
+    /// The binned SAH tree collapsed into the fewest nodes its leaves allow
+    /// ([`bvh::CollapseGoal::FewestNodes`]).
+    CollapseFill,
 }
 
 /// Builds `kind` over `triangles` as \[P4\] §3.2 does: binned SAH for BVH, Wald's top-down
@@ -301,6 +314,26 @@ pub fn build_tree_with(
         (TreeKind::Mbvh4, Mbvh4Build::Collapse) => {
             bvh::Tree::Mbvh4(bvh::collapse(&binned()?).map_err(|e| tree_err(&e))?)
         }
+        (TreeKind::Mbvh4, Mbvh4Build::TopdownCost) => bvh::Tree::Mbvh4(
+            bvh::Mbvh4TopDownBuilder {
+                wide_node_cost: true,
+                ..Default::default()
+            }
+            .build(&aabbs)
+            .map_err(|e| tree_err(&e))?,
+        ),
+        (TreeKind::Mbvh4, Mbvh4Build::CollapseSah) => bvh::Tree::Mbvh4(
+            bvh::collapse_sah_optimal(&binned()?, &bvh::SahParams::THESIS)
+                .map_err(|e| tree_err(&e))?,
+        ),
+        (TreeKind::Mbvh4, Mbvh4Build::CollapseFill) => bvh::Tree::Mbvh4(
+            bvh::collapse_optimal(
+                &binned()?,
+                &bvh::SahParams::THESIS,
+                bvh::CollapseGoal::FewestNodes,
+            )
+            .map_err(|e| tree_err(&e))?,
+        ),
     };
     tree_from(kind, tree, triangles)
 }
@@ -584,6 +617,8 @@ pub(crate) fn run_with(
         results: Vec::new(),
         issued: Vec::new(),
         counted_bytes: 0,
+        fetched: Default::default(),
+        split: TrafficSplit::default(),
         window_rays: 0,
         window_cycles: 0,
         counted_rays: 0,
@@ -737,6 +772,7 @@ pub(crate) fn run_with(
         dram_bytes_written: memory.bytes_written,
         counted_dram_bytes: world.counted_bytes,
         frame_dram_mb: frame_bytes / 1e6,
+        traffic_split: world.split,
         bus_utilization: if cycles > 0 {
             bytes as f64 / (peak * cycles as f64)
         } else {
@@ -754,6 +790,13 @@ pub(crate) fn run_with(
         units,
         fifos,
         tree_nodes: tree.image.node_count(),
+        tree_leaves: (0..tree.image.node_count() as u32)
+            .map(|n| {
+                let mut k = 0u64;
+                tree.image.for_children(n, |_, c| k += c.is_leaf() as u64);
+                k
+            })
+            .sum(),
         tree_bytes: tree.image.bytes(),
         memory,
         memory_name,
