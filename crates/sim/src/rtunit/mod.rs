@@ -500,6 +500,42 @@ pub(crate) fn plan(width: u32, height: u32, sample: u32) -> Plan {
     Plan { pixels, tiles }
 }
 
+/// [`plan`] with the camera rays in scanline order: row-major pixels in groups of
+/// `TILE * TILE` consecutive pixels, which the sampling plan treats as its tiles.
+pub(crate) fn plan_scanline(width: u32, height: u32, sample: u32) -> Plan {
+    let k = sample.max(1) as u64;
+    let n = width as usize * height as usize;
+    let group = (TILE * TILE) as usize;
+    let groups = n.div_ceil(group);
+    let chunks = (groups as u64).div_ceil(SAMPLE_CHUNK_TILES as u64);
+    let pixels: Vec<u32> = (0..n as u32).collect();
+    let mut tiles = Vec::with_capacity(groups);
+    for t in 0..groups {
+        let c = (t as u64) / SAMPLE_CHUNK_TILES as u64;
+        let g = c / k;
+        let run_len = k.min(chunks - g * k);
+        let timed = c % k == trace::sampling::mix64(g) % run_len;
+        let mode = if timed {
+            TileMode::Timed
+        } else {
+            TileMode::Gap
+        };
+        tiles.push((t * group, mode));
+    }
+    let mut lead = 0;
+    for t in tiles.iter_mut().rev() {
+        match t.1 {
+            TileMode::Timed => lead = SAMPLE_LEAD_TILES,
+            _ if lead > 0 => {
+                t.1 = TileMode::Lead;
+                lead -= 1;
+            }
+            _ => {}
+        }
+    }
+    Plan { pixels, tiles }
+}
+
 fn cache(
     name: &str,
     size: u64,
@@ -589,7 +625,8 @@ pub(crate) fn run_with(
     let l1s = (0..n)
         .map(|_| cache("l1", cfg.l1_bytes, node_line, 1, 1, cfg))
         .collect::<Result<Vec<_>, _>>()?;
-    let source = RaySource::new(work, tree.image.root(), plan(width, height, work.sample));
+    let order = if cfg.scanline { plan_scanline } else { plan };
+    let source = RaySource::new(work, tree.image.root(), order(width, height, work.sample));
     let scheduler = model::Scheduler::new(cfg, &source.plan);
     let mut world = RtWorld {
         mem: Memory::new(port),

@@ -923,3 +923,26 @@ fn first_touches_do_not_depend_on_the_caches_and_re_fetches_need_evictions() {
         assert!(hs.triangle_first_bytes > 0 && hs.triangle_first_bytes <= tri_bytes + line);
     }
 }
+
+/// Scanline order issues every pixel once, row by row, in groups of 64 with the same
+/// sampling modes as tiles; a run in that order gives the software hits, and its first
+/// touches (the distinct lines the rays read) equal the tile order's.
+#[test]
+fn scanline_order_covers_the_frame_and_keeps_first_touches() {
+    let p = plan_scanline(20, 10, 1);
+    assert_eq!(p.pixels, (0..200).collect::<Vec<u32>>());
+    assert_eq!(p.tiles.len(), 4);
+    assert!(p.tiles.iter().all(|t| t.1 == TileMode::Timed));
+    let (tris, cam) = scene("proc:hairball?n=2000&seed=3", 32, 24);
+    let tree = build_tree(TreeKind::Bvh2, &tris).unwrap();
+    let w = work(&tris, &cam, RayMode::Primary);
+    let tile = run(&tree, &w, &RtConfig::default()).unwrap();
+    let mut cfg = RtConfig::default();
+    cfg.set("scanline", "true").unwrap();
+    let scan = run(&tree, &w, &cfg).unwrap();
+    assert!(scan.hits_match_software);
+    assert_eq!(scan.rays, tile.rays);
+    let (a, b) = (tile.traffic_split, scan.traffic_split);
+    assert_eq!(a.node_first_bytes, b.node_first_bytes);
+    assert_eq!(a.triangle_first_bytes, b.triangle_first_bytes);
+}
