@@ -38,6 +38,17 @@ fn json_has_the_documented_fields() {
                 assert!(j[k].is_number(), "{k}: {}", j[k]);
             }
             assert_eq!(j["hits_match_software"], true);
+            let split = &j["traffic_split"];
+            let parts: u64 = [
+                "node_first_bytes",
+                "node_refetch_bytes",
+                "triangle_first_bytes",
+                "triangle_refetch_bytes",
+            ]
+            .iter()
+            .map(|k| split[k].as_u64().unwrap())
+            .sum();
+            assert_eq!(parts, j["counted_dram_bytes"].as_u64().unwrap());
             assert!(j["rays"].as_u64().unwrap() >= 48 * 32);
             assert!(j["dram_bytes_read"].as_u64().unwrap() > 0);
             let caches = j["caches"].as_array().unwrap();

@@ -250,7 +250,7 @@ pub fn collapse(bvh: &Bvh2) -> Result<Mbvh4, CollapseError> {
 
 /// Checks that every inner link points after its parent and inside the array, and that
 /// every leaf range lies inside the leaf table.
-fn check_links(bvh: &Bvh2) -> Result<(), CollapseError> {
+pub(crate) fn check_links(bvh: &Bvh2) -> Result<(), CollapseError> {
     let n = bvh.nodes.len();
     for (i, node) in bvh.nodes.iter().enumerate() {
         for (slot, c) in node.children.iter().enumerate() {

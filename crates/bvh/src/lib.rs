@@ -12,6 +12,7 @@ mod atrbvh;
 mod binned_sah;
 mod bvh2;
 mod collapse;
+mod collapse_sah;
 mod error;
 mod frag;
 mod hlbvh;
@@ -36,6 +37,7 @@ pub use binned_sah::SortedSplitBench;
 pub use binned_sah::{BinnedSahBuilder, MAX_BINS};
 pub use bvh2::{Bvh2, TreeStats};
 pub use collapse::{collapse, Collapse, CollapseError, WideBvh, WideNode};
+pub use collapse_sah::{collapse_optimal, collapse_sah_optimal, CollapseGoal};
 pub use error::{BuildError, MAX_PRIMITIVES};
 pub use geom::MortonGrid;
 pub use hlbvh::{

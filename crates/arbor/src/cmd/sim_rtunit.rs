@@ -23,8 +23,11 @@ pub struct RtunitArgs {
     /// for bvh2 and cbvh, a 4-wide one for mbvh4), e.g. hlbvh for MergeTree's trees.
     #[arg(long, value_name = "NAME")]
     builder: Option<String>,
-    /// How the mbvh4 tree is built: topdown (Wald's top-down builder, thesis P4 3.2) or
-    /// collapse (the binned SAH tree collapsed to 4 wide: the same leaves as bvh2).
+    /// How the mbvh4 tree is built: topdown (Wald's top-down builder, thesis P4 3.2),
+    /// topdown-cost (the same with the 4-wide node cost in its leaf decision), collapse
+    /// (the binned SAH tree collapsed greedily to 4 wide: the same leaves as bvh2),
+    /// collapse-sah (collapsed SAH-optimally) or collapse-fill (collapsed into the fewest
+    /// nodes).
     #[arg(long, default_value = "topdown")]
     mbvh4_builder: String,
     /// Rays: primary or diffuse (1 sample per pixel, --bounces diffuse bounces).
@@ -46,6 +49,9 @@ pub struct RtunitArgs {
     /// Sampling seed of the diffuse bounces.
     #[arg(long, default_value_t = 1)]
     seed: u64,
+    /// Vertical field of view in degrees, replacing the view's (e.g. a narrower view).
+    #[arg(long, value_name = "DEGREES")]
+    fov: Option<f32>,
     /// Time at which to sample the scene, in seconds.
     #[arg(long, value_name = "SECONDS")]
     time: Option<f32>,
@@ -88,7 +94,12 @@ fn options_of(a: &RtunitArgs) -> anyhow::Result<(TreeKind, RayMode, rtunit::Mbvh
     let mbvh4 = match a.mbvh4_builder.as_str() {
         "topdown" => rtunit::Mbvh4Build::Topdown,
         "collapse" => rtunit::Mbvh4Build::Collapse,
-        other => anyhow::bail!("unknown --mbvh4-builder '{other}' (known: topdown, collapse)"),
+        "topdown-cost" => rtunit::Mbvh4Build::TopdownCost,
+        "collapse-sah" => rtunit::Mbvh4Build::CollapseSah,
+        "collapse-fill" => rtunit::Mbvh4Build::CollapseFill,
+        other => anyhow::bail!(
+            "unknown --mbvh4-builder '{other}' (known: topdown, topdown-cost, collapse, collapse-sah, collapse-fill)"
+        ),
     };
     let cfg = config_of(a)?;
     cfg.validate(kind)?;
@@ -121,7 +132,15 @@ pub fn run_rtunit(a: &RtunitArgs, ui: &Ui) -> anyhow::Result<()> {
         .with_context(|| format!("cannot sample the scene at t = {t} s"))?;
     let triangles: Vec<Triangle> = mesh.triangles_iter().collect();
     // The interior view reports use for the scenes that have one (crytek-sponza, ...).
-    let view = super::report::view_camera(&super::report::short_name(&a.scene.scene), info.camera);
+    let mut view =
+        super::report::view_camera(&super::report::short_name(&a.scene.scene), info.camera);
+    if let Some(fov) = a.fov {
+        anyhow::ensure!(
+            fov.is_finite() && fov > 0.0 && fov < 180.0,
+            "--fov must lie between 0 and 180 degrees, got {fov}"
+        );
+        view.vfov_deg = fov;
+    }
     let camera = trace::PinholeCamera::new(&view, a.width, a.height)?;
     let tree = {
         let _s = ui.spinner(&format!(
@@ -214,6 +233,14 @@ fn print_report(r: &RtReport, first: Option<&RtReport>) {
         } else {
             ""
         }
+    );
+    let ts = &r.traffic_split;
+    println!(
+        "  counted DRAM bytes: nodes {:.2} MB first touches + {:.2} MB re-fetches, triangles {:.2} MB + {:.2} MB",
+        ts.node_first_bytes as f64 / 1e6,
+        ts.node_refetch_bytes as f64 / 1e6,
+        ts.triangle_first_bytes as f64 / 1e6,
+        ts.triangle_refetch_bytes as f64 / 1e6
     );
     println!(
         "  {} node visits, {} box tests, {} triangle tests; loops after misses: TRV {}, IST {}",

@@ -155,6 +155,9 @@ pub struct RtConfig {
     /// cycles longer (Arbor's assumption: 1, one stack read per cycle; 0 = free culling,
     /// the earlier model).
     pub cull_cycles_per_entry: u64,
+    /// Issue camera rays in scanline order (row by row, in groups of 64 pixels for the
+    /// sampling plan) instead of 8x8 tiles (issue 31 part 4's what-if; default false).
+    pub scanline: bool,
 }
 
 /// The FIFO classes of [`RtConfig::fifo_sizes`], in order.
@@ -211,6 +214,7 @@ pub const KEYS: &[&str] = &[
     "l2_ports",
     "fill_ports",
     "cull_cycles_per_entry",
+    "scanline",
 ];
 
 impl Default for RtConfig {
@@ -248,6 +252,7 @@ impl Default for RtConfig {
             l2_ports: 1,
             fill_ports: 1,
             cull_cycles_per_entry: 1,
+            scanline: false,
         }
     }
 }
@@ -319,6 +324,13 @@ impl RtConfig {
             }
             "trv_block_stalls" => {
                 self.trv_block_stalls = match value {
+                    "true" | "1" | "yes" | "on" => true,
+                    "false" | "0" | "no" | "off" => false,
+                    _ => return Err(bad("expected true or false")),
+                }
+            }
+            "scanline" => {
+                self.scanline = match value {
                     "true" | "1" | "yes" | "on" => true,
                     "false" | "0" | "no" | "off" => false,
                     _ => return Err(bad("expected true or false")),

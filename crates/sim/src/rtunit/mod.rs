@@ -52,7 +52,7 @@ mod tests_limits;
 mod tree;
 
 pub use config::{sized_fifo, ConfigError, RtConfig, TreeKind, FIFO_CLASSES, KEYS};
-pub use model::RayResult;
+pub use model::{RayResult, TrafficSplit};
 pub use tree::TreeImage;
 
 use std::time::Instant;
@@ -212,6 +212,9 @@ pub struct RtReport {
     /// DRAM traffic of the whole frame in MB (1e6 bytes): exact with `sample` = 1; for a
     /// sampled run the counted bytes per timed pixel times the frame's pixels.
     pub frame_dram_mb: f64,
+    /// `counted_dram_bytes` split into first touches (a line's first fetch in the run) and
+    /// re-fetches (after eviction), of node lines and triangle lines.
+    pub traffic_split: TrafficSplit,
     /// Fraction of the data bus's peak used.
     pub bus_utilization: f64,
     /// Deepest stack of any ray (entries).
@@ -238,6 +241,8 @@ pub struct RtReport {
     pub fifos: Vec<FifoFigures>,
     /// Nodes of the tree.
     pub tree_nodes: usize,
+    /// Leaves of the tree (leaf child slots).
+    pub tree_leaves: u64,
     /// Bytes of the tree's memory image (nodes and triangles).
     pub tree_bytes: u64,
     /// The memory system's counts.
@@ -269,6 +274,14 @@ pub enum Mbvh4Build {
     /// The binned SAH binary tree collapsed to 4 wide (same leaves as the BVH2): a what-if
     /// that separates the node layout from the builder.
     Collapse,
+    /// Wald's top-down builder with the 4-wide node cost in its leaf decision
+    /// ([`bvh::Mbvh4TopDownBuilder::wide_node_cost`]).
+    TopdownCost,
+    /// The binned SAH tree collapsed SAH-optimally (same leaves, [`bvh::collapse_sah_optimal`]).
+    CollapseSah,
+    /// The binned SAH tree collapsed into the fewest nodes its leaves allow
+    /// ([`bvh::CollapseGoal::FewestNodes`]).
+    CollapseFill,
 }
 
 /// Builds `kind` over `triangles` as \[P4\] §3.2 does: binned SAH for BVH, Wald's top-down
@@ -303,6 +316,26 @@ pub fn build_tree_with(
         (TreeKind::Mbvh4, Mbvh4Build::Collapse) => {
             bvh::Tree::Mbvh4(bvh::collapse(&binned()?).map_err(|e| tree_err(&e))?)
         }
+        (TreeKind::Mbvh4, Mbvh4Build::TopdownCost) => bvh::Tree::Mbvh4(
+            bvh::Mbvh4TopDownBuilder {
+                wide_node_cost: true,
+                ..Default::default()
+            }
+            .build(&aabbs)
+            .map_err(|e| tree_err(&e))?,
+        ),
+        (TreeKind::Mbvh4, Mbvh4Build::CollapseSah) => bvh::Tree::Mbvh4(
+            bvh::collapse_sah_optimal(&binned()?, &bvh::SahParams::THESIS)
+                .map_err(|e| tree_err(&e))?,
+        ),
+        (TreeKind::Mbvh4, Mbvh4Build::CollapseFill) => bvh::Tree::Mbvh4(
+            bvh::collapse_optimal(
+                &binned()?,
+                &bvh::SahParams::THESIS,
+                bvh::CollapseGoal::FewestNodes,
+            )
+            .map_err(|e| tree_err(&e))?,
+        ),
     };
     tree_from(kind, tree, triangles)
 }
@@ -469,6 +502,42 @@ pub(crate) fn plan(width: u32, height: u32, sample: u32) -> Plan {
     Plan { pixels, tiles }
 }
 
+/// [`plan`] with the camera rays in scanline order: row-major pixels in groups of
+/// `TILE * TILE` consecutive pixels, which the sampling plan treats as its tiles.
+pub(crate) fn plan_scanline(width: u32, height: u32, sample: u32) -> Plan {
+    let k = sample.max(1) as u64;
+    let n = width as usize * height as usize;
+    let group = (TILE * TILE) as usize;
+    let groups = n.div_ceil(group);
+    let chunks = (groups as u64).div_ceil(SAMPLE_CHUNK_TILES as u64);
+    let pixels: Vec<u32> = (0..n as u32).collect();
+    let mut tiles = Vec::with_capacity(groups);
+    for t in 0..groups {
+        let c = (t as u64) / SAMPLE_CHUNK_TILES as u64;
+        let g = c / k;
+        let run_len = k.min(chunks - g * k);
+        let timed = c % k == trace::sampling::mix64(g) % run_len;
+        let mode = if timed {
+            TileMode::Timed
+        } else {
+            TileMode::Gap
+        };
+        tiles.push((t * group, mode));
+    }
+    let mut lead = 0;
+    for t in tiles.iter_mut().rev() {
+        match t.1 {
+            TileMode::Timed => lead = SAMPLE_LEAD_TILES,
+            _ if lead > 0 => {
+                t.1 = TileMode::Lead;
+                lead -= 1;
+            }
+            _ => {}
+        }
+    }
+    Plan { pixels, tiles }
+}
+
 fn cache(
     name: &str,
     size: u64,
@@ -558,7 +627,8 @@ pub(crate) fn run_with(
     let l1s = (0..n)
         .map(|_| cache("l1", cfg.l1_bytes, node_line, 1, 1, cfg))
         .collect::<Result<Vec<_>, _>>()?;
-    let source = RaySource::new(work, tree.image.root(), plan(width, height, work.sample));
+    let order = if cfg.scanline { plan_scanline } else { plan };
+    let source = RaySource::new(work, tree.image.root(), order(width, height, work.sample));
     let scheduler = model::Scheduler::new(cfg, &source.plan);
     let mut world = RtWorld {
         mem: Memory::new(port),
@@ -586,6 +656,8 @@ pub(crate) fn run_with(
         results: Vec::new(),
         issued: Vec::new(),
         counted_bytes: 0,
+        fetched: Default::default(),
+        split: TrafficSplit::default(),
         window_rays: 0,
         window_cycles: 0,
         counted_rays: 0,
@@ -739,6 +811,7 @@ pub(crate) fn run_with(
         dram_bytes_written: memory.bytes_written,
         counted_dram_bytes: world.counted_bytes,
         frame_dram_mb: frame_bytes / 1e6,
+        traffic_split: world.split,
         bus_utilization: if cycles > 0 {
             bytes as f64 / (peak * cycles as f64)
         } else {
@@ -756,6 +829,13 @@ pub(crate) fn run_with(
         units,
         fifos,
         tree_nodes: tree.image.node_count(),
+        tree_leaves: (0..tree.image.node_count() as u32)
+            .map(|n| {
+                let mut k = 0u64;
+                tree.image.for_children(n, |_, c| k += c.is_leaf() as u64);
+                k
+            })
+            .sum(),
         tree_bytes: tree.image.bytes(),
         memory,
         memory_name,

@@ -5,10 +5,11 @@
 //! shared node cache.
 
 use std::cmp::Reverse;
-use std::collections::{BinaryHeap, VecDeque};
+use std::collections::{BinaryHeap, HashSet, VecDeque};
 
 use bvh::ChildRef;
 use geom::{intersect_triangle_watertight, ray_aabb, Ray, RayPrecomp, Triangle};
+use serde::Serialize;
 use trace::sampling::Pcg32;
 use trace::{cull_distance, enters_own_box, Hit};
 
@@ -218,6 +219,10 @@ pub(crate) struct RtWorld<'a> {
     pub issued: Vec<u32>,
     /// DRAM bytes fetched for misses of counted rays.
     pub counted_bytes: u64,
+    /// Line addresses fetched from DRAM (or read by functional warming) so far in the run.
+    pub fetched: HashSet<u64>,
+    /// `counted_bytes` split into first touches and re-fetches, nodes and triangles.
+    pub split: TrafficSplit,
     /// Sampled runs: rays retired and cycles within the measurement windows (from the
     /// first retired counted ray of a timed chunk to its last).
     pub window_rays: u64,
@@ -234,6 +239,68 @@ pub(crate) struct RtWorld<'a> {
     pub max_depth: usize,
     pub stack_entries: usize,
     pub distance_stack: bool,
+}
+
+/// DRAM bytes fetched for misses of counted rays, split by what the line holds (nodes or
+/// triangles) and by whether the run fetched it before: a *first touch* is a line's first
+/// fetch in the run (lines read by functional warming count as fetched), a *re-fetch* is a
+/// later fetch of a line that was evicted meanwhile. The four sum to `counted_dram_bytes`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct TrafficSplit {
+    /// Node lines fetched for the first time.
+    pub node_first_bytes: u64,
+    /// Node lines fetched again after eviction.
+    pub node_refetch_bytes: u64,
+    /// Triangle lines fetched for the first time.
+    pub triangle_first_bytes: u64,
+    /// Triangle lines fetched again after eviction.
+    pub triangle_refetch_bytes: u64,
+}
+
+impl TrafficSplit {
+    /// The sum of the four.
+    pub fn total(&self) -> u64 {
+        self.node_first_bytes
+            + self.node_refetch_bytes
+            + self.triangle_first_bytes
+            + self.triangle_refetch_bytes
+    }
+}
+
+/// Records the DRAM fetch of `lines` (line addresses of `line_bytes` each): marks them
+/// fetched and, for a counted ray, adds their bytes to the first-touch or re-fetch count of
+/// nodes (`node`) or triangles.
+pub(crate) fn record_fetch(
+    fetched: &mut HashSet<u64>,
+    split: &mut TrafficSplit,
+    lines: &[Option<u64>; 2],
+    line_bytes: u32,
+    node: bool,
+    counted: bool,
+) {
+    for &line in lines.iter().flatten() {
+        let first = fetched.insert(line);
+        if !counted {
+            continue;
+        }
+        let b = line_bytes as u64;
+        match (node, first) {
+            (true, true) => split.node_first_bytes += b,
+            (true, false) => split.node_refetch_bytes += b,
+            (false, true) => split.triangle_first_bytes += b,
+            (false, false) => split.triangle_refetch_bytes += b,
+        }
+    }
+}
+
+/// Marks every line of `line_bytes` that `[addr, addr + bytes)` covers as fetched.
+fn mark_lines(fetched: &mut HashSet<u64>, addr: u64, bytes: u32, line_bytes: u32) {
+    let lb = line_bytes.max(1) as u64;
+    let mut line = addr / lb * lb;
+    while line < addr + bytes.max(1) as u64 {
+        fetched.insert(line);
+        line += lb;
+    }
 }
 
 impl World for RtWorld<'_> {
@@ -569,6 +636,7 @@ fn warm(
         prim: &'c mut Cache<u32>,
         tree: &'c TreeImage,
         node_bytes: u32,
+        fetched: &'c mut HashSet<u64>,
     }
     impl trace::Observer for Toucher<'_> {
         fn node(&mut self, node: u32, _valid: u8, _hit: u8) {
@@ -576,10 +644,15 @@ fn warm(
             if !self.l1.warm(a, self.node_bytes) {
                 self.l2.warm(a, self.node_bytes);
             }
+            let lb = self.l2.config().line_bytes;
+            mark_lines(self.fetched, a, self.node_bytes, lb);
         }
         fn leaf(&mut self, first: u32, count: u32) {
+            let lb = self.prim.config().line_bytes;
             for e in first..first + count {
-                self.prim.warm(self.tree.triangle_addr(e), TRIANGLE_BYTES);
+                let a = self.tree.triangle_addr(e);
+                self.prim.warm(a, TRIANGLE_BYTES);
+                mark_lines(self.fetched, a, TRIANGLE_BYTES, lb);
             }
         }
     }
@@ -595,6 +668,7 @@ fn warm(
             prim: &mut w.prim,
             tree: w.tree,
             node_bytes: w.tree.node_bytes(),
+            fetched: &mut w.fetched,
         };
         let mut slot = Some(w.source.primary(p));
         while let Some(mut s) = slot.take() {
@@ -1048,10 +1122,19 @@ impl<'a> Unit<RtWorld<'a>> for Ist {
                 }
                 a => {
                     if let Access::Miss { fetch } = a {
-                        if w.slots[s as usize].counted {
+                        let counted = w.slots[s as usize].counted;
+                        if counted {
                             let lines = fetch.iter().flatten().count() as u64;
                             w.counted_bytes += lines * self.line as u64;
                         }
+                        record_fetch(
+                            &mut w.fetched,
+                            &mut w.split,
+                            &fetch,
+                            self.line,
+                            false,
+                            counted,
+                        );
                         self.mem_q.extend(fetch.into_iter().flatten());
                         send_lines(&mut w.mem, cx, &mut self.mem_q, self.line);
                     }
@@ -1225,6 +1308,7 @@ impl<'a> Unit<RtWorld<'a>> for NodeL2 {
         self.peak_fills = self.peak_fills.max(handed as u64);
         let (cache, out, mem_q, miss) = (&mut w.l2, &mut self.out, &mut self.mem_q, &mut w.miss);
         let counted_bytes = &mut w.counted_bytes;
+        let (fetched, split) = (&mut w.fetched, &mut w.split);
         let line_bytes = self.line;
         let mut refused = false;
         let granted = self.rr.arbitrate(|t| {
@@ -1243,6 +1327,7 @@ impl<'a> Unit<RtWorld<'a>> for NodeL2 {
                     if counted {
                         *counted_bytes += fetch.iter().flatten().count() as u64 * line_bytes as u64;
                     }
+                    record_fetch(fetched, split, &fetch, line_bytes, true, counted);
                     mem_q.extend(fetch.into_iter().flatten())
                 }
                 Access::MergedMiss => {}

@@ -842,3 +842,107 @@ fn a_blocked_pipeline_costs_time_in_a_workload_and_skipping_stays_exact() {
     assert_ne!(old.cycles, a.cycles);
     assert!(old.hits_match_software);
 }
+
+// ---------------------------------------------------------------------------------------
+// Traffic split: first touches and re-fetches (issue 31 part 4)
+// ---------------------------------------------------------------------------------------
+
+/// One BVH2 root leaf of five walls (as in `the_ist_unit_tests_one_triangle_per_cycle`):
+/// every ray reads the root's 64-byte node line and the five triangles, 240 bytes at
+/// 4096 (the page after the nodes), which lie in one 256-byte primitive line. The caches
+/// keep both, so the run fetches each once: 64 + 256 bytes of first touches, nothing
+/// fetched again.
+#[test]
+fn the_traffic_split_of_one_root_leaf_is_one_line_of_each() {
+    let tris: Vec<Triangle> = (0..5).map(|_| wall(0.0)).collect();
+    let kind = TreeKind::Bvh2;
+    let tree = build_tree(kind, &tris).unwrap();
+    let mut cfg = RtConfig::default();
+    cfg.set("prim_line_bytes", "256").unwrap();
+    let cam = cam_at(30.0, 3, 2);
+    let r = run(&tree, &work(&tris, &cam, RayMode::Primary), &cfg).unwrap();
+    assert!(r.hits_match_software);
+    assert_eq!(r.tree_nodes, 1, "precondition: a root leaf");
+    assert_eq!(
+        r.traffic_split,
+        TrafficSplit {
+            node_first_bytes: 64,
+            node_refetch_bytes: 0,
+            triangle_first_bytes: 256,
+            triangle_refetch_bytes: 0,
+        }
+    );
+    assert_eq!(r.traffic_split.total(), r.counted_dram_bytes);
+}
+
+/// The split on a scene with evictions. First touches are the distinct lines the rays
+/// read, so they do not depend on the cache sizes: tiny caches and caches larger than the
+/// tree (no evictions, so no re-fetches) give the same first-touch bytes, never above the
+/// tree's node and triangle bytes; tiny caches re-fetch. The four parts sum to the counted
+/// bytes.
+#[test]
+fn first_touches_do_not_depend_on_the_caches_and_re_fetches_need_evictions() {
+    let (tris, cam) = scene("proc:hairball?n=2000&seed=3", 32, 24);
+    for kind in [TreeKind::Bvh2, TreeKind::Mbvh4] {
+        let tree = build_tree(kind, &tris).unwrap();
+        let w = work(&tris, &cam, RayMode::Diffuse);
+        let mut tiny = RtConfig::default();
+        for (k, v) in [
+            ("l1_bytes", "1024"),
+            ("l2_bytes", "2048"),
+            ("prim_bytes", "2048"),
+        ] {
+            tiny.set(k, v).unwrap();
+        }
+        let mut huge = RtConfig::default();
+        for (k, v) in [("l2_bytes", "16777216"), ("prim_bytes", "16777216")] {
+            huge.set(k, v).unwrap();
+        }
+        let t = run(&tree, &w, &tiny).unwrap();
+        let h = run(&tree, &w, &huge).unwrap();
+        assert!(t.hits_match_software && h.hits_match_software);
+        for r in [&t, &h] {
+            assert_eq!(r.traffic_split.total(), r.counted_dram_bytes, "{kind:?}");
+        }
+        let (ts, hs) = (t.traffic_split, h.traffic_split);
+        assert_eq!(ts.node_first_bytes, hs.node_first_bytes, "{kind:?}");
+        assert_eq!(ts.triangle_first_bytes, hs.triangle_first_bytes, "{kind:?}");
+        assert_eq!(
+            hs.node_refetch_bytes + hs.triangle_refetch_bytes,
+            0,
+            "{kind:?}"
+        );
+        assert!(
+            ts.node_refetch_bytes > 0 && ts.triangle_refetch_bytes > 0,
+            "{kind:?}"
+        );
+        let node_bytes = tree.image.node_count() as u64 * kind.node_bytes() as u64;
+        assert!(hs.node_first_bytes > 0 && hs.node_first_bytes <= node_bytes);
+        let tri_bytes = tris.len() as u64 * super::config::TRIANGLE_BYTES as u64;
+        let line = huge.prim_line_bytes as u64;
+        assert!(hs.triangle_first_bytes > 0 && hs.triangle_first_bytes <= tri_bytes + line);
+    }
+}
+
+/// Scanline order issues every pixel once, row by row, in groups of 64 with the same
+/// sampling modes as tiles; a run in that order gives the software hits, and its first
+/// touches (the distinct lines the rays read) equal the tile order's.
+#[test]
+fn scanline_order_covers_the_frame_and_keeps_first_touches() {
+    let p = plan_scanline(20, 10, 1);
+    assert_eq!(p.pixels, (0..200).collect::<Vec<u32>>());
+    assert_eq!(p.tiles.len(), 4);
+    assert!(p.tiles.iter().all(|t| t.1 == TileMode::Timed));
+    let (tris, cam) = scene("proc:hairball?n=2000&seed=3", 32, 24);
+    let tree = build_tree(TreeKind::Bvh2, &tris).unwrap();
+    let w = work(&tris, &cam, RayMode::Primary);
+    let tile = run(&tree, &w, &RtConfig::default()).unwrap();
+    let mut cfg = RtConfig::default();
+    cfg.set("scanline", "true").unwrap();
+    let scan = run(&tree, &w, &cfg).unwrap();
+    assert!(scan.hits_match_software);
+    assert_eq!(scan.rays, tile.rays);
+    let (a, b) = (tile.traffic_split, scan.traffic_split);
+    assert_eq!(a.node_first_bytes, b.node_first_bytes);
+    assert_eq!(a.triangle_first_bytes, b.triangle_first_bytes);
+}

@@ -1,0 +1,306 @@
+//! SAH-optimal collapse of a binary [`Bvh2`] into a 4-wide [`Mbvh4`] with the same leaves
+//! (issue 31 part 4): the dynamic program of Ylitie, Karras and Laine (2017, "Efficient
+//! incoherent ray traversal on GPUs through compressed wide BVHs", §3), restricted to
+//! keeping the binary tree's leaves.
+//!
+//! Among all 4-wide trees whose nodes are cuts of the binary tree (every wide node's
+//! children are a frontier of the binary subtree below it, as in any collapse), it picks
+//! the one of least SAH with 4-wide nodes costing `2 C_i` ([`SahParams::for_width`]), the
+//! cost that [`Mbvh4::normalized_sah`] reports. Every wide node is paid in full whether it
+//! has two children or four, so the optimum opens small subtrees into their parent rather
+//! than giving them nodes of their own: it fills nodes where the greedy collapse
+//! ([`crate::Collapse`], which pulls up only the largest inner child and leaves subtrees of
+//! two or three leaves as nodes of two or three children) cannot.
+//!
+//! The program, bottom-up over binary inner nodes `i` with children `l`, `r` and box area
+//! `A_i`: `S(i, j)`, the least cost of `i`'s subtree when it may take up to `j` (1..=4)
+//! slots of its parent, is `S(i, 1) = 2 C_i A_i + O(i, 4)` (a wide node of its own) and
+//! `S(i, j) = min(S(i, j - 1), O(i, j))`, where `O(i, j) = min_a S(l, a) + S(r, j - a)` opens
+//! `i` into its parent; a leaf child costs `A (C_l + C_t n)` in one slot.
+
+use crate::bvh2::Bvh2;
+use crate::collapse::{check_links, CollapseError};
+use crate::mbvh4::{Mbvh4, Node4, MBVH_WIDTH};
+use crate::node::ChildRef;
+use crate::sah::SahParams;
+use geom::Aabb;
+
+const W: usize = MBVH_WIDTH;
+
+/// Per binary inner node: least cost for up to `j + 1` slots, and how it is reached
+/// (`0`: a wide node of its own; `a` in 1..W: `a` slots to the left child, the rest right).
+#[derive(Clone, Copy)]
+struct Entry {
+    cost: [Cost; W],
+    how: [u8; W],
+    /// Split of the 4 slots of this node's own wide node (`a` slots to the left child).
+    own: u8,
+}
+
+/// (wide nodes, unnormalized SAH) of a subtree.
+type Cost = (f64, f64);
+
+/// What the collapse minimizes.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum CollapseGoal {
+    /// The 4-wide SAH.
+    Sah,
+    /// The number of wide nodes, then the 4-wide SAH among the trees with the fewest: the
+    /// fullest nodes the binary tree's leaves and topology allow.
+    FewestNodes,
+}
+
+/// The SAH-optimal 4-wide collapse of `bvh` keeping its leaves, with SAH weights `sah`
+/// (binary units; a 4-wide node costs `2 · sah.c_inner`).
+pub fn collapse_sah_optimal(bvh: &Bvh2, sah: &SahParams) -> Result<Mbvh4, CollapseError> {
+    collapse_optimal(bvh, sah, CollapseGoal::Sah)
+}
+
+/// The 4-wide collapse of `bvh` keeping its leaves that is optimal for `goal`.
+pub fn collapse_optimal(
+    bvh: &Bvh2,
+    sah: &SahParams,
+    goal: CollapseGoal,
+) -> Result<Mbvh4, CollapseError> {
+    let lt = |a: Cost, b: Cost| match goal {
+        CollapseGoal::Sah => a.1 < b.1,
+        CollapseGoal::FewestNodes => a < b,
+    };
+    let add = |a: Cost, b: Cost| (a.0 + b.0, a.1 + b.1);
+    const INF: Cost = (f64::INFINITY, f64::INFINITY);
+    let n = bvh.nodes.len();
+    if n == 0 {
+        return Err(CollapseError::NoRoot);
+    }
+    check_links(bvh)?;
+    let p = sah.for_width(W);
+    let (ci, cl, ct) = (p.c_inner as f64, p.c_leaf as f64, p.c_tri as f64);
+    let mut dp = vec![
+        Entry {
+            cost: [INF; W],
+            how: [0; W],
+            own: 0,
+        };
+        n
+    ];
+    // Cost of child `slot` of binary node `i` in up to `j + 1` slots (`None`: empty slot).
+    let child_cost = |dp: &[Entry], i: usize, slot: usize, j: usize| -> Option<Cost> {
+        let node = &bvh.nodes[i];
+        let c = node.children[slot];
+        if c.is_leaf() {
+            let a = node.child_aabb(slot).half_area() as f64;
+            Some((0.0, a * (cl + ct * c.count as f64)))
+        } else if c.is_inner() {
+            Some(dp[c.index as usize].cost[j])
+        } else {
+            None
+        }
+    };
+    // Children are after their parents (checked), so a reverse sweep is bottom-up.
+    for i in (0..n).rev() {
+        // open[j]: least cost of opening i into up to j + 1 slots, and its split.
+        let mut open = [(INF, 0u8); W];
+        for (j, o) in open.iter_mut().enumerate() {
+            let slots = j + 1;
+            let l0 = child_cost(&dp, i, 0, 0);
+            let r0 = child_cost(&dp, i, 1, 0);
+            match (l0, r0) {
+                (None, None) => *o = ((0.0, 0.0), 0),
+                (Some(_), None) => *o = (child_cost(&dp, i, 0, j).unwrap(), slots as u8),
+                (None, Some(_)) => *o = (child_cost(&dp, i, 1, j).unwrap(), 0),
+                (Some(_), Some(_)) => {
+                    for a in 1..slots {
+                        let c = add(
+                            child_cost(&dp, i, 0, a - 1).unwrap(),
+                            child_cost(&dp, i, 1, slots - a - 1).unwrap(),
+                        );
+                        if lt(c, o.0) {
+                            *o = (c, a as u8);
+                        }
+                    }
+                }
+            }
+        }
+        let area = bvh.nodes[i].aabb().half_area() as f64;
+        let e = &mut dp[i];
+        e.own = open[W - 1].1;
+        e.cost[0] = add((1.0, ci * area), open[W - 1].0);
+        e.how[0] = 0;
+        for (j, &(oc, oa)) in open.iter().enumerate().skip(1) {
+            (e.cost[j], e.how[j]) = (e.cost[j - 1], e.how[j - 1]);
+            if lt(oc, e.cost[j]) {
+                (e.cost[j], e.how[j]) = (oc, oa);
+            }
+        }
+    }
+    // Emission, depth-first preorder as in the greedy collapse.
+    let mut out: Vec<Node4> = Vec::with_capacity(n / 2 + 1);
+    let mut table: Vec<u32> = Vec::with_capacity(bvh.prim_indices.len());
+    let mut seen = vec![false; n];
+    let mut stack: Vec<(usize, Option<(usize, usize)>)> = vec![(0, None)];
+    let mut kids: Vec<(Aabb, ChildRef)> = Vec::with_capacity(W);
+    while let Some((bi, patch)) = stack.pop() {
+        let at = out.len();
+        if let Some((pa, slot)) = patch {
+            out[pa].children[slot] = ChildRef::inner(at as u32);
+        }
+        if std::mem::replace(&mut seen[bi], true) {
+            return Err(CollapseError::SharedNode { node: bi });
+        }
+        kids.clear();
+        let a = dp[bi].own as usize;
+        expand_open(bvh, &dp, bi, a, W, &mut kids, &mut seen)?;
+        let mut node = Node4::EMPTY;
+        let mut inner = Vec::with_capacity(W);
+        for (slot, &(b, c)) in kids.iter().enumerate() {
+            node.set_child_aabb(slot, &b);
+            node.children[slot] = if c.is_leaf() {
+                let first = table.len() as u32;
+                let s = c.index as usize;
+                table.extend_from_slice(&bvh.prim_indices[s..s + c.count as usize]);
+                ChildRef::leaf(first, c.count)
+            } else {
+                inner.push((c.index as usize, slot));
+                ChildRef::EMPTY
+            };
+        }
+        out.push(node);
+        for &(ci, slot) in inner.iter().rev() {
+            stack.push((ci, Some((at, slot))));
+        }
+    }
+    Ok(Mbvh4 {
+        nodes: out,
+        prim_indices: table,
+        bounds: bvh.bounds,
+    })
+}
+
+/// Appends the children of binary node `i` opened into `slots` slots, `a` of them for its
+/// left child: leaves as they are, inner children as their own choices say (an inner child
+/// kept whole is a new wide node, `ChildRef::inner` of its binary index).
+fn expand_open(
+    bvh: &Bvh2,
+    dp: &[Entry],
+    i: usize,
+    a: usize,
+    slots: usize,
+    kids: &mut Vec<(Aabb, ChildRef)>,
+    seen: &mut [bool],
+) -> Result<(), CollapseError> {
+    let node = &bvh.nodes[i];
+    for (slot, j) in [(0usize, a), (1, slots - a)] {
+        let c = node.children[slot];
+        if c.is_leaf() {
+            kids.push((node.child_aabb(slot), c));
+        } else if c.is_inner() {
+            let k = c.index as usize;
+            let how = dp[k].how[j.max(1) - 1] as usize;
+            if how == 0 {
+                kids.push((node.child_aabb(slot), c));
+            } else {
+                if std::mem::replace(&mut seen[k], true) {
+                    return Err(CollapseError::SharedNode { node: k });
+                }
+                expand_open(bvh, dp, k, how, j, kids, seen)?;
+            }
+        }
+    }
+    Ok(())
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::mbvh4::validate_mbvh4;
+    use crate::testutil::{adversarial, proc_scene};
+    use crate::{collapse, validate, BinnedSahBuilder};
+
+    fn check(name: &str, bvh: &Bvh2, prims: &[Aabb], max_leaf: u32) -> Mbvh4 {
+        validate(bvh, prims, max_leaf).unwrap_or_else(|e| panic!("{name}: input {e}"));
+        let t = collapse_sah_optimal(bvh, &SahParams::THESIS).unwrap();
+        validate_mbvh4(&t, prims, max_leaf).unwrap_or_else(|e| panic!("{name}: {e}"));
+        t
+    }
+
+    #[test]
+    fn adversarial_inputs_collapse_validly() {
+        for (name, prims) in adversarial() {
+            for max in [1, 4, 8] {
+                let b = BinnedSahBuilder {
+                    max_leaf_size: max,
+                    ..Default::default()
+                }
+                .build(&prims)
+                .unwrap();
+                check(name, &b, &prims, max);
+            }
+        }
+    }
+
+    /// The optimum keeps the binary tree's leaves, is never worse in the 4-wide SAH than
+    /// the greedy collapse (the greedy tree is one of the candidates), and fills nodes:
+    /// more children per node and fewer nodes than the greedy collapse. The fewest-nodes
+    /// goal gives no more nodes and no lower SAH.
+    #[test]
+    fn sah_not_above_the_greedy_collapse_and_nodes_fuller() {
+        for spec in [
+            "proc:soup?n=20000",
+            "proc:city?n=20000&seed=2",
+            "proc:hairball?n=20000&seed=3",
+        ] {
+            let prims = proc_scene(spec);
+            let b = BinnedSahBuilder::default().build(&prims).unwrap();
+            let g = collapse(&b).unwrap();
+            let o = check(spec, &b, &prims, 8);
+            let (so, sg) = (o.normalized_sah(), g.normalized_sah());
+            let (so_, sg_) = (o.stats(), g.stats());
+            println!(
+                "{spec}: optimal {so:.3} ({} nodes, {:.2} children), greedy {sg:.3} ({} nodes, {:.2}), binary {} nodes",
+                o.nodes.len(),
+                so_.mean_children,
+                g.nodes.len(),
+                sg_.mean_children,
+                b.nodes.len()
+            );
+            assert!(
+                so <= sg * (1.0 + 1e-9),
+                "{spec}: optimal {so} above greedy {sg}"
+            );
+            assert_eq!(so_.leaves, sg_.leaves, "{spec}: the same leaves");
+            assert!(o.nodes.len() < g.nodes.len(), "{spec}");
+            assert!(so_.mean_children > sg_.mean_children, "{spec}");
+            // The fewest nodes the leaves and topology allow: no more than the SAH optimum's,
+            // never fewer than a third of the binary tree's inner nodes (every wide node
+            // stands for at most three of them).
+            let f = collapse_optimal(&b, &SahParams::THESIS, CollapseGoal::FewestNodes).unwrap();
+            validate_mbvh4(&f, &prims, 8).unwrap();
+            println!(
+                "  fewest nodes: {} ({:.2} children), SAH {:.3}",
+                f.nodes.len(),
+                f.stats().mean_children,
+                f.normalized_sah()
+            );
+            assert!(f.nodes.len() <= o.nodes.len(), "{spec}");
+            assert!(3 * f.nodes.len() >= b.nodes.len(), "{spec}");
+            assert!(f.normalized_sah() >= so * (1.0 - 1e-9), "{spec}");
+        }
+    }
+
+    /// A perfect binary tree of 16 leaves collapses into 5 full nodes (a root and four
+    /// nodes of four leaves), the least possible.
+    #[test]
+    fn a_perfect_tree_gives_full_nodes() {
+        let xs: Vec<f32> = (0..16).map(|i| i as f32 * 10.0).collect();
+        let prims = crate::testutil::cubes_at(&xs);
+        let b = BinnedSahBuilder {
+            max_leaf_size: 1,
+            ..Default::default()
+        }
+        .build(&prims)
+        .unwrap();
+        let o = check("cubes", &b, &prims, 1);
+        assert_eq!(o.nodes.len(), 5);
+        assert!(o.nodes.iter().all(|n| n.child_count() == 4));
+    }
+}
