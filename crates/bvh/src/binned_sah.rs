@@ -13,6 +13,7 @@
 //! [`PARALLEL_MIN_PRIMS`](crate::PARALLEL_MIN_PRIMS) primitives are built with
 //! `rayon::join`; the result does not depend on the thread count.
 
+use crate::bins::Bins;
 use crate::bvh2::Bvh2;
 use crate::error::{check_input, in_pool, BuildError};
 use crate::frag::Frag;
@@ -333,24 +334,8 @@ fn truncate4(f: Vec4) -> [usize; 4] {
     }
 }
 
-/// Per-axis bins of a split search: the corners and count of the primitives in each bin,
-/// as separate arrays (a bin update touches one entry of each).
-#[derive(Clone)]
-struct Bins<const N: usize> {
-    min: [[Vec4; N]; 3],
-    max: [[Vec4; N]; 3],
-    cnt: [[u32; N]; 3],
-}
-
+/// The binary builder's binning of [`PrimRef`]s.
 impl<const N: usize> Bins<N> {
-    fn new() -> Self {
-        Self {
-            min: [[Vec4::splat(f32::INFINITY); N]; 3],
-            max: [[Vec4::splat(f32::NEG_INFINITY); N]; 3],
-            cnt: [[0; N]; 3],
-        }
-    }
-
     /// Drops `refs` into the bins.
     #[inline(always)]
     fn add(&mut self, refs: &[PrimRef], binner: &Binner) {
@@ -364,18 +349,6 @@ impl<const N: usize> Bins<N> {
                 self.cnt[axis][i] += 1;
             }
         }
-    }
-
-    /// The union of two bin sets (exact and order-independent: min, max and counts).
-    fn merge(mut self, o: &Self) -> Self {
-        for a in 0..3 {
-            for i in 0..N {
-                self.min[a][i] = self.min[a][i].min(o.min[a][i]);
-                self.max[a][i] = self.max[a][i].max(o.max[a][i]);
-                self.cnt[a][i] += o.cnt[a][i];
-            }
-        }
-        self
     }
 
     /// Bins `refs`. Large nodes are binned in parallel chunks, and medium ones into two

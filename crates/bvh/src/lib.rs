@@ -10,6 +10,7 @@
 
 mod atrbvh;
 mod binned_sah;
+mod bins;
 mod bvh2;
 mod collapse;
 mod collapse_sah;

@@ -26,6 +26,7 @@
 //! separate node arrays that are appended in child order, so the tree is the same for any
 //! thread count.
 
+use crate::bins::Bins;
 use crate::error::{check_input, in_pool, BuildError};
 use crate::mbvh4::{Mbvh4, Node4, MBVH_WIDTH};
 use crate::node::ChildRef;
@@ -198,34 +199,6 @@ fn sort_key(r: &Ref, axis: usize) -> u64 {
 /// Candidates of at least this many primitives are binned and bounded in parallel chunks.
 const PAR_BIN_MIN: usize = 1 << 16;
 
-/// Per-axis bins of a split search: box and count of the primitives in each bin.
-struct Bins<const N: usize> {
-    min: [[Vec4; N]; 3],
-    max: [[Vec4; N]; 3],
-    cnt: [[u32; N]; 3],
-}
-
-impl<const N: usize> Bins<N> {
-    fn new() -> Self {
-        Self {
-            min: [[Vec4::splat(f32::INFINITY); N]; 3],
-            max: [[Vec4::splat(f32::NEG_INFINITY); N]; 3],
-            cnt: [[0; N]; 3],
-        }
-    }
-
-    fn merge(mut self, o: Self) -> Self {
-        for a in 0..3 {
-            for i in 0..N {
-                self.min[a][i] = self.min[a][i].min(o.min[a][i]);
-                self.max[a][i] = self.max[a][i].max(o.max[a][i]);
-                self.cnt[a][i] += o.cnt[a][i];
-            }
-        }
-        self
-    }
-}
-
 /// Unnormalized SAH cost of the 4-wide subtree `nodes` (root at 0, box area `root_area`):
 /// `C_i` for the root and every inner child, `C_l + C_t n` for every leaf, each times its
 /// area.
@@ -337,7 +310,7 @@ impl Ctx<'_> {
         } = if n >= PAR_BIN_MIN {
             refs.par_chunks(PAR_BIN_MIN / 4)
                 .map(fill)
-                .reduce(Bins::new, Bins::merge)
+                .reduce(Bins::new, |a, b| a.merge(&b))
         } else {
             fill(refs)
         };
