@@ -487,7 +487,13 @@ pub(crate) fn plan(width: u32, height: u32, sample: u32) -> Plan {
             }
         }
     }
-    // The tiles just before each timed chunk lead into it.
+    mark_lead_tiles(&mut tiles);
+    Plan { pixels, tiles }
+}
+
+/// Marks the [`SAMPLE_LEAD_TILES`] untimed tiles just before each timed chunk as leading
+/// into it.
+fn mark_lead_tiles(tiles: &mut [(usize, TileMode)]) {
     let mut lead = 0;
     for t in tiles.iter_mut().rev() {
         match t.1 {
@@ -499,7 +505,6 @@ pub(crate) fn plan(width: u32, height: u32, sample: u32) -> Plan {
             _ => {}
         }
     }
-    Plan { pixels, tiles }
 }
 
 /// [`plan`] with the camera rays in scanline order: row-major pixels in groups of
@@ -524,17 +529,7 @@ pub(crate) fn plan_scanline(width: u32, height: u32, sample: u32) -> Plan {
         };
         tiles.push((t * group, mode));
     }
-    let mut lead = 0;
-    for t in tiles.iter_mut().rev() {
-        match t.1 {
-            TileMode::Timed => lead = SAMPLE_LEAD_TILES,
-            _ if lead > 0 => {
-                t.1 = TileMode::Lead;
-                lead -= 1;
-            }
-            _ => {}
-        }
-    }
+    mark_lead_tiles(&mut tiles);
     Plan { pixels, tiles }
 }
 
