@@ -8,15 +8,13 @@
 //!   `--json`.
 
 use super::report::{write_file, SHARED_SCENES};
-use super::report_cbvh_trace::load_traced;
-use super::report_system::static_scene_specs;
+use super::report_system::{load_static, static_scene_specs};
 use crate::progress::{Ui, Unit};
 use anyhow::Context;
 use sim::system::report::SystemScene;
 use sim::system::sensitivity::{assumptions, run as sweep, Assumption, P4Scene};
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicU64, Ordering};
-use trace::PinholeCamera;
 
 /// Arguments of `arbor report sensitivity`.
 #[derive(clap::Args, Debug)]
@@ -140,10 +138,7 @@ pub fn run(a: &ReportSensitivityArgs, ui: &Ui) -> anyhow::Result<()> {
         .with_context(|| format!("cannot create {}", a.out.display()))?;
     let mut loaded = Vec::new();
     for spec in &specs {
-        let _s = ui.spinner(&format!("loading {spec}"));
-        let (name, tris, camera) = load_traced(spec)?;
-        anyhow::ensure!(!tris.is_empty(), "{spec}: the scene has no triangles");
-        loaded.push((name, tris, PinholeCamera::new(&camera, width, height)?));
+        loaded.push(load_static(spec, width, height, ui)?);
     }
     let scenes: Vec<SystemScene> = loaded
         .iter()
@@ -155,12 +150,7 @@ pub fn run(a: &ReportSensitivityArgs, ui: &Ui) -> anyhow::Result<()> {
         })
         .collect();
     let p4_loaded = match &p4_spec {
-        Some(spec) => {
-            let _s = ui.spinner(&format!("loading {spec}"));
-            let (name, tris, camera) = load_traced(spec)?;
-            anyhow::ensure!(!tris.is_empty(), "{spec}: the scene has no triangles");
-            Some((name, tris, PinholeCamera::new(&camera, width, height)?))
-        }
+        Some(spec) => Some(load_static(spec, width, height, ui)?),
         None => None,
     };
     let p4 = p4_loaded.as_ref().map(|(name, tris, camera)| P4Scene {

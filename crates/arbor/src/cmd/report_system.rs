@@ -138,14 +138,7 @@ pub fn run(a: &ReportSystemArgs, ui: &Ui) -> anyhow::Result<()> {
         .with_context(|| format!("cannot create {}", a.out.display()))?;
     let mut loaded = Vec::new();
     for spec in &specs {
-        let _s = ui.spinner(&format!("loading {spec}"));
-        let (name, tris, camera) = load_traced(spec)?;
-        anyhow::ensure!(!tris.is_empty(), "{spec}: the scene has no triangles");
-        loaded.push((
-            name,
-            tris,
-            PinholeCamera::new(&camera, a.soc.width, a.soc.height)?,
-        ));
+        loaded.push(load_static(spec, a.soc.width, a.soc.height, ui)?);
     }
     let mut animated = Vec::new();
     for spec in &anim_specs {
@@ -199,6 +192,20 @@ pub fn run(a: &ReportSystemArgs, ui: &Ui) -> anyhow::Result<()> {
 /// The static scenes to run.
 fn scene_specs(a: &ReportSystemArgs, ui: &Ui) -> Vec<String> {
     static_scene_specs(a.scenes.as_deref(), &a.scene_dir, ui)
+}
+
+/// A static scene of the system studies: its name, triangles (an empty scene is an error)
+/// and camera at `width` x `height`.
+pub fn load_static(
+    spec: &str,
+    width: u32,
+    height: u32,
+    ui: &Ui,
+) -> anyhow::Result<(String, Vec<geom::Triangle>, PinholeCamera)> {
+    let _s = ui.spinner(&format!("loading {spec}"));
+    let (name, tris, camera) = load_traced(spec)?;
+    anyhow::ensure!(!tris.is_empty(), "{spec}: the scene has no triangles");
+    Ok((name, tris, PinholeCamera::new(&camera, width, height)?))
 }
 
 /// The static scenes of the system study: `scenes` (`none`: no scene) or the default list,
