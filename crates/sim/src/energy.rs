@@ -251,17 +251,6 @@ fn cache_table(bytes: f64, node: Node, cell: Cell) -> SramFigures {
     }
 }
 
-/// An SRAM of `bytes` bytes whose port reads `width` x 64 bytes per access, from the cache
-/// table alone with \[P4\] Table 1's wide-port area factor: the earlier convention
-/// ([`Conventions::earlier`]); [`cache`] and [`ram`] choose by [`Conventions`].
-pub fn sram(bytes: f64, width: u32, node: Node, cell: Cell) -> Result<SramFigures, EnergyError> {
-    let c = Conventions {
-        cell,
-        ..Conventions::earlier()
-    };
-    cache(bytes, width, node, &c)
-}
-
 /// A 4-way cache of `bytes` bytes (tags included) whose port reads `width` x 64 bytes per
 /// access, from the CACTI table of hardware.md §3.1. A port wider than the table's 512 bits
 /// follows `conv.wide_port`: [`WidePort::Banked`] builds it from `width` banks of
@@ -793,6 +782,16 @@ pub fn component_csv(rows: &[ComponentRow]) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// A cache under the earlier conventions with `cell` cells (the cache table alone,
+    /// [P4]'s wide-port ratio).
+    fn sram(bytes: f64, width: u32, node: Node, cell: Cell) -> Result<SramFigures, EnergyError> {
+        let c = Conventions {
+            cell,
+            ..Conventions::earlier()
+        };
+        cache(bytes, width, node, &c)
+    }
 
     #[test]
     fn component_rows_cover_every_node_and_match_the_models() {
