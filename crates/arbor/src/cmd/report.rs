@@ -34,8 +34,9 @@ enum ReportKind {
     /// \[P2\] §6.4, Table VIII and Fig. 7: system energy per frame (build plus trace) with
     /// four builders, and tree-update policies over animations.
     System(super::report_system::ReportSystemArgs),
-    /// Every open assumption of the \[P2\] §6.4 system model swept over its documented
-    /// range: each Table VIII figure's default, low, high and driving assumption.
+    /// Every open assumption of the models swept over its documented range: the default,
+    /// low, high and driving assumption of each figure of \[P2\] Tables III, IV, VI, VII
+    /// and VIII and \[P4\] Tables 1 and 2.
     Sensitivity(super::report_sensitivity::ReportSensitivityArgs),
 }
 

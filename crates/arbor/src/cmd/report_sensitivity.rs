@@ -1,7 +1,7 @@
-//! `arbor report sensitivity`: every open assumption of the \[P2\] §6.4 system model swept
-//! over its documented range, one at a time, with the default, lowest and highest value of
-//! every Table VIII figure and the assumption that moves it most, beside the thesis's
-//! value. The study is library code (`sim::system::sensitivity`); this command loads the
+//! `arbor report sensitivity`: every open assumption of the models swept over its
+//! documented range, one at a time, with the default, lowest and highest value of every
+//! reproduced figure (\[P2\] Tables III, IV, VI, VII and VIII, \[P4\] Tables 1 and 2) and
+//! the assumption that moves it most, beside the thesis's value. The study is library code (`sim::system::sensitivity`); this command loads the
 //! scenes and writes:
 //! - `sensitivity.md` / `sensitivity.csv`: a row per figure;
 //! - `sensitivity.json`: the document (`arbor.report.sensitivity.v1`), also printed by
@@ -93,7 +93,7 @@ pub fn run(a: &ReportSensitivityArgs, ui: &Ui) -> anyhow::Result<()> {
     if a.list {
         for x in &picked {
             println!(
-                "{:<16} default {:<12} tried {:<12} {}",
+                "{:<28} default {:<12} tried {:<12} {}",
                 x.key,
                 x.default,
                 x.values.join(", "),
@@ -160,10 +160,10 @@ pub fn run(a: &ReportSensitivityArgs, ui: &Ui) -> anyhow::Result<()> {
         camera: *camera,
         sample,
     });
-    // One step per build and trace of every variant and scene, and per variant of the
-    // [P4] part.
+    // One step per build and trace of every variant and scene, one per MergeTree on
+    // [P2]'s systems, and one per variant of the [P4] part.
     let variants = 1 + picked.iter().map(|x| x.values.len()).sum::<usize>();
-    let total = ((12 * scenes.len() + usize::from(p4.is_some())) * variants) as u64;
+    let total = ((13 * scenes.len() + usize::from(p4.is_some())) * variants) as u64;
     let bar = ui.progress("sensitivity runs", Unit::Items);
     let done = AtomicU64::new(0);
     let rep = sweep(&scenes, p4.as_ref(), &cfg, &picked, |_| {
@@ -171,14 +171,18 @@ pub fn run(a: &ReportSensitivityArgs, ui: &Ui) -> anyhow::Result<()> {
         bar.update(d.min(total), total);
     })?;
     bar.finish();
-    let mut md = String::from("# Sensitivity of the [P2] §6.4 reproduction to its assumptions\n\n");
+    let mut md = String::from("# Sensitivity of the reproduced figures to their assumptions\n\n");
     md += &format!(
         "{}x{}, {} ({}) on {}, one in {} tile chunks timed; scenes: {}. Each assumption is \
          set to each of its values with the others at their defaults; low and high are \
          the extremes over all variants, the driver the assumption whose values spread the \
-         figure most. Table VIII's figures are energies relative to binned SAH; [P4] Table \
-         2's are MBVH4's changes over BVH2 at [P4]'s settings (45 nm, 4 bounces). {} \
-         cycle-level runs simulated, {} reused between variants.\n\n",
+         figure most. [P2] Tables III, IV, VI and VII are MergeTree's (preset p2) on \
+         [P2]'s three memory systems (slow, medium, fast; Table IV on the fast one for the \
+         largest scene, Table VII means over the scenes, the thesis's over its 14); Table \
+         VIII's figures are energies relative to binned SAH; [P4] Table 2's are MBVH4's \
+         changes over BVH2 at [P4]'s settings (45 nm, 4 bounces), and Table 1's the area \
+         and power of their units (the thesis's are Fairy's). {} cycle-level runs \
+         simulated, {} reused between variants.\n\n",
         width,
         height,
         cfg.node.name(),

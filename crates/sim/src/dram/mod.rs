@@ -201,6 +201,53 @@ fn what_if_config(
     })))
 }
 
+/// `name` with the what-if option `key=value` of an `lpddr:NAME,KEY=VALUE,...` system
+/// (see [`open`]), replacing an earlier value of `key`; a `simple:` or `dramsim3:` name
+/// takes no options. An `address_mapping` must name the six fields `ch`, `ra`, `bg`,
+/// `ba`, `ro` and `co` once each, most significant first (DRAMsim3's syntax).
+pub fn with_option(name: &str, key: &str, value: &str) -> Result<String, DramError> {
+    let (key, value) = (key.trim(), value.trim());
+    if name.starts_with("simple:") || name.starts_with("dramsim3:") {
+        return Err(DramError::Config(format!(
+            "{name}: only Arbor's controller model takes the option '{key}'"
+        )));
+    }
+    if key.is_empty() || value.is_empty() || key.contains([',', '=']) || value.contains([',', '='])
+    {
+        return Err(DramError::Config(format!(
+            "bad memory option '{key}={value}'"
+        )));
+    }
+    if key == "address_mapping" {
+        let mut fields: Vec<&str> = (0..value.len() / 2)
+            .filter_map(|i| value.get(2 * i..2 * i + 2))
+            .collect();
+        fields.sort_unstable();
+        if value.len() != 12 || fields != ["ba", "bg", "ch", "co", "ra", "ro"] {
+            return Err(DramError::Config(format!(
+                "address mapping '{value}': expected the fields ch, ra, bg, ba, ro and co once \
+                 each, most significant first (e.g. rorabgbacoch)"
+            )));
+        }
+    }
+    let mut parts = name.split(',');
+    let system = parts.next().unwrap_or_default();
+    let mut out = system.to_string();
+    for kv in parts.filter(|kv| kv.split('=').next().map(str::trim) != Some(key)) {
+        out.push(',');
+        out.push_str(kv);
+    }
+    out.push_str(&format!(",{key}={value}"));
+    Ok(out)
+}
+
+/// The memory system of `name` without its what-if options (`lpddr3-1600-2x64` for
+/// `lpddr:lpddr3-1600-2x64,address_mapping=...`).
+pub fn base_system(name: &str) -> &str {
+    let system = name.split(',').next().unwrap_or_default();
+    system.strip_prefix("lpddr:").unwrap_or(system)
+}
+
 /// Every system name [`open`] accepts bare, with peak bandwidth and description.
 pub fn all_systems() -> impl Iterator<Item = &'static (&'static str, u64, &'static str)> {
     MEMORY_SYSTEMS.iter().chain(WHAT_IF_SYSTEMS)
@@ -565,6 +612,32 @@ mod tests {
 mod contract_tests {
     //! The [`MemoryPort`] contract, on random request sequences, for every backend.
     use super::*;
+
+    /// What-if options: appended, replaced, checked; the base system is what remains.
+    #[test]
+    fn with_option_appends_replaces_and_checks() {
+        let a = with_option("lpddr3-1600-2x64", "address_mapping", "rorabgbachco").unwrap();
+        assert_eq!(a, "lpddr3-1600-2x64,address_mapping=rorabgbachco");
+        let b = with_option(&a, "write_drain", "watermark").unwrap();
+        let c = with_option(&b, "address_mapping", "rorabgbacoch").unwrap();
+        assert_eq!(
+            c,
+            "lpddr3-1600-2x64,write_drain=watermark,address_mapping=rorabgbacoch"
+        );
+        assert_eq!(base_system(&c), "lpddr3-1600-2x64");
+        assert_eq!(
+            base_system("lpddr:lpddr3-1600-1x64,bank_xor=1"),
+            "lpddr3-1600-1x64"
+        );
+        // The option opens, and the mapping changes where bursts go.
+        assert!(open(&a, 1_000_000).is_ok());
+        for bad in ["rorabgbaco", "rorabgbachch", "xxrabgbacoch"] {
+            let e = with_option("lpddr3-1600-2x64", "address_mapping", bad).unwrap_err();
+            assert!(e.to_string().contains("address mapping"), "{e}");
+        }
+        assert!(with_option("simple:lpddr3-1600-2x64", "address_mapping", "x").is_err());
+        assert!(with_option("lpddr3-1600-2x64", "a=b", "c").is_err());
+    }
     use proptest::prelude::*;
 
     fn requests() -> impl Strategy<Value = Vec<(u64, u32, bool, u8)>> {

@@ -27,6 +27,9 @@ use super::{dramsim3, DramError, MemStats};
 /// `dram::open` name such as `lpddr3-1600-2x64`): its counts and energy, and the seconds
 /// the transfer takes at full bus utilization.
 pub fn streaming(name: &str, read: u64, write: u64) -> Result<(MemStats, f64), DramError> {
+    // The bound assumes ideal bursts, so what-if options (address mapping, write drain)
+    // do not change it.
+    let name = super::base_system(name);
     let cfg = dramsim3::system(name).ok_or_else(|| {
         DramError::Config(format!(
             "streaming bound: unknown memory system '{name}' (known: {})",

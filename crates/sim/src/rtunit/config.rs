@@ -288,6 +288,10 @@ impl RtConfig {
         match key {
             "clock_mhz" => self.clock_mhz = num32(1, 100_000)?,
             "dram" => self.dram = value.to_string(),
+            "address_mapping" | "write_drain" => {
+                self.dram = crate::dram::with_option(&self.dram, key, value)
+                    .map_err(|e| bad(&e.to_string()))?
+            }
             "trv_units" => self.trv_units = num32(1, 64)?,
             "stacks_per_trv" => self.stacks_per_trv = num32(1, 1024)?,
             "stack_entries" => self.stack_entries = num32(1, 4096)?,

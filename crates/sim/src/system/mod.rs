@@ -36,6 +36,10 @@ use crate::energy::{Conventions, DramConvention, EnergyError, Flops, Fpu, Node, 
 use crate::mergetree::{self, energy::mergetree_energy, MergeTreeConfig};
 use crate::rtunit::{self, RayMode, RtConfig, TreeKind, Workload};
 
+/// Prefix of the [`SystemConfig::set`] keys that set a MergeTree parameter
+/// (`mergetree.presort_slots`).
+pub const MERGETREE_PREFIX: &str = "mergetree.";
+
 /// Schema of the system report's JSON document.
 pub const SCHEMA: &str = "arbor.report.system.v1";
 
@@ -151,7 +155,9 @@ impl Default for SystemConfig {
 
 impl SystemConfig {
     /// Sets `key` to `value`: `node`, `bounces`, `seed`, an energy convention
-    /// (`crate::energy::Conventions::KEYS`, `energy`) or any accelerator key
+    /// (`crate::energy::Conventions::KEYS`, `energy`), a memory controller option
+    /// (`address_mapping`, `write_drain`: `dram::with_option`), a MergeTree key prefixed
+    /// [`MERGETREE_PREFIX`] (`MergeTreeConfig::set`) or any accelerator key
     /// (`RtConfig::set`), everywhere it appears.
     pub fn set(&mut self, key: &str, value: &str) -> Result<(), SystemError> {
         let bad = |why: &str| SystemError::Config(format!("bad value '{value}' for {key}: {why}"));
@@ -175,6 +181,18 @@ impl SystemConfig {
                     .map_err(|_| bad("expected a non-negative integer"))?
             }
             "dram" => return Err(bad("the memory system is set with --dram")),
+            // What-if options of the memory controller, on every memory of the study.
+            "address_mapping" | "write_drain" => {
+                self.dram = dram::with_option(&self.dram, key, value)?;
+                self.rt.dram = dram::with_option(&self.rt.dram, key, value)?;
+            }
+            _ if key.starts_with(MERGETREE_PREFIX) => {
+                let mut mt = self.mergetree.clone();
+                mt.set(&key[MERGETREE_PREFIX.len()..], value)
+                    .and_then(|()| mt.validate())
+                    .map_err(|e| SystemError::Config(format!("{key}={value}: {e}")))?;
+                self.mergetree = mt;
+            }
             _ => {
                 let mut e = self.energy;
                 if e.set(key, value)? {
@@ -478,6 +496,21 @@ impl SimMemo {
     }
 }
 
+/// A hash of every node and leaf-table entry of `tree`: equal trees give equal values.
+fn tree_fingerprint(tree: &bvh::Bvh2) -> u64 {
+    use std::hash::{Hash, Hasher};
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    tree.nodes.len().hash(&mut h);
+    for n in &tree.nodes {
+        for b in n.bounds.iter().flatten() {
+            b.to_bits().hash(&mut h);
+        }
+        n.children.hash(&mut h);
+    }
+    tree.prim_indices.hash(&mut h);
+    h.finish()
+}
+
 /// One MergeTree run on `cfg`'s memory, checked against the software builder.
 fn mergetree_run(
     aabbs: &[Aabb],
@@ -689,13 +722,15 @@ pub fn trace_energy_memo(
     memo: &mut SimMemo,
 ) -> Result<TraceEnergy, SystemError> {
     let (builder, rays, sample) = (t.builder, t.rays, t.sample);
+    // The tree itself, not the builder's configuration, sets the run: a MergeTree
+    // parameter that changes only the build's timing reuses the traces.
     let tag = (
         builder,
         rays,
         sample,
         cfg.bounces,
         cfg.seed,
-        &cfg.mergetree,
+        tree_fingerprint(&tree),
         t.camera.width(),
         t.camera.height(),
     );

@@ -1,9 +1,13 @@
-//! How much each assumption moves the \[P2\] §6.4 reproduction: every open choice of the
-//! system model (the energy conventions, the accelerator's unstated timing parameters, the
-//! sampling rate) set to each value of a documented range, one at a time from the
-//! defaults, and for every reproduced figure of Table VIII the default, the lowest and
-//! highest value any variant gave, and the assumption that moves it most
-//! (`arbor report sensitivity`; `arbor.report.sensitivity.v1`).
+//! How much each assumption moves the reproduced figures: every open choice of the
+//! models (the energy conventions, the memory controller's address mapping, MergeTree's
+//! and the accelerator's unstated timing parameters, the sampling rate) set to each value
+//! of a documented range, one at a time from the defaults, and for every reproduced figure
+//! the default, the lowest and highest value any variant gave, and the assumption that
+//! moves it most (`arbor report sensitivity`; `arbor.report.sensitivity.v1`). The figures:
+//! \[P2\] Tables III (MergeTree's build time on the three memory systems and its
+//! speed-ups), IV (its units' area and power on the fast system, largest scene), VI (its
+//! traffic), VII (its mean traffic and power per system) and VIII (system energy), and
+//! \[P4\] Tables 1 (area and power per unit) and 2 (MBVH4's changes over BVH2).
 //!
 //! Variants that differ only in what is computed from the cycle-level runs (the energy
 //! conventions, the IST division's FLOPs) reuse the runs ([`SimMemo`]), so those cost
@@ -132,6 +136,31 @@ pub fn assumptions() -> Vec<Assumption> {
             "lines the node cache returns per cycle (0: unlimited, the earlier model)",
         ),
         a(
+            "address_mapping",
+            "rorabgbacoch",
+            &["rorabgbachco"],
+            "DRAM address mapping, most significant field first (Arbor's: channels \
+             interleaved every burst; tried: every column span)",
+        ),
+        a(
+            "mergetree.presort_slots",
+            "4",
+            &["2", "8"],
+            "MergeTree read buffers per presorter (Arbor's assumption)",
+        ),
+        a(
+            "mergetree.write_chunk_bytes",
+            "512",
+            &["128", "1024"],
+            "MergeTree node and leaf write request size, bytes (Arbor's assumption)",
+        ),
+        a(
+            "mergetree.morton_grid",
+            "cube",
+            &["box"],
+            "Morton grid over the centroid bounds (thesis silent; docs/mergetree-vs-thesis.md)",
+        ),
+        a(
             SAMPLE_KEY,
             "the scenes'",
             &["8", "64"],
@@ -145,6 +174,9 @@ pub fn assumptions() -> Vec<Assumption> {
 pub struct FigureRow {
     /// The figure, e.g. `VIII primary all hlbvh total`.
     pub figure: String,
+    /// Its unit: `ratio` (to binned SAH) and `change` (relative) are fractions, shown in
+    /// percent; otherwise `ms`, `x` (a speed-up), `MB`, `GB/s`, `mW` or `mm2`.
+    pub unit: &'static str,
     /// The thesis's value, where it gives one.
     pub thesis: Option<f64>,
     /// The default model's value.
@@ -191,9 +223,13 @@ pub struct SensitivityReport {
     pub reused: u64,
 }
 
+/// One figure of one variant: name, value, the thesis's value, unit
+/// ([`FigureRow::unit`]).
+type Figure = (String, f64, Option<f64>, &'static str);
+
 /// The Table VIII figures of one variant: every builder but the reference, per ray kind,
 /// scene set and column, with the thesis's value.
-fn figures(results: &[SceneResult]) -> Vec<(String, f64, Option<f64>)> {
+fn figures(results: &[SceneResult]) -> Vec<Figure> {
     let mut v = Vec::new();
     for r in table8(results) {
         if r.builder == super::Builder::BinnedSah.name() {
@@ -204,6 +240,7 @@ fn figures(results: &[SceneResult]) -> Vec<(String, f64, Option<f64>)> {
                 format!("VIII {} {} {} {col}", r.rays, r.scenes, r.builder),
                 [r.build, r.trace, r.total][i],
                 r.thesis.map(|t| t[i]),
+                "ratio",
             ));
         }
     }
@@ -237,8 +274,9 @@ fn p4_figures(
     cfg: &RtConfig,
     sample: u32,
     memo: &mut SimMemo,
-) -> Result<Vec<(String, f64, Option<f64>)>, SystemError> {
+) -> Result<Vec<Figure>, SystemError> {
     let mut v = Vec::new();
+    let mut table1: Vec<[rtunit::report::Figures; 2]> = Vec::new();
     for rays in [RayMode::Primary, RayMode::Diffuse] {
         let mut runs = Vec::new();
         for tree in trees {
@@ -292,10 +330,197 @@ fn p4_figures(
                 format!("P4 Table 2 {} {ray} MBVH4 {what} change", p4.name),
                 value,
                 thesis.map(|t| t[i] / 100.0),
+                "change",
             ));
+        }
+        table1.push([
+            rtunit::report::Figures::of(b),
+            rtunit::report::Figures::of(m),
+        ]);
+    }
+    // [P4] Table 1: per tree, the area of each unit and its power with each ray kind
+    // (the thesis's figures are Fairy's; ours the study's scene).
+    for (t, tree) in ["BVH2", "MBVH4"].into_iter().enumerate() {
+        for (k, what) in ["area", "primary", "diffuse"].into_iter().enumerate() {
+            let f = &table1[k.saturating_sub(1)][t];
+            let ours: Vec<(&str, f64)> = f
+                .units
+                .iter()
+                .map(|u| (u.0, if k == 0 { u.1 } else { u.2 }))
+                .collect();
+            let thesis = crate::thesis::P4_TABLE1[t][k];
+            let sum: f64 = ours.iter().map(|u| u.1).sum();
+            let unit = if k == 0 { "mm2" } else { "mW" };
+            for (i, (name, x)) in ours.into_iter().chain([("sum", sum)]).enumerate() {
+                v.push((
+                    format!("P4 Table 1 {} {tree} {name} {what}", p4.name),
+                    x,
+                    thesis.get(i.min(6)).copied(),
+                    unit,
+                ));
+            }
         }
     }
     Ok(v)
+}
+
+/// The names of \[P2\]'s three memory systems in its tables.
+const P2_SYSTEM_NAMES: [&str; 3] = ["slow", "medium", "fast"];
+
+/// MergeTree (the system's configuration) on the three memory systems of \[P2\] Tables
+/// III and VII, for one scene and variant.
+#[derive(Clone, Debug)]
+struct MergeTreeFigures {
+    scene: String,
+    triangles: usize,
+    /// Per system: build time in ms.
+    ms: [f64; 3],
+    /// Per system: traffic over the build time, GB/s.
+    gbs: [f64; 3],
+    /// Per system: on-chip power, mW.
+    logic_mw: [f64; 3],
+    /// Per system: DRAM power under the variant's DRAM convention, mW.
+    dram_mw: [f64; 3],
+    /// Traffic on the slow system, MB.
+    mb: f64,
+    /// On the fast system: the on-chip units (name, mm^2, mW), then the total.
+    units_fast: Vec<(&'static str, f64, f64)>,
+}
+
+/// `system` with the what-if options of `dram` (the configuration's memory).
+fn with_options_of(system: &str, dram: &str) -> String {
+    match dram.split_once(',') {
+        Some((_, options)) => format!("{system},{options}"),
+        None => system.to_string(),
+    }
+}
+
+/// [`MergeTreeFigures`] of `s` under `cfg`; the run on the configuration's own memory is
+/// the system study's, from `memo`.
+fn mergetree_figures(
+    s: &SystemScene<'_>,
+    cfg: &SystemConfig,
+    memo: &mut SimMemo,
+) -> Result<MergeTreeFigures, SystemError> {
+    let aabbs = bvh::triangle_aabbs(s.triangles);
+    let mut f = MergeTreeFigures {
+        scene: s.name.clone(),
+        triangles: s.triangles.len(),
+        ms: [0.0; 3],
+        gbs: [0.0; 3],
+        logic_mw: [0.0; 3],
+        dram_mw: [0.0; 3],
+        mb: 0.0,
+        units_fast: Vec::new(),
+    };
+    for (k, system) in crate::thesis::P2_SYSTEMS.iter().enumerate() {
+        let mut c = cfg.clone();
+        c.dram = with_options_of(system, &cfg.dram);
+        let r = super::mergetree_run(&aabbs, &cfg.mergetree, &c, memo)?;
+        let e = crate::mergetree::energy::mergetree_energy(&r, cfg.node, &cfg.energy)?;
+        let bytes = (r.bytes_read + r.bytes_written) as f64;
+        f.ms[k] = r.ms;
+        f.gbs[k] = if r.ms > 0.0 {
+            bytes / (r.ms * 1e-3) / 1e9
+        } else {
+            0.0
+        };
+        f.logic_mw[k] = e.logic_mw;
+        f.dram_mw[k] = match cfg.energy.dram {
+            crate::energy::DramConvention::AboveIdle => e.dram_above_idle_mw,
+            crate::energy::DramConvention::Full => e.dram_mw,
+        };
+        if k == 0 {
+            f.mb = bytes / 1e6;
+        }
+        if k == 2 {
+            // The on-chip units, in Table IV's order (the DRAM is the last).
+            f.units_fast = e.units[..e.units.len().saturating_sub(1)]
+                .iter()
+                .map(|u| (u.unit, u.area_mm2, u.power_mw))
+                .chain([("total", e.area_mm2, e.logic_mw)])
+                .collect();
+        }
+    }
+    Ok(f)
+}
+
+/// \[P2\] Tables III, VI, VII and IV from the scenes' [`MergeTreeFigures`], with the
+/// thesis's values where it has the scene (Tables III and VI) or the average (VII), and
+/// Table IV (Lion on the fast system) beside the largest scene.
+fn mergetree_rows(mts: &[MergeTreeFigures]) -> Vec<Figure> {
+    use crate::thesis::{p2_scene, P2_TABLE_IV, P2_TABLE_VII};
+    let mut v = Vec::new();
+    for m in mts {
+        let th = p2_scene(&m.scene);
+        for (k, sys) in P2_SYSTEM_NAMES.iter().enumerate() {
+            v.push((
+                format!("III {} MergeTree ms {sys}", m.scene),
+                m.ms[k],
+                th.map(|t| t.mergetree_ms[k]),
+                "ms",
+            ));
+        }
+        for (k, sys) in P2_SYSTEM_NAMES.iter().enumerate().skip(1) {
+            v.push((
+                format!("III {} speed-up {sys} over slow", m.scene),
+                if m.ms[k] > 0.0 {
+                    m.ms[0] / m.ms[k]
+                } else {
+                    0.0
+                },
+                th.map(|t| t.speedups()[k - 1]),
+                "x",
+            ));
+        }
+        v.push((
+            format!("VI {} MergeTree traffic", m.scene),
+            m.mb,
+            th.map(|t| t.traffic_mb[0]),
+            "MB",
+        ));
+    }
+    if !mts.is_empty() {
+        let n = mts.len() as f64;
+        let mean = |f: &dyn Fn(&MergeTreeFigures) -> f64| mts.iter().map(f).sum::<f64>() / n;
+        for (k, sys) in P2_SYSTEM_NAMES.iter().enumerate() {
+            let logic = mean(&|m| m.logic_mw[k]);
+            let dram = mean(&|m| m.dram_mw[k]);
+            for (i, (what, x, unit)) in [
+                ("traffic", mean(&|m| m.gbs[k]), "GB/s"),
+                ("logic", logic, "mW"),
+                ("DRAM", dram, "mW"),
+                ("total", logic + dram, "mW"),
+            ]
+            .into_iter()
+            .enumerate()
+            {
+                v.push((
+                    format!("VII {sys} mean {what}"),
+                    x,
+                    Some(P2_TABLE_VII[i][k]),
+                    unit,
+                ));
+            }
+        }
+    }
+    if let Some(big) = mts.iter().max_by_key(|m| m.triangles) {
+        for (u, t) in big.units_fast.iter().zip(P2_TABLE_IV) {
+            v.push((
+                format!("IV {} fast {} area", big.scene, u.0),
+                u.1,
+                Some(t.1),
+                "mm2",
+            ));
+            v.push((
+                format!("IV {} fast {} power", big.scene, u.0),
+                u.2,
+                Some(t.2),
+                "mW",
+            ));
+        }
+    }
+    v
 }
 
 /// Runs the default model and every value of every assumption over `scenes` (Table VIII's
@@ -339,14 +564,18 @@ pub fn run(
                 let mut c = base.clone();
                 c.set(a.key, v)?;
                 variants.push((a.key.into(), v.into(), c, None));
-                rt.set(a.key, v)
-                    .map_err(|e| SystemError::Config(e.to_string()))?;
+                // MergeTree's parameters do not touch the [P4] accelerator.
+                if !a.key.starts_with(super::MERGETREE_PREFIX) {
+                    rt.set(a.key, v)
+                        .map_err(|e| SystemError::Config(e.to_string()))?;
+                }
             }
             p4_cfgs.push(rt);
         }
     }
     // Scenes in parallel, each with its own memo over all the variants.
-    let per_scene: Vec<(Vec<SceneResult>, u64, u64)> = scenes
+    type PerScene = (Vec<(SceneResult, MergeTreeFigures)>, u64, u64);
+    let per_scene: Vec<PerScene> = scenes
         .par_iter()
         .map(|s| {
             let mut memo = SimMemo::default();
@@ -363,24 +592,36 @@ pub fn run(
                 } else {
                     format!("{key}={value}")
                 };
-                out.push(scene_result_memo(&scene, cfg, &mut memo, |what| {
+                let r = scene_result_memo(&scene, cfg, &mut memo, |what| {
                     progress(&format!("{label}: {what}"))
-                })?);
+                })?;
+                progress(&format!("{label}: {} MergeTree on [P2]'s systems", s.name));
+                let m = mergetree_figures(&scene, cfg, &mut memo)?;
+                out.push((r, m));
             }
             Ok((out, memo.simulated, memo.reused))
         })
         .collect::<Result<_, SystemError>>()?;
     let (mut simulated, mut reused) = (0, 0);
     let mut results: Vec<Vec<SceneResult>> = vec![Vec::new(); variants.len()];
+    let mut mts: Vec<Vec<MergeTreeFigures>> = vec![Vec::new(); variants.len()];
     for (out, sim, re) in per_scene {
         simulated += sim;
         reused += re;
-        for (i, r) in out.into_iter().enumerate() {
+        for (i, (r, m)) in out.into_iter().enumerate() {
             results[i].push(r);
+            mts[i].push(m);
         }
     }
-    let mut per_variant: Vec<Vec<(String, f64, Option<f64>)>> =
-        results.iter().map(|r| figures(r)).collect();
+    let mut per_variant: Vec<Vec<Figure>> = results
+        .iter()
+        .zip(&mts)
+        .map(|(r, m)| {
+            let mut f = figures(r);
+            f.extend(mergetree_rows(m));
+            f
+        })
+        .collect();
     if let Some(p4) = p4 {
         let trees = [
             rtunit::build_tree(TreeKind::Bvh2, p4.triangles)?,
@@ -396,7 +637,7 @@ pub fn run(
         reused += memo.reused;
     }
     let mut rows = Vec::new();
-    for (f, (name, default, thesis)) in per_variant[0].iter().enumerate() {
+    for (f, (name, default, thesis, unit)) in per_variant[0].iter().enumerate() {
         let values: Vec<f64> = per_variant.iter().map(|v| v[f].1).collect();
         let low = values.iter().copied().fold(f64::INFINITY, f64::min);
         let high = values.iter().copied().fold(f64::NEG_INFINITY, f64::max);
@@ -419,6 +660,7 @@ pub fn run(
         }
         rows.push(FigureRow {
             figure: name.clone(),
+            unit,
             thesis: *thesis,
             default: *default,
             low,
@@ -434,7 +676,7 @@ pub fn run(
         .map(|((key, value, ..), figs)| Variant {
             key,
             value,
-            figures: figs.iter().map(|(n, v, _)| (n.clone(), *v)).collect(),
+            figures: figs.iter().map(|(n, v, ..)| (n.clone(), *v)).collect(),
         })
         .collect();
     Ok(SensitivityReport {
@@ -452,25 +694,36 @@ pub fn run(
 }
 
 impl SensitivityReport {
-    /// The figures as Markdown: value, range, driver, thesis, in percent of binned SAH.
+    /// The figures as Markdown: value, range, driver, thesis; fractions (ratios to
+    /// binned SAH, relative changes) in percent, the rest in their units.
     pub fn markdown(&self) -> String {
-        let pct = |x: f64| format!("{:.0}%", x * 100.0);
         let mut m = String::from(
-            "| figure | thesis | default | low | high | driver (spread) | thesis in range |\n|---|---:|---:|---:|---:|---|---|\n",
+            "| figure | unit | thesis | default | low | high | driver (spread) | thesis in range |\n|---|---|---:|---:|---:|---:|---|---|\n",
         );
         for r in &self.rows {
+            let fraction = matches!(r.unit, "ratio" | "change");
+            let fmt = |x: f64| {
+                if fraction {
+                    format!("{:.0}%", x * 100.0)
+                } else {
+                    significant(x)
+                }
+            };
             let _ = writeln!(
                 m,
-                "| {} | {} | {} | {} | {} | {} | {} |",
+                "| {} | {} | {} | {} | {} | {} | {} | {} |",
                 r.figure,
-                r.thesis.map_or("-".into(), pct),
-                pct(r.default),
-                pct(r.low),
-                pct(r.high),
+                if fraction { "%" } else { r.unit },
+                r.thesis.map_or("-".into(), fmt),
+                fmt(r.default),
+                fmt(r.low),
+                fmt(r.high),
                 if r.driver.is_empty() {
                     "-".to_string()
-                } else {
+                } else if fraction {
                     format!("{} ({:.1} pp)", r.driver, r.driver_spread * 100.0)
+                } else {
+                    format!("{} ({})", r.driver, significant(r.driver_spread))
                 },
                 match r.thesis_inside {
                     Some(true) => "yes",
@@ -500,12 +753,13 @@ impl SensitivityReport {
 
     /// One CSV row per figure.
     pub fn csv(&self) -> String {
-        let mut c = String::from("figure,thesis,default,low,high,driver,driver_spread\n");
+        let mut c = String::from("figure,unit,thesis,default,low,high,driver,driver_spread\n");
         for r in &self.rows {
             let _ = writeln!(
                 c,
-                "{},{},{},{},{},{},{}",
+                "{},{},{},{},{},{},{},{}",
                 r.figure,
+                r.unit,
                 r.thesis.map_or(String::new(), |t| t.to_string()),
                 r.default,
                 r.low,
@@ -516,6 +770,16 @@ impl SensitivityReport {
         }
         c
     }
+}
+
+/// `x` with three significant digits (at least none after the point).
+fn significant(x: f64) -> String {
+    let digits = if x == 0.0 || !x.is_finite() {
+        0
+    } else {
+        (2 - x.abs().log10().floor() as i32).clamp(0, 6) as usize
+    };
+    format!("{x:.digits$}")
 }
 
 #[cfg(test)]
@@ -552,10 +816,11 @@ mod tests {
             .collect();
         let rep = run(&scenes, None, &base, &pick, |_| {}).unwrap();
         assert_eq!(rep.variants.len(), 1 + 1 + 2);
-        // Per variant: 3 MergeTree runs and 8 traces; the FPU variant reuses all 11, the
-        // latency variants reuse the MergeTree runs and trace again.
-        assert_eq!(rep.simulated, 11 + 2 * 8);
-        assert_eq!(rep.reused, 11 + 2 * 3);
+        // The default: 3 MergeTree runs and 8 traces for Table VIII, then MergeTree on
+        // [P2]'s three systems, of which the medium one is Table VIII's. The FPU variant
+        // reuses all 14; the latency variants reuse the 6 MergeTree runs and trace again.
+        assert_eq!(rep.simulated, 11 + 2 + 2 * 8);
+        assert_eq!(rep.reused, 1 + 14 + 2 * 6);
         // The Horowitz variant equals a run of that configuration on its own.
         let mut horowitz = base.clone();
         horowitz.set("fpu_energy", "horowitz").unwrap();
@@ -564,15 +829,17 @@ mod tests {
         let want = figures(&[alone]);
         let got = &rep.variants[1];
         assert_eq!(got.key, "fpu_energy");
-        for ((n, v), (wn, wv, _)) in got.figures.iter().zip(&want) {
+        for ((n, v), (wn, wv, ..)) in got.figures.iter().zip(&want) {
             assert_eq!(n, wn);
             assert!(
                 (v - wv).abs() <= 1e-12 * wv.abs().max(1.0),
                 "{n}: {v} vs {wv}"
             );
         }
-        // Rows span the variants; every row has a thesis value (Table VIII's builders).
-        assert_eq!(rep.rows.len(), 2 * 3 * 3);
+        // Rows span the variants. Table VIII's: 2 ray kinds, 3 builders, 3 columns; [P2]
+        // MergeTree's: per scene 3 times, 2 speed-ups and the traffic (III, VI), 4 means
+        // per system (VII), Table IV's 4 units and total, area and power.
+        assert_eq!(rep.rows.len(), 2 * 3 * 3 + 6 + 3 * 4 + 5 * 2);
         for (f, r) in rep.rows.iter().enumerate() {
             let vals: Vec<f64> = rep.variants.iter().map(|v| v.figures[f].1).collect();
             assert_eq!(r.default, vals[0]);
@@ -581,7 +848,12 @@ mod tests {
                 r.high,
                 vals.iter().copied().fold(f64::NEG_INFINITY, f64::max)
             );
-            assert!(r.thesis.is_some());
+            // The thesis has every figure but those of a scene it does not have.
+            assert_eq!(
+                r.thesis.is_some(),
+                !r.figure.starts_with("III") && !r.figure.starts_with("VI "),
+                "{r:?}"
+            );
             if r.high > r.low {
                 assert!(
                     r.driver == "fpu_energy" || r.driver == "l2_latency",
@@ -620,7 +892,26 @@ mod tests {
             .collect();
         let rep = run(&[], Some(&p4), &SystemConfig::default(), &pick, |_| {}).unwrap();
         assert_eq!((rep.simulated, rep.reused), (4 + 4, 4));
-        assert_eq!(rep.rows.len(), 8);
+        // Table 2's 8 changes, then Table 1's: 2 trees, area and two powers, 6 units and
+        // their sum.
+        assert_eq!(rep.rows.len(), 8 + 2 * 3 * 7);
+        let t1 = |f: &str| rep.rows.iter().find(|r| r.figure.ends_with(f)).unwrap();
+        let sum = t1("MBVH4 sum area");
+        assert_eq!(
+            (sum.unit, sum.thesis),
+            ("mm2", Some(crate::thesis::P4_TABLE1[1][0][6]))
+        );
+        let parts: f64 = ["TRV", "IST", "stack", "cache", "FIFO", "DRAM"]
+            .iter()
+            .map(|u| t1(&format!("MBVH4 {u} area")).default)
+            .sum();
+        assert!(
+            (parts - sum.default).abs() < 1e-9 && sum.default > 0.5,
+            "{parts}"
+        );
+        // The FPU source moves the IST's power, not its area.
+        let (area, power) = (t1("BVH2 IST area"), t1("BVH2 IST primary"));
+        assert!(area.high == area.low && power.high > power.low, "{power:?}");
         let row = |f: &str| rep.rows.iter().find(|r| r.figure.ends_with(f)).unwrap();
         assert_eq!(row("primary MBVH4 perf change").thesis, Some(0.87));
         assert_eq!(row("diffuse MBVH4 traffic change").thesis, Some(-0.30));
@@ -634,6 +925,76 @@ mod tests {
         }
     }
 
+    /// MergeTree's parameters and the address mapping: a buffer size that leaves the
+    /// tree alone simulates MergeTree again but reuses every trace (the memo keys traces
+    /// by the tree), the Morton grid changes the MergeTree trees and so traces them again,
+    /// and the address mapping re-runs everything that touches the memory.
+    #[test]
+    fn mergetree_and_memory_assumptions_rerun_what_they_change() {
+        let (tris, cam) = scene("proc:hairball?n=3000&seed=4");
+        let scenes = [SystemScene {
+            name: "hairball".into(),
+            triangles: &tris,
+            camera: cam,
+            sample: 1,
+        }];
+        let only = |keys: &[&str]| -> Vec<Assumption> {
+            assumptions()
+                .into_iter()
+                .filter(|a| keys.contains(&a.key))
+                .map(|mut a| {
+                    a.values.truncate(1);
+                    a
+                })
+                .collect()
+        };
+        let base = SystemConfig::default();
+        let default_runs = (11 + 2, 1);
+        // presort_slots=2: 5 MergeTree runs again (3 of Table VIII, 2 more systems).
+        let rep = run(
+            &scenes,
+            None,
+            &base,
+            &only(&["mergetree.presort_slots"]),
+            |_| {},
+        )
+        .unwrap();
+        assert_eq!(
+            (rep.simulated, rep.reused),
+            (default_runs.0 + 5, default_runs.1 + 8 + 1)
+        );
+        let row = |rep: &SensitivityReport, f: &str| {
+            rep.rows.iter().find(|r| r.figure == f).cloned().unwrap()
+        };
+        let ms = row(&rep, "III hairball MergeTree ms slow");
+        assert_eq!(ms.driver, "mergetree.presort_slots");
+        assert!(ms.high > ms.low, "{ms:?}");
+        // The traces are the same trees: the trace energy moves with nothing.
+        let trace = row(&rep, "VIII primary all hlbvh trace");
+        assert_eq!(trace.low, trace.high);
+        // The box grid: new MergeTree trees, traced again (3 builders, 2 ray kinds).
+        let rep = run(
+            &scenes,
+            None,
+            &base,
+            &only(&["mergetree.morton_grid"]),
+            |_| {},
+        )
+        .unwrap();
+        assert_eq!(rep.simulated, default_runs.0 + 5 + 6);
+        // The address mapping: every MergeTree run and every trace again.
+        let rep = run(&scenes, None, &base, &only(&["address_mapping"]), |_| {}).unwrap();
+        assert_eq!(rep.simulated, 2 * default_runs.0);
+        let traffic = row(&rep, "VI hairball MergeTree traffic");
+        let fast = row(&rep, "III hairball MergeTree ms fast");
+        // The mapping moves time, not the bytes MergeTree moves.
+        assert!(
+            traffic.high == traffic.low && fast.high > fast.low,
+            "{fast:?}"
+        );
+        assert!(rep.variants[1].value == "rorabgbachco");
+    }
+
     #[test]
     fn unknown_keys_and_bad_values_fail_before_running() {
         let (tris, cam) = scene("proc:hairball?n=500&seed=3");
@@ -643,7 +1004,15 @@ mod tests {
             camera: cam,
             sample: 1,
         }];
-        for (key, value) in [("warp_drive", "1"), ("sram_cell", "xx"), (SAMPLE_KEY, "0")] {
+        for (key, value) in [
+            ("warp_drive", "1"),
+            ("sram_cell", "xx"),
+            (SAMPLE_KEY, "0"),
+            ("mergetree.warp", "1"),
+            ("mergetree.presort_slots", "-1"),
+            ("mergetree.write_chunk_bytes", "4096"),
+            ("address_mapping", "chchrabgbaco"),
+        ] {
             let a = Assumption {
                 key,
                 default: "",
