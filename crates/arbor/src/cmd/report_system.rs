@@ -354,6 +354,13 @@ fn write_report(a: &ReportSystemArgs, rep: &SystemReport) -> anyhow::Result<()> 
         LARGE_TRIANGLES
     );
     md += "## Table VIII: energy relative to binned SAH (mean of per-scene ratios)\n\n";
+    if a.sample > 1 {
+        md += "A ± gives the figure's standard error from sampling, in points: the traces' \
+               errors from the spread of the timed chunks (`sim::rtunit::sampling`), \
+               combined over the scenes with the builder's and binned SAH's errors taken as \
+               independent (an upper estimate, as both trace the same pixels). It does not \
+               include the bias of warming the caches functionally between chunks.\n\n";
+    }
     md += &t8;
     md += "\n## Build and trace balance\n\nBinned SAH's build energy over its system energy, the same share as [P2]'s Table VIII row implies ((trace - total) / (trace - build)), and our build and trace ratios weighted with the thesis's share.\n\n";
     md += &rep.balance_markdown();

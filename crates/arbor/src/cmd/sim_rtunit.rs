@@ -214,20 +214,24 @@ fn print_report(r: &RtReport, first: Option<&RtReport>) {
         },
         r.memory_name
     );
+    // A sampled figure carries its standard error from sampling (`sim::rtunit::sampling`).
+    let se = |rel: Option<f64>| rel.map_or(String::new(), |e| format!(" ± {:.1}%", 100.0 * e));
     println!(
-        "  {} rays in {} cycles ({:.3} ms at {} MHz): {:.1} MRPS",
+        "  {} rays in {} cycles ({:.3} ms at {} MHz): {:.1} MRPS{}",
         thousands(r.rays),
         thousands(r.cycles),
         r.seconds * 1e3,
         r.config.clock_mhz,
-        r.mrps
+        r.mrps,
+        se(r.sampling.map(|e| e.mrps))
     );
     println!(
-        "  DRAM: {:.2} MB read, {:.2} MB written, bus {:.1}% busy; frame traffic {:.2} MB{}",
+        "  DRAM: {:.2} MB read, {:.2} MB written, bus {:.1}% busy; frame traffic {:.2} MB{}{}",
         r.dram_bytes_read as f64 / 1e6,
         r.dram_bytes_written as f64 / 1e6,
         100.0 * r.bus_utilization,
         r.frame_dram_mb,
+        se(r.sampling.map(|e| e.frame_traffic)),
         if r.sample > 1 {
             " (estimated from the sample)"
         } else {
@@ -258,10 +262,11 @@ fn print_report(r: &RtReport, first: Option<&RtReport>) {
     );
     if let Some(e) = &r.energy {
         println!(
-            "  energy at {} ({}): {:.3} mJ per frame, {:.0} mW, {:.2} mm^2, {:.1} MRPS/mm^2",
+            "  energy at {} ({}): {:.3} mJ per frame{}, {:.0} mW, {:.2} mm^2, {:.1} MRPS/mm^2",
             e.node.name(),
             e.conventions.describe(),
             e.frame_mj,
+            se(r.sampling.map(|_| e.frame_mj_rel_se)),
             e.power_mw,
             e.area_mm2,
             e.mrps_per_mm2

@@ -85,6 +85,13 @@ pub struct AcceleratorEnergy {
     /// Energy of one frame in mJ: the run's (whole frames) or the run's per simulated ray
     /// times the frame's estimated rays (sampled runs).
     pub frame_mj: f64,
+    /// Sampled runs: the relative standard error of `frame_mj` from sampling
+    /// (`super::sampling::frame_energy_rel_se`); 0 for a whole frame.
+    pub frame_mj_rel_se: f64,
+    /// Sampled runs: each measurement window's pixels and share of the run's energy in
+    /// mJ (`super::sampling::window_energy`), for errors of ratios between runs.
+    #[serde(skip)]
+    pub window_mj: Vec<(u64, f64)>,
     /// DRAM energy of the run above an idle memory's, in mJ (\[P2\] §6.2's convention).
     pub dram_above_idle_mj: f64,
     /// Million rays per second per mm^2.
@@ -180,9 +187,33 @@ pub fn accelerator_energy(
     } else {
         run_mj
     };
+    // What drives each unit's energy, for the frame energy's sampling error.
+    let dynamic = |name: &str| -> f64 {
+        units
+            .iter()
+            .filter(|u| u.unit == name)
+            .map(|u| u.dynamic_mj)
+            .sum()
+    };
+    let drivers = super::sampling::EnergyDrivers {
+        visits_mj: dynamic("TRV") + dynamic("stack") + dynamic("cache") + dynamic("FIFO"),
+        tests_mj: dynamic("IST"),
+        bytes_mj: dynamic("DRAM"),
+        time_mj: units.iter().map(|u| u.static_mj).sum(),
+    };
+    let frame_mj_rel_se =
+        super::sampling::frame_energy_rel_se(&r.sampling_windows, r.sample, &drivers)
+            .unwrap_or(0.0);
+    let window_mj = super::sampling::window_energy(&r.sampling_windows, &drivers)
+        .into_iter()
+        .zip(&r.sampling_windows)
+        .map(|(e, w)| (w.pixels, e))
+        .collect();
     Ok(AcceleratorEnergy {
         node,
         conventions: *conv,
+        frame_mj_rel_se,
+        window_mj,
         area_mm2,
         power_mw: if seconds > 0.0 { run_mj / seconds } else { 0.0 },
         run_mj,

@@ -45,6 +45,7 @@ mod config;
 pub mod energy;
 mod model;
 pub mod report;
+pub mod sampling;
 #[cfg(test)]
 mod tests;
 #[cfg(test)]
@@ -215,6 +216,12 @@ pub struct RtReport {
     /// `counted_dram_bytes` split into first touches (a line's first fetch in the run) and
     /// re-fetches (after eviction), of node lines and triangle lines.
     pub traffic_split: TrafficSplit,
+    /// Sampled runs: the relative standard errors of the frame estimates (`sampling`;
+    /// `None` for a whole frame or a run of fewer than two measurement windows).
+    pub sampling: Option<sampling::SamplingError>,
+    /// Sampled runs: the measurement windows behind `sampling`.
+    #[serde(skip)]
+    pub sampling_windows: Vec<sampling::Window>,
     /// Fraction of the data bus's peak used.
     pub bus_utilization: f64,
     /// Deepest stack of any ray (entries).
@@ -655,6 +662,9 @@ pub(crate) fn run_with(
         split: TrafficSplit::default(),
         window_rays: 0,
         window_cycles: 0,
+        windows: Vec::new(),
+        counted_visits: 0,
+        counted_tests: 0,
         counted_rays: 0,
         counted_pixels: 0,
         overflow: None,
@@ -807,6 +817,12 @@ pub(crate) fn run_with(
         counted_dram_bytes: world.counted_bytes,
         frame_dram_mb: frame_bytes / 1e6,
         traffic_split: world.split,
+        sampling: sampling::sampling_error(&world.windows, work.sample),
+        sampling_windows: if sampled {
+            std::mem::take(&mut world.windows)
+        } else {
+            Vec::new()
+        },
         bus_utilization: if cycles > 0 {
             bytes as f64 / (peak * cycles as f64)
         } else {

@@ -227,6 +227,12 @@ pub(crate) struct RtWorld<'a> {
     /// first retired counted ray of a timed chunk to its last).
     pub window_rays: u64,
     pub window_cycles: u64,
+    /// Each window of a sampled run, in order, with the timed work since the previous
+    /// one closed (`super::sampling`).
+    pub windows: Vec<super::sampling::Window>,
+    /// Node visits and triangle tests of counted rays.
+    pub counted_visits: u64,
+    pub counted_tests: u64,
     /// Rays of counted paths retired.
     pub counted_rays: u64,
     /// Camera pixels of counted paths.
@@ -524,6 +530,24 @@ impl<'a> Unit<RtWorld<'a>> for Scheduler {
                 if self.counted_in_flight == 0 && !in_timed() {
                     w.window_rays += *rays;
                     w.window_cycles += now + 1 - *start;
+                    let before = w.windows.iter().fold([0; 5], |a, x| {
+                        [
+                            a[0] + x.pixels,
+                            a[1] + x.rays,
+                            a[2] + x.bytes,
+                            a[3] + x.visits,
+                            a[4] + x.tests,
+                        ]
+                    });
+                    w.windows.push(super::sampling::Window {
+                        pixels: w.counted_pixels - before[0],
+                        rays: w.counted_rays - before[1],
+                        window_rays: *rays,
+                        cycles: now + 1 - *start,
+                        bytes: w.counted_bytes - before[2],
+                        visits: w.counted_visits - before[3],
+                        tests: w.counted_tests - before[4],
+                    });
                     self.window = None;
                 }
             }
@@ -890,6 +914,7 @@ impl<'a> Unit<RtWorld<'a>> for Trv {
                                 self.box_tests += tests;
                                 self.pushes += pushes;
                                 self.visits += 1;
+                                w.counted_visits += w.slots[s as usize].counted as u64;
                                 culled = c;
                                 state = State::Busy;
                             }
@@ -1113,6 +1138,7 @@ impl<'a> Unit<RtWorld<'a>> for Ist {
                     test_triangle(slot, tri, entry, w.tree.prim_of(entry));
                     slot.ist_pos += 1;
                     self.tests += 1;
+                    w.counted_tests += slot.counted as u64;
                     if slot.ist_pos == count {
                         slot.ist_pos = 0;
                         self.ready.pop_front();

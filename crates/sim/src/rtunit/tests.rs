@@ -431,6 +431,42 @@ fn a_sampled_run_warms_the_caches_and_stays_exact() {
     assert!(a.mrps > 0.0 && a.frame_dram_mb > 0.0);
 }
 
+/// The measurement windows of a sampled run account for every timed pixel, ray and
+/// byte, and give the run's sampling errors; a whole frame has none.
+#[test]
+fn sampling_windows_account_for_the_timed_work() {
+    let (tris, cam) = scene("proc:city?n=3000&seed=2", 256, 128);
+    let tree = build_tree(TreeKind::Bvh2, &tris).unwrap();
+    let cfg = RtConfig::default();
+    let mut w = work(&tris, &cam, RayMode::Diffuse);
+    w.sample = 4;
+    let r = run(&tree, &w, &cfg).unwrap();
+    let ws = &r.sampling_windows;
+    // 512 tiles in 32 chunks of 16: 8 runs of 4 chunks, one timed in each (adjacent
+    // timed chunks may share a window).
+    assert!((2..=8).contains(&ws.len()), "{}", ws.len());
+    let sum = |g: fn(&sampling::Window) -> u64| ws.iter().map(g).sum::<u64>();
+    assert_eq!(sum(|x| x.pixels), r.pixels);
+    assert_eq!(sum(|x| x.rays), r.rays);
+    assert_eq!(sum(|x| x.bytes), r.counted_dram_bytes);
+    assert!(sum(|x| x.visits) > 0 && sum(|x| x.visits) <= r.node_visits);
+    assert!(sum(|x| x.tests) > 0 && sum(|x| x.tests) <= r.triangle_tests);
+    assert!(ws.iter().all(|x| x.cycles > 0 && x.window_rays >= x.rays));
+    let e = r.sampling.expect("a sampled run has errors");
+    assert_eq!(e.windows, ws.len() as u64);
+    assert!(
+        e.mrps > 0.0 && e.frame_traffic > 0.0 && e.frame_rays > 0.0,
+        "{e:?}"
+    );
+    assert!(e.mrps < 0.5 && e.frame_traffic < 0.5, "{e:?}");
+    let energy = r.energy.as_ref().unwrap();
+    assert!(energy.frame_mj_rel_se > 0.0 && energy.frame_mj_rel_se < 0.5);
+    w.sample = 1;
+    let whole = run(&tree, &w, &cfg).unwrap();
+    assert!(whole.sampling.is_none() && whole.sampling_windows.is_empty());
+    assert_eq!(whole.energy.unwrap().frame_mj_rel_se, 0.0);
+}
+
 #[test]
 fn the_energy_breakdown_adds_up_and_grows_with_work_and_size() {
     let (tris, cam) = small();

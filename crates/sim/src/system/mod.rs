@@ -674,6 +674,13 @@ pub struct TraceEnergy {
     pub frame_dram_mb: f64,
     /// One in `sample` tile chunks timed.
     pub sample: u32,
+    /// The relative standard error of `frame_mj` (and `frame_mj_above_idle`) from
+    /// sampling (`rtunit::sampling`); 0 for whole frames.
+    pub frame_mj_rel_se: f64,
+    /// Sampled runs: each measurement window's pixels and energy share in mJ
+    /// (`rtunit::energy::AcceleratorEnergy::window_mj`).
+    #[serde(skip)]
+    pub window_mj: Vec<(u64, f64)>,
 }
 
 /// Traces one frame of `rays` through `tree` (a binary tree over `triangles`) with the
@@ -776,6 +783,8 @@ pub fn trace_energy_memo(
         mrps: r.mrps,
         frame_dram_mb: r.frame_dram_mb,
         sample,
+        frame_mj_rel_se: e.frame_mj_rel_se,
+        window_mj: e.window_mj.clone(),
     })
 }
 

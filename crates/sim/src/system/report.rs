@@ -168,6 +168,14 @@ pub struct Table8Row {
     /// (`BuildEnergy::dram_wait_mj`; binned SAH's FPU-bound build time, not its
     /// transfer time, then sets its DRAM's standby time).
     pub with_dram_wait: [f64; 3],
+    /// The standard errors of `build`, `trace` and `total` from the traces' sampling
+    /// (builds are not sampled): per scene, the error of the ratio of the builder's run to
+    /// binned SAH's over the same timed chunks
+    /// (`rtunit::sampling::paired_ratio_rel_se`), or where their measurement windows do
+    /// not pair up, the delta method with both runs' errors
+    /// (`TraceEnergy::frame_mj_rel_se`) taken as independent (an upper estimate); then
+    /// over the mean of the scenes. Zeros for whole frames.
+    pub sampling_se: [f64; 3],
     /// \[P2\] Table VIII's build, trace and total (fractions).
     pub thesis: Option<[f64; 3]>,
     /// Binned SAH's build energy over its build plus trace energy, mean over the scenes:
@@ -215,6 +223,39 @@ pub fn table8(results: &[SceneResult]) -> Vec<Table8Row> {
                 let trace = mean(&|s| s.trace(b, rays).frame_mj / s.trace(sah, rays).frame_mj);
                 let thesis = crate::thesis::p2_table8(ray_name(rays), set, b.name());
                 let thesis_build_share = thesis.and_then(implied_build_share);
+                // Per scene: the variances of the trace and total ratios.
+                let var = |s: &SceneResult| -> [f64; 2] {
+                    if b == sah {
+                        return [0.0; 2]; // the same run over itself
+                    }
+                    let (tb, tr) = (s.trace(b, rays), s.trace(sah, rays));
+                    let trace = tb.frame_mj / tr.frame_mj;
+                    let total = s.total_mj(b, rays) / s.total_mj(sah, rays);
+                    let paired = |fixed_b: f64, fixed_r: f64| {
+                        crate::rtunit::sampling::paired_ratio_rel_se(
+                            &tb.window_mj,
+                            &tr.window_mj,
+                            fixed_b * tb.window_mj.iter().map(|w| w.1).sum::<f64>() / tb.frame_mj,
+                            fixed_r * tr.window_mj.iter().map(|w| w.1).sum::<f64>() / tr.frame_mj,
+                            tb.sample,
+                        )
+                    };
+                    if let (Some(t), Some(x)) =
+                        (paired(0.0, 0.0), paired(s.build(b).mj, s.build(sah).mj))
+                    {
+                        return [(trace * t).powi(2), (total * x).powi(2)];
+                    }
+                    let rel_b = tb.frame_mj_rel_se * tb.frame_mj;
+                    let rel_r = tr.frame_mj_rel_se * tr.frame_mj;
+                    [
+                        trace.powi(2) * (tb.frame_mj_rel_se.powi(2) + tr.frame_mj_rel_se.powi(2)),
+                        total.powi(2)
+                            * ((rel_b / s.total_mj(b, rays)).powi(2)
+                                + (rel_r / s.total_mj(sah, rays)).powi(2)),
+                    ]
+                };
+                let n = scenes.len() as f64;
+                let se = |k: usize| scenes.iter().map(|s| var(s)[k]).sum::<f64>().sqrt() / n;
                 rows.push(Table8Row {
                     rays: ray_name(rays),
                     scenes: set,
@@ -243,6 +284,7 @@ pub fn table8(results: &[SceneResult]) -> Vec<Table8Row> {
                                 / s.total_mj_with_dram_wait(sah, rays)
                         }),
                     ],
+                    sampling_se: [0.0, se(0), se(1)],
                     thesis,
                     sah_build_share,
                     thesis_build_share,
@@ -302,6 +344,14 @@ impl SystemReport {
         let mut m = String::from(
             "| rays | scenes | n | builder | build | thesis | trace | thesis | total | thesis | total diff (pp) | above idle: build, trace, total | DRAM wait: build, total |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
         );
+        // A sampled figure carries its standard error from sampling.
+        let pm = |x: f64, se: f64| {
+            if se >= 0.0005 {
+                format!("{} ± {:.0}", pct(x), 100.0 * se)
+            } else {
+                pct(x)
+            }
+        };
         for r in &self.table8 {
             let t = r.thesis;
             let th = |k: usize| t.map_or("-".into(), |t| pct(t[k]));
@@ -314,9 +364,9 @@ impl SystemReport {
                 r.builder,
                 pct(r.build),
                 th(0),
-                pct(r.trace),
+                pm(r.trace, r.sampling_se[1]),
                 th(1),
-                pct(r.total),
+                pm(r.total, r.sampling_se[2]),
                 th(2),
                 t.map_or("-".into(), |t| format!("{:+.0}", 100.0 * (r.total - t[2]))),
                 pct(r.above_idle[0]),
@@ -361,14 +411,14 @@ impl SystemReport {
     /// Table VIII as CSV.
     pub fn table8_csv(&self) -> String {
         let mut c = String::from(
-            "rays,scenes,count,builder,build,trace,total,thesis_build,thesis_trace,thesis_total,build_above_idle,trace_above_idle,total_above_idle,sah_build_share,thesis_build_share,total_at_thesis_share,build_with_dram_wait,total_with_dram_wait\n",
+            "rays,scenes,count,builder,build,trace,total,thesis_build,thesis_trace,thesis_total,build_above_idle,trace_above_idle,total_above_idle,sah_build_share,thesis_build_share,total_at_thesis_share,build_with_dram_wait,total_with_dram_wait,trace_sampling_se,total_sampling_se\n",
         );
         for r in &self.table8 {
             let t = |k: usize| r.thesis.map_or(String::new(), |t| format!("{:.2}", t[k]));
             let o = |x: Option<f64>| x.map_or(String::new(), |x| format!("{x:.4}"));
             let _ = writeln!(
                 c,
-                "{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{:.4},{:.4},{:.4},{:.4},{},{},{:.4},{:.4}",
+                "{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{:.4},{:.4},{:.4},{:.4},{},{},{:.4},{:.4},{:.4},{:.4}",
                 r.rays,
                 r.scenes,
                 r.count,
@@ -386,7 +436,9 @@ impl SystemReport {
                 o(r.thesis_build_share),
                 o(r.total_at_thesis_share),
                 r.with_dram_wait[0],
-                r.with_dram_wait[2]
+                r.with_dram_wait[2],
+                r.sampling_se[1],
+                r.sampling_se[2]
             );
         }
         c

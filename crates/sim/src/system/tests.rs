@@ -196,7 +196,68 @@ fn a_scene_result_and_table8() {
             assert!((row.total_at_thesis_share.unwrap() - want).abs() < 1e-12);
         }
     }
+    // Sampling errors: none for whole frames; by hand for given trace errors, the
+    // builder's and binned SAH's taken as independent, and over two equal scenes the
+    // error of a mean of two.
+    assert!(rows.iter().all(|row| row.sampling_se == [0.0; 3]));
+    let mut rs = r.clone();
+    for t in &mut rs.traces {
+        t.frame_mj_rel_se = match t.builder {
+            Builder::BinnedSah => 0.05,
+            _ => 0.1,
+        };
+    }
+    let (p, sah) = (RayMode::Primary, Builder::BinnedSah);
+    let hl = Builder::Hlbvh;
+    let trace = rs.trace(hl, p).frame_mj / rs.trace(sah, p).frame_mj;
+    let total = rs.total_mj(hl, p) / rs.total_mj(sah, p);
+    let want_trace = trace * (0.1f64.powi(2) + 0.05f64.powi(2)).sqrt();
+    let want_total = total
+        * ((0.1 * rs.trace(hl, p).frame_mj / rs.total_mj(hl, p)).powi(2)
+            + (0.05 * rs.trace(sah, p).frame_mj / rs.total_mj(sah, p)).powi(2))
+        .sqrt();
+    for (scenes, n) in [
+        (vec![rs.clone()], 1.0f64),
+        (vec![rs.clone(), rs.clone()], 2.0),
+    ] {
+        let rows = table8(&scenes);
+        let row = rows
+            .iter()
+            .find(|x| x.rays == "primary" && x.builder == "hlbvh")
+            .unwrap();
+        let se = row.sampling_se;
+        assert_eq!(se[0], 0.0);
+        assert!((se[1] - want_trace / n.sqrt()).abs() < 1e-12, "{se:?}");
+        assert!((se[2] - want_total / n.sqrt()).abs() < 1e-12, "{se:?}");
+        let reference = rows.iter().find(|x| x.builder == "binned-sah").unwrap();
+        assert_eq!(reference.sampling_se, [0.0; 3]);
+    }
+    // Paired windows (the same timed chunks): the builder's trace heavy where binned
+    // SAH's is, so its trace ratio has no sampling error at all.
+    let mut paired = rs.clone();
+    for t in &mut paired.traces {
+        let k = if t.builder == Builder::BinnedSah {
+            1.0
+        } else {
+            2.0
+        };
+        t.window_mj = vec![(64, k), (64, 3.0 * k), (64, 2.0 * k)];
+        t.sample = 4;
+    }
+    let rows = table8(&[paired]);
+    let row = rows
+        .iter()
+        .find(|x| x.rays == "primary" && x.builder == "hlbvh")
+        .unwrap();
+    assert!(row.sampling_se[1].abs() < 1e-12, "{:?}", row.sampling_se);
+    assert!(
+        row.sampling_se[2] > 0.0,
+        "the builds do not scale with the chunks"
+    );
+    let rep = SystemReport::new(&cfg, 32, 24, vec![rs], Vec::new());
+    assert!(rep.table8_markdown().contains(" ± "));
     let rep = SystemReport::new(&cfg, 32, 24, vec![r], Vec::new());
+    assert!(!rep.table8_markdown().contains(" ± "));
     assert_eq!(rep.schema, SCHEMA);
     assert!(rep.table8_markdown().contains("hlbvh+atrbvh"));
     assert_eq!(rep.scenes_csv().lines().count(), 5);
