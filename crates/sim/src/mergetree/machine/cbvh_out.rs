@@ -1,0 +1,289 @@
+//! The CBVH outputs: the streaming encoder and the top-down pass as kernel units (see
+//! [`super::super::cbvh_unit`] for the model).
+
+use super::*;
+
+pub(super) struct Stream {
+    pub(super) enc: Option<cbvh::bottomup::StreamEncoder>,
+    pub(super) ops: VecDeque<cbvh::bottomup::MemOp>,
+    pub(super) awaiting_read: bool,
+    pub(super) flushing: bool,
+    pub(super) ended: bool,
+    pub(super) done: bool,
+    pub(super) stats: StreamUnitStats,
+    pub(super) flush_before_read: bool,
+}
+
+pub(super) const ST_STARVED: u8 = 0;
+pub(super) const ST_READ_WAIT: u8 = 1;
+pub(super) const ST_FLUSH_WAIT: u8 = 2;
+pub(super) const ST_WRITE_FULL: u8 = 3;
+pub(super) const ST_REQ_FULL: u8 = 4;
+
+impl Stream {
+    pub(super) fn read_returned(&mut self, latency: u64) {
+        self.awaiting_read = false;
+        self.stats.backtrack_read_latency_cycles += latency;
+        let bucket = (63 - latency.max(1).leading_zeros()) as usize;
+        let h = &mut self.stats.backtrack_read_latency_log2;
+        if h.len() <= bucket {
+            h.resize(bucket + 1, 0);
+        }
+        h[bucket] += 1;
+    }
+
+    pub(super) fn step_inner(
+        &mut self,
+        w: &mut KWorld,
+        cx: &mut Ctx,
+    ) -> Result<Wake, cbvh::CbvhError> {
+        use cbvh::bottomup::MemOp;
+        let now = cx.now();
+        while let Some(lat) = w.bt_data.pop(cx) {
+            self.read_returned(lat);
+        }
+        if self.done {
+            return Ok(Wake::Done);
+        }
+        if self.awaiting_read {
+            cx.set_state(State::Stalled(ST_READ_WAIT));
+            return Ok(Wake::OnEvent);
+        }
+        let enc = self.enc.as_mut().expect("encoder until done");
+        match self.ops.front().copied() {
+            Some(MemOp::WritePair { bytes, .. }) => {
+                if !w.nodes.has_room(now, bytes as u64) {
+                    cx.set_state(State::Stalled(ST_WRITE_FULL));
+                    return Ok(Wake::OnEvent);
+                }
+                w.nodes.add(cx, bytes as u64);
+                self.ops.pop_front();
+                self.stats.pairs_written += 1;
+                cx.set_state(State::Busy);
+                Ok(Wake::Next)
+            }
+            Some(MemOp::BacktrackRead {
+                addr_bytes, bytes, ..
+            }) => {
+                // A line with bytes still in the write buffer is written out first.
+                let pending = self.flush_before_read
+                    && w.nodes.start_pending(now) > 0
+                    && w.nodes.start_next_addr(now) < addr_bytes + bytes as u64;
+                if pending {
+                    if !self.flushing {
+                        self.flushing = true;
+                        self.stats.backtrack_flushes += 1;
+                        w.nodes.flush_through(cx, addr_bytes + bytes as u64);
+                    }
+                    cx.set_state(State::Stalled(ST_FLUSH_WAIT));
+                    return Ok(Wake::OnEvent); // the buffer's writes wake us
+                }
+                let req = Req {
+                    addr: addr_bytes,
+                    bytes,
+                    kind: AccessKind::Read,
+                    dest: Dest::Backtrack,
+                };
+                if w.req_cbvh.push(cx, req).is_err() {
+                    cx.set_state(State::Stalled(ST_REQ_FULL));
+                    return Ok(Wake::OnEvent);
+                }
+                self.ops.pop_front();
+                self.awaiting_read = true;
+                self.flushing = false;
+                self.stats.backtrack_reads += 1;
+                cx.set_state(State::Stalled(ST_READ_WAIT));
+                Ok(Wake::OnEvent)
+            }
+            Some(MemOp::BacktrackWrite {
+                addr_bytes, bytes, ..
+            }) => {
+                let req = Req {
+                    addr: addr_bytes,
+                    bytes,
+                    kind: AccessKind::Write,
+                    dest: Dest::Buffer,
+                };
+                if w.req_cbvh.push(cx, req).is_err() {
+                    cx.set_state(State::Stalled(ST_REQ_FULL));
+                    return Ok(Wake::OnEvent);
+                }
+                self.ops.pop_front();
+                self.stats.backtrack_writes += 1;
+                cx.set_state(State::Busy);
+                Ok(Wake::Next)
+            }
+            None => {
+                if let Some(n) = w.enc_fifo.pop(cx) {
+                    enc.push(n)?;
+                    self.ops.extend(enc.drain_ops());
+                    self.stats.nodes_in += 1;
+                    cx.set_state(State::Busy);
+                    Ok(Wake::Next)
+                } else if w.emit_finished.get(now) && !self.ended {
+                    // The root's treelet (or the root itself) is written last.
+                    enc.end_stream()?;
+                    self.ops.extend(enc.drain_ops());
+                    self.ended = true;
+                    cx.set_state(State::Busy);
+                    Ok(Wake::Next)
+                } else if self.ended {
+                    self.done = true;
+                    w.out.stream = Some((self.enc.take().expect("once"), self.stats.clone()));
+                    w.stream_done.push(cx, ()).expect("one done token");
+                    cx.set_state(State::Idle);
+                    Ok(Wake::Done)
+                } else {
+                    cx.set_state(State::Stalled(ST_STARVED));
+                    Ok(Wake::OnEvent)
+                }
+            }
+        }
+    }
+}
+
+impl<'a> Unit<KWorld<'a>> for Stream {
+    fn name(&self) -> &str {
+        "cbvh encoder"
+    }
+
+    fn stall_reasons(&self) -> &'static [&'static str] {
+        &[
+            "input empty",
+            "read wait",
+            "flush wait",
+            "write buffer full",
+            "request slot full",
+        ]
+    }
+
+    fn step(&mut self, w: &mut KWorld<'a>, cx: &mut Ctx) -> Wake {
+        if self.enc.is_none() && !self.done {
+            return Wake::Done; // not attached
+        }
+        match self.step_inner(w, cx) {
+            Ok(wake) => wake,
+            Err(e) => {
+                w.out.fault = Some(e);
+                self.done = true;
+                w.stream_done.push(cx, ()).expect("one done token");
+                Wake::Done
+            }
+        }
+    }
+
+    fn describe(&self, _w: &KWorld<'a>) -> String {
+        format!(
+            "{} nodes in, {} ops queued (front {:?}), awaiting read {}, ended {}, done {}",
+            self.stats.nodes_in,
+            self.ops.len(),
+            self.ops.front(),
+            self.awaiting_read,
+            self.ended,
+            self.done
+        )
+    }
+}
+
+// ---------------------------------------------------------------------------------------
+// Top-down CBVH pass (see [`super::cbvh_unit`] for the model)
+
+pub(super) struct Topdown {
+    pub(super) started: bool,
+    pub(super) nodes: u64,
+    pub(super) next_read: u64,
+    pub(super) arrived: Vec<bool>,
+    pub(super) next_encode: u64,
+    pub(super) pairs: u64,
+    pub(super) pair_bytes: u64,
+    pub(super) stats: TopdownStats,
+}
+
+pub(super) const TD_READ_WAIT: u8 = 0;
+pub(super) const TD_WRITE_FULL: u8 = 1;
+
+impl<'a> Unit<KWorld<'a>> for Topdown {
+    fn name(&self) -> &str {
+        "topdown pass"
+    }
+
+    fn stall_reasons(&self) -> &'static [&'static str] {
+        &["read wait", "write buffer full"]
+    }
+
+    fn step(&mut self, w: &mut KWorld<'a>, cx: &mut Ctx) -> Wake {
+        let now = cx.now();
+        if !self.started {
+            if w.td_start.pop(cx).is_none() {
+                return Wake::Done;
+            }
+            self.started = true;
+            self.nodes = w.out.nodes.len() as u64;
+            self.arrived = vec![false; self.nodes as usize];
+            self.pairs = self.nodes.max(1);
+            w.td_data = fifo(
+                "arbiter->topdown",
+                self.nodes as usize,
+                ARBITER,
+                w.ids.topdown,
+            );
+        }
+        if self.next_encode == self.pairs {
+            return Wake::Done;
+        }
+        while let Some((j, lat)) = w.td_data.pop(cx) {
+            self.arrived[j as usize] = true;
+            self.stats.read_latency_cycles += lat;
+        }
+        // One node read offered per cycle, from the end of the node array backwards.
+        let mut issued = false;
+        if self.next_read < self.nodes && !w.req_cbvh.is_full(cx) {
+            let k = self.nodes - 1 - self.next_read;
+            let req = Req {
+                addr: w.layout.nodes + k * NODE_BYTES,
+                bytes: NODE_BYTES as u32,
+                kind: AccessKind::Read,
+                dest: Dest::Topdown { j: self.next_read },
+            };
+            if w.req_cbvh.push(cx, req).is_err() {
+                unreachable!("checked");
+            }
+            self.next_read += 1;
+            self.stats.node_reads += 1;
+            issued = true;
+        }
+        // A tree that is one leaf has no node to read: its box is the root record.
+        let here = self.nodes == 0 || self.arrived[self.next_encode as usize];
+        let wake = if !here {
+            cx.set_state(State::Stalled(TD_READ_WAIT));
+            Wake::OnEvent
+        } else if !w.nodes.has_room(now, self.pair_bytes) {
+            cx.set_state(State::Stalled(TD_WRITE_FULL));
+            Wake::OnEvent
+        } else {
+            w.nodes.add(cx, self.pair_bytes);
+            self.next_encode += 1;
+            self.stats.pairs_written += 1;
+            cx.set_state(State::Busy);
+            if self.next_encode == self.pairs {
+                w.out.topdown = Some(self.stats.clone());
+                w.td_done.push(cx, ()).expect("one done token");
+                cx.set_state(State::Idle);
+                return Wake::Done;
+            }
+            Wake::Next
+        };
+        if issued || (self.next_read < self.nodes && !w.req_cbvh.is_full(cx)) {
+            Wake::Next
+        } else {
+            wake
+        }
+    }
+
+    fn describe(&self, _w: &KWorld<'a>) -> String {
+        format!(
+            "{}/{} read, {}/{} encoded",
+            self.next_read, self.nodes, self.next_encode, self.pairs
+        )
+    }
+}
