@@ -10,9 +10,10 @@
 //! Candidates above the maximum leaf size are always split first. Splitting a candidate
 //! inside the node costs no extra node (the node's `C_i` is paid anyway), so the gain has
 //! no `C_i` term. Each final candidate becomes a leaf when it fits and its leaf cost is not
-//! above `C_i·A + C_t·(best split cost)`, otherwise a 4-wide node built the same way. By
-//! default `C_i` is the binary node's; [`Mbvh4TopDownBuilder::wide_node_cost`] compares the
-//! leaf with the 4-wide SAH (`2 C_i` per node) of the node the candidate would become.
+//! above the 4-wide SAH (`2 C_i` per node) of the node the candidate would become (built
+//! tentatively), otherwise that 4-wide node ([`Mbvh4TopDownBuilder::wide_node_cost`]; off,
+//! the earlier leaf decision compares the leaf with a binary node over the best binary
+//! split, at half the price the tree is judged by).
 //!
 //! Candidates of at most 16 primitives get an exact split instead (per axis, sort by
 //! centroid and sweep every position), which is cheaper than clearing and sweeping bins
@@ -47,12 +48,13 @@ pub struct Mbvh4TopDownBuilder {
     /// Worker threads: 0 uses the current rayon pool, `n` a private pool of `n` threads.
     pub threads: usize,
     /// The leaf decision with the cost of the 4-wide SAH that [`Mbvh4::normalized_sah`]
-    /// reports (issue 31 part 4): a candidate that fits in a leaf becomes one unless the
-    /// node it would become (built tentatively as it would be) costs less, each node at
-    /// `2 C_i` ([`SahParams::for_width`]). `false` (the default) keeps the builder as it
-    /// was: the node is estimated as a binary node (`C_i` = 1.2) over the best binary
-    /// split, half the 4-wide node's price, which gives leaves of 1.5 triangles and a
-    /// 4-wide SAH about 9% above the collapse's on Crytek Sponza.
+    /// reports (the default; issue 31 part 4): a candidate that fits in a leaf becomes one
+    /// unless the node it would become (built tentatively as it would be) costs less, each
+    /// node at `2 C_i` ([`SahParams::for_width`]). `false` is the builder as it was before
+    /// 2026-12-06, a defect kept as an option: the node is estimated as a binary node
+    /// (`C_i` = 1.2) over the best binary split, half the 4-wide node's price, which gives
+    /// leaves of 1.5 triangles and a 4-wide SAH about 9% above the collapse's on Crytek
+    /// Sponza (`docs/rtunit-vs-thesis.md`).
     pub wide_node_cost: bool,
 }
 
@@ -63,7 +65,7 @@ impl Default for Mbvh4TopDownBuilder {
             max_leaf_size: 8,
             sah: SahParams::THESIS,
             threads: 0,
-            wide_node_cost: false,
+            wide_node_cost: true,
         }
     }
 }
@@ -740,13 +742,14 @@ mod tests {
             "proc:hairball?n=20000&seed=3",
         ] {
             let prims = proc_scene(spec);
-            let old = Mbvh4TopDownBuilder::default().build(&prims).unwrap();
-            let new = Mbvh4TopDownBuilder {
-                wide_node_cost: true,
+            let old = Mbvh4TopDownBuilder {
+                wide_node_cost: false,
                 ..Default::default()
             }
             .build(&prims)
             .unwrap();
+            let new = Mbvh4TopDownBuilder::default().build(&prims).unwrap();
+            assert_valid(spec, &old, &prims, 8);
             assert_valid(spec, &new, &prims, 8);
             let c = collapse(&BinnedSahBuilder::default().build(&prims).unwrap()).unwrap();
             let (so, sn, sc) = (

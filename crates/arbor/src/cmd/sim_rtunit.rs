@@ -23,8 +23,9 @@ pub struct RtunitArgs {
     /// for bvh2 and cbvh, a 4-wide one for mbvh4), e.g. hlbvh for MergeTree's trees.
     #[arg(long, value_name = "NAME")]
     builder: Option<String>,
-    /// How the mbvh4 tree is built: topdown (Wald's top-down builder, thesis P4 3.2),
-    /// topdown-cost (the same with the 4-wide node cost in its leaf decision), collapse
+    /// How the mbvh4 tree is built: topdown (Wald's top-down builder, thesis P4 3.2, with
+    /// the 4-wide node cost in its leaf decision), topdown-binary-leaf (the same with the
+    /// earlier leaf decision, which priced the node as a binary one), collapse
     /// (the binned SAH tree collapsed greedily to 4 wide: the same leaves as bvh2),
     /// collapse-sah (collapsed SAH-optimally) or collapse-fill (collapsed into the fewest
     /// nodes).
@@ -94,11 +95,11 @@ fn options_of(a: &RtunitArgs) -> anyhow::Result<(TreeKind, RayMode, rtunit::Mbvh
     let mbvh4 = match a.mbvh4_builder.as_str() {
         "topdown" => rtunit::Mbvh4Build::Topdown,
         "collapse" => rtunit::Mbvh4Build::Collapse,
-        "topdown-cost" => rtunit::Mbvh4Build::TopdownCost,
+        "topdown-binary-leaf" => rtunit::Mbvh4Build::TopdownBinaryLeaf,
         "collapse-sah" => rtunit::Mbvh4Build::CollapseSah,
         "collapse-fill" => rtunit::Mbvh4Build::CollapseFill,
         other => anyhow::bail!(
-            "unknown --mbvh4-builder '{other}' (known: topdown, topdown-cost, collapse, collapse-sah, collapse-fill)"
+            "unknown --mbvh4-builder '{other}' (known: topdown, topdown-binary-leaf, collapse, collapse-sah, collapse-fill)"
         ),
     };
     let cfg = config_of(a)?;

@@ -276,14 +276,16 @@ pub struct BuiltTree {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
 pub enum Mbvh4Build {
-    /// Wald's top-down builder (\[P4\] §3.2).
+    /// Wald's top-down builder (\[P4\] §3.2), with the 4-wide node cost in its leaf
+    /// decision (`bvh::Mbvh4TopDownBuilder`'s default).
     Topdown,
     /// The binned SAH binary tree collapsed to 4 wide (same leaves as the BVH2): a what-if
     /// that separates the node layout from the builder.
     Collapse,
-    /// Wald's top-down builder with the 4-wide node cost in its leaf decision
-    /// ([`bvh::Mbvh4TopDownBuilder::wide_node_cost`]).
-    TopdownCost,
+    /// Wald's top-down builder with the earlier leaf decision, which priced the node it
+    /// creates as a binary one ([`bvh::Mbvh4TopDownBuilder::wide_node_cost`] off).
+    #[serde(rename = "topdown-binary-leaf")]
+    TopdownBinaryLeaf,
     /// The binned SAH tree collapsed SAH-optimally (same leaves, [`bvh::collapse_sah_optimal`]).
     CollapseSah,
     /// The binned SAH tree collapsed into the fewest nodes its leaves allow
@@ -323,9 +325,9 @@ pub fn build_tree_with(
         (TreeKind::Mbvh4, Mbvh4Build::Collapse) => {
             bvh::Tree::Mbvh4(bvh::collapse(&binned()?).map_err(|e| tree_err(&e))?)
         }
-        (TreeKind::Mbvh4, Mbvh4Build::TopdownCost) => bvh::Tree::Mbvh4(
+        (TreeKind::Mbvh4, Mbvh4Build::TopdownBinaryLeaf) => bvh::Tree::Mbvh4(
             bvh::Mbvh4TopDownBuilder {
-                wide_node_cost: true,
+                wide_node_cost: false,
                 ..Default::default()
             }
             .build(&aabbs)
