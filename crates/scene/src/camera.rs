@@ -43,9 +43,49 @@ impl Camera {
     }
 }
 
+/// Cameras inside the architectural scenes of `shared/scenes` (their default cameras frame
+/// them from outside, where a ray sees a few walls): (scene, eye, target, vertical field
+/// of view in degrees). Chosen for Arbor's reports and benchmarks; the thesis does not
+/// give its viewpoints.
+pub const INTERIOR_VIEWS: [(&str, [f32; 3], [f32; 3], f32); 3] = [
+    (
+        "crytek-sponza",
+        [-120.0, 20.0, -5.0],
+        [60.0, 40.0, 5.0],
+        70.0,
+    ),
+    (
+        "conference",
+        [1500.0, 350.0, -900.0],
+        [0.0, 150.0, 500.0],
+        70.0,
+    ),
+    ("sibenik", [-17.0, -10.0, 0.0], [10.0, -5.0, 0.0], 70.0),
+];
+
+/// The camera reports and benchmarks use for the scene named `name`: its interior view
+/// where [`INTERIOR_VIEWS`] has one, else `camera` (the scene's own).
+pub fn view_camera(name: &str, mut camera: Camera) -> Camera {
+    if let Some((_, eye, target, fov)) = INTERIOR_VIEWS.iter().find(|c| c.0 == name) {
+        camera.eye = Vec3::from(*eye);
+        camera.target = Vec3::from(*target);
+        camera.vfov_deg = *fov;
+    }
+    camera
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn interior_views_replace_the_camera_of_their_scenes_only() {
+        let own = Camera::framing(&Aabb::new(Vec3::ZERO, Vec3::ONE));
+        let inside = view_camera("crytek-sponza", own);
+        assert_eq!(inside.eye, Vec3::new(-120.0, 20.0, -5.0));
+        assert_eq!((inside.vfov_deg, inside.up), (70.0, own.up));
+        assert_eq!(view_camera("bunny", own), own);
+    }
 
     #[test]
     fn framing_sees_the_whole_box() {

@@ -28,3 +28,6 @@ pub mod mergetree;
 pub mod rtunit;
 pub mod system;
 pub mod thesis;
+
+#[cfg(test)]
+mod pinned;

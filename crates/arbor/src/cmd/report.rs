@@ -97,36 +97,7 @@ pub fn shared_scenes() -> std::path::PathBuf {
     Path::new("..").join("shared").join("scenes")
 }
 
-/// Cameras inside the architectural scenes of `shared/scenes` (their default cameras frame
-/// them from outside, where a ray sees a few walls): (scene, eye, target, vertical field
-/// of view in degrees). Chosen for Arbor's reports and benchmarks; the thesis does not
-/// give its viewpoints.
-pub const INTERIOR_VIEWS: [(&str, [f32; 3], [f32; 3], f32); 3] = [
-    (
-        "crytek-sponza",
-        [-120.0, 20.0, -5.0],
-        [60.0, 40.0, 5.0],
-        70.0,
-    ),
-    (
-        "conference",
-        [1500.0, 350.0, -900.0],
-        [0.0, 150.0, 500.0],
-        70.0,
-    ),
-    ("sibenik", [-17.0, -10.0, 0.0], [10.0, -5.0, 0.0], 70.0),
-];
-
-/// The camera reports and benchmarks use for the scene named `name`: its interior view
-/// where [`INTERIOR_VIEWS`] has one, else `camera` (the scene's own).
-pub fn view_camera(name: &str, mut camera: scene::Camera) -> scene::Camera {
-    if let Some((_, eye, target, fov)) = INTERIOR_VIEWS.iter().find(|c| c.0 == name) {
-        camera.eye = geom::Vec3::from(*eye);
-        camera.target = geom::Vec3::from(*target);
-        camera.vfov_deg = *fov;
-    }
-    camera
-}
+pub use scene::camera::{view_camera, INTERIOR_VIEWS};
 
 /// Short name of a scene spec (file stem, or procedural name).
 pub fn short_name(spec: &str) -> String {
