@@ -143,12 +143,14 @@ pub fn window_energy(windows: &[Window], d: &EnergyDrivers) -> Vec<f64> {
         .collect()
 }
 
-/// The relative standard error of the ratio of two runs' frame energies traced over the
-/// same sample (`sample`), from their windows' energies `a` and `b` (pixels, mJ) when the
-/// windows pair up (the same pixels in each), each run's exact part (`a_fixed`,
-/// `b_fixed`, e.g. a build's energy) spread over the windows by pixels: the ratio
-/// estimator of `sum a / sum b`, whose errors largely cancel where the two runs are heavy
-/// on the same chunks. `None` when the windows do not pair up.
+/// The relative standard error of the ratio `X = (a_fixed + sum a) / (b_fixed + sum b)` of
+/// two runs traced over the same sample (`sample`), from their windows' energies `a` and
+/// `b` (pixels, mJ) when the windows pair up (the same pixels in each), with exact parts
+/// `a_fixed` and `b_fixed` (a build's energy, in the windows' units) that sampling does not
+/// move. Linearized, `X`'s error is that of `sum a - X sum b` over `b_fixed + sum b`; that
+/// difference is estimated per pixel from the windows' `a_j - X b_j` (the ratio estimator
+/// over pixels), so the errors of the two runs cancel where both are heavy on the same
+/// chunks. `None` when the windows do not pair up.
 pub fn paired_ratio_rel_se(
     a: &[(u64, f64)],
     b: &[(u64, f64)],
@@ -156,20 +158,28 @@ pub fn paired_ratio_rel_se(
     b_fixed: f64,
     sample: u32,
 ) -> Option<f64> {
-    if a.len() != b.len() || a.len() < 2 || a.iter().zip(b).any(|(x, y)| x.0 != y.0) {
+    let n = a.len();
+    if n != b.len() || n < 2 || a.iter().zip(b).any(|(x, y)| x.0 != y.0) {
         return None;
     }
-    let pixels = a.iter().map(|x| x.0 as f64).sum::<f64>().max(1.0);
-    let spread = |w: &[(u64, f64)], fixed: f64| -> Vec<f64> {
-        w.iter()
-            .map(|(p, e)| e + fixed * *p as f64 / pixels)
-            .collect()
-    };
-    ratio_rel_se(
-        &spread(a, a_fixed),
-        &spread(b, b_fixed),
-        1.0 / sample.max(1) as f64,
-    )
+    let total_a = a_fixed + a.iter().map(|w| w.1).sum::<f64>();
+    let total_b = b_fixed + b.iter().map(|w| w.1).sum::<f64>();
+    if !(total_a > 0.0 && total_b > 0.0) {
+        return None;
+    }
+    let x = total_a / total_b;
+    let z: Vec<f64> = a.iter().zip(b).map(|(a, b)| a.1 - x * b.1).collect();
+    let pixels: Vec<f64> = a.iter().map(|w| w.0 as f64).collect();
+    let per_pixel = z.iter().sum::<f64>() / pixels.iter().sum::<f64>().max(1.0);
+    let d: Vec<f64> = z
+        .iter()
+        .zip(&pixels)
+        .map(|(z, p)| z - per_pixel * p)
+        .collect();
+    let sq: f64 = d.windows(2).map(|w| (w[1] - w[0]).powi(2)).sum();
+    let f = 1.0 / sample.max(1) as f64;
+    let var = n as f64 / (2.0 * (n - 1) as f64) * sq * (1.0 - f);
+    Some(var.sqrt() / total_a)
 }
 
 #[cfg(test)]
@@ -264,6 +274,12 @@ mod tests {
         let flat = [(10, 5.0), (10, 5.0), (10, 5.0)];
         let se = paired_ratio_rel_se(&a, &flat, 0.0, 0.0, 2).unwrap();
         assert!((se - by_hand).abs() < 1e-12, "{se}");
+        // Exact parts do not add error of their own: a build spread over windows of
+        // unequal size leaves a ratio of proportional traces without error.
+        let uneven = [(10, 1.0), (30, 3.0), (20, 2.0)];
+        let uneven2 = [(10, 2.0), (30, 6.0), (20, 4.0)];
+        let both = paired_ratio_rel_se(&uneven2, &uneven, 5.0, 2.5, 2).unwrap();
+        assert!(both.abs() < 1e-12, "{both}");
         // Unpaired windows: no estimate.
         assert_eq!(paired_ratio_rel_se(&a, &a[..2], 0.0, 0.0, 2), None);
         assert_eq!(
