@@ -153,6 +153,33 @@ impl Indices<'_> {
     }
 }
 
+/// Wide integer indices as `u32` triangles; an index outside `u32` is an error naming it.
+fn narrow<T: numpy::Element + Copy + std::fmt::Display>(
+    a: &PyReadonlyArray2<'_, T>,
+    vertices: usize,
+) -> PyResult<Vec<[u32; 3]>>
+where
+    u32: TryFrom<T>,
+{
+    let s = a
+        .as_slice()
+        .map_err(|_| err("internal error: array not contiguous"))?;
+    let mut out = Vec::with_capacity(s.len() / 3);
+    for (t, tri) in s.chunks_exact(3).enumerate() {
+        let mut v = [0u32; 3];
+        for k in 0..3 {
+            v[k] = u32::try_from(tri[k]).map_err(|_| {
+                err(format!(
+                    "triangle {t} refers to vertex {}, but there are only {vertices} vertices",
+                    tri[k]
+                ))
+            })?;
+        }
+        out.push(v);
+    }
+    Ok(out)
+}
+
 /// Converts `obj` to `(M, 3)` vertex indices, each below `vertices`.
 pub(crate) fn indices<'py>(obj: &Bound<'py, PyAny>, vertices: usize) -> PyResult<Indices<'py>> {
     let what = "indices";
@@ -163,28 +190,17 @@ pub(crate) fn indices<'py>(obj: &Bound<'py, PyAny>, vertices: usize) -> PyResult
             .cast_into::<PyArray2<u32>>()
             .map_err(|_| err("indices: not a uint32 array"))?;
         Indices::View(a.readonly())
+    } else if kind(&a) == 'u' {
+        // Unsigned: read as uint64, so that a huge index is not read back as negative.
+        let wide = require(what, &a, "uint64")?
+            .cast_into::<PyArray2<u64>>()
+            .map_err(|_| err("indices: not a uint64 array"))?;
+        Indices::Owned(narrow(&wide.readonly(), vertices)?)
     } else {
         let wide = require(what, &a, "int64")?
             .cast_into::<PyArray2<i64>>()
             .map_err(|_| err("indices: not an int64 array"))?;
-        let ro = wide.readonly();
-        let s = ro
-            .as_slice()
-            .map_err(|_| err("internal error: array not contiguous"))?;
-        let mut out = Vec::with_capacity(s.len() / 3);
-        for (t, tri) in s.chunks_exact(3).enumerate() {
-            let mut v = [0u32; 3];
-            for k in 0..3 {
-                v[k] = u32::try_from(tri[k]).map_err(|_| {
-                    err(format!(
-                        "triangle {t} refers to vertex {}, but there are only {vertices} vertices",
-                        tri[k]
-                    ))
-                })?;
-            }
-            out.push(v);
-        }
-        Indices::Owned(out)
+        Indices::Owned(narrow(&wide.readonly(), vertices)?)
     };
     if let Some((t, tri)) = ix
         .get()?

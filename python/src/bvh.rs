@@ -4,6 +4,7 @@
 
 use crate::arrays::{bounds_array, err, indices, points};
 use crate::detached;
+use crate::raycaster::count_arg;
 use arbor::cmd::build::{self as cli, BuildConfig};
 use bvh::{SahParams, Tree};
 use geom::{Aabb, Vec3};
@@ -20,8 +21,8 @@ pub(crate) type Triangles = Vec<[u32; 3]>;
 #[pyclass(module = "arbor._arbor")]
 pub struct Bvh {
     pub(crate) tree: Tree,
-    builder: String,
-    max_leaf: u32,
+    pub(crate) builder: String,
+    pub(crate) max_leaf: u32,
     pub(crate) indices: Option<Vec<[u32; 3]>>,
     pub(crate) prims: Option<Vec<Aabb>>,
 }
@@ -43,7 +44,7 @@ const PY_NAMES: cli::OptionNames = cli::OptionNames {
 
 /// The build configuration of `arbor build`'s options, checked by its own rules
 /// (`cmd::build::build_config`), the messages naming the Python arguments.
-fn config(
+pub(crate) fn config(
     builder: &str,
     max_leaf: Option<u32>,
     bins: Option<usize>,
@@ -55,7 +56,7 @@ fn config(
 }
 
 /// Runs `f` in a pool of `threads` workers, or in the global pool.
-fn in_pool<T: Send>(
+pub(crate) fn in_pool<T: Send>(
     threads: Option<usize>,
     f: impl FnOnce() -> Result<T, String> + Send,
 ) -> Result<T, String> {
@@ -199,11 +200,14 @@ impl Bvh {
         vertices: &Bound<'_, PyAny>,
         indices: &Bound<'_, PyAny>,
         builder: &str,
-        max_leaf: Option<u32>,
-        bins: Option<usize>,
+        max_leaf: Option<i64>,
+        bins: Option<i64>,
         collapse_from: Option<String>,
-        threads: Option<usize>,
+        threads: Option<i64>,
     ) -> PyResult<Self> {
+        let max_leaf = count_arg::<u32>("max_leaf", max_leaf)?;
+        let bins = count_arg::<usize>("bins", bins)?;
+        let threads = count_arg::<usize>("threads", threads)?;
         let (f, cfg) =
             config(builder, max_leaf, bins, collapse_from.as_deref(), threads).map_err(err)?;
         let v = points("vertices", vertices)?;

@@ -1,0 +1,848 @@
+//! `RayCaster`: a prepared acceleration structure bound to its geometry. It owns a copy of
+//! the vertices and triangles, the tree and the kernel's traceable form (`trace::Accel`; for
+//! `kernel="cbvh"` the encoded CBVH), all made once, so that a query costs only its rays.
+//! `refit` moves the vertices (same triangles) and updates the tree and the kernel in
+//! place; since the object holds the only copy of the geometry it traces, it can never
+//! answer for vertices other than those it was last given.
+//!
+//! Queries run with the interpreter released, in parallel for more than a few hundred rays,
+//! and write straight into numpy arrays allocated before the work starts. The state sits
+//! behind a read-write lock taken with the interpreter released: any number of threads
+//! trace at once, and a `refit` waits for them (and they for it) instead of failing.
+
+use crate::arrays::{err, points};
+use crate::bvh::{aabbs, config, in_pool, Bvh};
+use crate::detached;
+use crate::trace::{
+    accel_of, check_current, default_distance_stack, tree_kernel, RayArrays, RaySlices, CHUNK,
+    KERNELS, NO_HIT, SERIAL_RAYS,
+};
+use ::trace::{Accel, KernelOptions, Query, RayStats, TraversalStack, Traverse};
+use bvh::Tree;
+use geom::{Triangle, Vec3};
+use numpy::{PyArray1, PyArray2, PyArrayMethods, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::{PyBytes, PyDict, PySlice, PyTuple};
+use rayon::prelude::*;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::RwLock;
+
+/// Names of the per-ray counters, in the column order of `RayHits.counters`.
+const COUNTERS: [&str; 7] = [
+    "node_visits",
+    "box_tests",
+    "tri_tests",
+    "leaf_visits",
+    "pops",
+    "culled_pops",
+    "max_stack_depth",
+];
+
+/// What a `RayCaster` traces: the geometry it owns, its tree and the kernel's form of it.
+struct State {
+    vertices: Vec<Vec3>,
+    indices: Vec<[u32; 3]>,
+    triangles: Vec<Triangle>,
+    tree: Tree,
+    accel: Accel,
+}
+
+/// A prepared ray caster (see the module header).
+#[pyclass(module = "arbor._arbor", frozen)]
+pub struct RayCaster {
+    state: RwLock<State>,
+    /// Refits so far: part of every result, so that results of different geometry are
+    /// told apart.
+    generation: AtomicU64,
+    kernel: &'static str,
+    distance_stack: bool,
+    builder: String,
+    max_leaf: u32,
+    vertex_count: usize,
+    triangle_count: usize,
+}
+
+/// A counter as u32 (saturating; one ray never comes near).
+fn c32(x: u64) -> u32 {
+    x.min(u32::MAX as u64) as u32
+}
+
+/// The kernel name `kernel` (or the tree's own), checked.
+fn kernel_name(tree: &Tree, kernel: Option<&str>) -> Result<&'static str, String> {
+    match kernel {
+        None => Ok(tree_kernel(tree)),
+        Some(k) => ["bvh2", "mbvh4", "mbvh8", "cbvh"]
+            .into_iter()
+            .find(|&n| n == k)
+            .ok_or_else(|| format!("unknown kernel '{k}'; valid: {KERNELS}")),
+    }
+}
+
+/// An optional non-negative integer argument as `T`, or an `ArborError` naming it (a plain
+/// `u32` argument would raise `OverflowError` for -1).
+pub(crate) fn count_arg<T: TryFrom<i64>>(what: &str, x: Option<i64>) -> PyResult<Option<T>> {
+    x.map(|v| {
+        T::try_from(v).map_err(|_| {
+            err(format!(
+                "{what} must be a non-negative integer in range, got {v}"
+            ))
+        })
+    })
+    .transpose()
+}
+
+/// Locks for reading, or fails if a panic left the state inconsistent.
+fn read(l: &RwLock<State>) -> Result<std::sync::RwLockReadGuard<'_, State>, String> {
+    l.read()
+        .map_err(|_| "the ray caster was left inconsistent by an internal error".to_string())
+}
+
+/// The output columns of a closest-hit query over a run of rays (one chunk of the arrays).
+struct Closest<'a> {
+    t: &'a mut [f32],
+    prim: &'a mut [u32],
+    u: &'a mut [f32],
+    v: &'a mut [f32],
+    hit: &'a mut [bool],
+    normal: &'a mut [f32],
+    location: &'a mut [f32],
+    /// `(n, 7)` counters (the order of [`COUNTERS`]), when asked for.
+    counters: Option<&'a mut [u32]>,
+}
+
+impl<'a> Closest<'a> {
+    /// The columns split into runs of `chunk` rays.
+    fn split(self, chunk: usize) -> Vec<Closest<'a>> {
+        let mut t = self.t.chunks_mut(chunk);
+        let mut prim = self.prim.chunks_mut(chunk);
+        let mut u = self.u.chunks_mut(chunk);
+        let mut v = self.v.chunks_mut(chunk);
+        let mut hit = self.hit.chunks_mut(chunk);
+        let mut normal = self.normal.chunks_mut(3 * chunk);
+        let mut location = self.location.chunks_mut(3 * chunk);
+        let mut counters = self.counters.map(|c| c.chunks_mut(COUNTERS.len() * chunk));
+        let mut out = Vec::new();
+        while let (Some(t), Some(prim), Some(u), Some(v), Some(hit), Some(normal), Some(location)) = (
+            t.next(),
+            prim.next(),
+            u.next(),
+            v.next(),
+            hit.next(),
+            normal.next(),
+            location.next(),
+        ) {
+            out.push(Closest {
+                t,
+                prim,
+                u,
+                v,
+                hit,
+                normal,
+                location,
+                counters: counters.as_mut().and_then(|c| c.next()),
+            });
+        }
+        out
+    }
+
+    /// Traces rays `first..first + self.t.len()` and writes their results.
+    fn fill(self, s: &State, rays: &RaySlices<'_>, first: usize, totals: &mut RayStats) {
+        let mut stack = TraversalStack::new();
+        let mut counters = self.counters;
+        for k in 0..self.t.len() {
+            let ray = rays.ray(first + k);
+            let mut st = RayStats::default();
+            let h = s
+                .accel
+                .trace_observed(&ray, Query::Closest, &mut stack, &mut st, &mut ());
+            let tri = h.and_then(|h| s.triangles.get(h.prim as usize).map(|t| (h, t)));
+            let (n, p) = (
+                &mut self.normal[3 * k..3 * k + 3],
+                &mut self.location[3 * k..3 * k + 3],
+            );
+            match tri {
+                Some((h, tri)) => {
+                    self.t[k] = h.t;
+                    self.prim[k] = h.prim;
+                    self.u[k] = h.bary[1];
+                    self.v[k] = h.bary[2];
+                    self.hit[k] = true;
+                    let g = (tri.v[1] - tri.v[0])
+                        .cross(tri.v[2] - tri.v[0])
+                        .normalize_or_zero();
+                    n.copy_from_slice(&g.to_array());
+                    p.copy_from_slice(&ray.at(h.t).to_array());
+                }
+                None => {
+                    self.t[k] = f32::INFINITY;
+                    self.prim[k] = NO_HIT;
+                    self.u[k] = 0.0;
+                    self.v[k] = 0.0;
+                    self.hit[k] = false;
+                    n.fill(f32::NAN);
+                    p.fill(f32::NAN);
+                }
+            }
+            if let Some(c) = counters.as_deref_mut() {
+                let row = [
+                    st.node_visits,
+                    st.box_tests,
+                    st.tri_tests,
+                    st.leaf_visits,
+                    st.pops,
+                    st.culled_pops,
+                    st.max_stack_depth,
+                ];
+                for (j, x) in row.into_iter().enumerate() {
+                    c[COUNTERS.len() * k + j] = c32(x);
+                }
+            }
+            totals.add(&st);
+        }
+    }
+}
+
+/// Runs `work(first, len, totals)` over runs of rays: on this thread for few rays, else
+/// in parallel runs of [`CHUNK`]; returns the summed counters.
+fn for_chunks<P: Send>(parts: Vec<P>, work: impl Fn(P, usize, &mut RayStats) + Sync) -> RayStats {
+    if parts.len() <= 1 {
+        let mut total = RayStats::default();
+        for p in parts {
+            work(p, 0, &mut total);
+        }
+        return total;
+    }
+    parts
+        .into_par_iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let mut s = RayStats::default();
+            work(p, i * CHUNK, &mut s);
+            s
+        })
+        .reduce(RayStats::default, |mut a, b| {
+            a.add(&b);
+            a
+        })
+}
+
+/// The run length for `n` rays: everything at once when few.
+fn chunk_for(n: usize) -> usize {
+    if n <= SERIAL_RAYS {
+        n.max(1)
+    } else {
+        CHUNK
+    }
+}
+
+/// Closest hits of a batch of rays from [`RayCaster::intersect`]: per ray the distance `t`
+/// (`inf` on a miss), the triangle (`NO_HIT` on a miss), the barycentric weights `u`, `v`
+/// of its vertices 1 and 2, the unit geometric normal (NaN on a miss), the hit location
+/// (NaN on a miss), and optionally the traversal counters.
+#[pyclass(module = "arbor._arbor", frozen)]
+pub struct RayHits {
+    #[pyo3(get)]
+    t: Py<PyArray1<f32>>,
+    #[pyo3(get)]
+    primitive: Py<PyArray1<u32>>,
+    #[pyo3(get)]
+    u: Py<PyArray1<f32>>,
+    #[pyo3(get)]
+    v: Py<PyArray1<f32>>,
+    #[pyo3(get)]
+    hit: Py<PyArray1<bool>>,
+    #[pyo3(get)]
+    normal: Py<PyArray2<f32>>,
+    #[pyo3(get)]
+    location: Py<PyArray2<f32>>,
+    counter_array: Option<Py<PyArray2<u32>>>,
+    #[pyo3(get)]
+    generation: u64,
+    #[pyo3(get)]
+    kernel: &'static str,
+    total: RayStats,
+}
+
+#[pymethods]
+impl RayHits {
+    /// Per-ray counters (`node_visits`, `box_tests`, `tri_tests`, `leaf_visits`, `pops`,
+    /// `culled_pops`, `max_stack_depth`) as a dict of uint32 arrays, or None when the query
+    /// did not ask for them.
+    #[getter]
+    fn counters<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let Some(a) = &self.counter_array else {
+            return Ok(None);
+        };
+        let a = a.bind(py);
+        let d = PyDict::new(py);
+        for (j, name) in COUNTERS.iter().enumerate() {
+            let col = a.get_item((PySlice::full(py), j))?;
+            d.set_item(*name, col)?;
+        }
+        Ok(Some(d))
+    }
+
+    /// Counters summed over all rays (always kept; `max_stack_depth` is a maximum).
+    #[getter]
+    fn totals<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        crate::trace::stats_dict(py, &self.total)
+    }
+
+    fn __len__(&self) -> usize {
+        self.total.rays as usize
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "RayHits({} rays, {} hits, kernel {:?}, generation {})",
+            self.total.rays, self.total.hits, self.kernel, self.generation
+        )
+    }
+}
+
+impl RayCaster {
+    /// Wraps prepared state.
+    #[allow(clippy::too_many_arguments)]
+    fn wrap(
+        state: State,
+        kernel: &'static str,
+        distance_stack: bool,
+        builder: String,
+        max_leaf: u32,
+        generation: u64,
+    ) -> Self {
+        RayCaster {
+            vertex_count: state.vertices.len(),
+            triangle_count: state.indices.len(),
+            state: RwLock::new(state),
+            generation: AtomicU64::new(generation),
+            kernel,
+            distance_stack,
+            builder,
+            max_leaf,
+        }
+    }
+
+    /// The state prepared over `tree` (built or refitted over these triangles).
+    fn prepare(
+        vertices: Vec<Vec3>,
+        indices: Vec<[u32; 3]>,
+        tree: Tree,
+        kernel: &'static str,
+        distance_stack: bool,
+    ) -> Result<State, String> {
+        if tree.prim_count() != indices.len() {
+            return Err(format!(
+                "the tree holds {} primitives but {} triangles were given",
+                tree.prim_count(),
+                indices.len()
+            ));
+        }
+        let triangles = crate::arrays::resolve(&vertices, &indices)?;
+        let options = KernelOptions { distance_stack };
+        let accel = accel_of(&tree, Some(kernel), &triangles, options)?;
+        Ok(State {
+            vertices,
+            indices,
+            triangles,
+            tree,
+            accel,
+        })
+    }
+
+    /// Rays from Python, with the checks every query makes.
+    fn rays<'py>(
+        origins: &Bound<'py, PyAny>,
+        directions: &Bound<'py, PyAny>,
+        tmin: Option<&Bound<'py, PyAny>>,
+        tmax: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<RayArrays<'py>> {
+        RayArrays::new(origins, directions, tmin, tmax)
+    }
+}
+
+/// `out` as a writable `(n,)` array of `T` (for `out=` arguments), or a fresh one.
+fn out_array<'py, T: numpy::Element>(
+    py: Python<'py>,
+    out: Option<&Bound<'py, PyAny>>,
+    n: usize,
+    what: &str,
+) -> PyResult<Bound<'py, PyArray1<T>>> {
+    match out {
+        None => Ok(PyArray1::zeros(py, n, false)),
+        Some(o) => {
+            let a = o.cast::<PyArray1<T>>().map_err(|_| {
+                err(format!(
+                    "{what}: out must be a numpy array of dtype {} and shape ({n},)",
+                    std::any::type_name::<T>()
+                ))
+            })?;
+            if a.len() != n || !a.is_contiguous() {
+                return Err(err(format!(
+                    "{what}: out must be a contiguous array of shape ({n},), got shape {:?}",
+                    a.shape()
+                )));
+            }
+            Ok(a.clone())
+        }
+    }
+}
+
+#[pymethods]
+impl RayCaster {
+    /// Builds the tree over `indices` into `vertices` with a builder of `arbor build` and
+    /// prepares it for `kernel` (default: the tree's own format).
+    #[new]
+    #[pyo3(signature = (vertices, indices, builder = "binned-sah", *, kernel = None, distance_stack = None, max_leaf = None, bins = None, collapse_from = None, threads = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        vertices: &Bound<'_, PyAny>,
+        indices: &Bound<'_, PyAny>,
+        builder: &str,
+        kernel: Option<&str>,
+        distance_stack: Option<bool>,
+        max_leaf: Option<i64>,
+        bins: Option<i64>,
+        collapse_from: Option<String>,
+        threads: Option<i64>,
+    ) -> PyResult<Self> {
+        let max_leaf = count_arg::<u32>("max_leaf", max_leaf)?;
+        let bins = count_arg::<usize>("bins", bins)?;
+        let threads = count_arg::<usize>("threads", threads)?;
+        let (f, cfg) =
+            config(builder, max_leaf, bins, collapse_from.as_deref(), threads).map_err(err)?;
+        let v = points("vertices", vertices)?;
+        let vs = v.as_vec3()?;
+        let ix = crate::arrays::indices(indices, vs.len())?;
+        let ixs = ix.get()?;
+        let leaf_limit = cfg.max_leaf;
+        let (state, k, ds) = detached(py, || {
+            let prims = aabbs(vs, ixs)?;
+            let tree = in_pool(threads, || {
+                f(&prims, &cfg)
+                    .map_err(|e| format!("builder {builder} failed: {}", arbor::one_line(&e)))
+            })?;
+            let k = kernel_name(&tree, kernel)?;
+            let ds = distance_stack.unwrap_or_else(|| default_distance_stack(k));
+            let state = Self::prepare(vs.to_vec(), ixs.to_vec(), tree, k, ds)?;
+            Ok::<_, String>((state, k, ds))
+        })?;
+        Ok(Self::wrap(state, k, ds, builder.to_string(), leaf_limit, 0))
+    }
+
+    /// A ray caster over a tree built before (`Bvh.build`, or loaded from a file), with
+    /// the vertices and indices it was built or last refitted over (`indices` default to
+    /// the tree's own). A tree that does not match the vertices is refused.
+    #[staticmethod]
+    #[pyo3(signature = (bvh, vertices, indices = None, *, kernel = None, distance_stack = None))]
+    fn from_bvh(
+        py: Python<'_>,
+        bvh: PyRef<'_, Bvh>,
+        vertices: &Bound<'_, PyAny>,
+        indices: Option<&Bound<'_, PyAny>>,
+        kernel: Option<&str>,
+        distance_stack: Option<bool>,
+    ) -> PyResult<Self> {
+        let v = points("vertices", vertices)?;
+        let vs = v.as_vec3()?;
+        let given = match indices {
+            Some(ix) => Some(crate::arrays::indices(ix, vs.len())?),
+            None => None,
+        };
+        let ixs: Vec<[u32; 3]> = match (&given, &bvh.indices) {
+            (Some(g), _) => g.get()?.to_vec(),
+            (None, Some(stored)) => stored.clone(),
+            (None, None) => {
+                return Err(err(
+                    "this tree was loaded from a file: pass the indices it was built over",
+                ))
+            }
+        };
+        if let Some((t, v)) = ixs.iter().enumerate().find_map(|(t, tri)| {
+            tri.iter()
+                .find(|&&v| v as usize >= vs.len())
+                .map(|v| (t, *v))
+        }) {
+            return Err(err(format!(
+                "triangle {t} refers to vertex {v}, but there are only {} vertices",
+                vs.len()
+            )));
+        }
+        let tree = bvh.tree.clone();
+        let stored = bvh.prims.clone();
+        let (builder, max_leaf) = (bvh.builder.clone(), bvh.max_leaf);
+        let (state, k, ds) = detached(py, || {
+            let k = kernel_name(&tree, kernel)?;
+            let ds = distance_stack.unwrap_or_else(|| default_distance_stack(k));
+            let state = Self::prepare(vs.to_vec(), ixs, tree, k, ds)?;
+            check_current(stored.as_deref(), &state.triangles)?;
+            Ok::<_, String>((state, k, ds))
+        })?;
+        Ok(Self::wrap(state, k, ds, builder, max_leaf, 0))
+    }
+
+    /// Moves the vertices (same count, same triangles) and updates the tree and the
+    /// kernel in place (a CBVH is encoded again). Waits for queries in flight.
+    fn refit(&self, py: Python<'_>, vertices: &Bound<'_, PyAny>) -> PyResult<()> {
+        let v = points("vertices", vertices)?;
+        let vs = v.as_vec3()?;
+        if vs.len() != self.vertex_count {
+            return Err(err(format!(
+                "refit keeps the topology: {} vertices expected, {} given",
+                self.vertex_count,
+                vs.len()
+            )));
+        }
+        let (lock, kernel, ds, generation) = (
+            &self.state,
+            self.kernel,
+            self.distance_stack,
+            &self.generation,
+        );
+        detached(py, || {
+            let mut s = lock.write().map_err(|_| {
+                "the ray caster was left inconsistent by an internal error".to_string()
+            })?;
+            let triangles = crate::arrays::resolve(vs, &s.indices)?;
+            let prims = aabbs(vs, &s.indices)?;
+            // Checked before anything changes, so that a failure leaves the old state.
+            let mut tree = s.tree.clone();
+            tree.refit(&prims)
+                .map_err(|e| format!("cannot refit the tree: {e}"))?;
+            let mut accel_done = false;
+            if let Ok(done) = s.accel.refit(&triangles) {
+                accel_done = done;
+            }
+            if !accel_done {
+                let options = KernelOptions { distance_stack: ds };
+                s.accel = accel_of(&tree, Some(kernel), &triangles, options)?;
+            }
+            s.tree = tree;
+            s.triangles = triangles;
+            s.vertices.copy_from_slice(vs);
+            generation.fetch_add(1, Ordering::SeqCst);
+            Ok::<_, String>(())
+        })
+    }
+
+    /// Closest hits of rays (origins and directions float32-convertible (N, 3); `tmin` and
+    /// `tmax` a number or (N,), default 0 and inf). `counters`: keep the per-ray traversal
+    /// counters too. `out`: a `RayHits` of the same length whose arrays are overwritten
+    /// and returned (no allocation).
+    #[pyo3(signature = (origins, directions, tmin = None, tmax = None, *, counters = false, out = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn intersect<'py>(
+        &self,
+        py: Python<'py>,
+        origins: &Bound<'py, PyAny>,
+        directions: &Bound<'py, PyAny>,
+        tmin: Option<&Bound<'py, PyAny>>,
+        tmax: Option<&Bound<'py, PyAny>>,
+        counters: bool,
+        out: Option<PyRef<'py, RayHits>>,
+    ) -> PyResult<RayHits> {
+        let arrays = Self::rays(origins, directions, tmin, tmax)?;
+        let rays = arrays.slices()?;
+        let n = rays.len();
+        let (t, prim, u, v, hit, normal, location, cnt) = match &out {
+            Some(o) => {
+                let len = o.t.bind(py).len();
+                if len != n {
+                    return Err(err(format!("out holds {len} rays, {n} given")));
+                }
+                if counters != o.counter_array.is_some() {
+                    return Err(err("out must have counters exactly when counters=True"));
+                }
+                (
+                    o.t.bind(py).clone(),
+                    o.primitive.bind(py).clone(),
+                    o.u.bind(py).clone(),
+                    o.v.bind(py).clone(),
+                    o.hit.bind(py).clone(),
+                    o.normal.bind(py).clone(),
+                    o.location.bind(py).clone(),
+                    o.counter_array.as_ref().map(|c| c.bind(py).clone()),
+                )
+            }
+            None => (
+                PyArray1::<f32>::zeros(py, n, false),
+                PyArray1::<u32>::zeros(py, n, false),
+                PyArray1::<f32>::zeros(py, n, false),
+                PyArray1::<f32>::zeros(py, n, false),
+                PyArray1::<bool>::zeros(py, n, false),
+                PyArray2::<f32>::zeros(py, [n, 3], false),
+                PyArray2::<f32>::zeros(py, [n, 3], false),
+                counters.then(|| PyArray2::<u32>::zeros(py, [n, COUNTERS.len()], false)),
+            ),
+        };
+        let generation = &self.generation;
+        let (total, generation) = {
+            let mut tw = t.try_readwrite().map_err(|_| err("out.t is in use"))?;
+            let mut pw = prim
+                .try_readwrite()
+                .map_err(|_| err("out.primitive is in use"))?;
+            let mut uw = u.try_readwrite().map_err(|_| err("out.u is in use"))?;
+            let mut vw = v.try_readwrite().map_err(|_| err("out.v is in use"))?;
+            let mut hw = hit.try_readwrite().map_err(|_| err("out.hit is in use"))?;
+            let mut nw = normal
+                .try_readwrite()
+                .map_err(|_| err("out.normal is in use"))?;
+            let mut lw = location
+                .try_readwrite()
+                .map_err(|_| err("out.location is in use"))?;
+            let mut cw = match &cnt {
+                Some(c) => Some(
+                    c.try_readwrite()
+                        .map_err(|_| err("out.counters is in use"))?,
+                ),
+                None => None,
+            };
+            let nc = "internal error: array not contiguous";
+            let cols = Closest {
+                t: tw.as_slice_mut().map_err(|_| err(nc))?,
+                prim: pw.as_slice_mut().map_err(|_| err(nc))?,
+                u: uw.as_slice_mut().map_err(|_| err(nc))?,
+                v: vw.as_slice_mut().map_err(|_| err(nc))?,
+                hit: hw.as_slice_mut().map_err(|_| err(nc))?,
+                normal: nw.as_slice_mut().map_err(|_| err(nc))?,
+                location: lw.as_slice_mut().map_err(|_| err(nc))?,
+                counters: match cw.as_mut() {
+                    Some(c) => Some(c.as_slice_mut().map_err(|_| err(nc))?),
+                    None => None,
+                },
+            };
+            let lock = &self.state;
+            let rays = &rays;
+            detached(py, move || {
+                rays.check()?;
+                let s = read(lock)?;
+                let s = &*s;
+                let parts = cols.split(chunk_for(n));
+                let total = for_chunks(parts, |p, first, tot| p.fill(s, rays, first, tot));
+                // Read under the lock: the generation of the geometry just traced.
+                Ok::<_, String>((total, generation.load(Ordering::SeqCst)))
+            })?
+        };
+        Ok(RayHits {
+            t: t.unbind(),
+            primitive: prim.unbind(),
+            u: u.unbind(),
+            v: v.unbind(),
+            hit: hit.unbind(),
+            normal: normal.unbind(),
+            location: location.unbind(),
+            counter_array: cnt.map(|c| c.unbind()),
+            generation,
+            kernel: self.kernel,
+            total,
+        })
+    }
+
+    /// Whether anything lies along each ray within its range (an any-hit query; the
+    /// arguments as in `intersect`), as a bool array. `out`: a bool array of shape (N,) to
+    /// write into and return.
+    #[pyo3(signature = (origins, directions, tmin = None, tmax = None, *, out = None))]
+    fn occluded<'py>(
+        &self,
+        py: Python<'py>,
+        origins: &Bound<'py, PyAny>,
+        directions: &Bound<'py, PyAny>,
+        tmin: Option<&Bound<'py, PyAny>>,
+        tmax: Option<&Bound<'py, PyAny>>,
+        out: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyArray1<bool>>> {
+        let arrays = Self::rays(origins, directions, tmin, tmax)?;
+        let rays = arrays.slices()?;
+        let n = rays.len();
+        let a = out_array::<bool>(py, out, n, "occluded")?;
+        {
+            let mut w = a.try_readwrite().map_err(|_| err("out is in use"))?;
+            let col = w
+                .as_slice_mut()
+                .map_err(|_| err("internal error: array not contiguous"))?;
+            let lock = &self.state;
+            let rays = &rays;
+            detached(py, move || {
+                rays.check()?;
+                let s = read(lock)?;
+                let s = &*s;
+                let parts: Vec<&mut [bool]> = col.chunks_mut(chunk_for(n)).collect();
+                for_chunks(parts, |p, first, _| {
+                    let mut stack = TraversalStack::new();
+                    for (k, o) in p.iter_mut().enumerate() {
+                        let mut st = RayStats::default();
+                        *o = s
+                            .accel
+                            .trace_observed(
+                                &rays.ray(first + k),
+                                Query::Any,
+                                &mut stack,
+                                &mut st,
+                                &mut (),
+                            )
+                            .is_some();
+                    }
+                });
+                Ok::<_, String>(())
+            })?;
+        }
+        Ok(a)
+    }
+
+    /// A copy of the vertices the structure traces (those of the last build or refit).
+    #[getter]
+    fn vertices<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        let flat = detached(py, || {
+            let s = read(&self.state)?;
+            Ok::<_, String>(
+                s.vertices
+                    .iter()
+                    .flat_map(|p| p.to_array())
+                    .collect::<Vec<_>>(),
+            )
+        })?;
+        crate::arrays::n3_array(py, flat)
+    }
+
+    /// A copy of the triangles' vertex indices.
+    #[getter]
+    fn indices<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<u32>>> {
+        let flat = detached(py, || {
+            let s = read(&self.state)?;
+            Ok::<_, String>(s.indices.iter().flatten().copied().collect::<Vec<_>>())
+        })?;
+        crate::arrays::n3_array(py, flat)
+    }
+
+    /// The tree (a copy), as a `Bvh` over the current vertices.
+    #[getter]
+    fn bvh(&self, py: Python<'_>) -> PyResult<Bvh> {
+        let (tree, ix, prims) = detached(py, || {
+            let s = read(&self.state)?;
+            let prims = aabbs(&s.vertices, &s.indices)?;
+            Ok::<_, String>((s.tree.clone(), s.indices.clone(), prims))
+        })?;
+        let mut b = Bvh::new(tree, self.builder.clone(), self.max_leaf);
+        b.indices = Some(ix);
+        b.prims = Some(prims);
+        Ok(b)
+    }
+
+    /// Refits so far (0 after building); every result carries the generation it was
+    /// traced against.
+    #[getter]
+    fn generation(&self) -> u64 {
+        self.generation.load(Ordering::SeqCst)
+    }
+
+    #[getter]
+    fn kernel(&self) -> &'static str {
+        self.kernel
+    }
+
+    #[getter]
+    fn distance_stack(&self) -> bool {
+        self.distance_stack
+    }
+
+    #[getter]
+    fn builder(&self) -> String {
+        self.builder.clone()
+    }
+
+    #[getter]
+    fn triangle_count(&self) -> usize {
+        self.triangle_count
+    }
+
+    #[getter]
+    fn vertex_count(&self) -> usize {
+        self.vertex_count
+    }
+
+    fn __len__(&self) -> usize {
+        self.triangle_count
+    }
+
+    /// Pickling: the geometry, the tree (in the tree file format) and the settings; the
+    /// kernel's form is prepared again on loading (a CBVH encoded again).
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        let (tree_bytes, v, ix) = detached(py, || {
+            let s = read(&self.state)?;
+            let mut buf = Vec::new();
+            bvh::io::write_tree(&s.tree, &self.builder, &mut buf)
+                .map_err(|e| format!("cannot serialize the tree: {e}"))?;
+            let v: Vec<f32> = s.vertices.iter().flat_map(|p| p.to_array()).collect();
+            let ix: Vec<u32> = s.indices.iter().flatten().copied().collect();
+            Ok::<_, String>((buf, v, ix))
+        })?;
+        let restore = py
+            .import("arbor._arbor")?
+            .getattr("RayCaster")?
+            .getattr("_restore")?;
+        let args = (
+            crate::arrays::n3_array(py, v)?,
+            crate::arrays::n3_array(py, ix)?,
+            PyBytes::new(py, &tree_bytes),
+            self.kernel,
+            self.distance_stack,
+            self.builder.clone(),
+            self.max_leaf,
+            self.generation(),
+        );
+        PyTuple::new(py, [restore.into_any(), args.into_pyobject(py)?.into_any()])
+    }
+
+    /// Rebuilds a pickled ray caster (see `__reduce__`).
+    #[staticmethod]
+    #[allow(clippy::too_many_arguments)]
+    fn _restore(
+        py: Python<'_>,
+        vertices: &Bound<'_, PyAny>,
+        indices: &Bound<'_, PyAny>,
+        tree: &[u8],
+        kernel: &str,
+        distance_stack: bool,
+        builder: String,
+        max_leaf: u32,
+        generation: u64,
+    ) -> PyResult<Self> {
+        let v = points("vertices", vertices)?;
+        let vs = v.as_vec3()?;
+        let ix = crate::arrays::indices(indices, vs.len())?;
+        let ixs = ix.get()?;
+        let (state, k) = detached(py, || {
+            let (tree, _) = bvh::io::read_tree(tree)
+                .map_err(|e| format!("cannot read the pickled tree: {e}"))?;
+            let k = kernel_name(&tree, Some(kernel))?;
+            let state = Self::prepare(vs.to_vec(), ixs.to_vec(), tree, k, distance_stack)?;
+            Ok::<_, String>((state, k))
+        })?;
+        Ok(Self::wrap(
+            state,
+            k,
+            distance_stack,
+            builder,
+            max_leaf,
+            generation,
+        ))
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "RayCaster({} triangles, builder={:?}, kernel={:?}, generation {})",
+            self.triangle_count,
+            self.builder,
+            self.kernel,
+            self.generation()
+        )
+    }
+}
+
+/// Registers the ray caster.
+pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<RayCaster>()?;
+    m.add_class::<RayHits>()?;
+    Ok(())
+}
