@@ -450,7 +450,8 @@ impl RayCaster {
             Some(ix) => Some(crate::arrays::indices(ix, vs.len())?),
             None => None,
         };
-        let ixs: Vec<[u32; 3]> = match (&given, &bvh.indices) {
+        let snap = bvh.snapshot();
+        let ixs: Vec<[u32; 3]> = match (&given, &snap.indices) {
             (Some(g), _) => g.get()?.to_vec(),
             (None, Some(stored)) => stored.clone(),
             (None, None) => {
@@ -469,8 +470,8 @@ impl RayCaster {
                 vs.len()
             )));
         }
-        let tree = bvh.tree.clone();
-        let stored = bvh.prims.clone();
+        let tree = snap.tree.clone();
+        let stored = snap.prims.clone();
         let (builder, max_leaf) = (bvh.builder.clone(), bvh.max_leaf);
         let (state, k, ds) = detached(py, || {
             let k = kernel_name(&tree, kernel)?;
@@ -723,10 +724,13 @@ impl RayCaster {
             let prims = aabbs(&s.vertices, &s.indices)?;
             Ok::<_, String>((s.tree.clone(), s.indices.clone(), prims))
         })?;
-        let mut b = Bvh::new(tree, self.builder.clone(), self.max_leaf);
-        b.indices = Some(ix);
-        b.prims = Some(prims);
-        Ok(b)
+        Ok(Bvh::new(
+            tree,
+            self.builder.clone(),
+            self.max_leaf,
+            Some(ix),
+            Some(prims),
+        ))
     }
 
     /// Refits so far (0 after building); every result carries the generation it was

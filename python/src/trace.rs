@@ -400,8 +400,9 @@ fn trace_rays<'py>(
     let ixs = ix.get()?;
     let ray_arrays = RayArrays::new(origins, directions, tmin, tmax)?;
     let ray_slices = ray_arrays.slices()?;
-    let tree = &bvh.tree;
-    let stored = bvh.prims.as_deref();
+    let snap = bvh.snapshot();
+    let tree = &snap.tree;
+    let stored = snap.prims.as_deref();
     let options = KernelOptions {
         distance_stack: distance_stack
             .unwrap_or_else(|| default_distance_stack(kernel.unwrap_or(tree_kernel(tree)))),
@@ -564,8 +565,9 @@ fn camera_rays<'py>(
             let vs = v.as_vec3()?;
             let ix = crate::arrays::indices(ix, vs.len())?;
             let ixs = ix.get()?;
-            let tree = &bvh.tree;
-            let stored = bvh.prims.as_deref();
+            let snap = bvh.snapshot();
+            let tree = &snap.tree;
+            let stored = snap.prims.as_deref();
             detached(py, || {
                 if tree.prim_count() != ixs.len() {
                     return Err(format!(

@@ -363,3 +363,57 @@ def test_integer_arguments_and_indices_give_arbor_errors(mesh: arbor.Mesh) -> No
     a = RayCaster(v, ix.astype(np.uint16) if len(v) < 2**16 else ix)
     b = RayCaster(v, ix.astype(np.int64))
     np.testing.assert_array_equal(a.indices, b.indices)
+
+
+def test_threads_share_one_bvh(mesh: arbor.Mesh) -> None:
+    """`Bvh.refit` in one thread while others trace and read it: no `Already borrowed`."""
+    v, ix = mesh.vertices, mesh.indices
+    bvh = arbor.build_bvh(mesh)
+    o, d = rays_at(v, 500, seed=11)
+    want = arbor.trace(bvh, v, ix, o, d).t
+    errors: list[BaseException] = []
+    stop = threading.Event()
+
+    def refit() -> None:
+        try:
+            for _ in range(30):
+                bvh.refit(v)
+        except BaseException as e:  # pragma: no cover - reported below
+            errors.append(e)
+        finally:
+            stop.set()
+
+    def read() -> None:
+        try:
+            while not stop.is_set():
+                np.testing.assert_array_equal(arbor.trace(bvh, v, ix, o, d).t, want)
+                assert bvh.node_count > 0 and len(bvh.nodes) == bvh.node_count
+        except BaseException as e:  # pragma: no cover - reported below
+            errors.append(e)
+
+    threads = [threading.Thread(target=refit)] + [threading.Thread(target=read) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors
+    bvh.validate()
+
+
+def test_a_ray_task_receives_the_structure(mesh: arbor.Mesh) -> None:
+    ray = pytest.importorskip("ray")
+    v, ix = mesh.vertices, mesh.indices
+    rc = RayCaster(v, ix, kernel="mbvh8")
+    o, d = rays_at(v, 200, seed=12)
+    want = rc.intersect(o, d).t
+    ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
+    try:
+
+        @ray.remote
+        def cast(caster: RayCaster, o: np.ndarray, d: np.ndarray) -> np.ndarray:
+            return caster.intersect(o, d).t
+
+        got = ray.get(cast.remote(ray.put(rc), o, d))
+    finally:
+        ray.shutdown()
+    np.testing.assert_array_equal(got, want)
