@@ -305,8 +305,9 @@ impl RaySlices<'_> {
         }
     }
 
-    /// Checks the lengths and every ray (in parallel for many rays); the error names the
-    /// first bad ray.
+    /// Checks the lengths and every ray; the error names the first bad ray. A branch-free
+    /// pass over the flat coordinates (which the compiler vectorizes) answers for the
+    /// common case of all rays valid; only a failing batch is searched ray by ray.
     pub(crate) fn check(&self) -> Result<(), String> {
         let (o, d) = (self.o, self.d);
         if o.len() != d.len() {
@@ -316,15 +317,33 @@ impl RaySlices<'_> {
                 d.len()
             ));
         }
-        let bad = if o.len() <= SERIAL_RAYS {
-            (0..o.len()).find(|&i| self.fault(i).is_some())
-        } else {
-            (0..o.len())
-                .into_par_iter()
-                .with_min_len(CHUNK)
-                .find_first(|&i| self.fault(i).is_some())
+        let ranges_ok = match self.tmin {
+            (x, None) => x >= 0.0,
+            (_, Some(t)) => t.iter().fold(true, |a, x| a & (*x >= 0.0)),
         };
-        match bad.and_then(|i| self.fault(i)) {
+        let rays_ok = || {
+            let batch = |r: std::ops::Range<usize>| {
+                let finite = |v: &[Vec3]| {
+                    v.iter().fold(true, |a, p| {
+                        a & p.x.is_finite() & p.y.is_finite() & p.z.is_finite()
+                    })
+                };
+                finite(&o[r.clone()])
+                    && finite(&d[r.clone()])
+                    && d[r].iter().fold(true, |a, p| a & (*p != Vec3::ZERO))
+            };
+            if o.len() <= 16 * CHUNK {
+                batch(0..o.len())
+            } else {
+                (0..o.len().div_ceil(CHUNK))
+                    .into_par_iter()
+                    .all(|c| batch(c * CHUNK..((c + 1) * CHUNK).min(o.len())))
+            }
+        };
+        if ranges_ok && rays_ok() {
+            return Ok(());
+        }
+        match (0..o.len()).find_map(|i| self.fault(i)) {
             Some(e) => Err(e),
             None => Ok(()),
         }
