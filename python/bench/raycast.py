@@ -14,9 +14,10 @@ Measured (best of ``--rounds``, wall time):
   barycentrics, normal and location) and any hit (``occluded``), per kernel, against
   embreex with ``output=1`` (t, primitive, barycentrics, normal) and without (primitive
   ids only);
-- with ``--bench-trace``: the primary rays of a 640x360 render through the same kernels
-  from Python, next to ``arbor bench trace --threads N`` run in the same process on the
-  same scene (the kernel with no Python layer).
+- with ``--bench-trace``: the ray sets of ``arbor bench trace`` (a 640x360 render's
+  primary rays and its diffuse bounce rays, in tile order) through the same kernels from
+  Python, next to ``arbor bench trace --threads N`` run in the same process on the same
+  scene (the kernels with no Python layer; its CPU time counts worker threads only).
 
 ``--threads`` sets Arbor's worker pool (``RAYON_NUM_THREADS``, before arbor is imported);
 embreex traces on the calling thread only, so compare at ``--threads 1``. The CPU model,
@@ -169,7 +170,7 @@ def main(argv: list[str] | None = None) -> None:
         rec["embreex"] = None
         print("embreex not installed: no Embree rows", file=sys.stderr)
     else:
-        import embreex  # type: ignore[import-untyped]
+        import embreex
 
         rec["embreex"] = getattr(embreex, "__version__", "installed")
         t0 = time.perf_counter()
@@ -198,15 +199,20 @@ def main(argv: list[str] | None = None) -> None:
         )
 
     if a.bench_trace:
-        rays = arbor.camera_rays(scene.camera, 640, 360)
-        for kernel, rc in casters.items():
-            hits = rc.intersect(rays.origins, rays.directions)
-            t = best(lambda: rc.intersect(rays.origins, rays.directions, out=hits), a.rounds)
-            report(
-                f"arbor {kernel} primary",
-                intersect_mrays=len(rays) / t / 1e6,
-                intersect_mrays_cpu=len(rays) / LAST_CPU[0] / 1e6,
-            )
+        # The ray sets of `arbor bench trace`: a 640x360 render's primary rays and its
+        # diffuse bounce rays (4 bounces, seed 1), in the renderer's tile order.
+        rs = arbor.camera_rays(scene.camera, 640, 360, "diffuse", bvh=bvh, vertices=v, indices=ix)
+        for kind, sel in (("primary", rs.bounce == 0), ("diffuse", rs.bounce > 0)):
+            args = (rs.origins[sel], rs.directions[sel], rs.tmin[sel], rs.tmax[sel])
+            for kernel, rc in casters.items():
+                hits = rc.intersect(*args)
+                t = best(lambda: rc.intersect(*args, out=hits), a.rounds)
+                report(
+                    f"arbor {kernel} {kind}",
+                    rays=float(sel.sum()),
+                    intersect_mrays=float(sel.sum()) / t / 1e6,
+                    intersect_mrays_cpu=float(sel.sum()) / LAST_CPU[0] / 1e6,
+                )
         with tempfile.TemporaryDirectory() as tmp:
             arbor.run(
                 "bench",
@@ -221,12 +227,12 @@ def main(argv: list[str] | None = None) -> None:
             )
             doc = json.loads((Path(tmp) / "bench-trace.json").read_text())
         for row in doc["rows"]:
-            if row["rays"] == "primary":
-                report(
-                    f"bench trace {row['tracer']} primary",
-                    mrays=row["mrays_per_s"],
-                    mrays_cpu=row["mrays_per_cpu_s"],
-                )
+            report(
+                f"bench trace {row['tracer']} {row['rays']}",
+                rays=row["ray_count"],
+                mrays=row["mrays_per_s"],
+                mrays_cpu=row["mrays_per_cpu_s"],
+            )
 
     rec["results"] = out
     if a.record:
