@@ -389,7 +389,8 @@ class RayHits:
     """Closest hits of :meth:`RayCaster.intersect`, one entry per ray: ``t`` (``inf`` on a
     miss), ``primitive`` (:data:`NO_HIT` on a miss), ``u`` and ``v`` (the barycentric
     weights of the triangle's vertices 1 and 2), ``normal`` (the unit geometric normal
-    ``cross(p1 - p0, p2 - p0)``, NaN on a miss) and ``location`` (``origin + t * direction``,
+    ``cross(p1 - p0, p2 - p0)``, NaN on a miss; computed on first access, so a query that
+    never reads it does not pay for it) and ``location`` (``origin + t * direction``,
     NaN on a miss), float32 (N, 3)."""
 
     @property

@@ -25,7 +25,7 @@ use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PySlice, PyTuple};
 use rayon::prelude::*;
 use std::sync::atomic::{AtomicU64, Ordering};
-use std::sync::RwLock;
+use std::sync::{Arc, OnceLock, RwLock};
 
 /// Names of the per-ray counters, in the column order of `RayHits.counters`.
 const COUNTERS: [&str; 7] = [
@@ -42,7 +42,8 @@ const COUNTERS: [&str; 7] = [
 struct State {
     vertices: Vec<Vec3>,
     indices: Vec<[u32; 3]>,
-    triangles: Vec<Triangle>,
+    /// Shared with the results traced over them (their normals are computed on demand).
+    triangles: Arc<Vec<Triangle>>,
     tree: Tree,
     accel: Accel,
 }
@@ -104,7 +105,6 @@ struct Closest<'a> {
     u: &'a mut [f32],
     v: &'a mut [f32],
     hit: &'a mut [bool],
-    normal: &'a mut [f32],
     location: &'a mut [f32],
     /// `(n, 7)` counters (the order of [`COUNTERS`]), when asked for.
     counters: Option<&'a mut [u32]>,
@@ -118,17 +118,15 @@ impl<'a> Closest<'a> {
         let mut u = self.u.chunks_mut(chunk);
         let mut v = self.v.chunks_mut(chunk);
         let mut hit = self.hit.chunks_mut(chunk);
-        let mut normal = self.normal.chunks_mut(3 * chunk);
         let mut location = self.location.chunks_mut(3 * chunk);
         let mut counters = self.counters.map(|c| c.chunks_mut(COUNTERS.len() * chunk));
         let mut out = Vec::new();
-        while let (Some(t), Some(prim), Some(u), Some(v), Some(hit), Some(normal), Some(location)) = (
+        while let (Some(t), Some(prim), Some(u), Some(v), Some(hit), Some(location)) = (
             t.next(),
             prim.next(),
             u.next(),
             v.next(),
             hit.next(),
-            normal.next(),
             location.next(),
         ) {
             out.push(Closest {
@@ -137,7 +135,6 @@ impl<'a> Closest<'a> {
                 u,
                 v,
                 hit,
-                normal,
                 location,
                 counters: counters.as_mut().and_then(|c| c.next()),
             });
@@ -155,22 +152,14 @@ impl<'a> Closest<'a> {
             let h = s
                 .accel
                 .trace_observed(&ray, Query::Closest, &mut stack, &mut st, &mut ());
-            let tri = h.and_then(|h| s.triangles.get(h.prim as usize).map(|t| (h, t)));
-            let (n, p) = (
-                &mut self.normal[3 * k..3 * k + 3],
-                &mut self.location[3 * k..3 * k + 3],
-            );
-            match tri {
-                Some((h, tri)) => {
+            let p = &mut self.location[3 * k..3 * k + 3];
+            match h {
+                Some(h) => {
                     self.t[k] = h.t;
                     self.prim[k] = h.prim;
                     self.u[k] = h.bary[1];
                     self.v[k] = h.bary[2];
                     self.hit[k] = true;
-                    let g = (tri.v[1] - tri.v[0])
-                        .cross(tri.v[2] - tri.v[0])
-                        .normalize_or_zero();
-                    n.copy_from_slice(&g.to_array());
                     p.copy_from_slice(&ray.at(h.t).to_array());
                 }
                 None => {
@@ -179,7 +168,6 @@ impl<'a> Closest<'a> {
                     self.u[k] = 0.0;
                     self.v[k] = 0.0;
                     self.hit[k] = false;
-                    n.fill(f32::NAN);
                     p.fill(f32::NAN);
                 }
             }
@@ -251,8 +239,9 @@ pub struct RayHits {
     v: Py<PyArray1<f32>>,
     #[pyo3(get)]
     hit: Py<PyArray1<bool>>,
-    #[pyo3(get)]
-    normal: Py<PyArray2<f32>>,
+    /// The triangles traced (for `normal`), and the normals once computed.
+    triangles: Arc<Vec<Triangle>>,
+    normal: OnceLock<Py<PyArray2<f32>>>,
     #[pyo3(get)]
     location: Py<PyArray2<f32>>,
     counter_array: Option<Py<PyArray2<u32>>>,
@@ -280,6 +269,38 @@ impl RayHits {
             d.set_item(*name, col)?;
         }
         Ok(Some(d))
+    }
+
+    /// The unit geometric normal of each hit triangle, `cross(p1 - p0, p2 - p0)`
+    /// normalized (NaN on a miss), computed on first access from `primitive` and the
+    /// triangles traced: a query pays nothing for it unless it is read.
+    #[getter]
+    fn normal<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        if let Some(n) = self.normal.get() {
+            return Ok(n.bind(py).clone());
+        }
+        let prim = self.primitive.bind(py).readonly();
+        let prims = prim
+            .as_slice()
+            .map_err(|_| err("internal error: array not contiguous"))?;
+        let tris = &self.triangles;
+        let flat = py.detach(|| {
+            let mut out = vec![f32::NAN; 3 * prims.len()];
+            out.par_chunks_mut(3 * CHUNK)
+                .zip(prims.par_chunks(CHUNK))
+                .for_each(|(o, ps)| {
+                    for (n, p) in o.chunks_exact_mut(3).zip(ps) {
+                        if let Some(t) = tris.get(*p as usize) {
+                            let g = (t.v[1] - t.v[0]).cross(t.v[2] - t.v[0]).normalize_or_zero();
+                            n.copy_from_slice(&g.to_array());
+                        }
+                    }
+                });
+            out
+        });
+        let a = crate::arrays::n3_array(py, flat)?;
+        let _ = self.normal.set(a.clone().unbind());
+        Ok(self.normal.get().map_or(a, |n| n.bind(py).clone()))
     }
 
     /// Counters summed over all rays (always kept; `max_stack_depth` is a maximum).
@@ -344,7 +365,7 @@ impl RayCaster {
         Ok(State {
             vertices,
             indices,
-            triangles,
+            triangles: Arc::new(triangles),
             tree,
             accel,
         })
@@ -520,7 +541,7 @@ impl RayCaster {
                 s.accel = accel_of(&tree, Some(kernel), &triangles, options)?;
             }
             s.tree = tree;
-            s.triangles = triangles;
+            s.triangles = Arc::new(triangles);
             s.vertices.copy_from_slice(vs);
             generation.fetch_add(1, Ordering::SeqCst);
             Ok::<_, String>(())
@@ -546,7 +567,7 @@ impl RayCaster {
         let arrays = Self::rays(origins, directions, tmin, tmax)?;
         let rays = arrays.slices()?;
         let n = rays.len();
-        let (t, prim, u, v, hit, normal, location, cnt) = match &out {
+        let (t, prim, u, v, hit, location, cnt) = match &out {
             Some(o) => {
                 let len = o.t.bind(py).len();
                 if len != n {
@@ -561,7 +582,6 @@ impl RayCaster {
                     o.u.bind(py).clone(),
                     o.v.bind(py).clone(),
                     o.hit.bind(py).clone(),
-                    o.normal.bind(py).clone(),
                     o.location.bind(py).clone(),
                     o.counter_array.as_ref().map(|c| c.bind(py).clone()),
                 )
@@ -573,12 +593,11 @@ impl RayCaster {
                 PyArray1::<f32>::zeros(py, n, false),
                 PyArray1::<bool>::zeros(py, n, false),
                 PyArray2::<f32>::zeros(py, [n, 3], false),
-                PyArray2::<f32>::zeros(py, [n, 3], false),
                 counters.then(|| PyArray2::<u32>::zeros(py, [n, COUNTERS.len()], false)),
             ),
         };
         let generation = &self.generation;
-        let (total, generation) = {
+        let (total, generation, triangles) = {
             let mut tw = t.try_readwrite().map_err(|_| err("out.t is in use"))?;
             let mut pw = prim
                 .try_readwrite()
@@ -586,9 +605,6 @@ impl RayCaster {
             let mut uw = u.try_readwrite().map_err(|_| err("out.u is in use"))?;
             let mut vw = v.try_readwrite().map_err(|_| err("out.v is in use"))?;
             let mut hw = hit.try_readwrite().map_err(|_| err("out.hit is in use"))?;
-            let mut nw = normal
-                .try_readwrite()
-                .map_err(|_| err("out.normal is in use"))?;
             let mut lw = location
                 .try_readwrite()
                 .map_err(|_| err("out.location is in use"))?;
@@ -606,7 +622,6 @@ impl RayCaster {
                 u: uw.as_slice_mut().map_err(|_| err(nc))?,
                 v: vw.as_slice_mut().map_err(|_| err(nc))?,
                 hit: hw.as_slice_mut().map_err(|_| err(nc))?,
-                normal: nw.as_slice_mut().map_err(|_| err(nc))?,
                 location: lw.as_slice_mut().map_err(|_| err(nc))?,
                 counters: match cw.as_mut() {
                     Some(c) => Some(c.as_slice_mut().map_err(|_| err(nc))?),
@@ -622,7 +637,11 @@ impl RayCaster {
                 let parts = cols.split(chunk_for(n));
                 let total = for_chunks(parts, |p, first, tot| p.fill(s, rays, first, tot));
                 // Read under the lock: the generation of the geometry just traced.
-                Ok::<_, String>((total, generation.load(Ordering::SeqCst)))
+                Ok::<_, String>((
+                    total,
+                    generation.load(Ordering::SeqCst),
+                    s.triangles.clone(),
+                ))
             })?
         };
         Ok(RayHits {
@@ -631,7 +650,8 @@ impl RayCaster {
             u: u.unbind(),
             v: v.unbind(),
             hit: hit.unbind(),
-            normal: normal.unbind(),
+            triangles,
+            normal: OnceLock::new(),
             location: location.unbind(),
             counter_array: cnt.map(|c| c.unbind()),
             generation,

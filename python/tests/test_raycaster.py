@@ -192,7 +192,7 @@ def test_out_buffers_are_filled_in_place(mesh: arbor.Mesh) -> None:
     rc = RayCaster(v, ix)
     first = rc.intersect(o, d)
     again = rc.intersect(o[::-1].copy(), d[::-1].copy(), out=first)
-    assert again.t is first.t and again.normal is first.normal
+    assert again.t is first.t and again.location is first.location
     ref = rc.intersect(o[::-1].copy(), d[::-1].copy())
     np.testing.assert_array_equal(first.t, ref.t)
     np.testing.assert_array_equal(first.primitive, ref.primitive)
