@@ -8,9 +8,9 @@ use crate::raycaster::count_arg;
 use arbor::cmd::build::{self as cli, BuildConfig};
 use bvh::{SahParams, Tree};
 use geom::{Aabb, Vec3};
-use numpy::{PyArray1, PyArray2};
+use numpy::{PyArray1, PyArray2, PyArrayMethods};
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyList, PyTuple};
+use pyo3::types::{PyBytes, PyDict, PyList, PyTuple};
 use std::path::PathBuf;
 use std::sync::{Arc, RwLock};
 
@@ -478,6 +478,83 @@ impl Bvh {
         d.set_item("node_bytes", tree.kind().node_bytes())?;
         d.set_item("tree_bytes", tree.bytes())?;
         Ok(d)
+    }
+
+    /// Pickling: the tree in the tree-file format, with the triangles and primitive boxes
+    /// it was last built or refitted over (when known).
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        let snap = self.snapshot();
+        let builder = &self.builder;
+        let bytes = detached(py, || {
+            let mut buf = Vec::new();
+            bvh::io::write_tree(&snap.tree, builder, &mut buf)
+                .map_err(|e| format!("cannot serialize the tree: {e}"))?;
+            Ok::<_, String>(buf)
+        })?;
+        let ix = match &snap.indices {
+            Some(v) => Some(crate::arrays::n3_array(
+                py,
+                v.iter().flatten().copied().collect::<Vec<u32>>(),
+            )?),
+            None => None,
+        };
+        let prims = match &snap.prims {
+            Some(p) => {
+                let flat: Vec<f32> = p
+                    .iter()
+                    .flat_map(|b| [b.min.to_array(), b.max.to_array()])
+                    .flatten()
+                    .collect();
+                let n = p.len();
+                Some(PyArray1::from_vec(py, flat).reshape([n, 6])?)
+            }
+            None => None,
+        };
+        let restore = py
+            .import("arbor._arbor")?
+            .getattr("Bvh")?
+            .getattr("_restore")?;
+        let args = (PyBytes::new(py, &bytes), self.max_leaf, ix, prims);
+        PyTuple::new(py, [restore.into_any(), args.into_pyobject(py)?.into_any()])
+    }
+
+    /// Rebuilds a pickled tree (see `__reduce__`).
+    #[staticmethod]
+    #[pyo3(signature = (tree, max_leaf, indices = None, prims = None))]
+    fn _restore(
+        py: Python<'_>,
+        tree: &[u8],
+        max_leaf: u32,
+        indices: Option<&Bound<'_, PyAny>>,
+        prims: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<Self> {
+        let (tree, header) = detached(py, || {
+            bvh::io::read_tree(tree).map_err(|e| format!("cannot read the pickled tree: {e}"))
+        })?;
+        let ix = match indices {
+            Some(ix) => Some(crate::arrays::indices(ix, usize::MAX)?.get()?.to_vec()),
+            None => None,
+        };
+        let prims = match prims {
+            Some(p) => {
+                let a = p
+                    .cast::<PyArray2<f32>>()
+                    .map_err(|_| err("pickled primitive boxes: not a float32 array"))?
+                    .readonly();
+                let s = a
+                    .as_slice()
+                    .map_err(|_| err("internal error: array not contiguous"))?;
+                Some(
+                    s.chunks_exact(6)
+                        .map(|b| {
+                            Aabb::new(Vec3::new(b[0], b[1], b[2]), Vec3::new(b[3], b[4], b[5]))
+                        })
+                        .collect(),
+                )
+            }
+            None => None,
+        };
+        Ok(Bvh::new(tree, header.builder, max_leaf, ix, prims))
     }
 
     fn __eq__(&self, other: PyRef<'_, Bvh>) -> bool {

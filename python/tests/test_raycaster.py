@@ -417,3 +417,21 @@ def test_a_ray_task_receives_the_structure(mesh: arbor.Mesh) -> None:
     finally:
         ray.shutdown()
     np.testing.assert_array_equal(got, want)
+
+
+def test_bvh_pickles(mesh: arbor.Mesh, tmp_path: Path) -> None:
+    v, ix = mesh.vertices, mesh.indices
+    for bvh in (arbor.build_bvh(mesh, builder="sweep-sah"), arbor.build_bvh(mesh).collapse()):
+        back = pickle.loads(pickle.dumps(bvh))
+        assert back == bvh and (back.builder, back.max_leaf) == (bvh.builder, bvh.max_leaf)
+        np.testing.assert_array_equal(back.nodes, bvh.nodes)
+        back.validate()  # the stored triangles and boxes travel too
+        back.refit(moved(v, 1))  # and the stored indices
+        back.validate(moved(v, 1), ix)
+    # A tree loaded from a file (no triangles stored) pickles too.
+    path = tmp_path / "t.bvh"
+    arbor.build_bvh(mesh).save(path)
+    loaded = pickle.loads(pickle.dumps(arbor.load_bvh(path)))
+    assert loaded == arbor.load_bvh(path)
+    with pytest.raises(ArborError, match="loaded from a file"):
+        loaded.validate()
