@@ -58,13 +58,15 @@ class RayMeshIntersector:
         if faces is None or getattr(mesh, "vertices", None) is None:
             raise ArborError("the mesh needs vertices and faces (or indices)")
         self.mesh = mesh
-        self.caster = RayCaster(
-            np.asarray(mesh.vertices, dtype=np.float32), faces, builder, kernel=kernel
-        )
+        v = np.asarray(mesh.vertices, dtype=np.float32)
+        self.caster = RayCaster(v, faces, builder, kernel=kernel)
+        self._bounds = (v.min(axis=0), v.max(axis=0))
 
     def refit(self, vertices: npt.ArrayLike) -> None:
         """Moves the vertices (same triangles); see :meth:`arbor.RayCaster.refit`."""
-        self.caster.refit(vertices)
+        v = np.asarray(vertices, dtype=np.float32)
+        self.caster.refit(v)
+        self._bounds = (v.min(axis=0), v.max(axis=0))
 
     def intersects_first(self, ray_origins: npt.ArrayLike, ray_directions: npt.ArrayLike) -> _I64:
         """Index of the first triangle each ray hits, -1 for a miss."""
@@ -126,8 +128,8 @@ class RayMeshIntersector:
         ray cast forward and backward (trimesh's test; undefined on the surface)."""
         p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
         out = np.zeros(len(p), dtype=bool)
-        v = np.asarray(self.caster.vertices, dtype=np.float64)
-        inside = np.all((p >= v.min(axis=0)) & (p <= v.max(axis=0)), axis=1)
+        lo, hi = self._bounds
+        inside = np.all((p >= lo) & (p <= hi), axis=1)
         q = p[inside]
         if len(q) == 0:
             return out

@@ -225,8 +225,9 @@ fn chunk_for(n: usize) -> usize {
 
 /// Closest hits of a batch of rays from [`RayCaster::intersect`]: per ray the distance `t`
 /// (`inf` on a miss), the triangle (`NO_HIT` on a miss), the barycentric weights `u`, `v`
-/// of its vertices 1 and 2, the unit geometric normal (NaN on a miss), the hit location
-/// (NaN on a miss), and optionally the traversal counters.
+/// of its vertices 1 and 2, the unit geometric normal (NaN on a miss; computed when first
+/// read, from the triangles of the generation traced, which the result shares), the hit
+/// location (NaN on a miss), and optionally the traversal counters.
 #[pyclass(module = "arbor._arbor", frozen)]
 pub struct RayHits {
     #[pyo3(get)]
