@@ -114,6 +114,15 @@ impl Points<'_> {
 
 /// Converts `obj` to `(N, 3)` float32 points; `what` names it in errors.
 pub(crate) fn points<'py>(what: &str, obj: &Bound<'py, PyAny>) -> PyResult<Points<'py>> {
+    // Fast path, no call into numpy: already a C-contiguous, aligned float32 (N, 3) array.
+    if let Ok(a) = obj.cast::<PyArray2<f32>>() {
+        if a.shape()[1] == 3
+            && a.is_c_contiguous()
+            && (a.data() as usize).is_multiple_of(std::mem::align_of::<f32>())
+        {
+            return Ok(Points(a.readonly()));
+        }
+    }
     let a = as_ndarray(what, obj)?;
     check_n3(what, &a, "fiu")?;
     let a = require(what, &a, "float32")?;
