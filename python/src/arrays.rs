@@ -275,6 +275,31 @@ pub(crate) fn per_ray<'py>(
     if obj.is_none() {
         return Ok(PerRay::Scalar(default));
     }
+    // Fast paths, no call into numpy: a Python float, or a contiguous float32 (n,) array.
+    if let Ok(x) = obj.cast::<pyo3::types::PyFloat>() {
+        let x = x.value() as f32;
+        if x.is_nan() {
+            return Err(err(format!("{what} is NaN")));
+        }
+        return Ok(PerRay::Scalar(x));
+    }
+    if let Ok(a) = obj.cast::<PyArray1<f32>>() {
+        if a.len() == n
+            && a.is_c_contiguous()
+            && (a.data() as usize).is_multiple_of(std::mem::align_of::<f32>())
+        {
+            let a = a.readonly();
+            if let Some(i) = a
+                .as_slice()
+                .map_err(|_| err("internal error: array not contiguous"))?
+                .iter()
+                .position(|x| x.is_nan())
+            {
+                return Err(err(format!("{what}[{i}] is NaN")));
+            }
+            return Ok(PerRay::Array(a));
+        }
+    }
     let a = as_ndarray(what, obj)?;
     if a.ndim() == 0 {
         let x: f32 = obj.extract::<f64>().map_err(|_| {

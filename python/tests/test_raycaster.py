@@ -227,6 +227,10 @@ def test_errors_name_the_problem(mesh: arbor.Mesh) -> None:
         rc.intersect(o, d, tmin=-1.0)
     with pytest.raises(ArborError, match=r"tmin\[3\] is negative"):
         rc.intersect(o, d, tmin=np.where(np.arange(10) == 3, -1, 0))
+    with pytest.raises(ArborError, match=r"tmax\[4\] is NaN"):
+        rc.intersect(o, d, tmax=np.where(np.arange(10) == 4, np.nan, 1).astype(np.float32))
+    with pytest.raises(ArborError, match="tmin is NaN"):
+        rc.occluded(o, d, tmin=float("nan"))
     with pytest.raises(ArborError, match="max_leaf"):
         RayCaster(v, ix, max_leaf=-1)
     with pytest.raises(ArborError, match="threads"):
