@@ -106,3 +106,18 @@ def test_bunny_matches_embree() -> None:
     got, want = ours.intersects_first(o, d), Embree(m).intersects_first(o, d)
     assert (got >= 0).sum() > 200
     assert (got == want).mean() > 0.99
+
+
+def test_switches_trimesh_over_with_one_line(sphere: Any) -> None:
+    """`mesh.ray = arbor.RayMeshIntersector(mesh)`: trimesh's own methods then use it."""
+    m = sphere.copy()
+    m.ray = arbor.RayMeshIntersector(m)
+    assert isinstance(m.ray, arbor.RayMeshIntersector)
+    rng = np.random.default_rng(7)
+    pts = rng.uniform(-2.5, 2.5, size=(500, 3))
+    r = np.linalg.norm(pts, axis=1)
+    clear = np.abs(r - 2.0) > 0.1
+    np.testing.assert_array_equal(m.contains(pts)[clear], r[clear] < 2.0)
+    o, d = rays_at(np.asarray(m.vertices), 100, seed=8)
+    loc, ray, tri = m.ray.intersects_location(o, d)
+    assert len(loc) == len(ray) == len(tri) > 0

@@ -439,3 +439,19 @@ def test_bvh_pickles(mesh: arbor.Mesh, tmp_path: Path) -> None:
     assert loaded == arbor.load_bvh(path)
     with pytest.raises(ArborError, match="loaded from a file"):
         loaded.validate()
+
+
+def test_native_wide_trees_and_from_bvh(mesh: arbor.Mesh) -> None:
+    """A 4-wide tree from its own builder: prepared, refitted, pickled and wrapped."""
+    v, ix = mesh.vertices, mesh.indices
+    rc = RayCaster(v, ix, builder="mbvh4-topdown")
+    assert rc.kernel == "mbvh4" and rc.bvh.kind == "Mbvh4"
+    v1 = moved(v, 2)
+    rc.refit(v1)
+    o, d = rays_at(v1, 300, seed=13)
+    ref = arbor.trace_brute_force(v1, ix, o, d)
+    np.testing.assert_array_equal(rc.intersect(o, d).t, ref.t)
+    back = pickle.loads(pickle.dumps(rc))
+    np.testing.assert_array_equal(back.intersect(o, d).primitive, ref.primitive)
+    wrapped = RayCaster.from_bvh(rc.bvh, v1, ix)
+    np.testing.assert_array_equal(wrapped.occluded(o, d), ref.hit)
