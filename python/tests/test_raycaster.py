@@ -354,7 +354,7 @@ def test_integer_arguments_and_indices_give_arbor_errors(mesh: arbor.Mesh) -> No
     v, ix = mesh.vertices, mesh.indices
     for kw in ("max_leaf", "bins", "threads"):
         with pytest.raises(ArborError, match=kw):
-            arbor.Bvh.build(v, ix, **{kw: -1})
+            arbor.Bvh.build(v, ix, **{kw: -1})  # type: ignore[arg-type]
     huge = ix.astype(np.uint64)
     huge[3, 1] = 2**64 - 5
     with pytest.raises(ArborError, match=f"triangle 3 refers to vertex {2**64 - 5}"):
@@ -413,7 +413,7 @@ def test_a_ray_task_receives_the_structure(mesh: arbor.Mesh) -> None:
     ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
     try:
 
-        @ray.remote
+        @ray.remote  # type: ignore[untyped-decorator]
         def cast(caster: RayCaster, o: np.ndarray, d: np.ndarray) -> np.ndarray:
             return caster.intersect(o, d).t
 
