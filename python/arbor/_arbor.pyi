@@ -471,7 +471,8 @@ class RayCaster:
         out: RayHits | None = None,
     ) -> RayHits:
         """Closest hits (origins and directions (N, 3); ``tmin``/``tmax`` a number or (N,),
-        default 0 and ``inf``). ``out``: a result of the same length to overwrite."""
+        default 0 and ``inf``). ``out``: a result of the same length whose arrays are
+        overwritten and shared with the returned result (treat ``out`` itself as spent)."""
     def occluded(
         self,
         origins: npt.ArrayLike,
