@@ -46,6 +46,8 @@ struct State {
     triangles: Arc<Vec<Triangle>>,
     tree: Tree,
     accel: Accel,
+    /// Set while a refit changes the state; left set if it failed half way.
+    broken: bool,
 }
 
 /// A prepared ray caster (see the module header).
@@ -94,8 +96,12 @@ pub(crate) fn count_arg<T: TryFrom<i64>>(what: &str, x: Option<i64>) -> PyResult
 
 /// Locks for reading, or fails if a panic left the state inconsistent.
 fn read(l: &RwLock<State>) -> Result<std::sync::RwLockReadGuard<'_, State>, String> {
-    l.read()
-        .map_err(|_| "the ray caster was left inconsistent by an internal error".to_string())
+    let broken = || "the ray caster was left inconsistent by an internal error".to_string();
+    let s = l.read().map_err(|_| broken())?;
+    if s.broken {
+        return Err(broken());
+    }
+    Ok(s)
 }
 
 /// The output columns of a closest-hit query over a run of rays (one chunk of the arrays).
@@ -369,6 +375,7 @@ impl RayCaster {
             triangles: Arc::new(triangles),
             tree,
             accel,
+            broken: false,
         })
     }
 
@@ -529,21 +536,20 @@ impl RayCaster {
             })?;
             let triangles = crate::arrays::resolve(vs, &s.indices)?;
             let prims = aabbs(vs, &s.indices)?;
-            // Checked before anything changes, so that a failure leaves the old state.
-            let mut tree = s.tree.clone();
-            tree.refit(&prims)
+            // The triangles were checked above (finite, same count), so nothing below can
+            // fail short of an internal error; if it does, the state is half moved and is
+            // marked broken, so that queries fail instead of answering for it.
+            s.broken = true;
+            s.tree
+                .refit(&prims)
                 .map_err(|e| format!("cannot refit the tree: {e}"))?;
-            let mut accel_done = false;
-            if let Ok(done) = s.accel.refit(&triangles) {
-                accel_done = done;
-            }
-            if !accel_done {
+            if !s.accel.refit(&triangles).unwrap_or(false) {
                 let options = KernelOptions { distance_stack: ds };
-                s.accel = accel_of(&tree, Some(kernel), &triangles, options)?;
+                s.accel = accel_of(&s.tree, Some(kernel), &triangles, options)?;
             }
-            s.tree = tree;
             s.triangles = Arc::new(triangles);
             s.vertices.copy_from_slice(vs);
+            s.broken = false;
             generation.fetch_add(1, Ordering::SeqCst);
             Ok::<_, String>(())
         })
