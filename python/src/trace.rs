@@ -263,8 +263,8 @@ pub(crate) struct RaySlices<'a> {
     tmax: (f32, Option<&'a [f32]>),
 }
 
-/// Rays at or below this count are checked and traced on the calling thread: waking the
-/// worker pool costs more than they do.
+/// Rays at or below this count are traced on the calling thread (the prepared queries of
+/// `RayCaster`): waking the worker pool costs more than they do.
 pub(crate) const SERIAL_RAYS: usize = 512;
 
 impl RaySlices<'_> {
