@@ -13,7 +13,7 @@ out: fresh arrays that own (or view) memory moved from Rust, no extra copy.
 from __future__ import annotations
 
 import os
-from typing import Any, Final, Literal, final
+from typing import Any, Final, Literal, Sequence, final
 
 import numpy as np
 import numpy.typing as npt
@@ -408,6 +408,13 @@ class RayHits:
     @property
     def location(self) -> _F32: ...
     @property
+    def geometry(self) -> _U32:
+        """The mesh of each hit (its index in :meth:`RayCaster.from_meshes`; 0 for one
+        mesh), :data:`NO_HIT` on a miss."""
+    @property
+    def geometry_primitive(self) -> _U32:
+        """The triangle of each hit within its mesh, :data:`NO_HIT` on a miss."""
+    @property
     def counters(self) -> dict[str, _U32] | None:
         """Per-ray traversal counters (``node_visits``, ``box_tests``, ``tri_tests``,
         ``leaf_visits``, ``pops``, ``culled_pops``, ``max_stack_depth``), or None unless
@@ -448,6 +455,22 @@ class RayCaster:
         :meth:`Bvh.build`) and prepares it for ``kernel`` (default: the tree's own format).
         ``distance_stack`` defaults as in ``arbor render``: on for ``mbvh4`` and ``mbvh8``."""
     @staticmethod
+    def from_meshes(
+        meshes: Sequence[tuple[npt.ArrayLike, npt.ArrayLike] | Any],
+        builder: _BuilderName | str = "binned-sah",
+        *,
+        kernel: _KernelName | None = None,
+        distance_stack: bool | None = None,
+        max_leaf: int | None = None,
+        bins: int | None = None,
+        collapse_from: str | None = None,
+        threads: int | None = None,
+    ) -> RayCaster:
+        """One structure over several meshes, each ``(vertices, indices)`` or an object with
+        ``vertices`` and ``faces`` (a ``trimesh.Trimesh``) or ``indices``; results name the
+        mesh of each hit (:attr:`RayHits.geometry`). ``refit`` then also takes a list of
+        the meshes' vertex arrays."""
+    @staticmethod
     def from_bvh(
         bvh: Bvh,
         vertices: npt.ArrayLike,
@@ -458,8 +481,9 @@ class RayCaster:
     ) -> RayCaster:
         """A ray caster over a built tree and the vertices it was built or last refitted
         over (``indices`` default to the tree's); a stale tree is refused."""
-    def refit(self, vertices: npt.ArrayLike) -> None:
-        """Moves the vertices (same count, same triangles); increments ``generation``."""
+    def refit(self, vertices: npt.ArrayLike | Sequence[npt.ArrayLike]) -> None:
+        """Moves the vertices (same count, same triangles; for :meth:`from_meshes`, also a
+        list with each mesh's vertices); increments ``generation``."""
     def intersect(
         self,
         origins: npt.ArrayLike,
@@ -505,6 +529,9 @@ class RayCaster:
     def triangle_count(self) -> int: ...
     @property
     def vertex_count(self) -> int: ...
+    @property
+    def geometry_count(self) -> int:
+        """Meshes it was built over (1 unless :meth:`from_meshes`)."""
     def __len__(self) -> int: ...
 
 # ----------------------------------------------------------------------------- CBVH

@@ -63,6 +63,10 @@ pub struct RayCaster {
     max_leaf: u32,
     vertex_count: usize,
     triangle_count: usize,
+    /// The meshes it was built over (one unless `from_meshes`): the first triangle and
+    /// the first vertex of each, and the totals at the end.
+    geometry_first: Arc<Vec<u32>>,
+    vertex_first: Vec<u32>,
 }
 
 /// A counter as u32 (saturating; one ray never comes near).
@@ -92,6 +96,17 @@ pub(crate) fn count_arg<T: TryFrom<i64>>(what: &str, x: Option<i64>) -> PyResult
         })
     })
     .transpose()
+}
+
+/// The build arguments of the constructor and `from_meshes`.
+struct BuildOptions<'a> {
+    builder: &'a str,
+    kernel: Option<&'a str>,
+    distance_stack: Option<bool>,
+    max_leaf: Option<i64>,
+    bins: Option<i64>,
+    collapse_from: Option<String>,
+    threads: Option<i64>,
 }
 
 /// Locks for reading, or fails if a panic left the state inconsistent.
@@ -249,6 +264,8 @@ pub struct RayHits {
     /// The triangles traced (for `normal`), and the normals once computed.
     triangles: Arc<Vec<Triangle>>,
     normal: OnceLock<Py<PyArray2<f32>>>,
+    /// The first triangle of each mesh of the ray caster, and the total.
+    geometry_first: Arc<Vec<u32>>,
     #[pyo3(get)]
     location: Py<PyArray2<f32>>,
     counter_array: Option<Py<PyArray2<u32>>>,
@@ -257,6 +274,37 @@ pub struct RayHits {
     #[pyo3(get)]
     kernel: &'static str,
     total: RayStats,
+}
+
+impl RayHits {
+    /// `f(mesh, triangle within the mesh)` of every hit, `NO_HIT` on a miss.
+    fn per_mesh<'py>(
+        &self,
+        py: Python<'py>,
+        f: impl Fn(u32, u32) -> u32 + Sync + Send,
+    ) -> PyResult<Bound<'py, PyArray1<u32>>> {
+        let prim = self.primitive.bind(py).readonly();
+        let prims = prim
+            .as_slice()
+            .map_err(|_| err("internal error: array not contiguous"))?;
+        let first = &self.geometry_first;
+        let out: Vec<u32> = py.detach(|| {
+            prims
+                .par_iter()
+                .with_min_len(CHUNK)
+                .map(|&p| {
+                    // The last mesh whose first triangle is at or before `p`.
+                    let g = first.partition_point(|&x| x <= p);
+                    if p == NO_HIT || g == 0 || g >= first.len() {
+                        NO_HIT
+                    } else {
+                        f(g as u32 - 1, p - first[g - 1])
+                    }
+                })
+                .collect()
+        });
+        Ok(PyArray1::from_vec(py, out))
+    }
 }
 
 #[pymethods]
@@ -310,6 +358,20 @@ impl RayHits {
         Ok(self.normal.get().map_or(a, |n| n.bind(py).clone()))
     }
 
+    /// The mesh of each hit (its index in `RayCaster.from_meshes`; 0 for a ray caster of
+    /// one mesh), `NO_HIT` on a miss. Computed on access from `primitive`.
+    #[getter]
+    fn geometry<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<u32>>> {
+        self.per_mesh(py, |g, _| g)
+    }
+
+    /// The triangle of each hit within its mesh (`primitive` less the mesh's first
+    /// triangle), `NO_HIT` on a miss. Computed on access from `primitive`.
+    #[getter]
+    fn geometry_primitive<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<u32>>> {
+        self.per_mesh(py, |_, local| local)
+    }
+
     /// Counters summed over all rays (always kept; `max_stack_depth` is a maximum).
     #[getter]
     fn totals<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
@@ -338,10 +400,15 @@ impl RayCaster {
         builder: String,
         max_leaf: u32,
         generation: u64,
+        geometry_first: Option<Vec<u32>>,
+        vertex_first: Option<Vec<u32>>,
     ) -> Self {
+        let (nv, nt) = (state.vertices.len() as u32, state.indices.len() as u32);
         RayCaster {
             vertex_count: state.vertices.len(),
             triangle_count: state.indices.len(),
+            geometry_first: Arc::new(geometry_first.unwrap_or_else(|| vec![0, nt])),
+            vertex_first: vertex_first.unwrap_or_else(|| vec![0, nv]),
             state: RwLock::new(state),
             generation: AtomicU64::new(generation),
             kernel,
@@ -377,6 +444,46 @@ impl RayCaster {
             accel,
             broken: false,
         })
+    }
+
+    /// Builds the tree with the options of the constructor and prepares it.
+    fn build(
+        py: Python<'_>,
+        vs: &[Vec3],
+        ixs: &[[u32; 3]],
+        o: BuildOptions<'_>,
+        meshes: Option<(Vec<u32>, Vec<u32>)>,
+    ) -> PyResult<Self> {
+        let max_leaf = count_arg::<u32>("max_leaf", o.max_leaf)?;
+        let bins = count_arg::<usize>("bins", o.bins)?;
+        let threads = count_arg::<usize>("threads", o.threads)?;
+        let builder = o.builder;
+        let (f, cfg) =
+            config(builder, max_leaf, bins, o.collapse_from.as_deref(), threads).map_err(err)?;
+        let leaf_limit = cfg.max_leaf;
+        let (kernel, distance_stack) = (o.kernel, o.distance_stack);
+        let (state, k, ds) = detached(py, || {
+            let prims = aabbs(vs, ixs)?;
+            let tree = in_pool(threads, || {
+                f(&prims, &cfg)
+                    .map_err(|e| format!("builder {builder} failed: {}", arbor::one_line(&e)))
+            })?;
+            let k = kernel_name(&tree, kernel)?;
+            let ds = distance_stack.unwrap_or_else(|| default_distance_stack(k));
+            let state = Self::prepare(vs.to_vec(), ixs.to_vec(), tree, k, ds)?;
+            Ok::<_, String>((state, k, ds))
+        })?;
+        let (g, v) = meshes.unzip();
+        Ok(Self::wrap(
+            state,
+            k,
+            ds,
+            builder.to_string(),
+            leaf_limit,
+            0,
+            g,
+            v,
+        ))
     }
 
     /// Rays from Python, with the checks every query makes.
@@ -436,28 +543,81 @@ impl RayCaster {
         collapse_from: Option<String>,
         threads: Option<i64>,
     ) -> PyResult<Self> {
-        let max_leaf = count_arg::<u32>("max_leaf", max_leaf)?;
-        let bins = count_arg::<usize>("bins", bins)?;
-        let threads = count_arg::<usize>("threads", threads)?;
-        let (f, cfg) =
-            config(builder, max_leaf, bins, collapse_from.as_deref(), threads).map_err(err)?;
         let v = points("vertices", vertices)?;
         let vs = v.as_vec3()?;
         let ix = crate::arrays::indices(indices, vs.len())?;
         let ixs = ix.get()?;
-        let leaf_limit = cfg.max_leaf;
-        let (state, k, ds) = detached(py, || {
-            let prims = aabbs(vs, ixs)?;
-            let tree = in_pool(threads, || {
-                f(&prims, &cfg)
-                    .map_err(|e| format!("builder {builder} failed: {}", arbor::one_line(&e)))
-            })?;
-            let k = kernel_name(&tree, kernel)?;
-            let ds = distance_stack.unwrap_or_else(|| default_distance_stack(k));
-            let state = Self::prepare(vs.to_vec(), ixs.to_vec(), tree, k, ds)?;
-            Ok::<_, String>((state, k, ds))
-        })?;
-        Ok(Self::wrap(state, k, ds, builder.to_string(), leaf_limit, 0))
+        let opts = BuildOptions {
+            builder,
+            kernel,
+            distance_stack,
+            max_leaf,
+            bins,
+            collapse_from,
+            threads,
+        };
+        Self::build(py, vs, ixs, opts, None)
+    }
+
+    /// A ray caster over several meshes, each `(vertices, indices)` or an object with
+    /// `vertices` and `faces` (or `indices`): results name the mesh of each hit
+    /// (`RayHits.geometry`) and the triangle within it (`geometry_primitive`); the other
+    /// arguments as for the constructor.
+    #[staticmethod]
+    #[pyo3(signature = (meshes, builder = "binned-sah", *, kernel = None, distance_stack = None, max_leaf = None, bins = None, collapse_from = None, threads = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn from_meshes(
+        py: Python<'_>,
+        meshes: &Bound<'_, PyAny>,
+        builder: &str,
+        kernel: Option<&str>,
+        distance_stack: Option<bool>,
+        max_leaf: Option<i64>,
+        bins: Option<i64>,
+        collapse_from: Option<String>,
+        threads: Option<i64>,
+    ) -> PyResult<Self> {
+        let (mut vs, mut ixs) = (Vec::new(), Vec::new());
+        let (mut gfirst, mut vfirst) = (vec![0u32], vec![0u32]);
+        for (g, m) in meshes.try_iter()?.enumerate() {
+            let m = m?;
+            let (v, ix) = if let Ok((v, ix)) = m.extract::<(Bound<'_, PyAny>, Bound<'_, PyAny>)>() {
+                (v, ix)
+            } else {
+                let v = m.getattr("vertices").map_err(|_| {
+                    err(format!(
+                        "meshes[{g}] is neither (vertices, indices) nor a mesh with vertices"
+                    ))
+                })?;
+                let ix = m
+                    .getattr("faces")
+                    .or_else(|_| m.getattr("indices"))
+                    .map_err(|_| err(format!("meshes[{g}] has no faces or indices")))?;
+                (v, ix)
+            };
+            let pv = points(&format!("meshes[{g}] vertices"), &v)?;
+            let pvs = pv.as_vec3()?;
+            let pix = crate::arrays::indices(&ix, pvs.len())?;
+            let base = vs.len() as u32;
+            ixs.extend(pix.get()?.iter().map(|t| t.map(|i| i + base)));
+            vs.extend_from_slice(pvs);
+            let too_many = || err("the meshes hold more than 2^32 vertices or triangles");
+            vfirst.push(u32::try_from(vs.len()).map_err(|_| too_many())?);
+            gfirst.push(u32::try_from(ixs.len()).map_err(|_| too_many())?);
+        }
+        if gfirst.len() == 1 {
+            return Err(err("from_meshes needs at least one mesh"));
+        }
+        let opts = BuildOptions {
+            builder,
+            kernel,
+            distance_stack,
+            max_leaf,
+            bins,
+            collapse_from,
+            threads,
+        };
+        Self::build(py, &vs, &ixs, opts, Some((gfirst, vfirst)))
     }
 
     /// A ray caster over a tree built before (`Bvh.build`, or loaded from a file), with
@@ -509,14 +669,50 @@ impl RayCaster {
             check_current(stored.as_deref(), &state.triangles)?;
             Ok::<_, String>((state, k, ds))
         })?;
-        Ok(Self::wrap(state, k, ds, builder, max_leaf, 0))
+        Ok(Self::wrap(state, k, ds, builder, max_leaf, 0, None, None))
     }
 
     /// Moves the vertices (same count, same triangles) and updates the tree and the
     /// kernel in place (a CBVH is encoded again). Waits for queries in flight.
     fn refit(&self, py: Python<'_>, vertices: &Bound<'_, PyAny>) -> PyResult<()> {
-        let v = points("vertices", vertices)?;
-        let vs = v.as_vec3()?;
+        // From `from_meshes`: a list with the vertices of each mesh.
+        let joined: Option<Vec<Vec3>> = if vertices.is_instance_of::<pyo3::types::PyList>()
+            || vertices.is_instance_of::<pyo3::types::PyTuple>()
+        {
+            let parts: Vec<Bound<'_, PyAny>> = vertices.extract()?;
+            let counts = self.vertex_first.windows(2).map(|w| (w[1] - w[0]) as usize);
+            if parts.len() != counts.len() {
+                return Err(err(format!(
+                    "refit keeps the topology: {} meshes expected, {} given",
+                    counts.len(),
+                    parts.len()
+                )));
+            }
+            let mut all = Vec::with_capacity(self.vertex_count);
+            for (g, (part, want)) in parts.iter().zip(counts).enumerate() {
+                let p = points(&format!("vertices[{g}]"), part)?;
+                let ps = p.as_vec3()?;
+                if ps.len() != want {
+                    return Err(err(format!(
+                        "refit keeps the topology: mesh {g} has {want} vertices, {} given",
+                        ps.len()
+                    )));
+                }
+                all.extend_from_slice(ps);
+            }
+            Some(all)
+        } else {
+            None
+        };
+        let v = match joined {
+            Some(_) => None,
+            None => Some(points("vertices", vertices)?),
+        };
+        let vs: &[Vec3] = match (&joined, &v) {
+            (Some(all), _) => all,
+            (None, Some(v)) => v.as_vec3()?,
+            (None, None) => return Err(err("internal error: no vertices")),
+        };
         if vs.len() != self.vertex_count {
             return Err(err(format!(
                 "refit keeps the topology: {} vertices expected, {} given",
@@ -659,6 +855,7 @@ impl RayCaster {
             hit: hit.unbind(),
             triangles,
             normal: OnceLock::new(),
+            geometry_first: self.geometry_first.clone(),
             location: location.unbind(),
             counter_array: cnt.map(|c| c.unbind()),
             generation,
@@ -787,6 +984,12 @@ impl RayCaster {
         self.triangle_count
     }
 
+    /// Meshes it was built over (1 unless `from_meshes`).
+    #[getter]
+    fn geometry_count(&self) -> usize {
+        self.geometry_first.len() - 1
+    }
+
     #[getter]
     fn vertex_count(&self) -> usize {
         self.vertex_count
@@ -821,12 +1024,15 @@ impl RayCaster {
             self.builder.clone(),
             self.max_leaf,
             self.generation(),
+            self.geometry_first.to_vec(),
+            self.vertex_first.clone(),
         );
         PyTuple::new(py, [restore.into_any(), args.into_pyobject(py)?.into_any()])
     }
 
     /// Rebuilds a pickled ray caster (see `__reduce__`).
     #[staticmethod]
+    #[pyo3(signature = (vertices, indices, tree, kernel, distance_stack, builder, max_leaf, generation, geometry_first = None, vertex_first = None))]
     #[allow(clippy::too_many_arguments)]
     fn _restore(
         py: Python<'_>,
@@ -838,6 +1044,8 @@ impl RayCaster {
         builder: String,
         max_leaf: u32,
         generation: u64,
+        geometry_first: Option<Vec<u32>>,
+        vertex_first: Option<Vec<u32>>,
     ) -> PyResult<Self> {
         let v = points("vertices", vertices)?;
         let vs = v.as_vec3()?;
@@ -857,6 +1065,8 @@ impl RayCaster {
             builder,
             max_leaf,
             generation,
+            geometry_first,
+            vertex_first,
         ))
     }
 

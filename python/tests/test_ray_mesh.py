@@ -121,3 +121,14 @@ def test_switches_trimesh_over_with_one_line(sphere: Any) -> None:
     o, d = rays_at(np.asarray(m.vertices), 100, seed=8)
     loc, ray, tri = m.ray.intersects_location(o, d)
     assert len(loc) == len(ray) == len(tri) > 0
+
+
+def test_from_meshes_takes_trimesh_objects(sphere: Any) -> None:
+    a, b = sphere.copy(), sphere.copy()
+    b.apply_translation([5.0, 0.0, 0.0])
+    rc = arbor.RayCaster.from_meshes([a, b])
+    o = np.array([[0.0, 0.0, 10.0], [5.0, 0.0, 10.0], [20.0, 0.0, 10.0]], np.float32)
+    d = np.array([[0.0, 0.0, -1.0]] * 3, np.float32)
+    h = rc.intersect(o, d)
+    np.testing.assert_array_equal(h.geometry, [0, 1, arbor.NO_HIT])
+    np.testing.assert_allclose(h.t[:2], [8.0, 8.0], atol=0.05)

@@ -455,3 +455,43 @@ def test_native_wide_trees_and_from_bvh(mesh: arbor.Mesh) -> None:
     np.testing.assert_array_equal(back.intersect(o, d).primitive, ref.primitive)
     wrapped = RayCaster.from_bvh(rc.bvh, v1, ix)
     np.testing.assert_array_equal(wrapped.occluded(o, d), ref.hit)
+
+
+def test_several_meshes_name_the_mesh_of_each_hit(mesh: arbor.Mesh) -> None:
+    v, ix = mesh.vertices, mesh.indices
+    other = arbor.open_scene("proc:cloth?n=500&seed=2").mesh()
+    v2 = (other.vertices + np.float32(0.3)).astype(np.float32)
+    rc = RayCaster.from_meshes([(v, ix), (v2, other.indices)], kernel="mbvh8")
+    assert rc.geometry_count == 2 and len(rc) == len(ix) + len(other.indices)
+    # The same hits as one mesh of both.
+    allv = np.concatenate([v, v2])
+    allix = np.concatenate([ix, other.indices + len(v)])
+    o, d = rays_at(allv, 400, seed=14)
+    h = rc.intersect(o, d)
+    ref = arbor.trace_brute_force(allv, allix, o, d)
+    np.testing.assert_array_equal(h.primitive, ref.primitive)
+    first = np.array([0, len(ix), len(allix)])
+    g = np.searchsorted(first, h.primitive[h.hit], side="right") - 1
+    assert set(np.unique(g)) == {0, 1}
+    np.testing.assert_array_equal(h.geometry[h.hit], g)
+    np.testing.assert_array_equal(h.geometry_primitive[h.hit], h.primitive[h.hit] - first[g])
+    assert (h.geometry[~h.hit] == arbor.NO_HIT).all()
+    # One mesh: geometry 0 throughout.
+    single = RayCaster(v, ix).intersect(o, d)
+    assert (single.geometry[single.hit] == 0).all()
+    # Refit with the vertices of each mesh; pickling keeps the meshes.
+    rc.refit([moved(v, 1), v2])
+    h1 = rc.intersect(o, d)
+    ref1 = arbor.trace_brute_force(np.concatenate([moved(v, 1), v2]), allix, o, d)
+    np.testing.assert_array_equal(h1.t, ref1.t)
+    back = pickle.loads(pickle.dumps(rc))
+    assert back.geometry_count == 2
+    np.testing.assert_array_equal(back.intersect(o, d).geometry, h1.geometry)
+    with pytest.raises(ArborError, match="2 meshes expected, 1 given"):
+        rc.refit([v])
+    with pytest.raises(ArborError, match="mesh 1 has"):
+        rc.refit([v, v2[:-1]])
+    with pytest.raises(ArborError, match="at least one mesh"):
+        RayCaster.from_meshes([])
+    with pytest.raises(ArborError, match=r"meshes\[0\]"):
+        RayCaster.from_meshes([42])
