@@ -391,7 +391,8 @@ class RayHits:
     weights of the triangle's vertices 1 and 2), ``normal`` (the unit geometric normal
     ``cross(p1 - p0, p2 - p0)``, NaN on a miss; computed on first access, so a query that
     never reads it does not pay for it) and ``location`` (``origin + t * direction``,
-    NaN on a miss), float32 (N, 3)."""
+    NaN on a miss), float32 (N, 3). Pickles (the normals computed, so a Ray task can
+    return it)."""
 
     @property
     def t(self) -> _F32: ...

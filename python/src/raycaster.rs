@@ -382,6 +382,109 @@ impl RayHits {
         self.total.rays as usize
     }
 
+    /// Pickling (a Ray task can return a result): the arrays, with the normals computed
+    /// (the triangles do not travel), the meshes' first triangles and the totals.
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        let restore = py
+            .import("arbor._arbor")?
+            .getattr("RayHits")?
+            .getattr("_restore")?;
+        let t = &self.total;
+        let totals = [
+            t.rays,
+            t.hits,
+            t.node_visits,
+            t.box_tests,
+            t.tri_tests,
+            t.leaf_visits,
+            t.pushes,
+            t.pops,
+            t.culled_pops,
+            t.max_stack_depth,
+        ];
+        let args = (
+            self.t.bind(py).clone(),
+            self.primitive.bind(py).clone(),
+            self.u.bind(py).clone(),
+            self.v.bind(py).clone(),
+            self.hit.bind(py).clone(),
+            self.normal(py)?,
+            self.location.bind(py).clone(),
+            self.counter_array.as_ref().map(|c| c.bind(py).clone()),
+            self.generation,
+            self.kernel,
+            self.geometry_first.to_vec(),
+            totals.to_vec(),
+        );
+        PyTuple::new(py, [restore.into_any(), args.into_pyobject(py)?.into_any()])
+    }
+
+    /// Rebuilds a pickled result (see `__reduce__`).
+    #[staticmethod]
+    #[allow(clippy::too_many_arguments)]
+    fn _restore(
+        t: Bound<'_, PyArray1<f32>>,
+        primitive: Bound<'_, PyArray1<u32>>,
+        u: Bound<'_, PyArray1<f32>>,
+        v: Bound<'_, PyArray1<f32>>,
+        hit: Bound<'_, PyArray1<bool>>,
+        normal: Bound<'_, PyArray2<f32>>,
+        location: Bound<'_, PyArray2<f32>>,
+        counters: Option<Bound<'_, PyArray2<u32>>>,
+        generation: u64,
+        kernel: &str,
+        geometry_first: Vec<u32>,
+        totals: Vec<u64>,
+    ) -> PyResult<Self> {
+        let kernel = ["bvh2", "mbvh4", "mbvh8", "cbvh"]
+            .into_iter()
+            .find(|&k| k == kernel)
+            .ok_or_else(|| err(format!("pickled result of unknown kernel '{kernel}'")))?;
+        let [rays, hits, node_visits, box_tests, tri_tests, leaf_visits, pushes, pops, culled_pops, max_stack_depth] =
+            <[u64; 10]>::try_from(totals)
+                .map_err(|_| err("pickled totals: 10 counters expected"))?;
+        let n = t.len();
+        let lens = [
+            primitive.len(),
+            u.len(),
+            v.len(),
+            hit.len(),
+            normal.shape()[0],
+            location.shape()[0],
+        ];
+        if lens.iter().any(|&l| l != n) || rays as usize != n || geometry_first.is_empty() {
+            return Err(err("pickled result: arrays of different lengths"));
+        }
+        let cached = OnceLock::new();
+        let _ = cached.set(normal.unbind());
+        Ok(RayHits {
+            t: t.unbind(),
+            primitive: primitive.unbind(),
+            u: u.unbind(),
+            v: v.unbind(),
+            hit: hit.unbind(),
+            triangles: Arc::new(Vec::new()),
+            normal: cached,
+            geometry_first: Arc::new(geometry_first),
+            location: location.unbind(),
+            counter_array: counters.map(|c| c.unbind()),
+            generation,
+            kernel,
+            total: RayStats {
+                rays,
+                hits,
+                node_visits,
+                box_tests,
+                tri_tests,
+                leaf_visits,
+                pushes,
+                pops,
+                culled_pops,
+                max_stack_depth,
+            },
+        })
+    }
+
     fn __repr__(&self) -> String {
         format!(
             "RayHits({} rays, {} hits, kernel {:?}, generation {})",

@@ -495,3 +495,21 @@ def test_several_meshes_name_the_mesh_of_each_hit(mesh: arbor.Mesh) -> None:
         RayCaster.from_meshes([])
     with pytest.raises(ArborError, match=r"meshes\[0\]"):
         RayCaster.from_meshes([42])
+
+
+def test_results_pickle(mesh: arbor.Mesh) -> None:
+    v, ix = mesh.vertices, mesh.indices
+    o, d = rays_at(v, 100, seed=15)
+    rc = RayCaster.from_meshes([(v, ix)], kernel="cbvh")
+    for counters in (False, True):
+        h = rc.intersect(o, d, counters=counters)
+        back = pickle.loads(pickle.dumps(h))
+        assert isinstance(back, RayHits) and len(back) == 100
+        assert (back.kernel, back.generation) == ("cbvh", 0) and back.totals == h.totals
+        for name in ("t", "primitive", "u", "v", "hit", "normal", "location", "geometry"):
+            np.testing.assert_array_equal(getattr(back, name), getattr(h, name))
+        if counters:
+            assert back.counters is not None and h.counters is not None
+            np.testing.assert_array_equal(back.counters["tri_tests"], h.counters["tri_tests"])
+        else:
+            assert back.counters is None
