@@ -9,9 +9,9 @@ use crate::scene::Camera;
 use ::trace::{Accel, KernelOptions, Query, RayStats, TraversalStack, Traverse};
 use bvh::Tree;
 use geom::{Aabb, Ray, Triangle, Vec3};
-use numpy::{PyArray1, PyArray2};
+use numpy::{PyArray1, PyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyDict, PyList, PyTuple};
 use rayon::prelude::*;
 
 /// Primitive id of a ray that hit nothing (`u32::MAX`, as in `trace::Render::prim`).
@@ -108,6 +108,86 @@ impl Hits {
 
     fn __len__(&self) -> usize {
         self.total.rays as usize
+    }
+
+    /// Pickling: the arrays, the kernel and the totals.
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        let restore = py
+            .import("arbor._arbor")?
+            .getattr("Hits")?
+            .getattr("_restore")?;
+        let arrays = PyList::new(
+            py,
+            [
+                self.t.bind(py).clone().into_any(),
+                self.primitive.bind(py).clone().into_any(),
+                self.u.bind(py).clone().into_any(),
+                self.v.bind(py).clone().into_any(),
+                self.hit.bind(py).clone().into_any(),
+                self.node_visits.bind(py).clone().into_any(),
+                self.box_tests.bind(py).clone().into_any(),
+                self.tri_tests.bind(py).clone().into_any(),
+                self.leaf_visits.bind(py).clone().into_any(),
+                self.pops.bind(py).clone().into_any(),
+                self.culled_pops.bind(py).clone().into_any(),
+                self.max_stack_depth.bind(py).clone().into_any(),
+            ],
+        )?;
+        let args = (arrays, self.kernel.clone(), stats_dict(py, &self.total)?);
+        PyTuple::new(py, [restore.into_any(), args.into_pyobject(py)?.into_any()])
+    }
+
+    /// Rebuilds pickled hits (see `__reduce__`).
+    #[staticmethod]
+    fn _restore(
+        arrays: Vec<Bound<'_, PyAny>>,
+        kernel: String,
+        totals: std::collections::HashMap<String, u64>,
+    ) -> PyResult<Self> {
+        let [t, primitive, u, v, hit, nv, bt, tt, lv, pops, cp, msd] =
+            <[Bound<'_, PyAny>; 12]>::try_from(arrays)
+                .map_err(|_| err("pickled hits: 12 arrays expected"))?;
+        let f = |a: Bound<'_, PyAny>| -> PyResult<Py<PyArray1<f32>>> {
+            Ok(a.cast_into::<PyArray1<f32>>()
+                .map_err(|_| err("pickled hits: a float32 array expected"))?
+                .unbind())
+        };
+        let c = |a: Bound<'_, PyAny>| -> PyResult<Py<PyArray1<u32>>> {
+            Ok(a.cast_into::<PyArray1<u32>>()
+                .map_err(|_| err("pickled hits: a uint32 array expected"))?
+                .unbind())
+        };
+        let g = |k: &str| totals.get(k).copied().unwrap_or(0);
+        Ok(Hits {
+            t: f(t)?,
+            primitive: c(primitive)?,
+            u: f(u)?,
+            v: f(v)?,
+            hit: hit
+                .cast_into::<PyArray1<bool>>()
+                .map_err(|_| err("pickled hits: a bool array expected"))?
+                .unbind(),
+            node_visits: c(nv)?,
+            box_tests: c(bt)?,
+            tri_tests: c(tt)?,
+            leaf_visits: c(lv)?,
+            pops: c(pops)?,
+            culled_pops: c(cp)?,
+            max_stack_depth: c(msd)?,
+            kernel,
+            total: RayStats {
+                rays: g("rays"),
+                hits: g("hits"),
+                node_visits: g("node_visits"),
+                box_tests: g("box_tests"),
+                tri_tests: g("tri_tests"),
+                leaf_visits: g("leaf_visits"),
+                pushes: g("pushes"),
+                pops: g("pops"),
+                culled_pops: g("culled_pops"),
+                max_stack_depth: g("max_stack_depth"),
+            },
+        })
     }
 
     fn __repr__(&self) -> String {
@@ -512,6 +592,55 @@ pub struct Rays {
 impl Rays {
     fn __len__(&self) -> usize {
         self.count
+    }
+
+    /// Pickling: the arrays, the image size and the kind.
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        let restore = py
+            .import("arbor._arbor")?
+            .getattr("Rays")?
+            .getattr("_restore")?;
+        let args = (
+            self.origins.bind(py).clone(),
+            self.directions.bind(py).clone(),
+            self.tmin.bind(py).clone(),
+            self.tmax.bind(py).clone(),
+            self.pixel.bind(py).clone(),
+            self.bounce.bind(py).clone(),
+            self.width,
+            self.height,
+            self.kind.clone(),
+        );
+        PyTuple::new(py, [restore.into_any(), args.into_pyobject(py)?.into_any()])
+    }
+
+    /// Rebuilds pickled rays (see `__reduce__`).
+    #[staticmethod]
+    #[allow(clippy::too_many_arguments)]
+    fn _restore(
+        origins: Bound<'_, PyArray2<f32>>,
+        directions: Bound<'_, PyArray2<f32>>,
+        tmin: Bound<'_, PyArray1<f32>>,
+        tmax: Bound<'_, PyArray1<f32>>,
+        pixel: Bound<'_, PyArray1<u32>>,
+        bounce: Bound<'_, PyArray1<u8>>,
+        width: u32,
+        height: u32,
+        kind: String,
+    ) -> PyResult<Self> {
+        let count = tmin.len();
+        Ok(Rays {
+            origins: origins.unbind(),
+            directions: directions.unbind(),
+            tmin: tmin.unbind(),
+            tmax: tmax.unbind(),
+            pixel: pixel.unbind(),
+            bounce: bounce.unbind(),
+            width,
+            height,
+            kind,
+            count,
+        })
     }
 
     fn __repr__(&self) -> String {

@@ -513,3 +513,30 @@ def test_results_pickle(mesh: arbor.Mesh) -> None:
             np.testing.assert_array_equal(back.counters["tri_tests"], h.counters["tri_tests"])
         else:
             assert back.counters is None
+
+
+def test_every_typed_object_pickles(mesh: arbor.Mesh) -> None:
+    """Scenes aside (a scene is its spec: open it again), every object pickles."""
+    scene = arbor.open_scene(CLOTH)
+    cam = pickle.loads(pickle.dumps(scene.camera))
+    assert (cam.eye, cam.target, cam.up, cam.vfov_deg) == (
+        scene.camera.eye,
+        scene.camera.target,
+        scene.camera.up,
+        scene.camera.vfov_deg,
+    )
+    m = pickle.loads(pickle.dumps(mesh))
+    np.testing.assert_array_equal(m.vertices, mesh.vertices)
+    np.testing.assert_array_equal(m.indices, mesh.indices)
+    np.testing.assert_array_equal(m.bounds, mesh.bounds)
+    assert (m.time, m.material_names, len(m)) == (mesh.time, mesh.material_names, len(mesh))
+    rays = arbor.camera_rays(scene.camera, 16, 8)
+    r = pickle.loads(pickle.dumps(rays))
+    assert (len(r), r.width, r.height, r.kind) == (len(rays), 16, 8, "primary")
+    np.testing.assert_array_equal(r.directions, rays.directions)
+    np.testing.assert_array_equal(r.pixel, rays.pixel)
+    hits = arbor.trace(arbor.build_bvh(mesh), mesh.vertices, mesh.indices, r.origins, r.directions)
+    h = pickle.loads(pickle.dumps(hits))
+    assert h.totals == hits.totals and h.kernel == hits.kernel
+    np.testing.assert_array_equal(h.t, hits.t)
+    np.testing.assert_array_equal(h.node_visits, hits.node_visits)
