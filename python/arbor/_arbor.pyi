@@ -498,6 +498,18 @@ class RayCaster:
         """Closest hits (origins and directions (N, 3); ``tmin``/``tmax`` a number or (N,),
         default 0 and ``inf``). ``out``: a result of the same length whose arrays are
         overwritten and shared with the returned result (treat ``out`` itself as spent)."""
+    def intersect_all(
+        self,
+        origins: npt.ArrayLike,
+        directions: npt.ArrayLike,
+        tmin: float | npt.ArrayLike | None = None,
+        tmax: float | npt.ArrayLike | None = None,
+        *,
+        max_hits: int = 100,
+    ) -> tuple[_U32, _U32, _F32]:
+        """Every hit along each ray, nearest first, at most ``max_hits`` per ray:
+        ``(ray, primitive, t)``, ray by ray. Each ray restarts just past its last hit, so
+        two triangles hit at exactly the same distance count once."""
     def occluded(
         self,
         origins: npt.ArrayLike,

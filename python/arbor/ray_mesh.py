@@ -8,9 +8,10 @@
     mesh.ray = arbor.RayMeshIntersector(mesh)
 
 Differences from trimesh: coordinates are traced in float32 (as Embree does); multiple hits
-along a ray are found by restarting each ray just past its last hit (``tmin``), so two
-triangles hit at exactly the same distance (a ray through a shared edge) count once; the
-structure is built once, and ``refit`` moves the vertices of the same triangles.
+along a ray (:meth:`arbor.RayCaster.intersect_all`) restart each ray just past its last
+hit, so two triangles hit at exactly the same distance (a ray through a shared edge) count
+once, and come ray by ray rather than depth by depth; the structure is built once, and
+``refit`` moves the vertices of the same triangles.
 """
 
 from __future__ import annotations
@@ -89,26 +90,21 @@ class RayMeshIntersector:
     ) -> tuple[_I64, _I64] | tuple[_I64, _I64, _F64]:
         """``(index_tri, index_ray)`` of every hit (only the first per ray unless
         ``multiple_hits``, at most ``max_hits`` per ray), and their locations (m, 3) with
-        ``return_locations``; hits are ordered by depth, then by ray."""
+        ``return_locations``. Hits come ray by ray, nearest first (trimesh orders them by
+        depth); each ray's first entry is its nearest hit either way."""
         o, d = _rays(ray_origins, ray_directions)
-        tris: list[_I64] = [np.zeros(0, np.int64)]
-        rays: list[_I64] = [np.zeros(0, np.int64)]
-        locs: list[_F64] = [np.zeros((0, 3), np.float64)]
-        live = np.arange(len(o))
-        tmin = np.zeros(len(o), np.float32)
-        for _ in range(max_hits if multiple_hits else 1):
-            if len(live) == 0:
-                break
-            h = self.caster.intersect(o[live], d[live], tmin[live])
-            live = live[h.hit]
-            tris.append(h.primitive[h.hit].astype(np.int64))
-            rays.append(live)
-            locs.append(h.location[h.hit].astype(np.float64))
-            # Restart just past the hit: the next hit lies strictly farther.
-            tmin[live] = np.nextafter(h.t[h.hit], np.float32(np.inf))
-        index_tri, index_ray = np.concatenate(tris), np.concatenate(rays)
+        if multiple_hits:
+            ray, tri, t = self.caster.intersect_all(o, d, max_hits=max_hits)
+            index_ray, index_tri = ray.astype(np.int64), tri.astype(np.int64)
+            o64, d64 = o.astype(np.float64), d.astype(np.float64)
+            locations = o64[index_ray] + t.astype(np.float64)[:, None] * d64[index_ray]
+        else:
+            h = self.caster.intersect(o, d)
+            index_ray = np.flatnonzero(h.hit).astype(np.int64)
+            index_tri = h.primitive[h.hit].astype(np.int64)
+            locations = h.location[h.hit].astype(np.float64)
         if return_locations:
-            return index_tri, index_ray, np.concatenate(locs)
+            return index_tri, index_ray, locations
         return index_tri, index_ray
 
     def intersects_location(

@@ -967,6 +967,95 @@ impl RayCaster {
         })
     }
 
+    /// Every hit along each ray, nearest first, up to `max_hits` per ray (the arguments
+    /// as in `intersect`): `(ray, primitive, t)` arrays, ray by ray. Each ray restarts just
+    /// past its last hit, so two triangles hit at exactly the same distance (a ray through
+    /// a shared edge) count once.
+    #[pyo3(signature = (origins, directions, tmin = None, tmax = None, *, max_hits = 100))]
+    #[allow(clippy::type_complexity)]
+    fn intersect_all<'py>(
+        &self,
+        py: Python<'py>,
+        origins: &Bound<'py, PyAny>,
+        directions: &Bound<'py, PyAny>,
+        tmin: Option<&Bound<'py, PyAny>>,
+        tmax: Option<&Bound<'py, PyAny>>,
+        max_hits: i64,
+    ) -> PyResult<(
+        Bound<'py, PyArray1<u32>>,
+        Bound<'py, PyArray1<u32>>,
+        Bound<'py, PyArray1<f32>>,
+    )> {
+        let max_hits = count_arg::<u32>("max_hits", Some(max_hits))?.unwrap_or(0);
+        let arrays = Self::rays(origins, directions, tmin, tmax)?;
+        let rays = arrays.slices()?;
+        let n = rays.len();
+        let lock = &self.state;
+        let rays = &rays;
+        let (ray, prim, t) = detached(py, move || {
+            rays.check()?;
+            let s = read(lock)?;
+            let s = &*s;
+            let run = |range: std::ops::Range<usize>| {
+                let mut stack = TraversalStack::new();
+                let (mut ray, mut prim, mut t) = (Vec::new(), Vec::new(), Vec::new());
+                for i in range {
+                    let mut r = rays.ray(i);
+                    for _ in 0..max_hits {
+                        let mut st = RayStats::default();
+                        let Some(h) = s.accel.trace_observed(
+                            &r,
+                            Query::Closest,
+                            &mut stack,
+                            &mut st,
+                            &mut (),
+                        ) else {
+                            break;
+                        };
+                        ray.push(i as u32);
+                        prim.push(h.prim);
+                        t.push(h.t);
+                        // The next float above the hit (hits lie at t >= 0).
+                        r.t_min = if h.t <= 0.0 {
+                            f32::from_bits(1)
+                        } else {
+                            f32::from_bits(h.t.to_bits() + 1)
+                        };
+                        if r.t_min > r.t_max {
+                            break;
+                        }
+                    }
+                }
+                (ray, prim, t)
+            };
+            let parts: Vec<(Vec<u32>, Vec<u32>, Vec<f32>)> = if n <= SERIAL_RAYS {
+                vec![run(0..n)]
+            } else {
+                (0..n.div_ceil(CHUNK))
+                    .into_par_iter()
+                    .map(|c| run(c * CHUNK..((c + 1) * CHUNK).min(n)))
+                    .collect()
+            };
+            let total: usize = parts.iter().map(|p| p.0.len()).sum();
+            let (mut ray, mut prim, mut t) = (
+                Vec::with_capacity(total),
+                Vec::with_capacity(total),
+                Vec::with_capacity(total),
+            );
+            for (a, b, c) in parts {
+                ray.extend(a);
+                prim.extend(b);
+                t.extend(c);
+            }
+            Ok::<_, String>((ray, prim, t))
+        })?;
+        Ok((
+            PyArray1::from_vec(py, ray),
+            PyArray1::from_vec(py, prim),
+            PyArray1::from_vec(py, t),
+        ))
+    }
+
     /// Whether anything lies along each ray within its range (an any-hit query; the
     /// arguments as in `intersect`), as a bool array. `out`: a bool array of shape (N,) to
     /// write into and return.

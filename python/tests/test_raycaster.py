@@ -540,3 +540,47 @@ def test_every_typed_object_pickles(mesh: arbor.Mesh) -> None:
     assert h.totals == hits.totals and h.kernel == hits.kernel
     np.testing.assert_array_equal(h.t, hits.t)
     np.testing.assert_array_equal(h.node_visits, hits.node_visits)
+
+
+def test_all_hits_along_each_ray(mesh: arbor.Mesh) -> None:
+    v, ix = mesh.vertices, mesh.indices
+    o, d = rays_at(v, 300, seed=16)
+    # A second, shifted layer of the cloth: rays cross several surfaces.
+    v2 = np.concatenate([v, v + np.float32(0.05)])
+    ix2 = np.concatenate([ix, ix + len(v)])
+    rc = RayCaster(v2, ix2)
+    ray, prim, t = rc.intersect_all(o, d)
+    assert ray.dtype == np.uint32 and prim.dtype == np.uint32 and t.dtype == np.float32
+    # Ray by ray, nearest first; the first of each ray is its closest hit.
+    assert (np.diff(ray.astype(np.int64)) >= 0).all()
+    same = ray[1:] == ray[:-1]
+    assert (t[1:][same] > t[:-1][same]).all()
+    h = rc.intersect(o, d)
+    firsts = np.flatnonzero(np.r_[True, ~same])
+    np.testing.assert_array_equal(ray[firsts], np.flatnonzero(h.hit))
+    np.testing.assert_array_equal(prim[firsts], h.primitive[h.hit])
+    # Against float64 brute force: the same number of hits per ray (but grazing edges).
+    tri = np.asarray(v2, np.float64)[np.asarray(ix2, np.int64)]
+    counts = np.bincount(ray, minlength=300)
+    want = np.zeros(300, np.int64)
+    for i in range(300):
+        e1, e2 = tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0]
+        dd = np.broadcast_to(d[i].astype(np.float64), e1.shape)
+        pv = np.cross(dd, e2)
+        det = np.sum(e1 * pv, axis=1)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            tv = o[i].astype(np.float64) - tri[:, 0]
+            u = np.sum(tv * pv, axis=1) / det
+            qv = np.cross(tv, e1)
+            w = np.sum(dd * qv, axis=1) / det
+            tt = np.sum(e2 * qv, axis=1) / det
+        want[i] = int(
+            np.sum((np.abs(det) > 1e-12) & (u >= 0) & (w >= 0) & (u + w <= 1) & (tt >= 0))
+        )
+    assert (counts == want).mean() > 0.95 and counts.max() >= 2
+    # max_hits caps each ray; tmax clips.
+    capped = rc.intersect_all(o, d, max_hits=1)[0]
+    np.testing.assert_array_equal(capped, np.flatnonzero(h.hit))
+    assert len(rc.intersect_all(o, d, tmax=0.0)[0]) == 0
+    with pytest.raises(ArborError, match="max_hits"):
+        rc.intersect_all(o, d, max_hits=-1)
