@@ -169,10 +169,17 @@ impl<'a> Closest<'a> {
         let mut counters = self.counters;
         for k in 0..self.t.len() {
             let ray = rays.ray(first + k);
+            // Without per-ray counters the kernel counts straight into the totals (it adds
+            // to what it is given); with them, one ray's counters first.
             let mut st = RayStats::default();
+            let into = if counters.is_some() {
+                &mut st
+            } else {
+                &mut *totals
+            };
             let h = s
                 .accel
-                .trace_observed(&ray, Query::Closest, &mut stack, &mut st, &mut ());
+                .trace_observed(&ray, Query::Closest, &mut stack, into, &mut ());
             let p = &mut self.location[3 * k..3 * k + 3];
             match h {
                 Some(h) => {
@@ -205,8 +212,8 @@ impl<'a> Closest<'a> {
                 for (j, x) in row.into_iter().enumerate() {
                     c[COUNTERS.len() * k + j] = c32(x);
                 }
+                totals.add(&st);
             }
-            totals.add(&st);
         }
     }
 }
