@@ -13,7 +13,7 @@ out: fresh arrays that own (or view) memory moved from Rust, no extra copy.
 from __future__ import annotations
 
 import os
-from typing import Any, Final, Literal, final
+from typing import Any, Final, Literal, Sequence, final
 
 import numpy as np
 import numpy.typing as npt
@@ -32,6 +32,8 @@ __all__ = [
     "builders",
     "DEFAULT_BUILDER",
     "Hits",
+    "RayCaster",
+    "RayHits",
     "Rays",
     "trace",
     "trace_brute_force",
@@ -315,13 +317,17 @@ def trace(
     tmax: float | npt.ArrayLike | None = None,
     *,
     kernel: _KernelName | None = None,
-    distance_stack: bool = True,
+    distance_stack: bool | None = None,
     any_hit: bool = False,
 ) -> Hits:
     """Traces rays (origins and directions float32 (N, 3); ``tmin``/``tmax`` a number or
-    (N,), default 0 and ``inf``) through ``bvh``, built over ``indices`` into ``vertices``. ``kernel`` defaults to
-    the tree's own format; a binary tree can also be traced as ``mbvh4``, ``mbvh8`` or
-    ``cbvh`` (collapsed or compressed first). ``any_hit``: stop at the first hit found."""
+    (N,), default 0 and ``inf``; ``tmin`` not negative) through ``bvh``, built over
+    ``indices`` into ``vertices``. ``kernel`` defaults to the tree's own format; a binary
+    tree can also be traced as ``mbvh4``, ``mbvh8`` or ``cbvh`` (collapsed or compressed
+    first, on every call: see :class:`RayCaster` to prepare once). ``distance_stack``
+    defaults as in ``arbor render`` (on for ``mbvh4`` and ``mbvh8``). ``any_hit``: stop at
+    the first hit found. Vertices that moved since the tree was built or refitted are an
+    error (a stale tree), not silent misses."""
 
 def trace_brute_force(
     vertices: npt.ArrayLike,
@@ -375,6 +381,171 @@ def camera_rays(
     row-major, unit directions), or ``diffuse`` (the paths of ``arbor render --rays
     diffuse``, found by tracing through ``bvh``: each pixel's primary ray and up to
     ``bounces`` cosine-weighted bounces, in the renderer's tile order)."""
+
+# ------------------------------------------------------------------------ ray caster
+
+@final
+class RayHits:
+    """Closest hits of :meth:`RayCaster.intersect`, one entry per ray: ``t`` (``inf`` on a
+    miss), ``primitive`` (:data:`NO_HIT` on a miss), ``u`` and ``v`` (the barycentric
+    weights of the triangle's vertices 1 and 2), ``normal`` (the unit geometric normal
+    ``cross(p1 - p0, p2 - p0)``, NaN on a miss; computed on first access, so a query that
+    never reads it does not pay for it) and ``location`` (``origin + t * direction``,
+    NaN on a miss), float32 (N, 3). Pickles (the normals computed, so a Ray task can
+    return it)."""
+
+    @property
+    def t(self) -> _F32: ...
+    @property
+    def primitive(self) -> _U32: ...
+    @property
+    def u(self) -> _F32: ...
+    @property
+    def v(self) -> _F32: ...
+    @property
+    def hit(self) -> npt.NDArray[np.bool_]: ...
+    @property
+    def normal(self) -> _F32: ...
+    @property
+    def location(self) -> _F32: ...
+    @property
+    def geometry(self) -> _U32:
+        """The mesh of each hit (its index in :meth:`RayCaster.from_meshes`; 0 for one
+        mesh), :data:`NO_HIT` on a miss."""
+    @property
+    def geometry_primitive(self) -> _U32:
+        """The triangle of each hit within its mesh, :data:`NO_HIT` on a miss."""
+    @property
+    def counters(self) -> dict[str, _U32] | None:
+        """Per-ray traversal counters (``node_visits``, ``box_tests``, ``tri_tests``,
+        ``leaf_visits``, ``pops``, ``culled_pops``, ``max_stack_depth``), or None unless
+        the query passed ``counters=True``."""
+    @property
+    def totals(self) -> dict[str, int]:
+        """Counters summed over all rays (always kept)."""
+    @property
+    def generation(self) -> int:
+        """The :attr:`RayCaster.generation` the rays were traced against."""
+    @property
+    def kernel(self) -> str: ...
+    def __len__(self) -> int: ...
+
+@final
+class RayCaster:
+    """A prepared ray caster: built once over triangles, it owns a copy of the geometry,
+    the tree and the kernel's traceable form of it (for ``kernel="cbvh"`` the encoded
+    CBVH), so a query costs only its rays. ``refit`` moves the vertices in place; the
+    object never answers for other vertices than those it holds. Queries release the GIL
+    and run in parallel; threads may share one object (a refit waits for queries in
+    flight). Pickles (the tree travels in the tree-file format)."""
+
+    def __init__(
+        self,
+        vertices: npt.ArrayLike,
+        indices: npt.ArrayLike,
+        builder: _BuilderName | str = "binned-sah",
+        *,
+        kernel: _KernelName | None = None,
+        distance_stack: bool | None = None,
+        max_leaf: int | None = None,
+        bins: int | None = None,
+        collapse_from: str | None = None,
+        threads: int | None = None,
+    ) -> None:
+        """Builds the tree with a builder of ``arbor build`` (options as in
+        :meth:`Bvh.build`) and prepares it for ``kernel`` (default: the tree's own format).
+        ``distance_stack`` defaults as in ``arbor render``: on for ``mbvh4`` and ``mbvh8``."""
+    @staticmethod
+    def from_meshes(
+        meshes: Sequence[tuple[npt.ArrayLike, npt.ArrayLike] | Any],
+        builder: _BuilderName | str = "binned-sah",
+        *,
+        kernel: _KernelName | None = None,
+        distance_stack: bool | None = None,
+        max_leaf: int | None = None,
+        bins: int | None = None,
+        collapse_from: str | None = None,
+        threads: int | None = None,
+    ) -> RayCaster:
+        """One structure over several meshes, each ``(vertices, indices)`` or an object with
+        ``vertices`` and ``faces`` (a ``trimesh.Trimesh``) or ``indices``; results name the
+        mesh of each hit (:attr:`RayHits.geometry`). ``refit`` then also takes a list of
+        the meshes' vertex arrays."""
+    @staticmethod
+    def from_bvh(
+        bvh: Bvh,
+        vertices: npt.ArrayLike,
+        indices: npt.ArrayLike | None = None,
+        *,
+        kernel: _KernelName | None = None,
+        distance_stack: bool | None = None,
+    ) -> RayCaster:
+        """A ray caster over a built tree and the vertices it was built or last refitted
+        over (``indices`` default to the tree's); a stale tree is refused."""
+    def refit(self, vertices: npt.ArrayLike | Sequence[npt.ArrayLike]) -> None:
+        """Moves the vertices (same count, same triangles; for :meth:`from_meshes`, also a
+        list with each mesh's vertices); increments ``generation``."""
+    def intersect(
+        self,
+        origins: npt.ArrayLike,
+        directions: npt.ArrayLike,
+        tmin: float | npt.ArrayLike | None = None,
+        tmax: float | npt.ArrayLike | None = None,
+        *,
+        counters: bool = False,
+        out: RayHits | None = None,
+    ) -> RayHits:
+        """Closest hits (origins and directions (N, 3); ``tmin``/``tmax`` a number or (N,),
+        default 0 and ``inf``). ``out``: a result of the same length whose arrays are
+        overwritten and shared with the returned result (treat ``out`` itself as spent)."""
+    def intersect_all(
+        self,
+        origins: npt.ArrayLike,
+        directions: npt.ArrayLike,
+        tmin: float | npt.ArrayLike | None = None,
+        tmax: float | npt.ArrayLike | None = None,
+        *,
+        max_hits: int = 100,
+    ) -> tuple[_U32, _U32, _F32]:
+        """Every hit along each ray, nearest first, at most ``max_hits`` per ray:
+        ``(ray, primitive, t)``, ray by ray. Each ray restarts just past its last hit, so
+        two triangles hit at exactly the same distance count once."""
+    def occluded(
+        self,
+        origins: npt.ArrayLike,
+        directions: npt.ArrayLike,
+        tmin: float | npt.ArrayLike | None = None,
+        tmax: float | npt.ArrayLike | None = None,
+        *,
+        out: npt.NDArray[np.bool_] | None = None,
+    ) -> npt.NDArray[np.bool_]:
+        """Any hit within each ray's range, as booleans. ``out``: a bool (N,) array to fill."""
+    @property
+    def vertices(self) -> _F32:
+        """A copy of the vertices traced (those of the last build or refit)."""
+    @property
+    def indices(self) -> _U32:
+        """A copy of the triangles' vertex indices."""
+    @property
+    def bvh(self) -> Bvh:
+        """A copy of the tree, over the current vertices."""
+    @property
+    def generation(self) -> int:
+        """Refits so far (0 after building)."""
+    @property
+    def kernel(self) -> _KernelName: ...
+    @property
+    def distance_stack(self) -> bool: ...
+    @property
+    def builder(self) -> str: ...
+    @property
+    def triangle_count(self) -> int: ...
+    @property
+    def vertex_count(self) -> int: ...
+    @property
+    def geometry_count(self) -> int:
+        """Meshes it was built over (1 unless :meth:`from_meshes`)."""
+    def __len__(self) -> int: ...
 
 # ----------------------------------------------------------------------------- CBVH
 

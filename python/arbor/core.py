@@ -35,6 +35,8 @@ from ._arbor import (
     Camera,
     Hits,
     Mesh,
+    RayCaster,
+    RayHits,
     Rays,
     Scene,
     builders,
@@ -43,6 +45,8 @@ from ._arbor import (
     trace,
     trace_brute_force,
 )
+
+from .ray_mesh import RayMeshIntersector
 
 if TYPE_CHECKING:
     from ._arbor import _KernelName
@@ -58,6 +62,9 @@ __all__ = [
     "MBVH4_NODE_DTYPE",
     "Mesh",
     "NO_HIT",
+    "RayCaster",
+    "RayHits",
+    "RayMeshIntersector",
     "Rays",
     "Scene",
     "build_bvh",
@@ -147,7 +154,7 @@ def trace_mesh(
     tmax: float | npt.ArrayLike = float("inf"),
     *,
     kernel: _KernelName | None = None,
-    distance_stack: bool = True,
+    distance_stack: bool | None = None,
     any_hit: bool = False,
 ) -> Hits:
     """:func:`trace` with the vertices and indices of ``mesh``."""

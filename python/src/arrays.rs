@@ -114,6 +114,15 @@ impl Points<'_> {
 
 /// Converts `obj` to `(N, 3)` float32 points; `what` names it in errors.
 pub(crate) fn points<'py>(what: &str, obj: &Bound<'py, PyAny>) -> PyResult<Points<'py>> {
+    // Fast path, no call into numpy: already a C-contiguous, aligned float32 (N, 3) array.
+    if let Ok(a) = obj.cast::<PyArray2<f32>>() {
+        if a.shape()[1] == 3
+            && a.is_c_contiguous()
+            && (a.data() as usize).is_multiple_of(std::mem::align_of::<f32>())
+        {
+            return Ok(Points(a.readonly()));
+        }
+    }
     let a = as_ndarray(what, obj)?;
     check_n3(what, &a, "fiu")?;
     let a = require(what, &a, "float32")?;
@@ -153,6 +162,33 @@ impl Indices<'_> {
     }
 }
 
+/// Wide integer indices as `u32` triangles; an index outside `u32` is an error naming it.
+fn narrow<T: numpy::Element + Copy + std::fmt::Display>(
+    a: &PyReadonlyArray2<'_, T>,
+    vertices: usize,
+) -> PyResult<Vec<[u32; 3]>>
+where
+    u32: TryFrom<T>,
+{
+    let s = a
+        .as_slice()
+        .map_err(|_| err("internal error: array not contiguous"))?;
+    let mut out = Vec::with_capacity(s.len() / 3);
+    for (t, tri) in s.chunks_exact(3).enumerate() {
+        let mut v = [0u32; 3];
+        for k in 0..3 {
+            v[k] = u32::try_from(tri[k]).map_err(|_| {
+                err(format!(
+                    "triangle {t} refers to vertex {}, but there are only {vertices} vertices",
+                    tri[k]
+                ))
+            })?;
+        }
+        out.push(v);
+    }
+    Ok(out)
+}
+
 /// Converts `obj` to `(M, 3)` vertex indices, each below `vertices`.
 pub(crate) fn indices<'py>(obj: &Bound<'py, PyAny>, vertices: usize) -> PyResult<Indices<'py>> {
     let what = "indices";
@@ -163,28 +199,17 @@ pub(crate) fn indices<'py>(obj: &Bound<'py, PyAny>, vertices: usize) -> PyResult
             .cast_into::<PyArray2<u32>>()
             .map_err(|_| err("indices: not a uint32 array"))?;
         Indices::View(a.readonly())
+    } else if kind(&a) == 'u' {
+        // Unsigned: read as uint64, so that a huge index is not read back as negative.
+        let wide = require(what, &a, "uint64")?
+            .cast_into::<PyArray2<u64>>()
+            .map_err(|_| err("indices: not a uint64 array"))?;
+        Indices::Owned(narrow(&wide.readonly(), vertices)?)
     } else {
         let wide = require(what, &a, "int64")?
             .cast_into::<PyArray2<i64>>()
             .map_err(|_| err("indices: not an int64 array"))?;
-        let ro = wide.readonly();
-        let s = ro
-            .as_slice()
-            .map_err(|_| err("internal error: array not contiguous"))?;
-        let mut out = Vec::with_capacity(s.len() / 3);
-        for (t, tri) in s.chunks_exact(3).enumerate() {
-            let mut v = [0u32; 3];
-            for k in 0..3 {
-                v[k] = u32::try_from(tri[k]).map_err(|_| {
-                    err(format!(
-                        "triangle {t} refers to vertex {}, but there are only {vertices} vertices",
-                        tri[k]
-                    ))
-                })?;
-            }
-            out.push(v);
-        }
-        Indices::Owned(out)
+        Indices::Owned(narrow(&wide.readonly(), vertices)?)
     };
     if let Some((t, tri)) = ix
         .get()?
@@ -249,6 +274,31 @@ pub(crate) fn per_ray<'py>(
     };
     if obj.is_none() {
         return Ok(PerRay::Scalar(default));
+    }
+    // Fast paths, no call into numpy: a Python float, or a contiguous float32 (n,) array.
+    if let Ok(x) = obj.cast::<pyo3::types::PyFloat>() {
+        let x = x.value() as f32;
+        if x.is_nan() {
+            return Err(err(format!("{what} is NaN")));
+        }
+        return Ok(PerRay::Scalar(x));
+    }
+    if let Ok(a) = obj.cast::<PyArray1<f32>>() {
+        if a.len() == n
+            && a.is_c_contiguous()
+            && (a.data() as usize).is_multiple_of(std::mem::align_of::<f32>())
+        {
+            let a = a.readonly();
+            if let Some(i) = a
+                .as_slice()
+                .map_err(|_| err("internal error: array not contiguous"))?
+                .iter()
+                .position(|x| x.is_nan())
+            {
+                return Err(err(format!("{what}[{i}] is NaN")));
+            }
+            return Ok(PerRay::Array(a));
+        }
     }
     let a = as_ndarray(what, obj)?;
     if a.ndim() == 0 {

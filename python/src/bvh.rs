@@ -4,24 +4,37 @@
 
 use crate::arrays::{bounds_array, err, indices, points};
 use crate::detached;
+use crate::raycaster::count_arg;
 use arbor::cmd::build::{self as cli, BuildConfig};
 use bvh::{SahParams, Tree};
 use geom::{Aabb, Vec3};
-use numpy::{PyArray1, PyArray2};
+use numpy::{PyArray1, PyArray2, PyArrayMethods};
 use pyo3::prelude::*;
-use pyo3::types::{PyDict, PyList, PyTuple};
+use pyo3::types::{PyBytes, PyDict, PyList, PyTuple};
 use std::path::PathBuf;
+use std::sync::{Arc, RwLock};
 
 /// Triangle vertex indices.
 pub(crate) type Triangles = Vec<[u32; 3]>;
 
 /// A built tree, with the triangle indices and primitive boxes it was last built or
 /// refitted over (absent for a tree loaded from a file).
-#[pyclass(module = "arbor._arbor")]
+///
+/// Threads share one `Bvh`: its state is an immutable snapshot behind a lock that is held
+/// only to copy or swap the pointer. Readers work on the snapshot they took (with the
+/// interpreter released); `refit` refits a copy and swaps it in. Nothing waits on the
+/// lock for longer than a pointer copy, so there is no `Already borrowed` and no deadlock
+/// with the interpreter lock.
+#[pyclass(module = "arbor._arbor", frozen)]
 pub struct Bvh {
+    state: RwLock<Arc<BvhState>>,
+    pub(crate) builder: String,
+    pub(crate) max_leaf: u32,
+}
+
+/// What a `Bvh` holds at one moment.
+pub(crate) struct BvhState {
     pub(crate) tree: Tree,
-    builder: String,
-    max_leaf: u32,
     pub(crate) indices: Option<Vec<[u32; 3]>>,
     pub(crate) prims: Option<Vec<Aabb>>,
 }
@@ -43,7 +56,7 @@ const PY_NAMES: cli::OptionNames = cli::OptionNames {
 
 /// The build configuration of `arbor build`'s options, checked by its own rules
 /// (`cmd::build::build_config`), the messages naming the Python arguments.
-fn config(
+pub(crate) fn config(
     builder: &str,
     max_leaf: Option<u32>,
     bins: Option<usize>,
@@ -55,7 +68,7 @@ fn config(
 }
 
 /// Runs `f` in a pool of `threads` workers, or in the global pool.
-fn in_pool<T: Send>(
+pub(crate) fn in_pool<T: Send>(
     threads: Option<usize>,
     f: impl FnOnce() -> Result<T, String> + Send,
 ) -> Result<T, String> {
@@ -136,15 +149,30 @@ fn node_dtype<'py>(py: Python<'py>, kind: bvh::TreeKind) -> PyResult<Bound<'py, 
 }
 
 impl Bvh {
-    /// Wraps a tree.
-    pub(crate) fn new(tree: Tree, builder: String, max_leaf: u32) -> Self {
+    /// Wraps a tree with the triangles it was built over, if known.
+    pub(crate) fn new(
+        tree: Tree,
+        builder: String,
+        max_leaf: u32,
+        indices: Option<Vec<[u32; 3]>>,
+        prims: Option<Vec<Aabb>>,
+    ) -> Self {
         Bvh {
-            tree,
+            state: RwLock::new(Arc::new(BvhState {
+                tree,
+                indices,
+                prims,
+            })),
             builder,
             max_leaf,
-            indices: None,
-            prims: None,
         }
+    }
+
+    /// The current state (a pointer copy; see the type's comment).
+    pub(crate) fn snapshot(&self) -> Arc<BvhState> {
+        // The lock guards a pointer copy or swap, which cannot panic: never poisoned in
+        // a way that matters.
+        self.state.read().unwrap_or_else(|e| e.into_inner()).clone()
     }
 
     /// Primitive boxes from `vertices` (and `indices`, else the stored ones), or the stored
@@ -156,7 +184,7 @@ impl Bvh {
         ix: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<(Vec<Aabb>, Option<Triangles>)> {
         match (vertices, ix) {
-            (None, None) => match &self.prims {
+            (None, None) => match &self.snapshot().prims {
                 Some(p) => Ok((p.clone(), None)),
                 None => Err(err(
                     "this tree was loaded from a file: pass the vertices and indices it was built over",
@@ -174,7 +202,8 @@ impl Bvh {
                         Ok((p, Some(ixs.to_vec())))
                     }
                     None => {
-                        let Some(stored) = &self.indices else {
+                        let snap = self.snapshot();
+                        let Some(stored) = &snap.indices else {
                             return Err(err(
                                 "this tree was loaded from a file: pass the indices it was built over",
                             ));
@@ -199,11 +228,14 @@ impl Bvh {
         vertices: &Bound<'_, PyAny>,
         indices: &Bound<'_, PyAny>,
         builder: &str,
-        max_leaf: Option<u32>,
-        bins: Option<usize>,
+        max_leaf: Option<i64>,
+        bins: Option<i64>,
         collapse_from: Option<String>,
-        threads: Option<usize>,
+        threads: Option<i64>,
     ) -> PyResult<Self> {
+        let max_leaf = count_arg::<u32>("max_leaf", max_leaf)?;
+        let bins = count_arg::<usize>("bins", bins)?;
+        let threads = count_arg::<usize>("threads", threads)?;
         let (f, cfg) =
             config(builder, max_leaf, bins, collapse_from.as_deref(), threads).map_err(err)?;
         let v = points("vertices", vertices)?;
@@ -219,10 +251,13 @@ impl Bvh {
             })?;
             Ok::<_, String>((tree, prims))
         })?;
-        let mut b = Bvh::new(tree, builder.to_string(), max_leaf);
-        b.indices = Some(ixs.to_vec());
-        b.prims = Some(prims);
-        Ok(b)
+        Ok(Bvh::new(
+            tree,
+            builder.to_string(),
+            max_leaf,
+            Some(ixs.to_vec()),
+            Some(prims),
+        ))
     }
 
     /// Reads a tree file (the format of `arbor build --out`, `bvh::io`).
@@ -233,12 +268,13 @@ impl Bvh {
                 .map_err(|e| format!("cannot read tree file {}: {e}", path.display()))
         })?;
         let max_leaf = tree.stats().max_leaf_size.max(1);
-        Ok(Bvh::new(tree, header.builder, max_leaf))
+        Ok(Bvh::new(tree, header.builder, max_leaf, None, None))
     }
 
     /// Writes the tree file atomically.
     fn save(&self, py: Python<'_>, path: PathBuf) -> PyResult<()> {
-        let (tree, builder) = (&self.tree, &self.builder);
+        let snap = self.snapshot();
+        let (tree, builder) = (&snap.tree, &self.builder);
         detached(py, || {
             bvh::io::write_tree_file(tree, builder, &path)
                 .map_err(|e| format!("cannot write tree file {}: {e}", path.display()))
@@ -246,24 +282,28 @@ impl Bvh {
     }
 
     /// Refits the boxes to moved vertices (same triangles; `indices` default to the ones
-    /// the tree was built over).
+    /// the tree was built over). Refits a copy and swaps it in, so that threads tracing
+    /// the tree meanwhile keep a consistent one.
     #[pyo3(signature = (vertices, indices = None))]
     fn refit(
-        &mut self,
+        &self,
         py: Python<'_>,
         vertices: &Bound<'_, PyAny>,
         indices: Option<&Bound<'_, PyAny>>,
     ) -> PyResult<()> {
         let (prims, ix) = self.prims_for(py, Some(vertices), indices)?;
-        let tree = &mut self.tree;
-        detached(py, || {
+        let old = self.snapshot();
+        let state = detached(py, || {
+            let mut tree = old.tree.clone();
             tree.refit(&prims)
-                .map_err(|e| format!("cannot refit the tree: {e}"))
+                .map_err(|e| format!("cannot refit the tree: {e}"))?;
+            Ok::<_, String>(BvhState {
+                tree,
+                indices: ix.or_else(|| old.indices.clone()),
+                prims: Some(prims),
+            })
         })?;
-        if ix.is_some() {
-            self.indices = ix;
-        }
-        self.prims = Some(prims);
+        *self.state.write().unwrap_or_else(|e| e.into_inner()) = Arc::new(state);
         Ok(())
     }
 
@@ -280,7 +320,8 @@ impl Bvh {
     ) -> PyResult<()> {
         let (prims, _) = self.prims_for(py, vertices, indices)?;
         let limit = max_leaf.unwrap_or(self.max_leaf);
-        let tree = &self.tree;
+        let snap = self.snapshot();
+        let tree = &snap.tree;
         detached(py, || {
             tree.validate(&prims, limit)
                 .map_err(|e| format!("invalid tree: {e}"))
@@ -302,7 +343,7 @@ impl Bvh {
             c_leaf,
             c_tri,
         };
-        Ok(match &self.tree {
+        Ok(match &self.snapshot().tree {
             Tree::Bvh2(t) => bvh::sah_cost_with(t, &p),
             Tree::Mbvh4(t) => bvh::mbvh4_sah_cost_with(t, &p.for_width(bvh::MBVH_WIDTH)),
         })
@@ -310,35 +351,40 @@ impl Bvh {
 
     /// The 4-wide tree collapsed from this binary one ([P4], `bvh::collapse`).
     fn collapse(&self, py: Python<'_>) -> PyResult<Self> {
-        let Tree::Bvh2(t) = &self.tree else {
+        let snap = self.snapshot();
+        let Tree::Bvh2(t) = &snap.tree else {
             return Err(err("the tree is already 4-wide (Mbvh4)"));
         };
         let m = detached(py, || {
             bvh::collapse(t).map_err(|e| format!("cannot collapse the tree to MBVH4: {e}"))
         })?;
-        let mut b = Bvh::new(Tree::Mbvh4(m), cli::COLLAPSE.to_string(), self.max_leaf);
-        b.indices = self.indices.clone();
-        b.prims = self.prims.clone();
-        Ok(b)
+        Ok(Bvh::new(
+            Tree::Mbvh4(m),
+            cli::COLLAPSE.to_string(),
+            self.max_leaf,
+            snap.indices.clone(),
+            snap.prims.clone(),
+        ))
     }
 
     /// The nodes as a structured array (a copy), in their exact memory layout.
     #[getter]
     fn nodes<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        let bytes = PyArray1::from_vec(py, node_bytes(&self.tree));
-        bytes.call_method1("view", (node_dtype(py, self.tree.kind())?,))
+        let snap = self.snapshot();
+        let bytes = PyArray1::from_vec(py, node_bytes(&snap.tree));
+        bytes.call_method1("view", (node_dtype(py, snap.tree.kind())?,))
     }
 
     /// The numpy dtype of `nodes`.
     #[getter]
     fn node_dtype<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyAny>> {
-        node_dtype(py, self.tree.kind())
+        node_dtype(py, self.snapshot().tree.kind())
     }
 
     /// The leaf table: primitive (triangle) indices in leaf order (a copy).
     #[getter]
     fn leaf_order<'py>(&self, py: Python<'py>) -> Bound<'py, PyArray1<u32>> {
-        PyArray1::from_slice(py, self.tree.prim_indices())
+        PyArray1::from_slice(py, self.snapshot().tree.prim_indices())
     }
 
     #[getter]
@@ -348,17 +394,17 @@ impl Bvh {
 
     #[getter]
     fn bounds<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        bounds_array(py, &self.tree.bounds())
+        bounds_array(py, &self.snapshot().tree.bounds())
     }
 
     #[getter]
     fn kind(&self) -> &'static str {
-        self.tree.kind().name()
+        self.snapshot().tree.kind().name()
     }
 
     #[getter]
     fn width(&self) -> usize {
-        self.tree.kind().width()
+        self.snapshot().tree.kind().width()
     }
 
     #[getter]
@@ -373,76 +419,157 @@ impl Bvh {
 
     #[getter]
     fn node_count(&self) -> usize {
-        self.tree.node_count()
+        self.snapshot().tree.node_count()
     }
 
     #[getter]
     fn leaf_count(&self) -> usize {
-        self.tree.stats().leaves
+        self.snapshot().tree.stats().leaves
     }
 
     #[getter]
     fn primitive_count(&self) -> usize {
-        self.tree.prim_count()
+        self.snapshot().tree.prim_count()
     }
 
     #[getter]
     fn depth(&self) -> usize {
-        self.tree.stats().max_depth
+        self.snapshot().tree.stats().max_depth
     }
 
     #[getter]
     fn max_leaf_size(&self) -> u32 {
-        self.tree.stats().max_leaf_size
+        self.snapshot().tree.stats().max_leaf_size
     }
 
     #[getter]
     fn mean_children(&self) -> f64 {
-        self.tree.mean_children()
+        self.snapshot().tree.mean_children()
     }
 
     #[getter]
     fn node_bytes(&self) -> usize {
-        self.tree.kind().node_bytes()
+        self.snapshot().tree.kind().node_bytes()
     }
 
     /// Bytes of the nodes plus the leaf table.
     #[getter]
     fn bytes(&self) -> usize {
-        self.tree.bytes()
+        self.snapshot().tree.bytes()
     }
 
     /// Shape statistics as a dict.
     fn stats<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
-        let s = self.tree.stats();
+        let snap = self.snapshot();
+        let tree = &snap.tree;
+        let s = tree.stats();
         let d = PyDict::new(py);
         d.set_item("kind", self.kind())?;
         d.set_item("width", self.width())?;
         d.set_item("builder", &self.builder)?;
-        d.set_item("triangles", self.tree.prim_count())?;
+        d.set_item("triangles", tree.prim_count())?;
         d.set_item("inner_nodes", s.inner_nodes)?;
         d.set_item("leaves", s.leaves)?;
         d.set_item("max_leaf_size", s.max_leaf_size)?;
         d.set_item("max_leaf_limit", self.max_leaf)?;
         d.set_item("max_depth", s.max_depth)?;
-        d.set_item("mean_children", self.tree.mean_children())?;
-        d.set_item("sah", self.tree.normalized_sah())?;
-        d.set_item("node_bytes", self.tree.kind().node_bytes())?;
-        d.set_item("tree_bytes", self.tree.bytes())?;
+        d.set_item("mean_children", tree.mean_children())?;
+        d.set_item("sah", tree.normalized_sah())?;
+        d.set_item("node_bytes", tree.kind().node_bytes())?;
+        d.set_item("tree_bytes", tree.bytes())?;
         Ok(d)
     }
 
+    /// Pickling: the tree in the tree-file format, with the triangles and primitive boxes
+    /// it was last built or refitted over (when known).
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        let snap = self.snapshot();
+        let builder = &self.builder;
+        let bytes = detached(py, || {
+            let mut buf = Vec::new();
+            bvh::io::write_tree(&snap.tree, builder, &mut buf)
+                .map_err(|e| format!("cannot serialize the tree: {e}"))?;
+            Ok::<_, String>(buf)
+        })?;
+        let ix = match &snap.indices {
+            Some(v) => Some(crate::arrays::n3_array(
+                py,
+                v.iter().flatten().copied().collect::<Vec<u32>>(),
+            )?),
+            None => None,
+        };
+        let prims = match &snap.prims {
+            Some(p) => {
+                let flat: Vec<f32> = p
+                    .iter()
+                    .flat_map(|b| [b.min.to_array(), b.max.to_array()])
+                    .flatten()
+                    .collect();
+                let n = p.len();
+                Some(PyArray1::from_vec(py, flat).reshape([n, 6])?)
+            }
+            None => None,
+        };
+        let restore = py
+            .import("arbor._arbor")?
+            .getattr("Bvh")?
+            .getattr("_restore")?;
+        let args = (PyBytes::new(py, &bytes), self.max_leaf, ix, prims);
+        PyTuple::new(py, [restore.into_any(), args.into_pyobject(py)?.into_any()])
+    }
+
+    /// Rebuilds a pickled tree (see `__reduce__`).
+    #[staticmethod]
+    #[pyo3(signature = (tree, max_leaf, indices = None, prims = None))]
+    fn _restore(
+        py: Python<'_>,
+        tree: &[u8],
+        max_leaf: u32,
+        indices: Option<&Bound<'_, PyAny>>,
+        prims: Option<&Bound<'_, PyAny>>,
+    ) -> PyResult<Self> {
+        let (tree, header) = detached(py, || {
+            bvh::io::read_tree(tree).map_err(|e| format!("cannot read the pickled tree: {e}"))
+        })?;
+        let ix = match indices {
+            Some(ix) => Some(crate::arrays::indices(ix, usize::MAX)?.get()?.to_vec()),
+            None => None,
+        };
+        let prims = match prims {
+            Some(p) => {
+                let a = p
+                    .cast::<PyArray2<f32>>()
+                    .map_err(|_| err("pickled primitive boxes: not a float32 array"))?
+                    .readonly();
+                let s = a
+                    .as_slice()
+                    .map_err(|_| err("internal error: array not contiguous"))?;
+                Some(
+                    s.chunks_exact(6)
+                        .map(|b| {
+                            Aabb::new(Vec3::new(b[0], b[1], b[2]), Vec3::new(b[3], b[4], b[5]))
+                        })
+                        .collect(),
+                )
+            }
+            None => None,
+        };
+        Ok(Bvh::new(tree, header.builder, max_leaf, ix, prims))
+    }
+
     fn __eq__(&self, other: PyRef<'_, Bvh>) -> bool {
-        self.tree == other.tree
+        Arc::ptr_eq(&self.snapshot(), &other.snapshot())
+            || self.snapshot().tree == other.snapshot().tree
     }
 
     fn __repr__(&self) -> String {
+        let snap = self.snapshot();
         format!(
             "Bvh({}, builder={:?}, {} triangles, {} nodes)",
             self.kind(),
             self.builder,
-            self.tree.prim_count(),
-            self.tree.node_count()
+            snap.tree.prim_count(),
+            snap.tree.node_count()
         )
     }
 }

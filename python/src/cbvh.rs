@@ -90,7 +90,8 @@ fn encode_cbvh<'py>(
     min_scale_exp: i32,
 ) -> PyResult<Bound<'py, PyDict>> {
     let (topdown, cfg) = choice(encoder, coords, treelet, bits, min_scale_exp).map_err(err)?;
-    let Tree::Bvh2(tree) = &bvh.tree else {
+    let snap = bvh.snapshot();
+    let Tree::Bvh2(tree) = &snap.tree else {
         return Err(err(
             "a CBVH compresses a binary tree; this tree is 4-wide (Mbvh4)",
         ));

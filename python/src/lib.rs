@@ -13,6 +13,7 @@ use pyo3::prelude::*;
 mod arrays;
 mod bvh;
 mod cbvh;
+mod raycaster;
 mod scene;
 mod trace;
 
@@ -77,6 +78,7 @@ fn _arbor(m: &Bound<'_, PyModule>) -> PyResult<()> {
     bvh::register(m)?;
     trace::register(m)?;
     cbvh::register(m)?;
+    raycaster::register(m)?;
     m.add_function(wrap_pyfunction!(check_args, m)?)?;
     Ok(())
 }

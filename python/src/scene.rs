@@ -63,6 +63,18 @@ impl Camera {
         self.inner.vfov_deg
     }
 
+    /// Pickling: the constructor's arguments.
+    #[allow(clippy::type_complexity)]
+    fn __getnewargs__(&self) -> ([f32; 3], [f32; 3], [f32; 3], f32) {
+        let c = &self.inner;
+        (
+            c.eye.to_array(),
+            c.target.to_array(),
+            c.up.to_array(),
+            c.vfov_deg,
+        )
+    }
+
     fn __repr__(&self) -> String {
         let c = &self.inner;
         format!(
@@ -136,6 +148,46 @@ impl Mesh {
 
     fn __len__(&self) -> usize {
         self.triangles
+    }
+
+    /// Pickling: the arrays, material names, time and bounds.
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, pyo3::types::PyTuple>> {
+        let restore = py
+            .import("arbor._arbor")?
+            .getattr("Mesh")?
+            .getattr("_restore")?;
+        let args = (
+            self.vertices.bind(py).clone(),
+            self.indices.bind(py).clone(),
+            self.material_ids.bind(py).clone(),
+            self.material_names.clone(),
+            self.time,
+            self.bounds(py)?,
+            self.triangles,
+        );
+        pyo3::types::PyTuple::new(py, [restore.into_any(), args.into_pyobject(py)?.into_any()])
+    }
+
+    /// Rebuilds a pickled mesh (see `__reduce__`).
+    #[staticmethod]
+    fn _restore(
+        vertices: Bound<'_, PyArray2<f32>>,
+        indices: Bound<'_, PyArray2<u32>>,
+        material_ids: Bound<'_, PyArray1<u32>>,
+        material_names: Vec<String>,
+        time: f32,
+        bounds: &Bound<'_, PyAny>,
+        triangles: usize,
+    ) -> PyResult<Self> {
+        Ok(Mesh {
+            vertices: vertices.unbind(),
+            indices: indices.unbind(),
+            material_ids: material_ids.unbind(),
+            material_names,
+            time,
+            box_: bounds_from(bounds)?,
+            triangles,
+        })
     }
 
     fn __repr__(&self, py: Python<'_>) -> String {

@@ -8,17 +8,17 @@ use crate::detached;
 use crate::scene::Camera;
 use ::trace::{Accel, KernelOptions, Query, RayStats, TraversalStack, Traverse};
 use bvh::Tree;
-use geom::{Ray, Triangle, Vec3};
-use numpy::{PyArray1, PyArray2};
+use geom::{Aabb, Ray, Triangle, Vec3};
+use numpy::{PyArray1, PyArray2, PyUntypedArrayMethods};
 use pyo3::prelude::*;
-use pyo3::types::PyDict;
+use pyo3::types::{PyDict, PyList, PyTuple};
 use rayon::prelude::*;
 
 /// Primitive id of a ray that hit nothing (`u32::MAX`, as in `trace::Render::prim`).
 pub const NO_HIT: u32 = u32::MAX;
 
 /// Rays per parallel work item.
-const CHUNK: usize = 1024;
+pub(crate) const CHUNK: usize = 1024;
 
 /// What one ray gave.
 #[derive(Clone, Copy)]
@@ -110,6 +110,86 @@ impl Hits {
         self.total.rays as usize
     }
 
+    /// Pickling: the arrays, the kernel and the totals.
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        let restore = py
+            .import("arbor._arbor")?
+            .getattr("Hits")?
+            .getattr("_restore")?;
+        let arrays = PyList::new(
+            py,
+            [
+                self.t.bind(py).clone().into_any(),
+                self.primitive.bind(py).clone().into_any(),
+                self.u.bind(py).clone().into_any(),
+                self.v.bind(py).clone().into_any(),
+                self.hit.bind(py).clone().into_any(),
+                self.node_visits.bind(py).clone().into_any(),
+                self.box_tests.bind(py).clone().into_any(),
+                self.tri_tests.bind(py).clone().into_any(),
+                self.leaf_visits.bind(py).clone().into_any(),
+                self.pops.bind(py).clone().into_any(),
+                self.culled_pops.bind(py).clone().into_any(),
+                self.max_stack_depth.bind(py).clone().into_any(),
+            ],
+        )?;
+        let args = (arrays, self.kernel.clone(), stats_dict(py, &self.total)?);
+        PyTuple::new(py, [restore.into_any(), args.into_pyobject(py)?.into_any()])
+    }
+
+    /// Rebuilds pickled hits (see `__reduce__`).
+    #[staticmethod]
+    fn _restore(
+        arrays: Vec<Bound<'_, PyAny>>,
+        kernel: String,
+        totals: std::collections::HashMap<String, u64>,
+    ) -> PyResult<Self> {
+        let [t, primitive, u, v, hit, nv, bt, tt, lv, pops, cp, msd] =
+            <[Bound<'_, PyAny>; 12]>::try_from(arrays)
+                .map_err(|_| err("pickled hits: 12 arrays expected"))?;
+        let f = |a: Bound<'_, PyAny>| -> PyResult<Py<PyArray1<f32>>> {
+            Ok(a.cast_into::<PyArray1<f32>>()
+                .map_err(|_| err("pickled hits: a float32 array expected"))?
+                .unbind())
+        };
+        let c = |a: Bound<'_, PyAny>| -> PyResult<Py<PyArray1<u32>>> {
+            Ok(a.cast_into::<PyArray1<u32>>()
+                .map_err(|_| err("pickled hits: a uint32 array expected"))?
+                .unbind())
+        };
+        let g = |k: &str| totals.get(k).copied().unwrap_or(0);
+        Ok(Hits {
+            t: f(t)?,
+            primitive: c(primitive)?,
+            u: f(u)?,
+            v: f(v)?,
+            hit: hit
+                .cast_into::<PyArray1<bool>>()
+                .map_err(|_| err("pickled hits: a bool array expected"))?
+                .unbind(),
+            node_visits: c(nv)?,
+            box_tests: c(bt)?,
+            tri_tests: c(tt)?,
+            leaf_visits: c(lv)?,
+            pops: c(pops)?,
+            culled_pops: c(cp)?,
+            max_stack_depth: c(msd)?,
+            kernel,
+            total: RayStats {
+                rays: g("rays"),
+                hits: g("hits"),
+                node_visits: g("node_visits"),
+                box_tests: g("box_tests"),
+                tri_tests: g("tri_tests"),
+                leaf_visits: g("leaf_visits"),
+                pushes: g("pushes"),
+                pops: g("pops"),
+                culled_pops: g("culled_pops"),
+                max_stack_depth: g("max_stack_depth"),
+            },
+        })
+    }
+
     fn __repr__(&self) -> String {
         format!(
             "Hits({} rays, {} hits, kernel {:?})",
@@ -135,10 +215,49 @@ pub(crate) fn stats_dict<'py>(py: Python<'py>, s: &RayStats) -> PyResult<Bound<'
 }
 
 /// The kernel names `trace` accepts.
-const KERNELS: &str = "bvh2, mbvh4, mbvh8, cbvh";
+pub(crate) const KERNELS: &str = "bvh2, mbvh4, mbvh8, cbvh";
+
+/// The kernel of `tree`'s own format.
+pub(crate) fn tree_kernel(tree: &Tree) -> &'static str {
+    match tree {
+        Tree::Bvh2(_) => "bvh2",
+        Tree::Mbvh4(_) => "mbvh4",
+    }
+}
+
+/// The distance stack's default for `kernel`, as in `arbor render`: on for the wide
+/// kernels, off for the binary ones (the BVH unit of [P4] §3 has none).
+pub(crate) fn default_distance_stack(kernel: &str) -> bool {
+    matches!(kernel, "mbvh4" | "mbvh8")
+}
+
+/// Fails when `triangles` are not those the tree was last built or refitted over
+/// (`stored`, its primitive boxes; None for a tree loaded from a file): a stale tree would
+/// miss triangles silently. Costs one pass over the triangles.
+pub(crate) fn check_current(stored: Option<&[Aabb]>, triangles: &[Triangle]) -> Result<(), String> {
+    let Some(stored) = stored else {
+        return Ok(());
+    };
+    let moved = if stored.len() != triangles.len() {
+        Some(0)
+    } else {
+        triangles
+            .par_iter()
+            .zip(stored.par_iter())
+            .with_min_len(CHUNK)
+            .position_first(|(t, b)| t.aabb() != *b)
+    };
+    match moved {
+        None => Ok(()),
+        Some(i) => Err(format!(
+            "the tree is stale: triangle {i} is not where it was when the tree was built or \
+             last refitted; call refit(vertices) first"
+        )),
+    }
+}
 
 /// The traceable form of `tree` for `kernel` (None: the tree's own format).
-fn accel_of(
+pub(crate) fn accel_of(
     tree: &Tree,
     kernel: Option<&str>,
     triangles: &[Triangle],
@@ -181,7 +300,7 @@ fn accel_of(
 }
 
 /// The ray arguments of a trace call, read from Python: origins, directions and ranges.
-struct RayArrays<'py> {
+pub(crate) struct RayArrays<'py> {
     origins: Points<'py>,
     directions: Points<'py>,
     tmin: PerRay<'py>,
@@ -189,7 +308,7 @@ struct RayArrays<'py> {
 }
 
 impl<'py> RayArrays<'py> {
-    fn new(
+    pub(crate) fn new(
         origins: &Bound<'py, PyAny>,
         directions: &Bound<'py, PyAny>,
         tmin: Option<&Bound<'py, PyAny>>,
@@ -206,7 +325,7 @@ impl<'py> RayArrays<'py> {
     }
 
     /// The arrays' contents, which can cross into a detached closure.
-    fn slices(&self) -> PyResult<RaySlices<'_>> {
+    pub(crate) fn slices(&self) -> PyResult<RaySlices<'_>> {
         Ok(RaySlices {
             o: self.origins.as_vec3()?,
             d: self.directions.as_vec3()?,
@@ -217,17 +336,60 @@ impl<'py> RayArrays<'py> {
 }
 
 /// The contents of [`RayArrays`].
-struct RaySlices<'a> {
+pub(crate) struct RaySlices<'a> {
     o: &'a [Vec3],
     d: &'a [Vec3],
     tmin: (f32, Option<&'a [f32]>),
     tmax: (f32, Option<&'a [f32]>),
 }
 
+/// Rays at or below this count are traced on the calling thread (the prepared queries of
+/// `RayCaster`): waking the worker pool costs more than they do.
+pub(crate) const SERIAL_RAYS: usize = 512;
+
 impl RaySlices<'_> {
-    /// Checked rays from the arrays.
-    fn rays(&self) -> Result<Vec<Ray>, String> {
-        let (o, d, tmin, tmax) = (self.o, self.d, self.tmin, self.tmax);
+    /// Number of rays.
+    pub(crate) fn len(&self) -> usize {
+        self.o.len()
+    }
+
+    /// Ray `i` (below the checked length).
+    #[inline(always)]
+    pub(crate) fn ray(&self, i: usize) -> Ray {
+        Ray::with_range(
+            self.o[i],
+            self.d[i],
+            PerRay::at(&self.tmin.1, self.tmin.0, i),
+            PerRay::at(&self.tmax.1, self.tmax.0, i),
+        )
+    }
+
+    /// What is wrong with ray `i`, if anything.
+    #[inline(always)]
+    fn fault(&self, i: usize) -> Option<String> {
+        let (o, d) = (self.o[i], self.d[i]);
+        let t0 = PerRay::at(&self.tmin.1, self.tmin.0, i);
+        if !o.is_finite() {
+            Some(format!("origins[{i}] is not finite: {o}"))
+        } else if !d.is_finite() || d == Vec3::ZERO {
+            Some(format!(
+                "directions[{i}] must be finite and not zero, got {d}"
+            ))
+        } else if t0 < 0.0 {
+            Some(match self.tmin.1 {
+                Some(_) => format!("tmin[{i}] is negative ({t0}); ranges start at 0 or later"),
+                None => format!("tmin is negative ({t0}); ranges start at 0 or later"),
+            })
+        } else {
+            None
+        }
+    }
+
+    /// Checks the lengths and every ray; the error names the first bad ray. A branch-free
+    /// pass over the flat coordinates (which the compiler vectorizes) answers for the
+    /// common case of all rays valid; only a failing batch is searched ray by ray.
+    pub(crate) fn check(&self) -> Result<(), String> {
+        let (o, d) = (self.o, self.d);
         if o.len() != d.len() {
             return Err(format!(
                 "origins and directions differ in length: {} and {}",
@@ -235,22 +397,45 @@ impl RaySlices<'_> {
                 d.len()
             ));
         }
-        let mut out = Vec::with_capacity(o.len());
-        for i in 0..o.len() {
-            if !o[i].is_finite() {
-                return Err(format!("origins[{i}] is not finite: {}", o[i]));
+        let ranges_ok = match self.tmin {
+            (x, None) => x >= 0.0,
+            (_, Some(t)) => t.iter().fold(true, |a, x| a & (*x >= 0.0)),
+        };
+        let rays_ok = || {
+            let batch = |r: std::ops::Range<usize>| {
+                let finite = |v: &[Vec3]| {
+                    v.iter().fold(true, |a, p| {
+                        a & p.x.is_finite() & p.y.is_finite() & p.z.is_finite()
+                    })
+                };
+                finite(&o[r.clone()])
+                    && finite(&d[r.clone()])
+                    && d[r].iter().fold(true, |a, p| a & (*p != Vec3::ZERO))
+            };
+            if o.len() <= 16 * CHUNK {
+                batch(0..o.len())
+            } else {
+                (0..o.len().div_ceil(CHUNK))
+                    .into_par_iter()
+                    .all(|c| batch(c * CHUNK..((c + 1) * CHUNK).min(o.len())))
             }
-            if !d[i].is_finite() || d[i] == Vec3::ZERO {
-                return Err(format!(
-                    "directions[{i}] must be finite and not zero, got {}",
-                    d[i]
-                ));
-            }
-            let t0 = PerRay::at(&tmin.1, tmin.0, i);
-            let t1 = PerRay::at(&tmax.1, tmax.0, i);
-            out.push(Ray::with_range(o[i], d[i], t0, t1));
+        };
+        if ranges_ok && rays_ok() {
+            return Ok(());
         }
-        Ok(out)
+        match (0..o.len()).find_map(|i| self.fault(i)) {
+            Some(e) => Err(e),
+            None => Ok(()),
+        }
+    }
+
+    /// Checked rays from the arrays.
+    fn rays(&self) -> Result<Vec<Ray>, String> {
+        self.check()?;
+        Ok((0..self.len())
+            .into_par_iter()
+            .map(|i| self.ray(i))
+            .collect())
     }
 }
 
@@ -293,7 +478,7 @@ fn trace_all(accel: &Accel, rays: &[Ray], query: Query) -> Vec<RayOut> {
 
 /// Traces rays through `bvh` (built over `indices` into `vertices`).
 #[pyfunction]
-#[pyo3(name = "trace", signature = (bvh, vertices, indices, origins, directions, tmin = None, tmax = None, *, kernel = None, distance_stack = true, any_hit = false))]
+#[pyo3(name = "trace", signature = (bvh, vertices, indices, origins, directions, tmin = None, tmax = None, *, kernel = None, distance_stack = None, any_hit = false))]
 #[allow(clippy::too_many_arguments)]
 fn trace_rays<'py>(
     py: Python<'py>,
@@ -305,7 +490,7 @@ fn trace_rays<'py>(
     tmin: Option<&Bound<'py, PyAny>>,
     tmax: Option<&Bound<'py, PyAny>>,
     kernel: Option<&str>,
-    distance_stack: bool,
+    distance_stack: Option<bool>,
     any_hit: bool,
 ) -> PyResult<Hits> {
     let v = points("vertices", vertices)?;
@@ -314,8 +499,13 @@ fn trace_rays<'py>(
     let ixs = ix.get()?;
     let ray_arrays = RayArrays::new(origins, directions, tmin, tmax)?;
     let ray_slices = ray_arrays.slices()?;
-    let tree = &bvh.tree;
-    let options = KernelOptions { distance_stack };
+    let snap = bvh.snapshot();
+    let tree = &snap.tree;
+    let stored = snap.prims.as_deref();
+    let options = KernelOptions {
+        distance_stack: distance_stack
+            .unwrap_or_else(|| default_distance_stack(kernel.unwrap_or(tree_kernel(tree)))),
+    };
     let query = if any_hit { Query::Any } else { Query::Closest };
     let (outs, name) = detached(py, || {
         if tree.prim_count() != ixs.len() {
@@ -327,6 +517,7 @@ fn trace_rays<'py>(
         }
         let rays = ray_slices.rays()?;
         let tris = resolve(vs, ixs)?;
+        check_current(stored, &tris)?;
         let accel = accel_of(tree, kernel, &tris, options)?;
         Ok((trace_all(&accel, &rays, query), accel.format_name()))
     })?;
@@ -403,6 +594,55 @@ impl Rays {
         self.count
     }
 
+    /// Pickling: the arrays, the image size and the kind.
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        let restore = py
+            .import("arbor._arbor")?
+            .getattr("Rays")?
+            .getattr("_restore")?;
+        let args = (
+            self.origins.bind(py).clone(),
+            self.directions.bind(py).clone(),
+            self.tmin.bind(py).clone(),
+            self.tmax.bind(py).clone(),
+            self.pixel.bind(py).clone(),
+            self.bounce.bind(py).clone(),
+            self.width,
+            self.height,
+            self.kind.clone(),
+        );
+        PyTuple::new(py, [restore.into_any(), args.into_pyobject(py)?.into_any()])
+    }
+
+    /// Rebuilds pickled rays (see `__reduce__`).
+    #[staticmethod]
+    #[allow(clippy::too_many_arguments)]
+    fn _restore(
+        origins: Bound<'_, PyArray2<f32>>,
+        directions: Bound<'_, PyArray2<f32>>,
+        tmin: Bound<'_, PyArray1<f32>>,
+        tmax: Bound<'_, PyArray1<f32>>,
+        pixel: Bound<'_, PyArray1<u32>>,
+        bounce: Bound<'_, PyArray1<u8>>,
+        width: u32,
+        height: u32,
+        kind: String,
+    ) -> PyResult<Self> {
+        let count = tmin.len();
+        Ok(Rays {
+            origins: origins.unbind(),
+            directions: directions.unbind(),
+            tmin: tmin.unbind(),
+            tmax: tmax.unbind(),
+            pixel: pixel.unbind(),
+            bounce: bounce.unbind(),
+            width,
+            height,
+            kind,
+            count,
+        })
+    }
+
     fn __repr__(&self) -> String {
         format!(
             "Rays({} {} rays for {}x{} pixels)",
@@ -473,7 +713,9 @@ fn camera_rays<'py>(
             let vs = v.as_vec3()?;
             let ix = crate::arrays::indices(ix, vs.len())?;
             let ixs = ix.get()?;
-            let tree = &bvh.tree;
+            let snap = bvh.snapshot();
+            let tree = &snap.tree;
+            let stored = snap.prims.as_deref();
             detached(py, || {
                 if tree.prim_count() != ixs.len() {
                     return Err(format!(
@@ -483,6 +725,7 @@ fn camera_rays<'py>(
                     ));
                 }
                 let tris = resolve(vs, ixs)?;
+                check_current(stored, &tris)?;
                 let accel = accel_of(tree, None, &tris, KernelOptions::default())?;
                 let settings = ::trace::RenderSettings {
                     width,

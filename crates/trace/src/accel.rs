@@ -23,7 +23,7 @@
 use crate::observer::{Observer, Query};
 use crate::stats::RayStats;
 use bvh::ChildRef;
-use geom::{intersect_triangles4_watertight, Ray, RayPrecomp, Triangle, Triangles4};
+use geom::{intersect_triangles4_watertight, Aabb, Ray, RayPrecomp, Triangle, Triangles4};
 
 /// A ray/triangle hit found by traversal.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -523,4 +523,95 @@ pub trait Traverse: Send + Sync {
 
     /// Leaf-table entries.
     fn leaf_entries(&self) -> usize;
+}
+
+impl LeafTriangles {
+    /// Rewrites the packed triangles from `triangles`: the list the tree was prepared
+    /// over, with its vertices moved (same length, same order). Every block is rebuilt
+    /// exactly as [`LeafTriangles::pack`] builds it (unused lanes repeat the block's first
+    /// triangle), so the result is bit for bit the packing of a freshly prepared tree.
+    pub fn update(&mut self, triangles: &[Triangle]) -> Result<(), crate::TraceError> {
+        if triangles.len() != self.source_len {
+            return Err(crate::TraceError::Config(format!(
+                "cannot refit in place: the tree was prepared over {} triangles, {} given",
+                self.source_len,
+                triangles.len()
+            )));
+        }
+        let Self {
+            blocks,
+            entries,
+            prims,
+            ..
+        } = self;
+        let tri = |entry: u32| -> Result<&Triangle, crate::TraceError> {
+            let prim = prims.get(entry as usize).copied().unwrap_or(u32::MAX);
+            triangles
+                .get(prim as usize)
+                .ok_or(crate::TraceError::PrimitiveOutOfRange {
+                    entry: entry as usize,
+                    prim,
+                    triangles: triangles.len(),
+                })
+        };
+        for (block, lanes) in blocks.iter_mut().zip(entries.iter()) {
+            // Lane 0 of every block is used: a block is opened for the triangle it holds.
+            *block = Triangles4::pack(&[*tri(lanes[0])?]);
+            for (lane, &entry) in lanes.iter().enumerate().skip(1) {
+                if entry == u32::MAX {
+                    continue;
+                }
+                let t = tri(entry)?;
+                for (v, vk) in block.v.iter_mut().enumerate() {
+                    for (a, row) in vk.iter_mut().enumerate() {
+                        row[lane] = t.v[v][a];
+                    }
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The bounding box of the (packed) leaf child `c`: the union of its triangles' boxes,
+    /// read from the packed blocks.
+    pub fn leaf_box(&self, c: ChildRef) -> Aabb {
+        let mut b = Aabb::EMPTY;
+        for slot in c.index as usize..c.index as usize + c.count as usize {
+            if let Some(block) = self.blocks.get(slot / 4) {
+                b = b.union(block.get(slot % 4).aabb());
+            }
+        }
+        b
+    }
+}
+
+/// Refits a kernel's private node copy to the triangles of `leaf` (already updated with
+/// [`LeafTriangles::update`]): every non-empty child box becomes the union of the boxes
+/// below it. Nodes are visited from the last to the first, which is children before
+/// parents (every kernel checks at preparation that children follow their parent). Box
+/// unions are exact (min and max), so the boxes equal those of the same topology refitted
+/// by `bvh` and prepared afresh. `children` reads a node's (packed) child references;
+/// `set_box` writes child `k`'s box into the node's layout.
+pub(crate) fn refit_nodes<N, const W: usize>(
+    nodes: &mut [N],
+    leaf: &LeafTriangles,
+    children: impl Fn(&N) -> [ChildRef; W],
+    mut set_box: impl FnMut(&mut N, usize, &Aabb),
+) {
+    let mut boxes = vec![Aabb::EMPTY; nodes.len()];
+    for i in (0..nodes.len()).rev() {
+        let mut total = Aabb::EMPTY;
+        for (k, c) in children(&nodes[i]).iter().enumerate() {
+            let b = if c.is_empty() {
+                continue;
+            } else if c.is_leaf() {
+                leaf.leaf_box(*c)
+            } else {
+                boxes.get(c.index as usize).copied().unwrap_or(Aabb::EMPTY)
+            };
+            set_box(&mut nodes[i], k, &b);
+            total = total.union(b);
+        }
+        boxes[i] = total;
+    }
 }

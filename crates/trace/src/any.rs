@@ -42,6 +42,20 @@ impl Accel {
         }
     }
 
+    /// Refits in place to `triangles`, the list the tree was prepared over with its
+    /// vertices moved (same topology), giving the same kernel as preparing the refitted
+    /// tree afresh. Returns false, changing nothing, for a CBVH: its quantized boxes are
+    /// encoded relative to their parents, so a moved CBVH is encoded again instead.
+    pub fn refit(&mut self, triangles: &[geom::Triangle]) -> Result<bool, crate::TraceError> {
+        match self {
+            Accel::Bvh2(a) => a.refit(triangles)?,
+            Accel::Mbvh4(a) => a.refit(triangles)?,
+            Accel::Mbvh8(a) => a.refit(triangles)?,
+            Accel::Cbvh(_) => return Ok(false),
+        }
+        Ok(true)
+    }
+
     /// Bytes of the tree in memory: nodes plus the leaf table.
     pub fn tree_bytes(&self) -> usize {
         self.node_count() * self.node_bytes() as usize + self.leaf_entries() * 4

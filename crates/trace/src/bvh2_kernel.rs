@@ -17,7 +17,7 @@
 //! for BVH).
 
 use crate::accel::{
-    cull_distance, fmax, fmin, huge_page_vec, prefetch, traverse, Hit, LeafTriangles,
+    cull_distance, fmax, fmin, huge_page_vec, prefetch, refit_nodes, traverse, Hit, LeafTriangles,
     TraversalStack, Traverse,
 };
 use crate::observer::{Observer, Query};
@@ -190,6 +190,26 @@ impl Bvh2Accel {
     /// The kernel options.
     pub fn options(&self) -> KernelOptions {
         self.options
+    }
+
+    /// Refits in place to `triangles`, the list the tree was prepared over with its
+    /// vertices moved (same topology): the packed triangles are rewritten and every box
+    /// recomputed bottom-up, giving the same kernel as preparing the refitted tree afresh.
+    pub fn refit(&mut self, triangles: &[Triangle]) -> Result<(), TraceError> {
+        self.leaf.update(triangles)?;
+        refit_nodes(
+            &mut self.nodes,
+            &self.leaf,
+            |n| n.children,
+            |n, c, b| {
+                let (lo, hi) = (b.min.to_array(), b.max.to_array());
+                for a in 0..3 {
+                    n.rows[a][c] = lo[a];
+                    n.rows[a][c + 2] = hi[a];
+                }
+            },
+        );
+        Ok(())
     }
 
     fn run<const DIST: bool, O: Observer>(

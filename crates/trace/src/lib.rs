@@ -47,6 +47,8 @@ mod tests;
 #[cfg(test)]
 mod tests_cbvh;
 #[cfg(test)]
+mod tests_refit;
+#[cfg(test)]
 mod tests_render;
 #[cfg(test)]
 mod testutil;

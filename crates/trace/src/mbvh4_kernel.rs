@@ -10,8 +10,8 @@
 //! MBVH. [`KernelOptions::distance_stack`] switches it off to measure that effect.
 
 use crate::accel::{
-    cull_distance, fmax, fmin, huge_page_vec, prefetch, traverse, Hit, LeafTriangles, Slab,
-    TraversalStack, Traverse,
+    cull_distance, fmax, fmin, huge_page_vec, prefetch, refit_nodes, traverse, Hit, LeafTriangles,
+    Slab, TraversalStack, Traverse,
 };
 use crate::bvh2_kernel::check_links;
 use crate::observer::{Observer, Query};
@@ -199,6 +199,27 @@ impl Mbvh4Accel {
     /// The kernel options.
     pub fn options(&self) -> KernelOptions {
         self.options
+    }
+
+    /// Refits in place to `triangles`, the list the tree was prepared over with its
+    /// vertices moved (same topology); see [`crate::Bvh2Accel::refit`].
+    pub fn refit(&mut self, triangles: &[Triangle]) -> Result<(), TraceError> {
+        self.leaf.update(triangles)?;
+        refit_nodes(
+            &mut self.nodes,
+            &self.leaf,
+            |n| n.0.children,
+            |n, c, b| {
+                let n = &mut n.0;
+                n.min_x[c] = b.min.x;
+                n.min_y[c] = b.min.y;
+                n.min_z[c] = b.min.z;
+                n.max_x[c] = b.max.x;
+                n.max_y[c] = b.max.y;
+                n.max_z[c] = b.max.z;
+            },
+        );
+        Ok(())
     }
 
     /// Starts loading a child that traversal will visit later (both cache lines of a node).

@@ -12,8 +12,8 @@
 //! the other kernels (child masks of eight bits).
 
 use crate::accel::{
-    cull_distance, huge_page_vec, prefetch, traverse, Hit, LeafTriangles, Slab, TraversalStack,
-    Traverse,
+    cull_distance, huge_page_vec, prefetch, refit_nodes, traverse, Hit, LeafTriangles, Slab,
+    TraversalStack, Traverse,
 };
 use crate::bvh2_kernel::check_links;
 use crate::observer::{Observer, Query};
@@ -268,6 +268,24 @@ impl Mbvh8Accel {
     /// The kernel options.
     pub fn options(&self) -> KernelOptions {
         self.options
+    }
+
+    /// Refits in place to `triangles`, the list the tree was prepared over with its
+    /// vertices moved (same topology); see [`crate::Bvh2Accel::refit`].
+    pub fn refit(&mut self, triangles: &[Triangle]) -> Result<(), TraceError> {
+        self.leaf.update(triangles)?;
+        refit_nodes(
+            &mut self.nodes,
+            &self.leaf,
+            |n| n.children,
+            |n, c, b| {
+                let v = [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z];
+                for (p, x) in v.into_iter().enumerate() {
+                    n.rows[p][c] = x;
+                }
+            },
+        );
+        Ok(())
     }
 
     /// Starts loading a child that traversal will visit later (all four cache lines of a

@@ -1,0 +1,1288 @@
+//! `RayCaster`: a prepared acceleration structure bound to its geometry. It owns a copy of
+//! the vertices and triangles, the tree and the kernel's traceable form (`trace::Accel`; for
+//! `kernel="cbvh"` the encoded CBVH), all made once, so that a query costs only its rays.
+//! `refit` moves the vertices (same triangles) and updates the tree and the kernel in
+//! place; since the object holds the only copy of the geometry it traces, it can never
+//! answer for vertices other than those it was last given.
+//!
+//! Queries run with the interpreter released, in parallel for more than a few hundred rays,
+//! and write straight into numpy arrays allocated before the work starts. The state sits
+//! behind a read-write lock taken with the interpreter released: any number of threads
+//! trace at once, and a `refit` waits for them (and they for it) instead of failing.
+
+use crate::arrays::{err, points};
+use crate::bvh::{aabbs, config, in_pool, Bvh};
+use crate::detached;
+use crate::trace::{
+    accel_of, check_current, default_distance_stack, tree_kernel, RayArrays, RaySlices, CHUNK,
+    KERNELS, NO_HIT, SERIAL_RAYS,
+};
+use ::trace::{Accel, KernelOptions, Query, RayStats, TraversalStack, Traverse};
+use bvh::Tree;
+use geom::{Triangle, Vec3};
+use numpy::{PyArray1, PyArray2, PyArrayMethods, PyUntypedArrayMethods};
+use pyo3::prelude::*;
+use pyo3::types::{PyBytes, PyDict, PySlice, PyTuple};
+use rayon::prelude::*;
+use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::{Arc, OnceLock, RwLock};
+
+/// Names of the per-ray counters, in the column order of `RayHits.counters`.
+const COUNTERS: [&str; 7] = [
+    "node_visits",
+    "box_tests",
+    "tri_tests",
+    "leaf_visits",
+    "pops",
+    "culled_pops",
+    "max_stack_depth",
+];
+
+/// What a `RayCaster` traces: the geometry it owns, its tree and the kernel's form of it.
+struct State {
+    vertices: Vec<Vec3>,
+    indices: Vec<[u32; 3]>,
+    /// Shared with the results traced over them (their normals are computed on demand).
+    triangles: Arc<Vec<Triangle>>,
+    tree: Tree,
+    accel: Accel,
+    /// Set while a refit changes the state; left set if it failed half way.
+    broken: bool,
+}
+
+/// A prepared ray caster (see the module header).
+#[pyclass(module = "arbor._arbor", frozen)]
+pub struct RayCaster {
+    state: RwLock<State>,
+    /// Refits so far: part of every result, so that results of different geometry are
+    /// told apart.
+    generation: AtomicU64,
+    kernel: &'static str,
+    distance_stack: bool,
+    builder: String,
+    max_leaf: u32,
+    vertex_count: usize,
+    triangle_count: usize,
+    /// The meshes it was built over (one unless `from_meshes`): the first triangle and
+    /// the first vertex of each, and the totals at the end.
+    geometry_first: Arc<Vec<u32>>,
+    vertex_first: Vec<u32>,
+}
+
+/// A counter as u32 (saturating; one ray never comes near).
+fn c32(x: u64) -> u32 {
+    x.min(u32::MAX as u64) as u32
+}
+
+/// The kernel name `kernel` (or the tree's own), checked.
+fn kernel_name(tree: &Tree, kernel: Option<&str>) -> Result<&'static str, String> {
+    match kernel {
+        None => Ok(tree_kernel(tree)),
+        Some(k) => ["bvh2", "mbvh4", "mbvh8", "cbvh"]
+            .into_iter()
+            .find(|&n| n == k)
+            .ok_or_else(|| format!("unknown kernel '{k}'; valid: {KERNELS}")),
+    }
+}
+
+/// An optional non-negative integer argument as `T`, or an `ArborError` naming it (a plain
+/// `u32` argument would raise `OverflowError` for -1).
+pub(crate) fn count_arg<T: TryFrom<i64>>(what: &str, x: Option<i64>) -> PyResult<Option<T>> {
+    x.map(|v| {
+        T::try_from(v).map_err(|_| {
+            err(format!(
+                "{what} must be a non-negative integer in range, got {v}"
+            ))
+        })
+    })
+    .transpose()
+}
+
+/// The build arguments of the constructor and `from_meshes`.
+struct BuildOptions<'a> {
+    builder: &'a str,
+    kernel: Option<&'a str>,
+    distance_stack: Option<bool>,
+    max_leaf: Option<i64>,
+    bins: Option<i64>,
+    collapse_from: Option<String>,
+    threads: Option<i64>,
+}
+
+/// Locks for reading, or fails if a panic left the state inconsistent.
+fn read(l: &RwLock<State>) -> Result<std::sync::RwLockReadGuard<'_, State>, String> {
+    let broken = || "the ray caster was left inconsistent by an internal error".to_string();
+    let s = l.read().map_err(|_| broken())?;
+    if s.broken {
+        return Err(broken());
+    }
+    Ok(s)
+}
+
+/// The output columns of a closest-hit query over a run of rays (one chunk of the arrays).
+struct Closest<'a> {
+    t: &'a mut [f32],
+    prim: &'a mut [u32],
+    u: &'a mut [f32],
+    v: &'a mut [f32],
+    hit: &'a mut [bool],
+    location: &'a mut [f32],
+    /// `(n, 7)` counters (the order of [`COUNTERS`]), when asked for.
+    counters: Option<&'a mut [u32]>,
+}
+
+impl<'a> Closest<'a> {
+    /// The columns split into runs of `chunk` rays.
+    fn split(self, chunk: usize) -> Vec<Closest<'a>> {
+        let mut t = self.t.chunks_mut(chunk);
+        let mut prim = self.prim.chunks_mut(chunk);
+        let mut u = self.u.chunks_mut(chunk);
+        let mut v = self.v.chunks_mut(chunk);
+        let mut hit = self.hit.chunks_mut(chunk);
+        let mut location = self.location.chunks_mut(3 * chunk);
+        let mut counters = self.counters.map(|c| c.chunks_mut(COUNTERS.len() * chunk));
+        let mut out = Vec::new();
+        while let (Some(t), Some(prim), Some(u), Some(v), Some(hit), Some(location)) = (
+            t.next(),
+            prim.next(),
+            u.next(),
+            v.next(),
+            hit.next(),
+            location.next(),
+        ) {
+            out.push(Closest {
+                t,
+                prim,
+                u,
+                v,
+                hit,
+                location,
+                counters: counters.as_mut().and_then(|c| c.next()),
+            });
+        }
+        out
+    }
+
+    /// Traces rays `first..first + self.t.len()` and writes their results.
+    fn fill(self, s: &State, rays: &RaySlices<'_>, first: usize, totals: &mut RayStats) {
+        let mut stack = TraversalStack::new();
+        let mut counters = self.counters;
+        for k in 0..self.t.len() {
+            let ray = rays.ray(first + k);
+            // Without per-ray counters the kernel counts straight into the totals (it adds
+            // to what it is given); with them, one ray's counters first.
+            let mut st = RayStats::default();
+            let into = if counters.is_some() {
+                &mut st
+            } else {
+                &mut *totals
+            };
+            let h = s
+                .accel
+                .trace_observed(&ray, Query::Closest, &mut stack, into, &mut ());
+            let p = &mut self.location[3 * k..3 * k + 3];
+            match h {
+                Some(h) => {
+                    self.t[k] = h.t;
+                    self.prim[k] = h.prim;
+                    self.u[k] = h.bary[1];
+                    self.v[k] = h.bary[2];
+                    self.hit[k] = true;
+                    p.copy_from_slice(&ray.at(h.t).to_array());
+                }
+                None => {
+                    self.t[k] = f32::INFINITY;
+                    self.prim[k] = NO_HIT;
+                    self.u[k] = 0.0;
+                    self.v[k] = 0.0;
+                    self.hit[k] = false;
+                    p.fill(f32::NAN);
+                }
+            }
+            if let Some(c) = counters.as_deref_mut() {
+                let row = [
+                    st.node_visits,
+                    st.box_tests,
+                    st.tri_tests,
+                    st.leaf_visits,
+                    st.pops,
+                    st.culled_pops,
+                    st.max_stack_depth,
+                ];
+                for (j, x) in row.into_iter().enumerate() {
+                    c[COUNTERS.len() * k + j] = c32(x);
+                }
+                totals.add(&st);
+            }
+        }
+    }
+}
+
+/// Runs `work(first, len, totals)` over runs of rays: on this thread for few rays, else
+/// in parallel runs of [`CHUNK`]; returns the summed counters.
+fn for_chunks<P: Send>(parts: Vec<P>, work: impl Fn(P, usize, &mut RayStats) + Sync) -> RayStats {
+    if parts.len() <= 1 {
+        let mut total = RayStats::default();
+        for p in parts {
+            work(p, 0, &mut total);
+        }
+        return total;
+    }
+    parts
+        .into_par_iter()
+        .enumerate()
+        .map(|(i, p)| {
+            let mut s = RayStats::default();
+            work(p, i * CHUNK, &mut s);
+            s
+        })
+        .reduce(RayStats::default, |mut a, b| {
+            a.add(&b);
+            a
+        })
+}
+
+/// The run length for `n` rays: everything at once when few.
+fn chunk_for(n: usize) -> usize {
+    if n <= SERIAL_RAYS {
+        n.max(1)
+    } else {
+        CHUNK
+    }
+}
+
+/// Closest hits of a batch of rays from [`RayCaster::intersect`]: per ray the distance `t`
+/// (`inf` on a miss), the triangle (`NO_HIT` on a miss), the barycentric weights `u`, `v`
+/// of its vertices 1 and 2, the unit geometric normal (NaN on a miss; computed when first
+/// read, from the triangles of the generation traced, which the result shares), the hit
+/// location (NaN on a miss), and optionally the traversal counters.
+#[pyclass(module = "arbor._arbor", frozen)]
+pub struct RayHits {
+    #[pyo3(get)]
+    t: Py<PyArray1<f32>>,
+    #[pyo3(get)]
+    primitive: Py<PyArray1<u32>>,
+    #[pyo3(get)]
+    u: Py<PyArray1<f32>>,
+    #[pyo3(get)]
+    v: Py<PyArray1<f32>>,
+    #[pyo3(get)]
+    hit: Py<PyArray1<bool>>,
+    /// The triangles traced (for `normal`), and the normals once computed.
+    triangles: Arc<Vec<Triangle>>,
+    normal: OnceLock<Py<PyArray2<f32>>>,
+    /// The first triangle of each mesh of the ray caster, and the total.
+    geometry_first: Arc<Vec<u32>>,
+    #[pyo3(get)]
+    location: Py<PyArray2<f32>>,
+    counter_array: Option<Py<PyArray2<u32>>>,
+    #[pyo3(get)]
+    generation: u64,
+    #[pyo3(get)]
+    kernel: &'static str,
+    total: RayStats,
+}
+
+impl RayHits {
+    /// `f(mesh, triangle within the mesh)` of every hit, `NO_HIT` on a miss.
+    fn per_mesh<'py>(
+        &self,
+        py: Python<'py>,
+        f: impl Fn(u32, u32) -> u32 + Sync + Send,
+    ) -> PyResult<Bound<'py, PyArray1<u32>>> {
+        let prim = self.primitive.bind(py).readonly();
+        let prims = prim
+            .as_slice()
+            .map_err(|_| err("internal error: array not contiguous"))?;
+        let first = &self.geometry_first;
+        let out: Vec<u32> = py.detach(|| {
+            prims
+                .par_iter()
+                .with_min_len(CHUNK)
+                .map(|&p| {
+                    // The last mesh whose first triangle is at or before `p`.
+                    let g = first.partition_point(|&x| x <= p);
+                    if p == NO_HIT || g == 0 || g >= first.len() {
+                        NO_HIT
+                    } else {
+                        f(g as u32 - 1, p - first[g - 1])
+                    }
+                })
+                .collect()
+        });
+        Ok(PyArray1::from_vec(py, out))
+    }
+}
+
+#[pymethods]
+impl RayHits {
+    /// Per-ray counters (`node_visits`, `box_tests`, `tri_tests`, `leaf_visits`, `pops`,
+    /// `culled_pops`, `max_stack_depth`) as a dict of uint32 arrays, or None when the query
+    /// did not ask for them.
+    #[getter]
+    fn counters<'py>(&self, py: Python<'py>) -> PyResult<Option<Bound<'py, PyDict>>> {
+        let Some(a) = &self.counter_array else {
+            return Ok(None);
+        };
+        let a = a.bind(py);
+        let d = PyDict::new(py);
+        for (j, name) in COUNTERS.iter().enumerate() {
+            let col = a.get_item((PySlice::full(py), j))?;
+            d.set_item(*name, col)?;
+        }
+        Ok(Some(d))
+    }
+
+    /// The unit geometric normal of each hit triangle, `cross(p1 - p0, p2 - p0)`
+    /// normalized (NaN on a miss), computed on first access from `primitive` and the
+    /// triangles traced: a query pays nothing for it unless it is read.
+    #[getter]
+    fn normal<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        if let Some(n) = self.normal.get() {
+            return Ok(n.bind(py).clone());
+        }
+        let prim = self.primitive.bind(py).readonly();
+        let prims = prim
+            .as_slice()
+            .map_err(|_| err("internal error: array not contiguous"))?;
+        let tris = &self.triangles;
+        let flat = py.detach(|| {
+            let mut out = vec![f32::NAN; 3 * prims.len()];
+            out.par_chunks_mut(3 * CHUNK)
+                .zip(prims.par_chunks(CHUNK))
+                .for_each(|(o, ps)| {
+                    for (n, p) in o.chunks_exact_mut(3).zip(ps) {
+                        if let Some(t) = tris.get(*p as usize) {
+                            let g = (t.v[1] - t.v[0]).cross(t.v[2] - t.v[0]).normalize_or_zero();
+                            n.copy_from_slice(&g.to_array());
+                        }
+                    }
+                });
+            out
+        });
+        let a = crate::arrays::n3_array(py, flat)?;
+        let _ = self.normal.set(a.clone().unbind());
+        Ok(self.normal.get().map_or(a, |n| n.bind(py).clone()))
+    }
+
+    /// The mesh of each hit (its index in `RayCaster.from_meshes`; 0 for a ray caster of
+    /// one mesh), `NO_HIT` on a miss. Computed on access from `primitive`.
+    #[getter]
+    fn geometry<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<u32>>> {
+        self.per_mesh(py, |g, _| g)
+    }
+
+    /// The triangle of each hit within its mesh (`primitive` less the mesh's first
+    /// triangle), `NO_HIT` on a miss. Computed on access from `primitive`.
+    #[getter]
+    fn geometry_primitive<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray1<u32>>> {
+        self.per_mesh(py, |_, local| local)
+    }
+
+    /// Counters summed over all rays (always kept; `max_stack_depth` is a maximum).
+    #[getter]
+    fn totals<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyDict>> {
+        crate::trace::stats_dict(py, &self.total)
+    }
+
+    fn __len__(&self) -> usize {
+        self.total.rays as usize
+    }
+
+    /// Pickling (a Ray task can return a result): the arrays, with the normals computed
+    /// (the triangles do not travel), the meshes' first triangles and the totals.
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        let restore = py
+            .import("arbor._arbor")?
+            .getattr("RayHits")?
+            .getattr("_restore")?;
+        let t = &self.total;
+        let totals = [
+            t.rays,
+            t.hits,
+            t.node_visits,
+            t.box_tests,
+            t.tri_tests,
+            t.leaf_visits,
+            t.pushes,
+            t.pops,
+            t.culled_pops,
+            t.max_stack_depth,
+        ];
+        let args = (
+            self.t.bind(py).clone(),
+            self.primitive.bind(py).clone(),
+            self.u.bind(py).clone(),
+            self.v.bind(py).clone(),
+            self.hit.bind(py).clone(),
+            self.normal(py)?,
+            self.location.bind(py).clone(),
+            self.counter_array.as_ref().map(|c| c.bind(py).clone()),
+            self.generation,
+            self.kernel,
+            self.geometry_first.to_vec(),
+            totals.to_vec(),
+        );
+        PyTuple::new(py, [restore.into_any(), args.into_pyobject(py)?.into_any()])
+    }
+
+    /// Rebuilds a pickled result (see `__reduce__`).
+    #[staticmethod]
+    #[allow(clippy::too_many_arguments)]
+    fn _restore(
+        t: Bound<'_, PyArray1<f32>>,
+        primitive: Bound<'_, PyArray1<u32>>,
+        u: Bound<'_, PyArray1<f32>>,
+        v: Bound<'_, PyArray1<f32>>,
+        hit: Bound<'_, PyArray1<bool>>,
+        normal: Bound<'_, PyArray2<f32>>,
+        location: Bound<'_, PyArray2<f32>>,
+        counters: Option<Bound<'_, PyArray2<u32>>>,
+        generation: u64,
+        kernel: &str,
+        geometry_first: Vec<u32>,
+        totals: Vec<u64>,
+    ) -> PyResult<Self> {
+        let kernel = ["bvh2", "mbvh4", "mbvh8", "cbvh"]
+            .into_iter()
+            .find(|&k| k == kernel)
+            .ok_or_else(|| err(format!("pickled result of unknown kernel '{kernel}'")))?;
+        let [rays, hits, node_visits, box_tests, tri_tests, leaf_visits, pushes, pops, culled_pops, max_stack_depth] =
+            <[u64; 10]>::try_from(totals)
+                .map_err(|_| err("pickled totals: 10 counters expected"))?;
+        let n = t.len();
+        let lens = [
+            primitive.len(),
+            u.len(),
+            v.len(),
+            hit.len(),
+            normal.shape()[0],
+            location.shape()[0],
+        ];
+        if lens.iter().any(|&l| l != n) || rays as usize != n || geometry_first.is_empty() {
+            return Err(err("pickled result: arrays of different lengths"));
+        }
+        let cached = OnceLock::new();
+        let _ = cached.set(normal.unbind());
+        Ok(RayHits {
+            t: t.unbind(),
+            primitive: primitive.unbind(),
+            u: u.unbind(),
+            v: v.unbind(),
+            hit: hit.unbind(),
+            triangles: Arc::new(Vec::new()),
+            normal: cached,
+            geometry_first: Arc::new(geometry_first),
+            location: location.unbind(),
+            counter_array: counters.map(|c| c.unbind()),
+            generation,
+            kernel,
+            total: RayStats {
+                rays,
+                hits,
+                node_visits,
+                box_tests,
+                tri_tests,
+                leaf_visits,
+                pushes,
+                pops,
+                culled_pops,
+                max_stack_depth,
+            },
+        })
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "RayHits({} rays, {} hits, kernel {:?}, generation {})",
+            self.total.rays, self.total.hits, self.kernel, self.generation
+        )
+    }
+}
+
+impl RayCaster {
+    /// Wraps prepared state.
+    #[allow(clippy::too_many_arguments)]
+    fn wrap(
+        state: State,
+        kernel: &'static str,
+        distance_stack: bool,
+        builder: String,
+        max_leaf: u32,
+        generation: u64,
+        geometry_first: Option<Vec<u32>>,
+        vertex_first: Option<Vec<u32>>,
+    ) -> Self {
+        let (nv, nt) = (state.vertices.len() as u32, state.indices.len() as u32);
+        RayCaster {
+            vertex_count: state.vertices.len(),
+            triangle_count: state.indices.len(),
+            geometry_first: Arc::new(geometry_first.unwrap_or_else(|| vec![0, nt])),
+            vertex_first: vertex_first.unwrap_or_else(|| vec![0, nv]),
+            state: RwLock::new(state),
+            generation: AtomicU64::new(generation),
+            kernel,
+            distance_stack,
+            builder,
+            max_leaf,
+        }
+    }
+
+    /// The state prepared over `tree` (built or refitted over these triangles).
+    fn prepare(
+        vertices: Vec<Vec3>,
+        indices: Vec<[u32; 3]>,
+        tree: Tree,
+        kernel: &'static str,
+        distance_stack: bool,
+    ) -> Result<State, String> {
+        if tree.prim_count() != indices.len() {
+            return Err(format!(
+                "the tree holds {} primitives but {} triangles were given",
+                tree.prim_count(),
+                indices.len()
+            ));
+        }
+        let triangles = crate::arrays::resolve(&vertices, &indices)?;
+        let options = KernelOptions { distance_stack };
+        let accel = accel_of(&tree, Some(kernel), &triangles, options)?;
+        Ok(State {
+            vertices,
+            indices,
+            triangles: Arc::new(triangles),
+            tree,
+            accel,
+            broken: false,
+        })
+    }
+
+    /// Builds the tree with the options of the constructor and prepares it.
+    fn build(
+        py: Python<'_>,
+        vs: &[Vec3],
+        ixs: &[[u32; 3]],
+        o: BuildOptions<'_>,
+        meshes: Option<(Vec<u32>, Vec<u32>)>,
+    ) -> PyResult<Self> {
+        let max_leaf = count_arg::<u32>("max_leaf", o.max_leaf)?;
+        let bins = count_arg::<usize>("bins", o.bins)?;
+        let threads = count_arg::<usize>("threads", o.threads)?;
+        let builder = o.builder;
+        let (f, cfg) =
+            config(builder, max_leaf, bins, o.collapse_from.as_deref(), threads).map_err(err)?;
+        let leaf_limit = cfg.max_leaf;
+        let (kernel, distance_stack) = (o.kernel, o.distance_stack);
+        let (state, k, ds) = detached(py, || {
+            let prims = aabbs(vs, ixs)?;
+            let tree = in_pool(threads, || {
+                f(&prims, &cfg)
+                    .map_err(|e| format!("builder {builder} failed: {}", arbor::one_line(&e)))
+            })?;
+            let k = kernel_name(&tree, kernel)?;
+            let ds = distance_stack.unwrap_or_else(|| default_distance_stack(k));
+            let state = Self::prepare(vs.to_vec(), ixs.to_vec(), tree, k, ds)?;
+            Ok::<_, String>((state, k, ds))
+        })?;
+        let (g, v) = meshes.unzip();
+        Ok(Self::wrap(
+            state,
+            k,
+            ds,
+            builder.to_string(),
+            leaf_limit,
+            0,
+            g,
+            v,
+        ))
+    }
+
+    /// Rays from Python, with the checks every query makes.
+    fn rays<'py>(
+        origins: &Bound<'py, PyAny>,
+        directions: &Bound<'py, PyAny>,
+        tmin: Option<&Bound<'py, PyAny>>,
+        tmax: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<RayArrays<'py>> {
+        RayArrays::new(origins, directions, tmin, tmax)
+    }
+}
+
+/// `out` as a writable `(n,)` array of `T` (for `out=` arguments), or a fresh one.
+fn out_array<'py, T: numpy::Element>(
+    py: Python<'py>,
+    out: Option<&Bound<'py, PyAny>>,
+    n: usize,
+    what: &str,
+) -> PyResult<Bound<'py, PyArray1<T>>> {
+    match out {
+        None => Ok(PyArray1::zeros(py, n, false)),
+        Some(o) => {
+            let a = o.cast::<PyArray1<T>>().map_err(|_| {
+                err(format!(
+                    "{what}: out must be a numpy array of dtype {} and shape ({n},)",
+                    std::any::type_name::<T>()
+                ))
+            })?;
+            if a.len() != n || !a.is_contiguous() {
+                return Err(err(format!(
+                    "{what}: out must be a contiguous array of shape ({n},), got shape {:?}",
+                    a.shape()
+                )));
+            }
+            Ok(a.clone())
+        }
+    }
+}
+
+#[pymethods]
+impl RayCaster {
+    /// Builds the tree over `indices` into `vertices` with a builder of `arbor build` and
+    /// prepares it for `kernel` (default: the tree's own format).
+    #[new]
+    #[pyo3(signature = (vertices, indices, builder = "binned-sah", *, kernel = None, distance_stack = None, max_leaf = None, bins = None, collapse_from = None, threads = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn new(
+        py: Python<'_>,
+        vertices: &Bound<'_, PyAny>,
+        indices: &Bound<'_, PyAny>,
+        builder: &str,
+        kernel: Option<&str>,
+        distance_stack: Option<bool>,
+        max_leaf: Option<i64>,
+        bins: Option<i64>,
+        collapse_from: Option<String>,
+        threads: Option<i64>,
+    ) -> PyResult<Self> {
+        let v = points("vertices", vertices)?;
+        let vs = v.as_vec3()?;
+        let ix = crate::arrays::indices(indices, vs.len())?;
+        let ixs = ix.get()?;
+        let opts = BuildOptions {
+            builder,
+            kernel,
+            distance_stack,
+            max_leaf,
+            bins,
+            collapse_from,
+            threads,
+        };
+        Self::build(py, vs, ixs, opts, None)
+    }
+
+    /// A ray caster over several meshes, each `(vertices, indices)` or an object with
+    /// `vertices` and `faces` (or `indices`): results name the mesh of each hit
+    /// (`RayHits.geometry`) and the triangle within it (`geometry_primitive`); the other
+    /// arguments as for the constructor.
+    #[staticmethod]
+    #[pyo3(signature = (meshes, builder = "binned-sah", *, kernel = None, distance_stack = None, max_leaf = None, bins = None, collapse_from = None, threads = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn from_meshes(
+        py: Python<'_>,
+        meshes: &Bound<'_, PyAny>,
+        builder: &str,
+        kernel: Option<&str>,
+        distance_stack: Option<bool>,
+        max_leaf: Option<i64>,
+        bins: Option<i64>,
+        collapse_from: Option<String>,
+        threads: Option<i64>,
+    ) -> PyResult<Self> {
+        let (mut vs, mut ixs) = (Vec::new(), Vec::new());
+        let (mut gfirst, mut vfirst) = (vec![0u32], vec![0u32]);
+        for (g, m) in meshes.try_iter()?.enumerate() {
+            let m = m?;
+            let (v, ix) = if let Ok((v, ix)) = m.extract::<(Bound<'_, PyAny>, Bound<'_, PyAny>)>() {
+                (v, ix)
+            } else {
+                let v = m.getattr("vertices").map_err(|_| {
+                    err(format!(
+                        "meshes[{g}] is neither (vertices, indices) nor a mesh with vertices"
+                    ))
+                })?;
+                let ix = m
+                    .getattr("faces")
+                    .or_else(|_| m.getattr("indices"))
+                    .map_err(|_| err(format!("meshes[{g}] has no faces or indices")))?;
+                (v, ix)
+            };
+            let pv = points(&format!("meshes[{g}] vertices"), &v)?;
+            let pvs = pv.as_vec3()?;
+            let pix = crate::arrays::indices(&ix, pvs.len())?;
+            let base = vs.len() as u32;
+            ixs.extend(pix.get()?.iter().map(|t| t.map(|i| i + base)));
+            vs.extend_from_slice(pvs);
+            let too_many = || err("the meshes hold more than 2^32 vertices or triangles");
+            vfirst.push(u32::try_from(vs.len()).map_err(|_| too_many())?);
+            gfirst.push(u32::try_from(ixs.len()).map_err(|_| too_many())?);
+        }
+        if gfirst.len() == 1 {
+            return Err(err("from_meshes needs at least one mesh"));
+        }
+        let opts = BuildOptions {
+            builder,
+            kernel,
+            distance_stack,
+            max_leaf,
+            bins,
+            collapse_from,
+            threads,
+        };
+        Self::build(py, &vs, &ixs, opts, Some((gfirst, vfirst)))
+    }
+
+    /// A ray caster over a tree built before (`Bvh.build`, or loaded from a file), with
+    /// the vertices and indices it was built or last refitted over (`indices` default to
+    /// the tree's own). A tree that does not match the vertices is refused.
+    #[staticmethod]
+    #[pyo3(signature = (bvh, vertices, indices = None, *, kernel = None, distance_stack = None))]
+    fn from_bvh(
+        py: Python<'_>,
+        bvh: PyRef<'_, Bvh>,
+        vertices: &Bound<'_, PyAny>,
+        indices: Option<&Bound<'_, PyAny>>,
+        kernel: Option<&str>,
+        distance_stack: Option<bool>,
+    ) -> PyResult<Self> {
+        let v = points("vertices", vertices)?;
+        let vs = v.as_vec3()?;
+        let given = match indices {
+            Some(ix) => Some(crate::arrays::indices(ix, vs.len())?),
+            None => None,
+        };
+        let snap = bvh.snapshot();
+        let ixs: Vec<[u32; 3]> = match (&given, &snap.indices) {
+            (Some(g), _) => g.get()?.to_vec(),
+            (None, Some(stored)) => stored.clone(),
+            (None, None) => {
+                return Err(err(
+                    "this tree was loaded from a file: pass the indices it was built over",
+                ))
+            }
+        };
+        if let Some((t, v)) = ixs.iter().enumerate().find_map(|(t, tri)| {
+            tri.iter()
+                .find(|&&v| v as usize >= vs.len())
+                .map(|v| (t, *v))
+        }) {
+            return Err(err(format!(
+                "triangle {t} refers to vertex {v}, but there are only {} vertices",
+                vs.len()
+            )));
+        }
+        let tree = snap.tree.clone();
+        let stored = snap.prims.clone();
+        let (builder, max_leaf) = (bvh.builder.clone(), bvh.max_leaf);
+        let (state, k, ds) = detached(py, || {
+            let k = kernel_name(&tree, kernel)?;
+            let ds = distance_stack.unwrap_or_else(|| default_distance_stack(k));
+            let state = Self::prepare(vs.to_vec(), ixs, tree, k, ds)?;
+            check_current(stored.as_deref(), &state.triangles)?;
+            Ok::<_, String>((state, k, ds))
+        })?;
+        Ok(Self::wrap(state, k, ds, builder, max_leaf, 0, None, None))
+    }
+
+    /// Moves the vertices (same count, same triangles) and updates the tree and the
+    /// kernel in place (a CBVH is encoded again). Waits for queries in flight.
+    fn refit(&self, py: Python<'_>, vertices: &Bound<'_, PyAny>) -> PyResult<()> {
+        // From `from_meshes`: a list with the vertices of each mesh.
+        let joined: Option<Vec<Vec3>> = if vertices.is_instance_of::<pyo3::types::PyList>()
+            || vertices.is_instance_of::<pyo3::types::PyTuple>()
+        {
+            let parts: Vec<Bound<'_, PyAny>> = vertices.extract()?;
+            let counts = self.vertex_first.windows(2).map(|w| (w[1] - w[0]) as usize);
+            if parts.len() != counts.len() {
+                return Err(err(format!(
+                    "refit keeps the topology: {} meshes expected, {} given",
+                    counts.len(),
+                    parts.len()
+                )));
+            }
+            let mut all = Vec::with_capacity(self.vertex_count);
+            for (g, (part, want)) in parts.iter().zip(counts).enumerate() {
+                let p = points(&format!("vertices[{g}]"), part)?;
+                let ps = p.as_vec3()?;
+                if ps.len() != want {
+                    return Err(err(format!(
+                        "refit keeps the topology: mesh {g} has {want} vertices, {} given",
+                        ps.len()
+                    )));
+                }
+                all.extend_from_slice(ps);
+            }
+            Some(all)
+        } else {
+            None
+        };
+        let v = match joined {
+            Some(_) => None,
+            None => Some(points("vertices", vertices)?),
+        };
+        let vs: &[Vec3] = match (&joined, &v) {
+            (Some(all), _) => all,
+            (None, Some(v)) => v.as_vec3()?,
+            (None, None) => return Err(err("internal error: no vertices")),
+        };
+        if vs.len() != self.vertex_count {
+            return Err(err(format!(
+                "refit keeps the topology: {} vertices expected, {} given",
+                self.vertex_count,
+                vs.len()
+            )));
+        }
+        let (lock, kernel, ds, generation) = (
+            &self.state,
+            self.kernel,
+            self.distance_stack,
+            &self.generation,
+        );
+        detached(py, || {
+            let mut s = lock.write().map_err(|_| {
+                "the ray caster was left inconsistent by an internal error".to_string()
+            })?;
+            let triangles = crate::arrays::resolve(vs, &s.indices)?;
+            let prims = aabbs(vs, &s.indices)?;
+            // The triangles were checked above (finite, same count), so nothing below can
+            // fail short of an internal error; if it does, the state is half moved and is
+            // marked broken, so that queries fail instead of answering for it.
+            s.broken = true;
+            s.tree
+                .refit(&prims)
+                .map_err(|e| format!("cannot refit the tree: {e}"))?;
+            if !s.accel.refit(&triangles).unwrap_or(false) {
+                let options = KernelOptions { distance_stack: ds };
+                s.accel = accel_of(&s.tree, Some(kernel), &triangles, options)?;
+            }
+            s.triangles = Arc::new(triangles);
+            s.vertices.copy_from_slice(vs);
+            s.broken = false;
+            generation.fetch_add(1, Ordering::SeqCst);
+            Ok::<_, String>(())
+        })
+    }
+
+    /// Closest hits of rays (origins and directions float32-convertible (N, 3); `tmin` and
+    /// `tmax` a number or (N,), default 0 and inf). `counters`: keep the per-ray traversal
+    /// counters too. `out`: a `RayHits` of the same length whose arrays are overwritten
+    /// and returned (no allocation).
+    #[pyo3(signature = (origins, directions, tmin = None, tmax = None, *, counters = false, out = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn intersect<'py>(
+        &self,
+        py: Python<'py>,
+        origins: &Bound<'py, PyAny>,
+        directions: &Bound<'py, PyAny>,
+        tmin: Option<&Bound<'py, PyAny>>,
+        tmax: Option<&Bound<'py, PyAny>>,
+        counters: bool,
+        out: Option<PyRef<'py, RayHits>>,
+    ) -> PyResult<RayHits> {
+        let arrays = Self::rays(origins, directions, tmin, tmax)?;
+        let rays = arrays.slices()?;
+        let n = rays.len();
+        let (t, prim, u, v, hit, location, cnt) = match &out {
+            Some(o) => {
+                let len = o.t.bind(py).len();
+                if len != n {
+                    return Err(err(format!("out holds {len} rays, {n} given")));
+                }
+                if counters != o.counter_array.is_some() {
+                    return Err(err("out must have counters exactly when counters=True"));
+                }
+                (
+                    o.t.bind(py).clone(),
+                    o.primitive.bind(py).clone(),
+                    o.u.bind(py).clone(),
+                    o.v.bind(py).clone(),
+                    o.hit.bind(py).clone(),
+                    o.location.bind(py).clone(),
+                    o.counter_array.as_ref().map(|c| c.bind(py).clone()),
+                )
+            }
+            None => (
+                PyArray1::<f32>::zeros(py, n, false),
+                PyArray1::<u32>::zeros(py, n, false),
+                PyArray1::<f32>::zeros(py, n, false),
+                PyArray1::<f32>::zeros(py, n, false),
+                PyArray1::<bool>::zeros(py, n, false),
+                PyArray2::<f32>::zeros(py, [n, 3], false),
+                counters.then(|| PyArray2::<u32>::zeros(py, [n, COUNTERS.len()], false)),
+            ),
+        };
+        let generation = &self.generation;
+        let (total, generation, triangles) = {
+            let mut tw = t.try_readwrite().map_err(|_| err("out.t is in use"))?;
+            let mut pw = prim
+                .try_readwrite()
+                .map_err(|_| err("out.primitive is in use"))?;
+            let mut uw = u.try_readwrite().map_err(|_| err("out.u is in use"))?;
+            let mut vw = v.try_readwrite().map_err(|_| err("out.v is in use"))?;
+            let mut hw = hit.try_readwrite().map_err(|_| err("out.hit is in use"))?;
+            let mut lw = location
+                .try_readwrite()
+                .map_err(|_| err("out.location is in use"))?;
+            let mut cw = match &cnt {
+                Some(c) => Some(
+                    c.try_readwrite()
+                        .map_err(|_| err("out.counters is in use"))?,
+                ),
+                None => None,
+            };
+            let nc = "internal error: array not contiguous";
+            let cols = Closest {
+                t: tw.as_slice_mut().map_err(|_| err(nc))?,
+                prim: pw.as_slice_mut().map_err(|_| err(nc))?,
+                u: uw.as_slice_mut().map_err(|_| err(nc))?,
+                v: vw.as_slice_mut().map_err(|_| err(nc))?,
+                hit: hw.as_slice_mut().map_err(|_| err(nc))?,
+                location: lw.as_slice_mut().map_err(|_| err(nc))?,
+                counters: match cw.as_mut() {
+                    Some(c) => Some(c.as_slice_mut().map_err(|_| err(nc))?),
+                    None => None,
+                },
+            };
+            let lock = &self.state;
+            let rays = &rays;
+            detached(py, move || {
+                rays.check()?;
+                let s = read(lock)?;
+                let s = &*s;
+                let parts = cols.split(chunk_for(n));
+                let total = for_chunks(parts, |p, first, tot| p.fill(s, rays, first, tot));
+                // Read under the lock: the generation of the geometry just traced.
+                Ok::<_, String>((
+                    total,
+                    generation.load(Ordering::SeqCst),
+                    s.triangles.clone(),
+                ))
+            })?
+        };
+        Ok(RayHits {
+            t: t.unbind(),
+            primitive: prim.unbind(),
+            u: u.unbind(),
+            v: v.unbind(),
+            hit: hit.unbind(),
+            triangles,
+            normal: OnceLock::new(),
+            geometry_first: self.geometry_first.clone(),
+            location: location.unbind(),
+            counter_array: cnt.map(|c| c.unbind()),
+            generation,
+            kernel: self.kernel,
+            total,
+        })
+    }
+
+    /// Every hit along each ray, nearest first, up to `max_hits` per ray (the arguments
+    /// as in `intersect`): `(ray, primitive, t)` arrays, ray by ray. Each ray restarts just
+    /// past its last hit, so two triangles hit at exactly the same distance (a ray through
+    /// a shared edge) count once.
+    #[pyo3(signature = (origins, directions, tmin = None, tmax = None, *, max_hits = 100))]
+    #[allow(clippy::type_complexity)]
+    fn intersect_all<'py>(
+        &self,
+        py: Python<'py>,
+        origins: &Bound<'py, PyAny>,
+        directions: &Bound<'py, PyAny>,
+        tmin: Option<&Bound<'py, PyAny>>,
+        tmax: Option<&Bound<'py, PyAny>>,
+        max_hits: i64,
+    ) -> PyResult<(
+        Bound<'py, PyArray1<u32>>,
+        Bound<'py, PyArray1<u32>>,
+        Bound<'py, PyArray1<f32>>,
+    )> {
+        let max_hits = count_arg::<u32>("max_hits", Some(max_hits))?.unwrap_or(0);
+        let arrays = Self::rays(origins, directions, tmin, tmax)?;
+        let rays = arrays.slices()?;
+        let n = rays.len();
+        let lock = &self.state;
+        let rays = &rays;
+        let (ray, prim, t) = detached(py, move || {
+            rays.check()?;
+            let s = read(lock)?;
+            let s = &*s;
+            let run = |range: std::ops::Range<usize>| {
+                let mut stack = TraversalStack::new();
+                let (mut ray, mut prim, mut t) = (Vec::new(), Vec::new(), Vec::new());
+                for i in range {
+                    let mut r = rays.ray(i);
+                    for _ in 0..max_hits {
+                        let mut st = RayStats::default();
+                        let Some(h) = s.accel.trace_observed(
+                            &r,
+                            Query::Closest,
+                            &mut stack,
+                            &mut st,
+                            &mut (),
+                        ) else {
+                            break;
+                        };
+                        ray.push(i as u32);
+                        prim.push(h.prim);
+                        t.push(h.t);
+                        // The next float above the hit (hits lie at t >= 0).
+                        r.t_min = if h.t <= 0.0 {
+                            f32::from_bits(1)
+                        } else {
+                            f32::from_bits(h.t.to_bits() + 1)
+                        };
+                        if r.t_min > r.t_max {
+                            break;
+                        }
+                    }
+                }
+                (ray, prim, t)
+            };
+            let parts: Vec<(Vec<u32>, Vec<u32>, Vec<f32>)> = if n <= SERIAL_RAYS {
+                vec![run(0..n)]
+            } else {
+                (0..n.div_ceil(CHUNK))
+                    .into_par_iter()
+                    .map(|c| run(c * CHUNK..((c + 1) * CHUNK).min(n)))
+                    .collect()
+            };
+            let total: usize = parts.iter().map(|p| p.0.len()).sum();
+            let (mut ray, mut prim, mut t) = (
+                Vec::with_capacity(total),
+                Vec::with_capacity(total),
+                Vec::with_capacity(total),
+            );
+            for (a, b, c) in parts {
+                ray.extend(a);
+                prim.extend(b);
+                t.extend(c);
+            }
+            Ok::<_, String>((ray, prim, t))
+        })?;
+        Ok((
+            PyArray1::from_vec(py, ray),
+            PyArray1::from_vec(py, prim),
+            PyArray1::from_vec(py, t),
+        ))
+    }
+
+    /// Whether anything lies along each ray within its range (an any-hit query; the
+    /// arguments as in `intersect`), as a bool array. `out`: a bool array of shape (N,) to
+    /// write into and return.
+    #[pyo3(signature = (origins, directions, tmin = None, tmax = None, *, out = None))]
+    fn occluded<'py>(
+        &self,
+        py: Python<'py>,
+        origins: &Bound<'py, PyAny>,
+        directions: &Bound<'py, PyAny>,
+        tmin: Option<&Bound<'py, PyAny>>,
+        tmax: Option<&Bound<'py, PyAny>>,
+        out: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyArray1<bool>>> {
+        let arrays = Self::rays(origins, directions, tmin, tmax)?;
+        let rays = arrays.slices()?;
+        let n = rays.len();
+        let a = out_array::<bool>(py, out, n, "occluded")?;
+        {
+            let mut w = a.try_readwrite().map_err(|_| err("out is in use"))?;
+            let col = w
+                .as_slice_mut()
+                .map_err(|_| err("internal error: array not contiguous"))?;
+            let lock = &self.state;
+            let rays = &rays;
+            detached(py, move || {
+                rays.check()?;
+                let s = read(lock)?;
+                let s = &*s;
+                let parts: Vec<&mut [bool]> = col.chunks_mut(chunk_for(n)).collect();
+                for_chunks(parts, |p, first, _| {
+                    let mut stack = TraversalStack::new();
+                    for (k, o) in p.iter_mut().enumerate() {
+                        let mut st = RayStats::default();
+                        *o = s
+                            .accel
+                            .trace_observed(
+                                &rays.ray(first + k),
+                                Query::Any,
+                                &mut stack,
+                                &mut st,
+                                &mut (),
+                            )
+                            .is_some();
+                    }
+                });
+                Ok::<_, String>(())
+            })?;
+        }
+        Ok(a)
+    }
+
+    /// A copy of the vertices the structure traces (those of the last build or refit).
+    #[getter]
+    fn vertices<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
+        let flat = detached(py, || {
+            let s = read(&self.state)?;
+            Ok::<_, String>(
+                s.vertices
+                    .iter()
+                    .flat_map(|p| p.to_array())
+                    .collect::<Vec<_>>(),
+            )
+        })?;
+        crate::arrays::n3_array(py, flat)
+    }
+
+    /// A copy of the triangles' vertex indices.
+    #[getter]
+    fn indices<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<u32>>> {
+        let flat = detached(py, || {
+            let s = read(&self.state)?;
+            Ok::<_, String>(s.indices.iter().flatten().copied().collect::<Vec<_>>())
+        })?;
+        crate::arrays::n3_array(py, flat)
+    }
+
+    /// The tree (a copy), as a `Bvh` over the current vertices.
+    #[getter]
+    fn bvh(&self, py: Python<'_>) -> PyResult<Bvh> {
+        let (tree, ix, prims) = detached(py, || {
+            let s = read(&self.state)?;
+            let prims = aabbs(&s.vertices, &s.indices)?;
+            Ok::<_, String>((s.tree.clone(), s.indices.clone(), prims))
+        })?;
+        Ok(Bvh::new(
+            tree,
+            self.builder.clone(),
+            self.max_leaf,
+            Some(ix),
+            Some(prims),
+        ))
+    }
+
+    /// Refits so far (0 after building); every result carries the generation it was
+    /// traced against.
+    #[getter]
+    fn generation(&self) -> u64 {
+        self.generation.load(Ordering::SeqCst)
+    }
+
+    #[getter]
+    fn kernel(&self) -> &'static str {
+        self.kernel
+    }
+
+    #[getter]
+    fn distance_stack(&self) -> bool {
+        self.distance_stack
+    }
+
+    #[getter]
+    fn builder(&self) -> String {
+        self.builder.clone()
+    }
+
+    #[getter]
+    fn triangle_count(&self) -> usize {
+        self.triangle_count
+    }
+
+    /// Meshes it was built over (1 unless `from_meshes`).
+    #[getter]
+    fn geometry_count(&self) -> usize {
+        self.geometry_first.len() - 1
+    }
+
+    #[getter]
+    fn vertex_count(&self) -> usize {
+        self.vertex_count
+    }
+
+    fn __len__(&self) -> usize {
+        self.triangle_count
+    }
+
+    /// Pickling: the geometry, the tree (in the tree file format) and the settings; the
+    /// kernel's form is prepared again on loading (a CBVH encoded again).
+    fn __reduce__<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyTuple>> {
+        let (tree_bytes, v, ix) = detached(py, || {
+            let s = read(&self.state)?;
+            let mut buf = Vec::new();
+            bvh::io::write_tree(&s.tree, &self.builder, &mut buf)
+                .map_err(|e| format!("cannot serialize the tree: {e}"))?;
+            let v: Vec<f32> = s.vertices.iter().flat_map(|p| p.to_array()).collect();
+            let ix: Vec<u32> = s.indices.iter().flatten().copied().collect();
+            Ok::<_, String>((buf, v, ix))
+        })?;
+        let restore = py
+            .import("arbor._arbor")?
+            .getattr("RayCaster")?
+            .getattr("_restore")?;
+        let args = (
+            crate::arrays::n3_array(py, v)?,
+            crate::arrays::n3_array(py, ix)?,
+            PyBytes::new(py, &tree_bytes),
+            self.kernel,
+            self.distance_stack,
+            self.builder.clone(),
+            self.max_leaf,
+            self.generation(),
+            self.geometry_first.to_vec(),
+            self.vertex_first.clone(),
+        );
+        PyTuple::new(py, [restore.into_any(), args.into_pyobject(py)?.into_any()])
+    }
+
+    /// Rebuilds a pickled ray caster (see `__reduce__`).
+    #[staticmethod]
+    #[pyo3(signature = (vertices, indices, tree, kernel, distance_stack, builder, max_leaf, generation, geometry_first = None, vertex_first = None))]
+    #[allow(clippy::too_many_arguments)]
+    fn _restore(
+        py: Python<'_>,
+        vertices: &Bound<'_, PyAny>,
+        indices: &Bound<'_, PyAny>,
+        tree: &[u8],
+        kernel: &str,
+        distance_stack: bool,
+        builder: String,
+        max_leaf: u32,
+        generation: u64,
+        geometry_first: Option<Vec<u32>>,
+        vertex_first: Option<Vec<u32>>,
+    ) -> PyResult<Self> {
+        let v = points("vertices", vertices)?;
+        let vs = v.as_vec3()?;
+        let ix = crate::arrays::indices(indices, vs.len())?;
+        let ixs = ix.get()?;
+        let (state, k) = detached(py, || {
+            let (tree, _) = bvh::io::read_tree(tree)
+                .map_err(|e| format!("cannot read the pickled tree: {e}"))?;
+            let k = kernel_name(&tree, Some(kernel))?;
+            let state = Self::prepare(vs.to_vec(), ixs.to_vec(), tree, k, distance_stack)?;
+            Ok::<_, String>((state, k))
+        })?;
+        Ok(Self::wrap(
+            state,
+            k,
+            distance_stack,
+            builder,
+            max_leaf,
+            generation,
+            geometry_first,
+            vertex_first,
+        ))
+    }
+
+    fn __repr__(&self) -> String {
+        format!(
+            "RayCaster({} triangles, builder={:?}, kernel={:?}, generation {})",
+            self.triangle_count,
+            self.builder,
+            self.kernel,
+            self.generation()
+        )
+    }
+}
+
+/// Registers the ray caster.
+pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<RayCaster>()?;
+    m.add_class::<RayHits>()?;
+    Ok(())
+}
