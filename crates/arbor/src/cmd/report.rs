@@ -37,6 +37,9 @@ enum ReportKind {
     /// Every open assumption of the \[P2\] §6.4 system model swept over its documented
     /// range: each Table VIII figure's default, low, high and driving assumption.
     Sensitivity(super::report_sensitivity::ReportSensitivityArgs),
+    /// Every report above as one self-contained static HTML site (index and one page per
+    /// area), each reproduced table beside the thesis's numbers; `--quick` for small runs.
+    Html(super::report_html::ReportHtmlArgs),
 }
 
 /// Runs `arbor report`.
@@ -48,6 +51,7 @@ pub fn run(a: &ReportArgs, ui: &Ui) -> anyhow::Result<()> {
         ReportKind::Energy(r) => super::report_energy::run(r, ui),
         ReportKind::System(r) => super::report_system::run(r, ui),
         ReportKind::Sensitivity(r) => super::report_sensitivity::run(r, ui),
+        ReportKind::Html(r) => super::report_html::run(r, ui),
     }
 }
 
