@@ -643,9 +643,14 @@ fn index_html(pages: &[(&Page, Tally)], p: &Provenance, quick: bool) -> String {
     b += "<table>\n<tr><th>page</th><th>what</th><th>compared with the thesis: within / near / beyond tolerance</th></tr>\n";
     for (page, t) in pages {
         let [ok, near, off] = t.0;
+        let tally = if ok + near + off == 0 {
+            "no thesis values".to_string()
+        } else {
+            format!("{ok} / {near} / {off}")
+        };
         let _ = writeln!(
             b,
-            "<tr><td><a href=\"{}\">{}</a></td><td>{}</td><td class=\"num\">{ok} / {near} / {off}</td></tr>",
+            "<tr><td><a href=\"{}\">{}</a></td><td>{}</td><td class=\"num\">{tally}</td></tr>",
             page.file,
             xml(page.title),
             inline(page.about)

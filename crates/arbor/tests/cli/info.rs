@@ -1,14 +1,12 @@
 //! Integration tests of `arbor info` and `arbor demo`: the binary as a user runs it.
 
-mod common;
-
-use common::arbor;
+use crate::common::arbor;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 
 /// Runs `arbor info --json` and parses its output, failing with stderr on error.
 fn info_json(args: &[&str]) -> Value {
-    common::json("info", args)
+    crate::common::json("info", args)
 }
 
 /// Runs `arbor info` expecting failure; returns the single stderr line.
