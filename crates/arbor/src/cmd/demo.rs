@@ -59,7 +59,7 @@ pub struct DemoArgs {
     #[arg(long, value_name = "SCENE")]
     scene: Option<String>,
     /// Folder for the demo's outputs (created if missing; only files named by the demo are
-    /// written there).
+    /// written there, `index.html` and `style.css` among them).
     #[arg(long, value_name = "DIR", default_value = "arbor-out/demo")]
     out: PathBuf,
     /// Frames to walk (default: all of them, at most 600).
@@ -314,7 +314,27 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
         accelerator,
     };
     write_outputs(&args.out, &summary)?;
-    println!("  outputs    {}", args.out.display());
+    let mut command = String::from("arbor demo");
+    if let Some(s) = &args.scene {
+        command += &format!(" --scene '{s}'");
+    }
+    if let Some(f) = args.frames {
+        command += &format!(" --frames {f}");
+    }
+    command += &format!(" --out '{}'", args.out.display());
+    super::report_html::write_folder_page(
+        &args.out,
+        &format!("arbor demo: {}", summary.info.name),
+        "The demo's results: every builder at a few frames, refit against rebuild, the \
+         MergeTree model on three memory systems, CBVH traffic, renders through binary and \
+         4-wide trees with the heatmap, and the accelerator model. `arbor report html` \
+         builds the site of every report.",
+        &command,
+    )?;
+    println!(
+        "  outputs    {} (open index.html there)",
+        args.out.display()
+    );
     if let Some(bad) = summary.mergetree.iter().find(|m| !m.tree_matches_software) {
         anyhow::bail!(
             "the MergeTree model's tree differs from the software HLBVH tree on {}",

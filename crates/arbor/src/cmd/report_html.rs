@@ -684,7 +684,29 @@ fn step_html(
         xml(shown),
         xml(step.dir)
     );
-    for c in &step.compares {
+    folder_html(b, tally, &dir, step.dir, &step.compares)
+}
+
+/// `rel/name` (`name` where `rel` is empty), escaped for an attribute.
+fn href(rel: &str, name: &str) -> String {
+    if rel.is_empty() {
+        xml(name)
+    } else {
+        format!("{}/{}", xml(rel), xml(name))
+    }
+}
+
+/// What a folder of results holds, as HTML: the comparisons, its Markdown reports (or the
+/// tables of a demo's `summary.json`), the figures they do not show, and links to the data
+/// files. `rel` is the folder relative to the page.
+fn folder_html(
+    b: &mut String,
+    tally: &mut Tally,
+    dir: &Path,
+    rel: &str,
+    compares: &[Compare],
+) -> anyhow::Result<()> {
+    for c in compares {
         compare_html(b, tally, &dir.join(c.csv), c)?;
     }
     let mut shown_images = Vec::new();
@@ -692,16 +714,16 @@ fn step_html(
     let mds: Vec<PathBuf> = if md.is_file() {
         vec![md]
     } else {
-        files_with(&dir, &["md"])
+        files_with(dir, &["md"])
     };
     for m in mds {
         let text =
             std::fs::read_to_string(&m).with_context(|| format!("cannot read {}", m.display()))?;
         b.push_str("<div class=\"scroll\">\n");
-        b.push_str(&markdown(&text, step.dir, &dir, &mut shown_images));
+        b.push_str(&markdown(&text, rel, dir, &mut shown_images));
         b.push_str("</div>\n");
     }
-    let images: Vec<PathBuf> = files_with(&dir, &["svg", "png"])
+    let images: Vec<PathBuf> = files_with(dir, &["svg", "png"])
         .into_iter()
         .filter(|p| !shown_images.contains(p))
         .collect();
@@ -711,26 +733,121 @@ fn step_html(
             let name = file_name(&p);
             let _ = writeln!(
                 b,
-                "<figure><img src=\"{d}/{n}\" alt=\"{n}\"><figcaption>{n}</figcaption></figure>",
-                d = xml(step.dir),
+                "<figure><img src=\"{}\" alt=\"{n}\"><figcaption>{n}</figcaption></figure>",
+                href(rel, &name),
                 n = xml(&name)
             );
         }
     }
-    let data = files_with(&dir, &["csv", "json", "md", "txt"]);
+    let summary = dir.join("summary.json");
+    if summary.is_file() {
+        json_tables(b, &summary, DEMO_TABLES)?;
+    }
+    let data = files_with(dir, &["csv", "json", "md", "txt"]);
     if !data.is_empty() {
         b.push_str("<p>Data files: ");
         let links: Vec<String> = data
             .iter()
             .map(|p| {
-                let n = xml(&file_name(p));
-                format!("<a href=\"{}/{n}\">{n}</a>", xml(step.dir))
+                let n = file_name(p);
+                format!("<a href=\"{}\">{}</a>", href(rel, &n), xml(&n))
             })
             .collect();
         b.push_str(&links.join(", "));
         b.push_str("</p>\n");
     }
     Ok(())
+}
+
+/// The tables of `arbor demo`'s `summary.json` a page shows: (key, heading).
+const DEMO_TABLES: &[(&str, &str)] = &[
+    ("builds", "Builds: every builder at a few frames"),
+    ("refits", "Refit against rebuild over the animation"),
+    ("mergetree", "MergeTree on the three memory systems"),
+    ("cbvh", "CBVH traffic: top-down against streaming bottom-up"),
+    (
+        "renders",
+        "Renders: primary and diffuse rays through both tree formats",
+    ),
+    ("accelerator", "The accelerator model with each tree"),
+];
+
+/// Arrays of objects in a JSON document as tables (the scalar fields of each object).
+fn json_tables(b: &mut String, path: &Path, keys: &[(&str, &str)]) -> anyhow::Result<()> {
+    let text =
+        std::fs::read_to_string(path).with_context(|| format!("cannot read {}", path.display()))?;
+    let doc: serde_json::Value =
+        serde_json::from_str(&text).with_context(|| format!("{} is not JSON", path.display()))?;
+    for (key, title) in keys {
+        let Some(rows) = doc.get(key).and_then(|v| v.as_array()) else {
+            continue;
+        };
+        let Some(first) = rows.first().and_then(|r| r.as_object()) else {
+            continue;
+        };
+        // The columns that name a row first, then the rest by name.
+        const LEAD: [&str; 6] = ["frame", "builder", "format", "rays", "tree", "dram"];
+        let mut cols: Vec<&String> = first
+            .iter()
+            .filter(|(_, v)| !v.is_array() && !v.is_object())
+            .map(|(k, _)| k)
+            .collect();
+        cols.sort_by_key(|c| LEAD.iter().position(|l| l == c).unwrap_or(LEAD.len()));
+        let _ = writeln!(
+            b,
+            "<h3>{}</h3>\n<div class=\"scroll\"><table>\n<tr>",
+            xml(title)
+        );
+        for c in &cols {
+            let _ = write!(b, "<th>{}</th>", xml(c));
+        }
+        b.push_str("</tr>\n");
+        for r in rows {
+            b.push_str("<tr>");
+            for c in &cols {
+                match r.get(c.as_str()) {
+                    Some(serde_json::Value::Number(n)) => {
+                        let v = n.as_f64().unwrap_or(0.0);
+                        let text = if n.is_f64() { short(v) } else { n.to_string() };
+                        let _ = write!(b, "<td class=\"num\">{text}</td>");
+                    }
+                    Some(serde_json::Value::String(t)) => {
+                        let _ = write!(b, "<td>{}</td>", xml(t));
+                    }
+                    Some(v) if !v.is_null() => {
+                        let _ = write!(b, "<td>{}</td>", xml(&v.to_string()));
+                    }
+                    _ => b.push_str("<td></td>"),
+                }
+            }
+            b.push_str("</tr>\n");
+        }
+        b.push_str("</table></div>\n");
+    }
+    Ok(())
+}
+
+/// Writes `dir/index.html` (and its `style.css`): a page of what the folder holds, made by
+/// `command` (as the user would type it). `arbor demo` ends with this.
+pub fn write_folder_page(
+    dir: &Path,
+    title: &str,
+    about: &str,
+    command: &str,
+) -> anyhow::Result<()> {
+    let prov = Provenance::gather();
+    let mut b = String::new();
+    let _ = writeln!(
+        b,
+        "<p class=\"prov\">Command: <code>{}</code>.</p>",
+        xml(command)
+    );
+    folder_html(&mut b, &mut Tally::default(), dir, "", &[])?;
+    write_atomic(&dir.join("style.css"), STYLE)?;
+    write_atomic(
+        &dir.join("index.html"),
+        &page_html(title, about, &b, &prov, None),
+    )
 }
 
 /// `arbor` and the subcommand words of a step's command line.
@@ -1005,9 +1122,8 @@ fn markdown(text: &str, rel: &str, dir: &Path, images: &mut Vec<PathBuf>) -> Str
             if p.is_file() && !src.contains("..") {
                 let _ = writeln!(
                     out,
-                    "<figure><img src=\"{}/{}\" alt=\"{}\"><figcaption>{}</figcaption></figure>",
-                    xml(rel),
-                    xml(src),
+                    "<figure><img src=\"{}\" alt=\"{}\"><figcaption>{}</figcaption></figure>",
+                    href(rel, src),
                     xml(alt),
                     xml(alt)
                 );
