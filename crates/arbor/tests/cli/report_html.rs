@@ -63,6 +63,13 @@ fn chromium_cmd(bin: &str) -> Command {
     c
 }
 
+/// Says why a check was skipped, on the real stderr (the test harness captures
+/// `eprintln!` of passing tests, and a skip must not pass silently).
+fn skip(why: &str) {
+    use std::io::Write as _;
+    let _ = writeln!(std::io::stderr(), "{why}");
+}
+
 /// A script for the test's copy of a page (the site has none): it records resource load
 /// failures and console errors, and after the load the images that did not decode, into
 /// an attribute that `--dump-dom` shows.
@@ -205,10 +212,10 @@ fn quick_site_is_complete_self_contained_and_renders() {
     assert!(system.contains("Table VIII") && system.contains("fig7-primary.svg"));
 
     let Some(bin) = chromium() else {
-        eprintln!(
+        skip(
             "SKIPPED the rendering check of `arbor report html`: no headless Chromium found \
              (install Debian's `chromium`: `apt-get install -y chromium`, or run scripts/setup \
-             as root; or set ARBOR_CHROMIUM); links and images were checked without it"
+             as root; or set ARBOR_CHROMIUM); links and images were checked without it",
         );
         return;
     };
@@ -257,4 +264,26 @@ fn out_that_is_a_file_is_a_one_line_error() {
     let e = error(&["report", "html", "--quick", "--out", f.to_str().unwrap()]);
     assert!(e.contains("is a file, not a folder"), "{e}");
     assert_eq!(std::fs::read_to_string(&f).unwrap(), "x");
+}
+
+#[test]
+fn the_rendering_check_sees_broken_images_and_console_errors() {
+    let Some(bin) = chromium() else {
+        skip(
+            "SKIPPED the check of the rendering check: no headless Chromium found (install \
+             Debian's `chromium`, or set ARBOR_CHROMIUM)",
+        );
+        return;
+    };
+    let dir = tempfile::tempdir().unwrap();
+    std::fs::write(
+        dir.path().join("bad.html"),
+        "<!DOCTYPE html>\n<html><head><title>x</title></head><body><img src=\"gone.png\">\
+         <script>console.error('boom')</script></body></html>\n",
+    )
+    .unwrap();
+    let (broken, errors) = render_check(&bin, dir.path(), "bad.html");
+    assert_eq!(broken, vec!["gone.png".to_string()]);
+    assert!(errors.iter().any(|e| e.contains("boom")), "{errors:?}");
+    assert!(errors.iter().any(|e| e.contains("gone.png")), "{errors:?}");
 }
