@@ -40,16 +40,16 @@ enum Tolerance {
 
 impl Tolerance {
     /// The difference as text and how it stands: 0 within the tolerance, 1 within twice
-    /// it, 2 beyond.
-    fn judge(self, ours: f64, thesis: f64) -> (String, u8) {
+    /// it, 2 beyond; `None` where a relative difference is undefined (the thesis's value
+    /// is 0 and ours is not).
+    fn judge(self, ours: f64, thesis: f64) -> (String, Option<u8>) {
         let (d, t, text) = match self {
+            Tolerance::Relative(_) if thesis == 0.0 && ours != 0.0 => {
+                return ("undefined (thesis 0)".to_string(), None);
+            }
             Tolerance::Relative(t) => {
                 let d = if thesis == 0.0 {
-                    if ours == 0.0 {
-                        0.0
-                    } else {
-                        f64::INFINITY
-                    }
+                    0.0
                 } else {
                     (ours / thesis - 1.0) * 100.0
                 };
@@ -67,7 +67,7 @@ impl Tolerance {
         } else {
             2
         };
-        (text, grade)
+        (text, Some(grade))
     }
 
     fn describe(self) -> String {
@@ -953,8 +953,10 @@ fn compare_html(b: &mut String, tally: &mut Tally, csv: &Path, c: &Compare) -> a
             match (num(&row, o), num(&row, t)) {
                 (Some(ours), Some(thesis)) => {
                     let (d, grade) = c.tolerance.judge(ours, thesis);
-                    tally.0[grade as usize] += 1;
-                    let class = ["ok", "near", "off"][grade as usize];
+                    if let Some(g) = grade {
+                        tally.0[g as usize] += 1;
+                    }
+                    let class = grade.map_or("", |g| ["ok", "near", "off"][g as usize]);
                     let _ = write!(
                         rows,
                         "<td class=\"num\">{}</td><td class=\"num\">{}</td><td class=\"num {class}\">{d}</td>",
@@ -1207,13 +1209,18 @@ mod tests {
     #[test]
     fn tolerance_grades() {
         let t = Tolerance::Relative(25.0);
-        assert_eq!(t.judge(1.1, 1.0), ("+10.0%".to_string(), 0));
-        assert_eq!(t.judge(1.4, 1.0).1, 1);
-        assert_eq!(t.judge(0.4, 1.0).1, 2);
-        assert_eq!(t.judge(1.0, 0.0).1, 2);
+        assert_eq!(t.judge(1.1, 1.0), ("+10.0%".to_string(), Some(0)));
+        assert_eq!(t.judge(1.4, 1.0).1, Some(1));
+        assert_eq!(t.judge(0.4, 1.0).1, Some(2));
+        // Against a thesis value of 0 a relative difference is undefined, not graded.
+        assert_eq!(
+            t.judge(1.0, 0.0),
+            ("undefined (thesis 0)".to_string(), None)
+        );
+        assert_eq!(t.judge(0.0, 0.0).1, Some(0));
         let p = Tolerance::Points(8.0);
-        assert_eq!(p.judge(0.73, 0.71), ("+2.0 pp".to_string(), 0));
-        assert_eq!(p.judge(0.5, 0.32).1, 2);
+        assert_eq!(p.judge(0.73, 0.71), ("+2.0 pp".to_string(), Some(0)));
+        assert_eq!(p.judge(0.5, 0.32).1, Some(2));
     }
 
     #[test]
