@@ -515,6 +515,7 @@ fn run_arbor(args: &[String]) -> anyhow::Result<()> {
     cli.run(&Ui {
         quiet: true,
         json: None,
+        silent: true,
     })
 }
 

@@ -229,12 +229,12 @@ pub fn run(a: &ReportRtunitArgs, ui: &Ui) -> anyhow::Result<sim::rtunit::report:
     }
     write_file(&a.out, "report.md", &report)?;
     if !a.quiet {
-        println!("{md}");
-        println!("{t1}");
+        crate::say!(ui, "{md}");
+        crate::say!(ui, "{t1}");
         if !checks.is_empty() {
-            println!("{sampling}");
+            crate::say!(ui, "{sampling}");
         }
-        println!("wrote {}", a.out.join("report.md").display());
+        crate::say!(ui, "wrote {}", a.out.join("report.md").display());
     }
     Ok(table)
 }

@@ -136,7 +136,13 @@ fn quick_site_is_complete_self_contained_and_renders() {
         "{}",
         String::from_utf8_lossy(&out.stderr)
     );
-    // Progress on stderr, one line per step, and the closing line.
+    // The reports' own text is not printed (the pages show it); progress on stderr, one
+    // line per step, and the closing line.
+    assert!(
+        out.stdout.is_empty(),
+        "{}",
+        String::from_utf8_lossy(&out.stdout)
+    );
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
         err.contains("report html: [1/8] arbor bench build"),
