@@ -109,9 +109,9 @@ struct Page {
 }
 
 /// The tally of a page's comparisons: values within, near (within twice) and beyond
-/// tolerance.
+/// tolerance; and the page's commands that failed.
 #[derive(Clone, Copy, Default)]
-struct Tally([usize; 3]);
+struct Tally([usize; 3], usize);
 
 fn strings(a: &[&str]) -> Vec<String> {
     a.iter().map(|s| s.to_string()).collect()
@@ -537,6 +537,7 @@ pub fn run(a: &ReportHtmlArgs, ui: &Ui) -> anyhow::Result<()> {
     let start = Instant::now();
     let mut done = 0;
     let mut summaries = Vec::new();
+    let mut failed = Vec::new();
     for page in &pages {
         let mut body = String::new();
         let mut tally = Tally::default();
@@ -556,9 +557,27 @@ pub fn run(a: &ReportHtmlArgs, ui: &Ui) -> anyhow::Result<()> {
                 eprintln!("report html: [{done}/{total}] {shown}");
             }
             let t = Instant::now();
-            run_arbor(&args).with_context(|| format!("{} (for {})", shown, page.file))?;
-            let secs = t.elapsed().as_secs_f64();
-            step_html(&mut body, &mut tally, &a.out, step, &shown, secs)?;
+            // A command that fails is shown failed on its page; the others still run.
+            match run_arbor(&args) {
+                Ok(()) => {
+                    let secs = t.elapsed().as_secs_f64();
+                    step_html(&mut body, &mut tally, &a.out, step, &shown, secs)?;
+                }
+                Err(e) => {
+                    let why = crate::one_line(&e);
+                    ui.warn(&format!("{shown} failed: {why}"));
+                    let _ = writeln!(
+                        body,
+                        "<h2>{}</h2>\n<p class=\"prov\">Command: <code>{}</code></p>\n\
+                         <p class=\"off\">This command failed: {}</p>",
+                        xml(&step_title(&step.args)),
+                        xml(&shown),
+                        xml(&why)
+                    );
+                    failed.push(shown);
+                    tally.1 += 1;
+                }
+            }
         }
         let html = page_html(page.title, page.about, &body, &prov, Some(page.file));
         write_atomic(&a.out.join(page.file), &html)?;
@@ -575,6 +594,13 @@ pub fn run(a: &ReportHtmlArgs, ui: &Ui) -> anyhow::Result<()> {
             start.elapsed().as_secs_f64()
         );
     }
+    anyhow::ensure!(
+        failed.is_empty(),
+        "{} of {total} commands failed ({}); the site in {} shows which and why",
+        failed.len(),
+        failed.join("; "),
+        a.out.display()
+    );
     Ok(())
 }
 
@@ -644,7 +670,9 @@ fn index_html(pages: &[(&Page, Tally)], p: &Provenance, quick: bool) -> String {
     b += "<table>\n<tr><th>page</th><th>what</th><th>compared with the thesis: within / near / beyond tolerance</th></tr>\n";
     for (page, t) in pages {
         let [ok, near, off] = t.0;
-        let tally = if ok + near + off == 0 {
+        let tally = if t.1 > 0 {
+            format!("<span class=\"off\">{} command(s) failed</span>", t.1)
+        } else if ok + near + off == 0 {
             "no thesis values".to_string()
         } else {
             format!("{ok} / {near} / {off}")

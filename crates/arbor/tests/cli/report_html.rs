@@ -293,3 +293,34 @@ fn the_rendering_check_sees_broken_images_and_console_errors() {
     assert!(errors.iter().any(|e| e.contains("boom")), "{errors:?}");
     assert!(errors.iter().any(|e| e.contains("gone.png")), "{errors:?}");
 }
+
+#[test]
+fn a_failing_command_is_shown_on_its_page_and_the_others_still_run() {
+    // A scene folder whose Bunny is not a PLY file: the MergeTree page's command fails.
+    let dir = tempfile::tempdir().unwrap();
+    let scenes = dir.path().join("scenes");
+    std::fs::create_dir(&scenes).unwrap();
+    std::fs::write(scenes.join("bunny.ply"), "not a mesh\n").unwrap();
+    let site = dir.path().join("site");
+    let e = error(&[
+        "report",
+        "html",
+        "--quick",
+        "--quiet",
+        "--scene-dir",
+        scenes.to_str().unwrap(),
+        "--out",
+        site.to_str().unwrap(),
+    ]);
+    assert!(
+        e.contains("1 of 8 commands failed (arbor report mergetree"),
+        "{e}"
+    );
+    let page = std::fs::read_to_string(site.join("mergetree.html")).unwrap();
+    assert!(page.contains("This command failed: cannot open"), "{page}");
+    let index = std::fs::read_to_string(site.join("index.html")).unwrap();
+    assert!(index.contains("1 command(s) failed"), "{index}");
+    // The other pages were built.
+    let cbvh = std::fs::read_to_string(site.join("cbvh.html")).unwrap();
+    assert!(cbvh.contains("<td class=\"num ok\">"));
+}
