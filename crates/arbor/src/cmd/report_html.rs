@@ -507,13 +507,14 @@ fn shell_line(args: &[String]) -> String {
         .join(" ")
 }
 
-/// Runs `arbor ARGS` in this process, quietly.
-fn run_arbor(args: &[String]) -> anyhow::Result<()> {
+/// Runs `arbor ARGS` in this process without printing its text results (its progress
+/// bars and warnings unless `quiet`).
+fn run_arbor(args: &[String], quiet: bool) -> anyhow::Result<()> {
     let argv = std::iter::once("arbor".to_string()).chain(args.iter().cloned());
     let cli =
         crate::Cli::try_parse_from(argv).map_err(|e| anyhow::anyhow!(crate::arg_error_line(&e)))?;
     cli.run(&Ui {
-        quiet: true,
+        quiet,
         json: None,
         silent: true,
     })
@@ -545,7 +546,7 @@ pub fn run(a: &ReportHtmlArgs, ui: &Ui) -> anyhow::Result<()> {
             done += 1;
             let dir = a.out.join(step.dir);
             let mut args = step.args.clone();
-            args.extend(["--quiet".to_string(), "--out".into()]);
+            args.push("--out".into());
             args.push(dir.display().to_string());
             // The command as the page shows it: the output folder relative to the site.
             let mut shown = args.clone();
@@ -558,7 +559,7 @@ pub fn run(a: &ReportHtmlArgs, ui: &Ui) -> anyhow::Result<()> {
             }
             let t = Instant::now();
             // A command that fails is shown failed on its page; the others still run.
-            match run_arbor(&args) {
+            match run_arbor(&args, ui.quiet) {
                 Ok(()) => {
                     let secs = t.elapsed().as_secs_f64();
                     step_html(&mut body, &mut tally, &a.out, step, &shown, secs)?;
