@@ -77,6 +77,7 @@ impl Cli {
         let ui = progress::Ui {
             quiet: ui.quiet || self.quiet,
             json: ui.json.clone(),
+            silent: ui.silent,
         };
         let ui = &ui;
         match self.command {
@@ -162,6 +163,7 @@ pub fn run_capture<S: AsRef<str>>(args: &[S]) -> Result<Vec<serde_json::Value>, 
     let ui = progress::Ui {
         quiet: true,
         json: Some(sink.clone()),
+        silent: false,
     };
     cli.run(&ui).map_err(|e| one_line(&e))?;
     let docs = std::mem::take(&mut *sink.lock().unwrap_or_else(|p| p.into_inner()));

@@ -26,6 +26,7 @@ fn main() -> ExitCode {
     let ui = arbor::progress::Ui {
         quiet: false,
         json: None,
+        silent: false,
     };
     match cli.run(&ui) {
         Ok(()) => ExitCode::SUCCESS,

@@ -17,6 +17,19 @@ pub struct Ui {
     pub quiet: bool,
     /// Collect `--json` documents here instead of printing them (None: print to stdout).
     pub json: Option<JsonSink>,
+    /// Print no result text on stdout (the caller reads the files the command writes;
+    /// `arbor report html` runs the reports so). See [`say!`](crate::say).
+    pub silent: bool,
+}
+
+/// `println!` unless `ui.silent`: the text results of the demo and the reports.
+#[macro_export]
+macro_rules! say {
+    ($ui:expr, $($arg:tt)*) => {
+        if !$ui.silent {
+            println!($($arg)*);
+        }
+    };
 }
 
 impl Ui {

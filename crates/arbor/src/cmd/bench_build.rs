@@ -644,11 +644,13 @@ pub fn run(args: &BenchBuildArgs, ui: &Ui) -> anyhow::Result<()> {
             super::report::write_atomic(&dir.join(name), &body)?;
         }
     }
-    match format {
-        Format::Json => print!("{json}"),
-        Format::Csv => print!("{}", csv(&doc)),
-        Format::Markdown => print!("{}", markdown(&doc)),
-        Format::Text => print!("{}", text(&doc)),
+    if !ui.silent {
+        match format {
+            Format::Json => print!("{json}"),
+            Format::Csv => print!("{}", csv(&doc)),
+            Format::Markdown => print!("{}", markdown(&doc)),
+            Format::Text => print!("{}", text(&doc)),
+        }
     }
     Ok(())
 }

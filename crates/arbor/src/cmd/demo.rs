@@ -59,7 +59,7 @@ pub struct DemoArgs {
     #[arg(long, value_name = "SCENE")]
     scene: Option<String>,
     /// Folder for the demo's outputs (created if missing; only files named by the demo are
-    /// written there).
+    /// written there, `index.html` and `style.css` among them).
     #[arg(long, value_name = "DIR", default_value = "arbor-out/demo")]
     out: PathBuf,
     /// Frames to walk (default: all of them, at most 600).
@@ -223,10 +223,11 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
         fps: None,
         animation: None,
     };
-    println!("Arbor demo");
+    crate::say!(ui, "Arbor demo");
     let (scene, open) = open_scene(&sargs, ui)?;
     let info = gather(ui, &spec, scene.as_ref(), open, None, Some(0))?;
-    println!(
+    crate::say!(
+        ui,
         "  scene      {} ({}): {} triangles, {} frames over {:.2} s, topology {}",
         info.name,
         info.format,
@@ -239,7 +240,7 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
             "changing"
         }
     );
-    println!("  opened in  {:.1} ms", info.open_ms);
+    crate::say!(ui, "  opened in  {:.1} ms", info.open_ms);
 
     // Step 1: walk the animation.
     let timeline = scene.info().timeline;
@@ -274,7 +275,7 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
         .iter()
         .map(|r| ((glam_vec(r.min) + glam_vec(r.max)) * 0.5 - c0).length())
         .fold(0.0f32, f32::max);
-    println!(
+    crate::say!(ui,
         "  animation  {n} frames sampled in {walk_ms:.1} ms ({:.2} ms/frame); bounds centre travels up to {travel:.3}",
         walk_ms / n as f64
     );
@@ -285,14 +286,17 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
     let refits = if scene.info().stable_topology {
         refit_step(ui, scene.as_ref(), n)?
     } else {
-        println!("  refit      skipped: the scene's topology changes over time");
+        crate::say!(
+            ui,
+            "  refit      skipped: the scene's topology changes over time"
+        );
         Vec::new()
     };
 
     // Step 4: the MergeTree hardware model on the three memory systems.
     let mergetree = mergetree_step(ui, scene.as_ref(), &args.out)?;
     // Step 5: compressed BVHs, top-down vs streaming bottom-up.
-    let cbvh = cbvh_step(scene.as_ref(), n)?;
+    let cbvh = cbvh_step(ui, scene.as_ref(), n)?;
     // Step 6: ray tracing through both tree formats.
     let renders = render_step(ui, scene.as_ref(), n, &args.out)?;
     // Step 7: the ray-tracing accelerator model with each tree.
@@ -314,7 +318,28 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
         accelerator,
     };
     write_outputs(&args.out, &summary)?;
-    println!("  outputs    {}", args.out.display());
+    let mut command = String::from("arbor demo");
+    if let Some(s) = &args.scene {
+        command += &format!(" --scene '{s}'");
+    }
+    if let Some(f) = args.frames {
+        command += &format!(" --frames {f}");
+    }
+    command += &format!(" --out '{}'", args.out.display());
+    super::report_html::write_folder_page(
+        &args.out,
+        &format!("arbor demo: {}", summary.info.name),
+        "The demo's results: every builder at a few frames, refit against rebuild, the \
+         MergeTree model on three memory systems, CBVH traffic, renders through binary and \
+         4-wide trees with the heatmap, and the accelerator model. `arbor report html` \
+         builds the site of every report.",
+        &command,
+    )?;
+    crate::say!(
+        ui,
+        "  outputs    {} (open index.html there)",
+        args.out.display()
+    );
     if let Some(bad) = summary.mergetree.iter().find(|m| !m.tree_matches_software) {
         anyhow::bail!(
             "the MergeTree model's tree differs from the software HLBVH tree on {}",
@@ -358,7 +383,10 @@ fn build_step(ui: &Ui, scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<B
     frames.dedup();
     let cfg = BuildConfig::default();
     let mut rows = Vec::new();
-    println!("  builds     frame  builder         build ms  SAH vs sweep  valid");
+    crate::say!(
+        ui,
+        "  builds     frame  builder         build ms  SAH vs sweep  valid"
+    );
     for &f in &frames {
         let t = timeline.time_of_frame(f);
         let mesh = scene.mesh_at(t).with_context(|| format!("frame {f}"))?;
@@ -378,7 +406,8 @@ fn build_step(ui: &Ui, scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<B
             .context("the sweep-sah builder is missing")?;
         for (name, sah, build_ms, valid) in built {
             let ratio = bvh::sah_ratio(sah, sweep);
-            println!(
+            crate::say!(
+                ui,
                 "             {f:>5}  {name:<14} {build_ms:>9.2}  {ratio:>12.3}  {}",
                 if valid { "yes" } else { "NO" }
             );
@@ -416,7 +445,8 @@ fn refit_step(ui: &Ui, scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<R
     drop(mesh0);
     let (mut tree, _) = timed_build(ui, REFIT_BUILDER, build, &cfg, &aabbs0)?;
     let mut tracker = bvh::RefitTracker::with_default_threshold(tree.normalized_sah());
-    println!(
+    crate::say!(
+        ui,
         "  refit      frame  refit ms  rebuild ms  refit SAH / rebuild SAH  vs build  rebuild?"
     );
     let mut rows = Vec::new();
@@ -443,7 +473,8 @@ fn refit_step(ui: &Ui, scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<R
             ratio_to_build: rec.ratio,
             rebuild_advised: rec.rebuild_advised,
         };
-        println!(
+        crate::say!(
+            ui,
             "             {f:>5}  {:>8.2}  {:>10.2}  {:>23.3}  {:>8.3}  {}",
             row.refit_ms,
             row.rebuild_ms,
@@ -475,7 +506,7 @@ fn mergetree_step(
         trace_window_cycles: 250,
         ..sim::mergetree::MergeTreeConfig::p2()
     };
-    println!("  mergetree  memory             cycles        ms   read MB  written MB  bus util  same tree");
+    crate::say!(ui, "  mergetree  memory             cycles        ms   read MB  written MB  bus util  same tree");
     let mut rows = Vec::new();
     for dram in MERGETREE_DRAMS {
         let (r, _) = super::sim_mergetree::simulate(ui, &aabbs, &cfg, dram)?;
@@ -483,7 +514,8 @@ fn mergetree_step(
         let svg = out.join(format!("mergetree-{dram}.svg"));
         let title = format!("MergeTree p2, {dram}: frame 0, {} triangles", r.triangles);
         super::report::write_atomic(&svg, &r.trace_svg(&title))?;
-        println!(
+        crate::say!(
+            ui,
             "             {dram:<17} {:>10} {:>9.4} {:>9.3} {:>11.3} {:>8.1}%  {}",
             thousands(r.cycles),
             r.ms,
@@ -510,7 +542,7 @@ fn mergetree_step(
 
 /// \[P3\] on the demo scene: at a few frames, LBVH traffic with top-down compression
 /// against streaming bottom-up compression, and the frame-0 CBVH refitted in a stream.
-fn cbvh_step(scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<CbvhRow>> {
+fn cbvh_step(ui: &Ui, scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<CbvhRow>> {
     use super::build::mesh_aabbs;
     use cbvh::bottomup::{compress_hlbvh, StreamConfig};
     use cbvh::traffic::{self, Counts};
@@ -531,7 +563,7 @@ fn cbvh_step(scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<CbvhRow>> {
     let stable = scene.info().stable_topology;
     let mut base: Option<cbvh::Cbvh> = None;
     let mut rows = Vec::new();
-    println!("  cbvh       frame  LBVH MB: top-down  bottom-up (plain)  backtracks (plain)  refit MB: top-down  bottom-up");
+    crate::say!(ui, "  cbvh       frame  LBVH MB: top-down  bottom-up (plain)  backtracks (plain)  refit MB: top-down  bottom-up");
     for &f in &frames {
         let t = timeline.time_of_frame(f);
         let mesh = scene.mesh_at(t).with_context(|| format!("frame {f}"))?;
@@ -580,7 +612,8 @@ fn cbvh_step(scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<CbvhRow>> {
         };
         let mb = |b: u64| b as f64 / 1e6;
         let opt = |b: Option<u64>| b.map_or("-".to_string(), |b| format!("{:.3}", mb(b)));
-        println!(
+        crate::say!(
+            ui,
             "             {f:>5}  {:>17.3}  {:>8.3} ({:.3})  {:>8} ({})  {:>18}  {:>9}",
             mb(row.lbvh_topdown_bytes),
             mb(row.lbvh_bottomup_bytes),
@@ -620,7 +653,8 @@ fn accelerator_step(ui: &Ui, scene: &dyn scene::Scene) -> anyhow::Result<Vec<Acc
     let tris: Vec<geom::Triangle> = mesh.triangles_iter().collect();
     let (w, h) = DEMO_ACCELERATOR_SIZE;
     let camera = trace::PinholeCamera::new(&scene.info().camera, w, h)?;
-    println!(
+    crate::say!(
+        ui,
         "  accel      tree   rays      Mrays/s   cycles     DRAM MB   mJ/frame  stack  same hits"
     );
     let mut rows = Vec::new();
@@ -658,7 +692,8 @@ fn accelerator_step(ui: &Ui, scene: &dyn scene::Scene) -> anyhow::Result<Vec<Acc
                 max_stack_depth: r.max_stack_depth,
                 hits_match_software: r.hits_match_software,
             };
-            println!(
+            crate::say!(
+                ui,
                 "  accel      {:<6} {:<9} {:>7.1} {:>10} {:>9.3} {:>9.3} {:>6}  {}",
                 row.tree,
                 row.rays,
@@ -693,7 +728,8 @@ fn render_step(
     if n > 2 {
         frames.push(n / 2);
     }
-    println!(
+    crate::say!(
+        ui,
         "  render     frame  rays     format  Mrays/s  nodes/ray  boxes/ray  tris/ray  same image"
     );
     let mut rows = Vec::new();
@@ -769,7 +805,8 @@ fn render_step(
                     }
                 }
                 let st = &img.stats.total;
-                println!(
+                crate::say!(
+                    ui,
                     "             {f:>5}  {:<8} {:<6} {:>8.2} {:>10.2} {:>10.2} {:>9.2}  {}",
                     format!("{kind:?}").to_lowercase(),
                     accel.format_name(),

@@ -15,6 +15,7 @@ pub mod report_cbvh;
 pub mod report_cbvh_runtime;
 pub mod report_cbvh_trace;
 pub mod report_energy;
+pub mod report_html;
 pub mod report_mergetree;
 pub mod report_rtunit;
 pub mod report_sensitivity;

@@ -38,6 +38,9 @@ enum ReportKind {
     /// low, high and driving assumption of each figure of \[P2\] Tables III, IV, VI, VII
     /// and VIII and \[P4\] Tables 1 and 2.
     Sensitivity(super::report_sensitivity::ReportSensitivityArgs),
+    /// Every report above as one self-contained static HTML site (index and one page per
+    /// area), each reproduced table beside the thesis's numbers; `--quick` for small runs.
+    Html(super::report_html::ReportHtmlArgs),
 }
 
 /// Runs `arbor report`.
@@ -49,6 +52,7 @@ pub fn run(a: &ReportArgs, ui: &Ui) -> anyhow::Result<()> {
         ReportKind::Energy(r) => super::report_energy::run(r, ui),
         ReportKind::System(r) => super::report_system::run(r, ui),
         ReportKind::Sensitivity(r) => super::report_sensitivity::run(r, ui),
+        ReportKind::Html(r) => super::report_html::run(r, ui),
     }
 }
 

@@ -393,8 +393,8 @@ pub fn run(a: &ReportCbvhArgs, ui: &Ui) -> anyhow::Result<()> {
         write_bits(&a.out, &mut md, &runs)?;
     }
     write(&a.out, "report.md", &md)?;
-    println!("{md}");
-    println!("wrote {}", a.out.display());
+    crate::say!(ui, "{md}");
+    crate::say!(ui, "wrote {}", a.out.display());
     Ok(())
 }
 

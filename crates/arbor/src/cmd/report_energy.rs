@@ -129,10 +129,10 @@ pub fn run(a: &ReportEnergyArgs, ui: &Ui) -> anyhow::Result<()> {
     let json = serde_json::to_string_pretty(&doc)?;
     write_file(&a.out, "energy.json", &json)?;
     if a.json {
-        println!("{json}");
+        crate::say!(ui, "{json}");
     } else {
-        println!("{md}");
-        println!("wrote {}", a.out.join("report.md").display());
+        crate::say!(ui, "{md}");
+        crate::say!(ui, "wrote {}", a.out.join("report.md").display());
     }
     Ok(())
 }

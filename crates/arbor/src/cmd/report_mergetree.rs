@@ -287,8 +287,8 @@ pub fn run(a: &ReportMergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
     write_fig6(&a.out, &mut md, &results)?;
     write_file(&a.out, "report.md", &md)?;
     if !a.quiet {
-        println!("{md}");
-        println!("wrote {}", a.out.display());
+        crate::say!(ui, "{md}");
+        crate::say!(ui, "wrote {}", a.out.display());
     }
     Ok(())
 }

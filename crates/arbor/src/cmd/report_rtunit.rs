@@ -119,9 +119,22 @@ pub fn run(a: &ReportRtunitArgs, ui: &Ui) -> anyhow::Result<sim::rtunit::report:
     anyhow::ensure!(a.large_sample >= 1, "--large-sample must be at least 1");
     anyhow::ensure!(a.sample != Some(0), "--sample must be at least 1");
     let specs: Vec<(String, Option<&'static str>, String)> = match &a.scenes {
+        // A listed file that is one of the default scenes (same file name) keeps its
+        // thesis row; procedural specs never do (their sizes are the caller's).
         Some(list) => list
             .iter()
-            .map(|s| (s.clone(), None, String::new()))
+            .map(|s| {
+                let thesis = DEFAULT_SCENES
+                    .iter()
+                    .find(|d| {
+                        !d.0.starts_with("proc:")
+                            && !s.starts_with("proc:")
+                            && std::path::Path::new(s).file_name()
+                                == Some(std::ffi::OsStr::new(d.0))
+                    })
+                    .and_then(|d| d.1);
+                (s.clone(), thesis, String::new())
+            })
             .collect(),
         None => DEFAULT_SCENES
             .iter()
@@ -216,12 +229,12 @@ pub fn run(a: &ReportRtunitArgs, ui: &Ui) -> anyhow::Result<sim::rtunit::report:
     }
     write_file(&a.out, "report.md", &report)?;
     if !a.quiet {
-        println!("{md}");
-        println!("{t1}");
+        crate::say!(ui, "{md}");
+        crate::say!(ui, "{t1}");
         if !checks.is_empty() {
-            println!("{sampling}");
+            crate::say!(ui, "{sampling}");
         }
-        println!("wrote {}", a.out.join("report.md").display());
+        crate::say!(ui, "wrote {}", a.out.join("report.md").display());
     }
     Ok(table)
 }

@@ -92,7 +92,8 @@ pub fn run(a: &ReportSensitivityArgs, ui: &Ui) -> anyhow::Result<()> {
     let picked = chosen(a.only.as_deref())?;
     if a.list {
         for x in &picked {
-            println!(
+            crate::say!(
+                ui,
                 "{:<28} default {:<12} tried {:<12} {}",
                 x.key,
                 x.default,
@@ -211,8 +212,8 @@ pub fn run(a: &ReportSensitivityArgs, ui: &Ui) -> anyhow::Result<()> {
     if a.json {
         ui.emit_json(&rep)?;
     } else {
-        println!("{}", rep.markdown());
-        println!("wrote {}", a.out.join("sensitivity.md").display());
+        crate::say!(ui, "{}", rep.markdown());
+        crate::say!(ui, "wrote {}", a.out.join("sensitivity.md").display());
     }
     Ok(())
 }

@@ -180,11 +180,11 @@ pub fn run(a: &ReportSystemArgs, ui: &Ui) -> anyhow::Result<()> {
     if a.json {
         ui.emit_json(&rep)?;
     } else {
-        println!("{}", rep.table8_markdown());
+        crate::say!(ui, "{}", rep.table8_markdown());
         if !rep.animation.is_empty() {
-            println!("{}", rep.animation_markdown());
+            crate::say!(ui, "{}", rep.animation_markdown());
         }
-        println!("wrote {}", a.out.join("report.md").display());
+        crate::say!(ui, "wrote {}", a.out.join("report.md").display());
     }
     Ok(())
 }

@@ -1,10 +1,7 @@
 //! Integration tests of `arbor sim rtunit` and `arbor report rtunit`: the documented JSON
 //! fields, the software check, FIFO sizing, sampling, and one-line errors for bad options.
 
-#[allow(dead_code)]
-mod common;
-
-use common::{arbor, error, json_of};
+use crate::common::{arbor, error, json_of};
 use serde_json::Value;
 
 const CITY: &str = "proc:city?n=3000&seed=2";

@@ -1,7 +1,6 @@
 //! The command line itself: every subcommand's `--help` page, and argument errors.
 
-mod common;
-use common::{arbor, error};
+use crate::common::{arbor, error};
 
 /// Every subcommand's path (`["sim", "rtunit"]`), parents before children.
 fn paths(cmd: &clap::Command, prefix: &[String], out: &mut Vec<Vec<String>>) {
@@ -105,13 +104,13 @@ fn times_out_of_range_are_errors() {
         e.contains("--time 1 is out of range: the scene is static"),
         "{e}"
     );
-    common::json("info", &[tri, "--time", "0"]);
+    crate::common::json("info", &[tri, "--time", "0"]);
     // The ends of the timeline are in range.
-    let info = common::json("info", &[cloth]);
+    let info = crate::common::json("info", &[cloth]);
     let d = info["duration_s"].as_f64().unwrap();
     assert!(d > 0.0);
-    common::json("info", &[cloth, "--time", &d.to_string()]);
-    common::json("info", &[cloth, "--time", "0"]);
+    crate::common::json("info", &[cloth, "--time", &d.to_string()]);
+    crate::common::json("info", &[cloth, "--time", "0"]);
 }
 
 /// Images, logs and statistics are ordinary files: mode 0644 under umask 022 (not the

@@ -1,10 +1,7 @@
 //! Integration tests of `arbor report system` and `arbor report energy`: the documented
 //! JSON document and files on small scenes, and one-line errors for bad options.
 
-#[allow(dead_code)]
-mod common;
-
-use common::{arbor, error, json_of};
+use crate::common::{arbor, error, json_of};
 use serde_json::Value;
 
 const HAIRBALL: &str = "proc:hairball?n=3000&seed=2";

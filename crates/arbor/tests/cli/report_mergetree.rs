@@ -1,10 +1,7 @@
 //! Integration tests of `arbor report mergetree`: the files, their rows and columns, the
 //! node-for-node check, the thesis columns on a shared scene, and bad arguments.
 
-// Uses only `arbor` of the shared helpers.
-#[allow(dead_code)]
-mod common;
-use common::arbor;
+use crate::common::arbor;
 
 /// Parses a CSV file with a header into rows of (column name -> cell).
 fn csv(path: &std::path::Path) -> Vec<std::collections::HashMap<String, String>> {

@@ -1,7 +1,6 @@
 //! Integration tests of `arbor cbvh` and `arbor report cbvh`.
 
-mod common;
-use common::{arbor, json};
+use crate::common::{arbor, json};
 
 #[test]
 fn cbvh_json_has_the_documented_fields_and_encloses() {

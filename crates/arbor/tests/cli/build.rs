@@ -1,9 +1,7 @@
 //! Integration tests of `arbor build`: every available builder on a procedural scene and the
 //! bundled glTF scene, tree files read back with `bvh::io`, and every bad-argument case.
 
-mod common;
-
-use common::arbor;
+use crate::common::arbor;
 use serde_json::Value;
 use std::path::Path;
 
@@ -29,7 +27,7 @@ const BUNDLED: &str = concat!(env!("CARGO_MANIFEST_DIR"), "/../../scenes/CesiumM
 
 /// Runs `arbor build --json --quiet ARGS` and parses its output, failing with stderr.
 fn build_json(args: &[&str]) -> Value {
-    common::json("build", args)
+    crate::common::json("build", args)
 }
 
 /// Runs `arbor build ARGS` expecting exit 1 with a one-line error; returns that line.

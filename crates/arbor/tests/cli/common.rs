@@ -12,7 +12,6 @@ pub fn arbor(args: &[&str]) -> Output {
 }
 
 /// Runs `arbor COMMAND --json --quiet ARGS` and parses its output, failing with stderr.
-#[allow(dead_code)] // not every test file uses it
 pub fn json(command: &str, args: &[&str]) -> Value {
     let mut a = vec![command, "--json", "--quiet"];
     a.extend_from_slice(args);
@@ -20,7 +19,6 @@ pub fn json(command: &str, args: &[&str]) -> Value {
 }
 
 /// Runs `arbor ARGS` (which ask for JSON) and parses its output, failing with stderr.
-#[allow(dead_code)]
 pub fn json_of(a: &[&str]) -> Value {
     let out = arbor(a);
     assert!(
@@ -33,7 +31,6 @@ pub fn json_of(a: &[&str]) -> Value {
 
 /// Runs `arbor ARGS` expecting exit status 1 with a one-line error on stderr and nothing on
 /// stdout; returns that line.
-#[allow(dead_code)]
 pub fn error(args: &[&str]) -> String {
     let out = arbor(args);
     assert_eq!(

@@ -3,9 +3,7 @@
 //! compressed one with several encoders), and
 //! every bad-argument case.
 
-mod common;
-
-use common::{arbor, error, json};
+use crate::common::{arbor, error, json};
 use serde_json::Value;
 
 const SCENE: &str = "proc:skinned?n=3000&seed=2";

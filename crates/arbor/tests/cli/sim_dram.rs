@@ -1,17 +1,15 @@
 //! Integration tests of `arbor sim dram`: the binary as a user runs it.
 
 // Not every shared helper is used here.
-#[allow(dead_code)]
-mod common;
 
-use common::arbor;
+use crate::common::arbor;
 use serde_json::Value;
 
 /// Runs `arbor sim dram --json --quiet ARGS` and parses its output.
 fn dram_json(args: &[&str]) -> Value {
     let mut a = vec!["sim", "dram", "--json", "--quiet"];
     a.extend_from_slice(args);
-    common::json_of(&a)
+    crate::common::json_of(&a)
 }
 
 #[test]

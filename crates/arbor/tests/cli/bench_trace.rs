@@ -2,9 +2,7 @@
 //! tracer on both ray sets and thread counts, Arbor's kernels agreeing exactly), the other
 //! output formats and `--out`, and bad arguments.
 
-mod common;
-
-use common::arbor;
+use crate::common::arbor;
 use serde_json::Value;
 
 const SOUP: &str = "proc:soup?n=3000";

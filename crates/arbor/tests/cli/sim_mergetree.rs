@@ -2,10 +2,8 @@
 //! merge passes with a small scratchpad, trace files, and bad arguments.
 
 // This file runs `arbor sim mergetree` itself (the `--json` flag follows the model name).
-#[allow(dead_code)]
-mod common;
 
-use common::arbor;
+use crate::common::arbor;
 use serde_json::Value;
 
 const CLOTH: &str = "proc:cloth?n=20000";
@@ -14,7 +12,7 @@ const CLOTH: &str = "proc:cloth?n=20000";
 fn sim_json(args: &[&str]) -> Value {
     let mut a = vec!["sim", "mergetree", "--json", "--quiet"];
     a.extend_from_slice(args);
-    common::json_of(&a)
+    crate::common::json_of(&a)
 }
 
 /// Runs `arbor sim mergetree ARGS` expecting failure; returns stderr.

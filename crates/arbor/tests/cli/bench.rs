@@ -1,9 +1,7 @@
 //! Integration tests of `arbor bench build`: the JSON document on a small soup with Arbor
 //! and peer builders, the other output formats, and bad arguments.
 
-mod common;
-
-use common::arbor;
+use crate::common::arbor;
 use serde_json::Value;
 
 const SOUP: &str = "proc:soup?n=3000";

@@ -1,14 +1,12 @@
 //! Integration tests of `arbor info` and `arbor demo`: the binary as a user runs it.
 
-mod common;
-
-use common::arbor;
+use crate::common::arbor;
 use serde_json::Value;
 use std::path::{Path, PathBuf};
 
 /// Runs `arbor info --json` and parses its output, failing with stderr on error.
 fn info_json(args: &[&str]) -> Value {
-    common::json("info", args)
+    crate::common::json("info", args)
 }
 
 /// Runs `arbor info` expecting failure; returns the single stderr line.
@@ -287,6 +285,19 @@ fn demo_runs_and_writes_its_outputs() {
     );
     let s = String::from_utf8_lossy(&out.stdout);
     assert!(s.contains("CesiumMan") && s.contains("4,672"), "{s}");
+    // The demo's own page: its renders, plots and tables, with the command that made it.
+    let page = std::fs::read_to_string(out_dir.join("index.html")).unwrap();
+    for want in [
+        "src=\"render-primary.png\"",
+        "src=\"heatmap-primary.png\"",
+        "src=\"mergetree-lpddr3-1600-1x64.svg\"",
+        "href=\"summary.json\"",
+        "Command: <code>arbor demo --frames 5 --out",
+        "<h3>Renders: primary and diffuse rays",
+    ] {
+        assert!(page.contains(want), "{want} not in the demo's page");
+    }
+    assert!(out_dir.join("style.css").is_file());
     let summary: Value =
         serde_json::from_slice(&std::fs::read(out_dir.join("summary.json")).unwrap()).unwrap();
     assert_eq!(summary["schema"], "arbor.demo.v1");
