@@ -105,7 +105,7 @@ class Mesh:
     def material_names(self) -> list[str]: ...
     @property
     def time(self) -> float:
-        """The time sampled, in seconds (after clamping)."""
+        """The time sampled, in seconds."""
     @property
     def bounds(self) -> _F32:
         """Bounds of the referenced vertices, float32 (2, 3): min row, max row (``+inf``
@@ -126,8 +126,9 @@ class Scene:
         """Opens ``spec``; ``fps`` numbers the frames of a frame sequence, ``animation``
         picks a glTF animation by index or name."""
     def mesh(self, time: float | None = None, frame: int | None = None) -> Mesh:
-        """The mesh at ``time`` seconds (clamped to the timeline) or of frame ``frame``;
-        time 0 when neither is given."""
+        """The mesh at ``time`` seconds or of frame ``frame``; time 0 when neither is
+        given. A time outside the timeline (0 to ``duration``) or a frame past the last
+        raises ``ArborError``, as ``--time`` / ``--frame`` do on the command line."""
     def time_of_frame(self, frame: int) -> float: ...
     @property
     def name(self) -> str: ...

@@ -208,31 +208,34 @@ pub struct Scene {
 }
 
 impl Scene {
-    /// The time `time` / `frame` select, checked like the command line's `--time` and
-    /// `--frame` (`arbor::cmd::resolve_time`), with the Python argument names.
+    /// The time `time` / `frame` select: the command line's `--time` / `--frame`
+    /// (`arbor::cmd::resolve_time`, the one place they are interpreted), with the Python
+    /// argument names in its errors. A time outside the timeline is an error, as there.
     fn resolve_time(&self, time: Option<f64>, frame: Option<i64>) -> PyResult<f32> {
-        let tl = self.inner.info().timeline;
-        match (time, frame) {
-            (Some(_), Some(_)) => Err(err("give time or frame, not both")),
-            (Some(t), None) => {
-                if !t.is_finite() {
-                    return Err(err(format!(
-                        "time must be a finite number of seconds, got {t}"
-                    )));
-                }
-                Ok(tl.clamp(t as f32))
-            }
-            (None, Some(f)) => {
-                let frames = tl.frame_count();
-                if f < 0 || f >= frames as i64 {
-                    return Err(err(format!(
-                        "frame {f} is out of range: the scene has {frames} frame(s)"
-                    )));
-                }
-                Ok(tl.time_of_frame(f as u32))
-            }
-            (None, None) => Ok(0.0),
+        if time.is_some() && frame.is_some() {
+            return Err(err("give time or frame, not both"));
         }
+        let frame = match frame {
+            Some(f) => Some(u32::try_from(f).map_err(|_| {
+                err(format!(
+                    "frame {f} is out of range: the scene has {} frame(s)",
+                    self.inner.info().timeline.frame_count()
+                ))
+            })?),
+            None => None,
+        };
+        if let Some(t) = time {
+            // An f64 beyond f32's range would become infinite, not out of range.
+            if t.is_finite() && t.abs() > f32::MAX as f64 {
+                return Err(err(format!("time {t} is out of range")));
+            }
+        }
+        arbor::cmd::resolve_time(self.inner.info(), time.map(|t| t as f32), frame).map_err(|e| {
+            err(e
+                .to_string()
+                .replace("--time", "time")
+                .replace("--frame", "frame"))
+        })
     }
 }
 
@@ -265,8 +268,8 @@ impl Scene {
         })
     }
 
-    /// The mesh at `time` seconds (clamped to the timeline) or of frame `frame`; time 0
-    /// when neither is given.
+    /// The mesh at `time` seconds or of frame `frame` (outside the timeline: an error);
+    /// time 0 when neither is given.
     #[pyo3(signature = (time = None, frame = None))]
     fn mesh(&self, py: Python<'_>, time: Option<f64>, frame: Option<i64>) -> PyResult<Mesh> {
         let t = self.resolve_time(time, frame)?;

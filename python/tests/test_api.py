@@ -121,12 +121,16 @@ def test_procedural_scene(scene: core.Scene, mesh: core.Mesh) -> None:
     assert mesh.time == pytest.approx(scene.time_of_frame(5))
     used = mesh.vertices[np.unique(mesh.indices)]
     np.testing.assert_array_equal(mesh.bounds, np.stack([used.min(0), used.max(0)]))
-    # Another frame: same triangles, moved vertices; times outside the span are clamped.
+    # Another frame: same triangles, moved vertices; times outside the span and frames
+    # past the last are errors, as on the command line.
     other = scene.mesh(time=1.0)
     np.testing.assert_array_equal(other.indices, mesh.indices)
     assert not np.array_equal(other.vertices, mesh.vertices)
     last = scene.mesh(frame=scene.frame_count - 1)
-    np.testing.assert_array_equal(scene.mesh(time=1e6).vertices, last.vertices)
+    np.testing.assert_array_equal(scene.mesh(time=scene.duration).vertices, last.vertices)
+    for bad in [{"time": 1e6}, {"time": -1.0}, {"time": 1e300}, {"frame": -1}]:
+        with pytest.raises(ArborError, match="out of range"):
+            scene.mesh(**bad)
 
 
 def test_bundled_gltf_scene() -> None:
