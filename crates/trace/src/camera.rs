@@ -4,7 +4,7 @@ use crate::TraceError;
 use geom::{Ray, Vec3};
 
 /// A pinhole camera for an image of `width x height` pixels, row 0 at the top.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct PinholeCamera {
     eye: Vec3,
     /// Direction through the image centre.
@@ -98,6 +98,23 @@ impl PinholeCamera {
         Ray::new(self.eye, dir)
     }
 
+    /// The same camera with its image plane's extent times `k` (`k` > 1 widens the field
+    /// of view: `tan(fov / 2)` scales by `k`), the eye, direction and image size kept.
+    /// Fails unless `k` is positive, finite and leaves the field of view below 180
+    /// degrees (any finite `k` does).
+    pub fn with_view_scale(&self, k: f32) -> Result<Self, TraceError> {
+        if !(k.is_finite() && k > 0.0) {
+            return Err(TraceError::Config(format!(
+                "view scale must be a positive number, got {k}"
+            )));
+        }
+        Ok(Self {
+            right: self.right * k,
+            down: self.down * k,
+            ..*self
+        })
+    }
+
     /// The ray through the centre of pixel `(px, py)`.
     pub fn pixel_ray(&self, px: u32, py: u32) -> Ray {
         self.ray_at(px as f32 + 0.5, py as f32 + 0.5)
@@ -107,6 +124,26 @@ impl PinholeCamera {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_view_scale_widens_the_field_of_view_about_the_centre() {
+        let cam = scene::Camera {
+            eye: Vec3::ZERO,
+            target: Vec3::new(0.0, 0.0, -1.0),
+            up: Vec3::Y,
+            vfov_deg: 90.0,
+        };
+        let c = PinholeCamera::new(&cam, 64, 32).unwrap();
+        let w = c.with_view_scale(2.0).unwrap();
+        // The centre ray is the same; the top edge's slope doubles (tan 45° = 1 -> 2).
+        assert_eq!(c.ray_at(32.0, 16.0).dir, w.ray_at(32.0, 16.0).dir);
+        let top = w.ray_at(32.0, 0.0).dir;
+        assert!((top.y / -top.z - 2.0).abs() < 1e-5, "{top:?}");
+        assert_eq!(c.with_view_scale(1.0).unwrap(), c);
+        for bad in [0.0, -1.0, f32::NAN, f32::INFINITY] {
+            assert!(c.with_view_scale(bad).is_err());
+        }
+    }
 
     fn cam() -> scene::Camera {
         scene::Camera {

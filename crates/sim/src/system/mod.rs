@@ -738,8 +738,7 @@ pub fn trace_energy_memo(
         cfg.bounces,
         cfg.seed,
         tree_fingerprint(&tree),
-        t.camera.width(),
-        t.camera.height(),
+        t.camera,
     );
     let r = memo.rt_run(&tag, &cfg.rt, || {
         let built = rtunit::tree_from(TreeKind::Bvh2, bvh::Tree::Bvh2(tree), t.triangles)?;

@@ -29,6 +29,10 @@ pub const SCHEMA: &str = "arbor.report.sensitivity.v1";
 /// configuration key.
 pub const SAMPLE_KEY: &str = "sample";
 
+/// The key of [`Assumption`] that widens or narrows every scene's camera
+/// (`trace::PinholeCamera::with_view_scale`): the viewpoint, which the thesis does not give.
+pub const VIEW_KEY: &str = "view_scale";
+
 /// One assumption and the values it is swept over.
 #[derive(Clone, Debug, Serialize)]
 pub struct Assumption {
@@ -161,6 +165,13 @@ pub fn assumptions() -> Vec<Assumption> {
             "Morton grid over the centroid bounds (thesis silent; docs/mergetree-vs-thesis.md)",
         ),
         a(
+            VIEW_KEY,
+            "1",
+            &["0.5", "1.5"],
+            "camera's image plane scaled (tan of half the field of view; 70° becomes 39° and \
+             93°): how much of the scene a frame sees (the thesis gives no viewpoints)",
+        ),
+        a(
             SAMPLE_KEY,
             "the scenes'",
             &["8", "64"],
@@ -264,12 +275,17 @@ pub struct P4Scene<'a> {
     pub sample: u32,
 }
 
+/// A variant of the study: assumption key, value, configuration, and the sampling rate
+/// and view scale it sets instead of the scenes' own.
+type Variation = (String, String, SystemConfig, Option<u32>, Option<f32>);
+
 /// Bounces of \[P4\] §3.2's diffuse paths.
 pub const P4_BOUNCES: u32 = 4;
 
 /// \[P4\] Table 2's changes for one variant: per ray kind, MBVH4 over BVH2 minus one.
 fn p4_figures(
     p4: &P4Scene<'_>,
+    camera: &trace::PinholeCamera,
     trees: &[rtunit::BuiltTree; 2],
     cfg: &RtConfig,
     sample: u32,
@@ -280,18 +296,11 @@ fn p4_figures(
     for rays in [RayMode::Primary, RayMode::Diffuse] {
         let mut runs = Vec::new();
         for tree in trees {
-            let tag = (
-                "p4",
-                tree.kind,
-                rays,
-                sample,
-                p4.camera.width(),
-                p4.camera.height(),
-            );
+            let tag = ("p4", tree.kind, rays, sample, camera);
             let r = memo.rt_run(&tag, cfg, || {
                 let work = Workload {
                     triangles: p4.triangles,
-                    camera: &p4.camera,
+                    camera,
                     rays,
                     bounces: P4_BOUNCES,
                     seed: 1,
@@ -547,8 +556,9 @@ pub fn run(
         dram: "lpddr3-1600-2x32".into(),
         ..RtConfig::default()
     };
-    let mut variants: Vec<(String, String, SystemConfig, Option<u32>)> =
-        vec![("default".into(), String::new(), base.clone(), None)];
+    // (key, value, config, sample override, view scale override)
+    let mut variants: Vec<Variation> =
+        vec![("default".into(), String::new(), base.clone(), None, None)];
     let mut p4_cfgs = vec![p4_base.clone()];
     for a in assumptions {
         for &v in &a.values {
@@ -559,11 +569,18 @@ pub fn run(
                     .ok()
                     .filter(|k| *k >= 1)
                     .ok_or_else(|| SystemError::Config(format!("bad sample '{v}'")))?;
-                variants.push((a.key.into(), v.into(), base.clone(), Some(k)));
+                variants.push((a.key.into(), v.into(), base.clone(), Some(k), None));
+            } else if a.key == VIEW_KEY {
+                let k: f32 = v
+                    .parse()
+                    .ok()
+                    .filter(|k: &f32| k.is_finite() && *k > 0.0)
+                    .ok_or_else(|| SystemError::Config(format!("bad view scale '{v}'")))?;
+                variants.push((a.key.into(), v.into(), base.clone(), None, Some(k)));
             } else {
                 let mut c = base.clone();
                 c.set(a.key, v)?;
-                variants.push((a.key.into(), v.into(), c, None));
+                variants.push((a.key.into(), v.into(), c, None, None));
                 // MergeTree's parameters do not touch the [P4] accelerator.
                 if !a.key.starts_with(super::MERGETREE_PREFIX) {
                     rt.set(a.key, v)
@@ -580,11 +597,18 @@ pub fn run(
         .map(|s| {
             let mut memo = SimMemo::default();
             let mut out = Vec::with_capacity(variants.len());
-            for (key, value, cfg, sample) in &variants {
+            for (key, value, cfg, sample, view) in &variants {
+                let camera = match view {
+                    Some(k) => s
+                        .camera
+                        .with_view_scale(*k)
+                        .map_err(|e| SystemError::Config(e.to_string()))?,
+                    None => s.camera,
+                };
                 let scene = SystemScene {
                     name: s.name.clone(),
                     triangles: s.triangles,
-                    camera: s.camera,
+                    camera,
                     sample: sample.unwrap_or(s.sample),
                 };
                 let label = if key == "default" {
@@ -628,9 +652,23 @@ pub fn run(
             rtunit::build_tree(TreeKind::Mbvh4, p4.triangles)?,
         ];
         let mut memo = SimMemo::default();
-        for (i, ((key, value, _, sample), rt)) in variants.iter().zip(&p4_cfgs).enumerate() {
+        for (i, ((key, value, _, sample, view), rt)) in variants.iter().zip(&p4_cfgs).enumerate() {
             progress(&format!("{key}={value}: [P4] {}", p4.name));
-            let f = p4_figures(p4, &trees, rt, sample.unwrap_or(p4.sample), &mut memo)?;
+            let camera = match view {
+                Some(k) => p4
+                    .camera
+                    .with_view_scale(*k)
+                    .map_err(|e| SystemError::Config(e.to_string()))?,
+                None => p4.camera,
+            };
+            let f = p4_figures(
+                p4,
+                &camera,
+                &trees,
+                rt,
+                sample.unwrap_or(p4.sample),
+                &mut memo,
+            )?;
             per_variant[i].extend(f);
         }
         simulated += memo.simulated;
@@ -993,6 +1031,17 @@ mod tests {
             "{fast:?}"
         );
         assert!(rep.variants[1].value == "rorabgbachco");
+        // A wider view: every trace again (the memo keys traces by their camera), no
+        // MergeTree run; the builds do not move, the traces do.
+        let rep = run(&scenes, None, &base, &only(&[VIEW_KEY]), |_| {}).unwrap();
+        assert_eq!(rep.simulated, default_runs.0 + 8);
+        let build = row(&rep, "VIII primary all hlbvh build");
+        let trace = row(&rep, "VIII primary all hlbvh trace");
+        assert!(
+            build.low == build.high && trace.low < trace.high,
+            "{trace:?}"
+        );
+        assert_eq!(trace.driver, VIEW_KEY);
     }
 
     #[test]
@@ -1012,6 +1061,8 @@ mod tests {
             ("mergetree.presort_slots", "-1"),
             ("mergetree.write_chunk_bytes", "4096"),
             ("address_mapping", "chchrabgbaco"),
+            (VIEW_KEY, "0"),
+            (VIEW_KEY, "wide"),
         ] {
             let a = Assumption {
                 key,
