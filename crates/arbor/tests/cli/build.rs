@@ -103,6 +103,11 @@ fn check_doc(j: &Value, scene: &str, builder: &str) {
     let ratio = j["sah_vs_sweep"].as_f64().unwrap();
     if builder == "sweep-sah" {
         assert_eq!(ratio, 1.0);
+    } else if builder == "mbvh4-topdown" {
+        // Its leaves are chosen for the 4-wide cost the ratio is computed with (binary
+        // sweep SAH's leaves are not), so it may come out a little below it: 0.988 on the
+        // bundled character.
+        assert!(ratio >= 0.95, "{scene} {builder}: {ratio}");
     } else {
         assert!(ratio >= 0.99, "{scene} {builder}: {ratio}");
     }
