@@ -201,14 +201,8 @@ pub fn accelerator_energy(
         bytes_mj: dynamic("DRAM"),
         time_mj: units.iter().map(|u| u.static_mj).sum(),
     };
-    let frame_mj_rel_se =
-        super::sampling::frame_energy_rel_se(&r.sampling_windows, r.sample, &drivers)
-            .unwrap_or(0.0);
-    let window_mj = super::sampling::window_energy(&r.sampling_windows, &drivers)
-        .into_iter()
-        .zip(&r.sampling_windows)
-        .map(|(e, w)| (w.pixels, e))
-        .collect();
+    let window_mj = super::sampling::window_energy(&r.sampling_windows, &drivers);
+    let frame_mj_rel_se = super::sampling::frame_energy_rel_se(&window_mj, r.sample).unwrap_or(0.0);
     Ok(AcceleratorEnergy {
         node,
         conventions: *conv,

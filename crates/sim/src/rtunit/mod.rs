@@ -667,6 +667,7 @@ pub(crate) fn run_with(
         windows: Vec::new(),
         counted_visits: 0,
         counted_tests: 0,
+        window_base: [0; 5],
         counted_rays: 0,
         counted_pixels: 0,
         overflow: None,

@@ -233,6 +233,8 @@ pub(crate) struct RtWorld<'a> {
     /// Node visits and triangle tests of counted rays.
     pub counted_visits: u64,
     pub counted_tests: u64,
+    /// The counted pixels, rays, bytes, visits and tests when the last window closed.
+    pub window_base: [u64; 5],
     /// Rays of counted paths retired.
     pub counted_rays: u64,
     /// Camera pixels of counted paths.
@@ -530,23 +532,23 @@ impl<'a> Unit<RtWorld<'a>> for Scheduler {
                 if self.counted_in_flight == 0 && !in_timed() {
                     w.window_rays += *rays;
                     w.window_cycles += now + 1 - *start;
-                    let before = w.windows.iter().fold([0; 5], |a, x| {
-                        [
-                            a[0] + x.pixels,
-                            a[1] + x.rays,
-                            a[2] + x.bytes,
-                            a[3] + x.visits,
-                            a[4] + x.tests,
-                        ]
-                    });
+                    // The timed work since the previous window closed.
+                    let totals = [
+                        w.counted_pixels,
+                        w.counted_rays,
+                        w.counted_bytes,
+                        w.counted_visits,
+                        w.counted_tests,
+                    ];
+                    let before = std::mem::replace(&mut w.window_base, totals);
                     w.windows.push(super::sampling::Window {
-                        pixels: w.counted_pixels - before[0],
-                        rays: w.counted_rays - before[1],
+                        pixels: totals[0] - before[0],
+                        rays: totals[1] - before[1],
                         window_rays: *rays,
                         cycles: now + 1 - *start,
-                        bytes: w.counted_bytes - before[2],
-                        visits: w.counted_visits - before[3],
-                        tests: w.counted_tests - before[4],
+                        bytes: totals[2] - before[2],
+                        visits: totals[3] - before[3],
+                        tests: totals[4] - before[4],
                     });
                     self.window = None;
                 }

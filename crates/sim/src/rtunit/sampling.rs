@@ -106,24 +106,23 @@ pub fn sampling_error(windows: &[Window], sample: u32) -> Option<SamplingError> 
     })
 }
 
-/// The relative standard error of a sampled run's frame energy, taking the energy as
-/// linear in what each window measured: `d`'s parts spread over the windows in proportion
-/// to their node visits, triangle tests, DRAM bytes and time (the window's cycles times
-/// its share of timed rays), then the ratio estimator of energy per pixel. `None` as for
-/// [`sampling_error`].
-pub fn frame_energy_rel_se(windows: &[Window], sample: u32, d: &EnergyDrivers) -> Option<f64> {
-    if sample <= 1 || windows.len() < 2 {
+/// The relative standard error of a sampled run's frame energy from its windows' energies
+/// `window_mj` (pixels, mJ; [`window_energy`]): the ratio estimator of energy per pixel.
+/// `None` as for [`sampling_error`].
+pub fn frame_energy_rel_se(window_mj: &[(u64, f64)], sample: u32) -> Option<f64> {
+    if sample <= 1 || window_mj.len() < 2 {
         return None;
     }
-    let e = window_energy(windows, d);
-    let pixels: Vec<f64> = windows.iter().map(|w| w.pixels as f64).collect();
+    let e: Vec<f64> = window_mj.iter().map(|w| w.1).collect();
+    let pixels: Vec<f64> = window_mj.iter().map(|w| w.0 as f64).collect();
     Some(ratio_rel_se(&e, &pixels, 1.0 / sample as f64).unwrap_or(0.0))
 }
 
-/// Each window's share of the run's energy `d`, in mJ: the parts spread over the windows
-/// in proportion to their node visits, triangle tests, DRAM bytes and time (the window's
-/// cycles times its share of timed rays).
-pub fn window_energy(windows: &[Window], d: &EnergyDrivers) -> Vec<f64> {
+/// Each window's pixels and share of the run's energy `d` in mJ, taking the energy as
+/// linear in what each window measured: `d`'s parts spread over the windows in proportion
+/// to their node visits, triangle tests, DRAM bytes and time (the window's cycles times
+/// its share of timed rays).
+pub fn window_energy(windows: &[Window], d: &EnergyDrivers) -> Vec<(u64, f64)> {
     let time = |w: &Window| w.cycles as f64 * w.rays as f64 / w.window_rays.max(1) as f64;
     let total = |g: &dyn Fn(&Window) -> f64| windows.iter().map(g).sum::<f64>().max(1e-300);
     let (v, t, b, c) = (
@@ -135,10 +134,11 @@ pub fn window_energy(windows: &[Window], d: &EnergyDrivers) -> Vec<f64> {
     windows
         .iter()
         .map(|w| {
-            d.visits_mj * w.visits as f64 / v
+            let e = d.visits_mj * w.visits as f64 / v
                 + d.tests_mj * w.tests as f64 / t
                 + d.bytes_mj * w.bytes as f64 / b
-                + d.time_mj * time(w) / c
+                + d.time_mj * time(w) / c;
+            (w.pixels, e)
         })
         .collect()
 }
@@ -245,7 +245,7 @@ mod tests {
         // Visits per pixel 1, 3, 2 (the first example of `ratio_rel_se_by_hand` scaled);
         // bytes and time per pixel constant.
         let ws = [w(10, 10, 100), w(10, 30, 100), w(10, 20, 100)];
-        let only = |d: EnergyDrivers| frame_energy_rel_se(&ws, 2, &d).unwrap();
+        let only = |d: EnergyDrivers| frame_energy_rel_se(&window_energy(&ws, &d), 2).unwrap();
         let by_hand = ratio_rel_se(&[1.0, 3.0, 2.0], &[1.0, 1.0, 1.0], 0.5).unwrap();
         let visits = only(EnergyDrivers {
             visits_mj: 5.0,
@@ -265,7 +265,10 @@ mod tests {
             ..Default::default()
         });
         assert!((half - by_hand / 2.0).abs() < 1e-12, "{half}");
-        assert_eq!(frame_energy_rel_se(&ws, 1, &EnergyDrivers::default()), None);
+        assert_eq!(
+            frame_energy_rel_se(&window_energy(&ws, &EnergyDrivers::default()), 1),
+            None
+        );
         // Two runs heavy on the same windows: their ratio has no error; one proportional
         // to pixels against one that is not has the latter's error.
         let a = [(10, 1.0), (10, 3.0), (10, 2.0)];
