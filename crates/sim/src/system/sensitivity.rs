@@ -4,8 +4,8 @@
 //! of a documented range, one at a time from the defaults, and for every reproduced figure
 //! the default, the lowest and highest value any variant gave, and the assumption that
 //! moves it most (`arbor report sensitivity`; `arbor.report.sensitivity.v1`). The figures:
-//! \[P2\] Tables III (MergeTree's build time on the three memory systems and its
-//! speed-ups), IV (its units' area and power on the fast system, largest scene), VI (its
+//! \[P2\] Tables III (MergeTree's build time on the three memory systems, its
+//! speed-ups, and the SAH of each builder's tree against a full sweep), IV (its units' area and power on the fast system, largest scene), VI (its
 //! traffic), VII (its mean traffic and power per system) and VIII (system energy), and
 //! \[P4\] Tables 1 (area and power per unit) and 2 (MBVH4's changes over BVH2).
 //!
@@ -454,6 +454,35 @@ fn mergetree_figures(
     Ok(f)
 }
 
+/// \[P2\] Table III's SAH columns: each builder's tree (the system study's: MergeTree's
+/// for the three MergeTree builds, the binned SAH builder's) as a fraction of the SAH of a
+/// full sweep SAH build of the same triangles (`sweeps`, per scene in `results`' order;
+/// \[P2\] §6.2: "SAH costs are normalized to a full SAH sweep"), beside Table III's
+/// percentages where it has the scene.
+fn sah_rows(results: &[SceneResult], sweeps: &[f64]) -> Vec<Figure> {
+    use crate::thesis::p2_scene;
+    // Table III's columns, in `P2Scene::sah_pct` order.
+    const COLUMNS: [super::Builder; 4] = [
+        super::Builder::Hlbvh,
+        super::Builder::HlbvhSah,
+        super::Builder::HlbvhAtrbvh,
+        super::Builder::BinnedSah,
+    ];
+    let mut v = Vec::new();
+    for (r, &sweep) in results.iter().zip(sweeps) {
+        let th = p2_scene(&r.scene);
+        for (i, b) in COLUMNS.into_iter().enumerate() {
+            v.push((
+                format!("III {} SAH {} vs sweep", r.scene, b.name()),
+                bvh::sah_ratio(r.build(b).sah, sweep),
+                th.map(|t| t.sah_pct[i] / 100.0),
+                "ratio",
+            ));
+        }
+    }
+    v
+}
+
 /// \[P2\] Tables III, VI, VII and IV from the scenes' [`MergeTreeFigures`], with the
 /// thesis's values where it has the scene (Tables III and VI) or the average (VII), and
 /// Table IV (Lion on the fast system) beside the largest scene.
@@ -591,10 +620,14 @@ pub fn run(
         }
     }
     // Scenes in parallel, each with its own memo over all the variants.
-    type PerScene = (Vec<(SceneResult, MergeTreeFigures)>, u64, u64);
+    type PerScene = (Vec<(SceneResult, MergeTreeFigures)>, u64, u64, f64);
     let per_scene: Vec<PerScene> = scenes
         .par_iter()
         .map(|s| {
+            progress(&format!("{}: sweep SAH reference", s.name));
+            let sweep = bvh::SweepSahBuilder::default()
+                .build(&bvh::triangle_aabbs(s.triangles))?
+                .sah();
             let mut memo = SimMemo::default();
             let mut out = Vec::with_capacity(variants.len());
             for (key, value, cfg, sample, view) in &variants {
@@ -623,13 +656,15 @@ pub fn run(
                 let m = mergetree_figures(&scene, cfg, &mut memo)?;
                 out.push((r, m));
             }
-            Ok((out, memo.simulated, memo.reused))
+            Ok((out, memo.simulated, memo.reused, sweep))
         })
         .collect::<Result<_, SystemError>>()?;
     let (mut simulated, mut reused) = (0, 0);
     let mut results: Vec<Vec<SceneResult>> = vec![Vec::new(); variants.len()];
     let mut mts: Vec<Vec<MergeTreeFigures>> = vec![Vec::new(); variants.len()];
-    for (out, sim, re) in per_scene {
+    let mut sweeps = Vec::with_capacity(per_scene.len());
+    for (out, sim, re, sweep) in per_scene {
+        sweeps.push(sweep);
         simulated += sim;
         reused += re;
         for (i, (r, m)) in out.into_iter().enumerate() {
@@ -642,6 +677,7 @@ pub fn run(
         .zip(&mts)
         .map(|(r, m)| {
             let mut f = figures(r);
+            f.extend(sah_rows(r, &sweeps));
             f.extend(mergetree_rows(m));
             f
         })
@@ -874,10 +910,29 @@ mod tests {
                 "{n}: {v} vs {wv}"
             );
         }
-        // Rows span the variants. Table VIII's: 2 ray kinds, 3 builders, 3 columns; [P2]
-        // MergeTree's: per scene 3 times, 2 speed-ups and the traffic (III, VI), 4 means
-        // per system (VII), Table IV's 4 units and total, area and power.
-        assert_eq!(rep.rows.len(), 2 * 3 * 3 + 6 + 3 * 4 + 5 * 2);
+        // Rows span the variants. Table VIII's: 2 ray kinds, 3 builders, 3 columns; Table
+        // III's SAH of 4 builders; [P2] MergeTree's: per scene 3 times, 2 speed-ups and
+        // the traffic (III, VI), 4 means per system (VII), Table IV's 4 units and total,
+        // area and power.
+        assert_eq!(rep.rows.len(), 2 * 3 * 3 + 4 + 6 + 3 * 4 + 5 * 2);
+        // The SAH rows are each builder's tree against a sweep SAH tree of the scene.
+        let sweep = bvh::SweepSahBuilder::default()
+            .build(&bvh::triangle_aabbs(&tris))
+            .unwrap()
+            .sah();
+        for b in super::super::Builder::ALL {
+            let r = rep
+                .rows
+                .iter()
+                .find(|r| r.figure == format!("III hairball SAH {} vs sweep", b.name()))
+                .unwrap();
+            let (e, _) = super::super::build_energy(b, &bvh::triangle_aabbs(&tris), &base).unwrap();
+            assert_eq!(r.default, e.sah / sweep, "{r:?}");
+            // No tree beats the sweep by much, and the MergeTree trees are worse than it.
+            assert!(r.default > 0.95 && r.default < 2.0, "{r:?}");
+            // The FPU energy and a cache latency do not change a tree.
+            assert_eq!((r.low, r.high), (r.default, r.default), "{r:?}");
+        }
         for (f, r) in rep.rows.iter().enumerate() {
             let vals: Vec<f64> = rep.variants.iter().map(|v| v.figures[f].1).collect();
             assert_eq!(r.default, vals[0]);
@@ -1020,6 +1075,12 @@ mod tests {
         )
         .unwrap();
         assert_eq!(rep.simulated, default_runs.0 + 5 + 6);
+        // The grid moves the MergeTree trees' SAH, not binned SAH's.
+        let hlbvh = row(&rep, "III hairball SAH hlbvh vs sweep");
+        let binned = row(&rep, "III hairball SAH binned-sah vs sweep");
+        assert!(hlbvh.high > hlbvh.low, "{hlbvh:?}");
+        assert_eq!(hlbvh.driver, "mergetree.morton_grid");
+        assert_eq!(binned.low, binned.high);
         // The address mapping: every MergeTree run and every trace again.
         let rep = run(&scenes, None, &base, &only(&["address_mapping"]), |_| {}).unwrap();
         assert_eq!(rep.simulated, 2 * default_runs.0);
