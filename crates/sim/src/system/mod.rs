@@ -11,7 +11,8 @@
 //! - `hlbvh`: the MergeTree cycle model (`mergetree`, preset `p2`, on the system's
 //!   memory) with its energy model (`mergetree::energy`);
 //! - `hlbvh+sah`: MergeTree with the toplevel binned SAH unit (`toplevel_sah`, cells of
-//!   `bvh::toplevel::default_threshold`), plus that unit's sweeps' floating-point work;
+//!   the top [`SystemConfig::toplevel_bits`] code bits), plus that unit's sweeps'
+//!   floating-point work;
 //! - `hlbvh+atrbvh`: MergeTree emitting the same cells, then a serial ATRBVH unit over
 //!   the cell roots (treelets of 8, two passes, \[P2\] §6.2): its floating-point
 //!   operations counted from Arbor's ATRBVH code ([`atrbvh_flops`], one per cycle at
@@ -80,6 +81,10 @@ impl Builder {
     }
 }
 
+/// The default of [`SystemConfig::toplevel_bits`]: the cell level of
+/// `bvh::toplevel::default_threshold`.
+pub const TOPLEVEL_BITS: u32 = 12;
+
 /// Errors of the system model.
 #[derive(Debug, thiserror::Error)]
 pub enum SystemError {
@@ -125,6 +130,12 @@ pub struct SystemConfig {
     pub bounces: u32,
     /// Sampling seed of the diffuse rays.
     pub seed: u64,
+    /// Top Morton code bits whose grid cells are the primitives of the toplevel builds
+    /// (`hlbvh+sah`, `hlbvh+atrbvh`): the emitter's `highlevel_threshold` is the code's bits
+    /// less these. The thesis gives the toplevel trees' size ("ca. 500–2,000 nodes",
+    /// \[P2\] §6.1), not the cell level; 12 bits (at most 4,096 cells) is Arbor's
+    /// (`bvh::toplevel::default_threshold`).
+    pub toplevel_bits: u32,
 }
 
 impl Default for SystemConfig {
@@ -149,6 +160,7 @@ impl Default for SystemConfig {
             binned: BinnedSahHwParams::default(),
             bounces: 3,
             seed: 1,
+            toplevel_bits: TOPLEVEL_BITS,
         }
     }
 }
@@ -179,6 +191,15 @@ impl SystemConfig {
                     .trim()
                     .parse()
                     .map_err(|_| bad("expected a non-negative integer"))?
+            }
+            "toplevel_bits" => {
+                let most = self.mergetree.morton_bits.saturating_sub(1);
+                self.toplevel_bits = value
+                    .trim()
+                    .parse()
+                    .ok()
+                    .filter(|b| (1..=most).contains(b))
+                    .ok_or_else(|| bad(&format!("expected 1 to {most}")))?
             }
             "dram" => return Err(bad("the memory system is set with --dram")),
             // What-if options of the memory controller, on every memory of the study.
@@ -562,8 +583,15 @@ fn mergetree_build_energy_memo(
 ) -> Result<(BuildEnergy, bvh::Bvh2), SystemError> {
     let mut mt = cfg.mergetree.clone();
     if builder != Builder::Hlbvh {
-        let bits = mergetree::software_builder(&mt).bits;
-        mt.highlevel_threshold = Some(bvh::toplevel::default_threshold(bits));
+        let code_bits = mt.morton_bits;
+        if cfg.toplevel_bits == 0 || cfg.toplevel_bits >= code_bits {
+            return Err(SystemError::Config(format!(
+                "toplevel_bits {} outside 1 to {}",
+                cfg.toplevel_bits,
+                code_bits - 1
+            )));
+        }
+        mt.highlevel_threshold = Some(code_bits - cfg.toplevel_bits);
         mt.toplevel_sah = builder == Builder::HlbvhSah;
     }
     let r = mergetree_run(aabbs, &mt, cfg, memo)?;

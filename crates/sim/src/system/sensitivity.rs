@@ -165,6 +165,14 @@ pub fn assumptions() -> Vec<Assumption> {
             "Morton grid over the centroid bounds (thesis silent; docs/mergetree-vs-thesis.md)",
         ),
         a(
+            "toplevel_bits",
+            "12",
+            &["9", "15"],
+            "top Morton bits whose cells the toplevel builds take as primitives (at most \
+             512, 4,096 or 32,768 cells; the thesis gives only the top trees' size, \
+             'ca. 500-2,000 nodes', [P2] §6.1)",
+        ),
+        a(
             VIEW_KEY,
             "1",
             &["0.5", "1.5"],
@@ -610,8 +618,9 @@ pub fn run(
                 let mut c = base.clone();
                 c.set(a.key, v)?;
                 variants.push((a.key.into(), v.into(), c, None, None));
-                // MergeTree's parameters do not touch the [P4] accelerator.
-                if !a.key.starts_with(super::MERGETREE_PREFIX) {
+                // MergeTree's parameters and the toplevel builds' cells do not touch
+                // the [P4] accelerator.
+                if !a.key.starts_with(super::MERGETREE_PREFIX) && a.key != "toplevel_bits" {
                     rt.set(a.key, v)
                         .map_err(|e| SystemError::Config(e.to_string()))?;
                 }
@@ -1081,6 +1090,20 @@ mod tests {
         assert!(hlbvh.high > hlbvh.low, "{hlbvh:?}");
         assert_eq!(hlbvh.driver, "mergetree.morton_grid");
         assert_eq!(binned.low, binned.high);
+        // The toplevel cells: the two toplevel builds' MergeTree runs (Table VIII's
+        // system only) and their traces again; plain HLBVH's tree and runs stay.
+        let rep = run(&scenes, None, &base, &only(&["toplevel_bits"]), |_| {}).unwrap();
+        assert_eq!(rep.variants[1].value, "9");
+        assert_eq!(rep.simulated, default_runs.0 + 2 + 4);
+        let plain = row(&rep, "III hairball SAH hlbvh vs sweep");
+        assert_eq!(plain.low, plain.high);
+        let sah = row(&rep, "III hairball SAH hlbvh+sah vs sweep");
+        assert!(sah.high > sah.low, "{sah:?}");
+        assert_eq!(sah.driver, "toplevel_bits");
+        let mut bad = base.clone();
+        assert!(bad.set("toplevel_bits", "30").is_err());
+        assert!(bad.set("toplevel_bits", "0").is_err());
+        assert!(bad.set("toplevel_bits", "15").is_ok());
         // The address mapping: every MergeTree run and every trace again.
         let rep = run(&scenes, None, &base, &only(&["address_mapping"]), |_| {}).unwrap();
         assert_eq!(rep.simulated, 2 * default_runs.0);
