@@ -55,7 +55,7 @@ pub struct BenchTraceArgs {
     #[arg(long, default_value_t = 360)]
     pub height: u32,
     /// Diffuse bounces of the incoherent ray set.
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 4, value_name = "N")]
     pub bounces: u32,
     /// Output format.
     #[arg(long, value_enum, default_value_t = Format::Text)]

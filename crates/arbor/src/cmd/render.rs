@@ -158,7 +158,7 @@ pub struct RenderArgs {
     #[arg(long, value_name = "X,Y,Z", allow_hyphen_values = true)]
     up: Option<String>,
     /// Vertical field of view in degrees.
-    #[arg(long, value_name = "DEG")]
+    #[arg(long, value_name = "DEGREES")]
     fov: Option<f32>,
     /// Samples per pixel of the diffuse image (seeds SEED, SEED+1, ...); the statistics,
     /// depth buffer, heatmap and log are those of the first sample.

@@ -352,7 +352,7 @@ fn plan(quick: bool, scene_dir: &Path) -> Vec<Page> {
                             "system",
                             "--scenes",
                             hairball,
-                            "--animation",
+                            "--animated",
                             "proc:cloth?n=20000",
                             "--frames",
                             "3",

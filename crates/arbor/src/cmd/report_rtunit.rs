@@ -38,7 +38,7 @@ pub struct ReportRtunitArgs {
     #[arg(long, default_value_t = 720)]
     height: u32,
     /// Diffuse bounces (thesis P4 3.2: 4).
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 4, value_name = "N")]
     bounces: u32,
     /// Scenes of more than 1M triangles are timed one in N tile chunks (1: whole frames).
     #[arg(long, default_value_t = 16, value_name = "N")]

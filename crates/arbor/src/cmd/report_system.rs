@@ -41,22 +41,23 @@ pub struct ReportSystemArgs {
     scenes: Option<Vec<String>>,
     /// Animated scenes of the policy study, comma separated (`none`: no study). Default:
     /// the shared horse gallop (keyframes) where it exists and a procedural cloth.
-    #[arg(long, value_name = "LIST", value_delimiter = ',')]
-    animation: Option<Vec<String>>,
+    /// (`--animation` elsewhere picks a glTF animation; the old spelling here still works.)
+    #[arg(long, value_name = "LIST", value_delimiter = ',', alias = "animation")]
+    animated: Option<Vec<String>>,
     /// Folder of the shared real scenes.
     #[arg(long, value_name = "DIR", default_value = SHARED_SCENES)]
     scene_dir: PathBuf,
     #[command(flatten)]
     soc: SocArgs,
     /// Diffuse bounces ([P2] 6.4: three).
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 3, value_name = "N")]
     bounces: u32,
     /// Time one in N chunks of 16 pixel tiles of each frame, warming the caches with the
     /// others (1: whole frames; `arbor report rtunit` checks the error of sampling).
     #[arg(long, default_value_t = 8, value_name = "N")]
     sample: u32,
     /// Frames of each animated scene, spread evenly over its timeline.
-    #[arg(long, default_value_t = 8)]
+    #[arg(long, default_value_t = 8, value_name = "N")]
     frames: u32,
     /// SAH ratio above which the refit tracker advises a rebuild.
     #[arg(long, default_value_t = bvh::RefitTracker::DEFAULT_THRESHOLD)]
@@ -236,7 +237,7 @@ pub fn static_scene_specs(
 
 /// The animated scenes to study.
 fn animation_specs(a: &ReportSystemArgs, ui: &Ui) -> Vec<String> {
-    match &a.animation {
+    match &a.animated {
         Some(list) if list.len() == 1 && list[0] == "none" => Vec::new(),
         Some(list) => list.clone(),
         None => ANIMATED

@@ -36,10 +36,10 @@ pub struct DramArgs {
     #[arg(long, default_value_t = 1 << 20)]
     bytes: u64,
     /// Bytes per request (1 to 65536).
-    #[arg(long, default_value_t = 64)]
+    #[arg(long, default_value_t = 64, value_name = "BYTES")]
     request_bytes: u32,
     /// Unit clock in MHz (the MergeTree unit runs at 1000).
-    #[arg(long, default_value_t = 1000.0)]
+    #[arg(long, default_value_t = 1000.0, value_name = "MHZ")]
     unit_mhz: f64,
     /// Seed of the random pattern.
     #[arg(long, default_value_t = 1)]

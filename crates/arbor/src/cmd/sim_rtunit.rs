@@ -29,13 +29,13 @@ pub struct RtunitArgs {
     /// (the binned SAH tree collapsed greedily to 4 wide: the same leaves as bvh2),
     /// collapse-sah (collapsed SAH-optimally) or collapse-fill (collapsed into the fewest
     /// nodes).
-    #[arg(long, default_value = "topdown")]
+    #[arg(long, default_value = "topdown", value_name = "NAME")]
     mbvh4_builder: String,
     /// Rays: primary or diffuse (1 sample per pixel, --bounces diffuse bounces).
-    #[arg(long, default_value = "primary")]
+    #[arg(long, default_value = "primary", value_name = "KIND")]
     rays: String,
     /// Diffuse bounces after the primary hit (thesis P4 3.2: 4).
-    #[arg(long, default_value_t = 4)]
+    #[arg(long, default_value_t = 4, value_name = "N")]
     bounces: u32,
     /// Image width.
     #[arg(long, default_value_t = 1280)]

@@ -181,3 +181,63 @@ fn scene_dir_default_is_found_at_run_time() {
     );
     assert_eq!(std::path::Path::new(&d), scenes);
 }
+
+/// One spelling per concept: an option that several subcommands take has the same value
+/// name in all of them (the two documented exceptions: `--out` names a file or a folder,
+/// `--threads` is a list where a benchmark sweeps it), and no two subcommands spell one
+/// concept two ways.
+#[test]
+fn every_option_is_spelled_one_way() {
+    use std::collections::BTreeMap;
+    fn walk(cmd: &clap::Command, path: &str, out: &mut BTreeMap<String, Vec<(String, String)>>) {
+        for arg in cmd.get_arguments() {
+            if let Some(long) = arg.get_long() {
+                let value = arg
+                    .get_value_names()
+                    .map(|v| v.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(" "))
+                    .unwrap_or_default();
+                out.entry(long.to_string())
+                    .or_default()
+                    .push((path.to_string(), value));
+            }
+        }
+        for sub in cmd.get_subcommands() {
+            walk(sub, &format!("{path} {}", sub.get_name()), out);
+        }
+    }
+    let mut opts = BTreeMap::new();
+    walk(&arbor::Cli::command(), "arbor", &mut opts);
+    assert!(opts.len() > 40, "only {} options", opts.len());
+    for (long, uses) in &opts {
+        let mut names: Vec<&str> = uses.iter().map(|(_, v)| v.as_str()).collect();
+        names.sort_unstable();
+        names.dedup();
+        let allowed: &[&str] = match long.as_str() {
+            "out" => &["DIR", "FILE"],
+            "threads" => &["N", "N,..."],
+            _ => &[],
+        };
+        assert!(
+            names.len() == 1 || names.iter().all(|n| allowed.contains(n)),
+            "--{long} has value names {names:?} in {uses:?}"
+        );
+    }
+    // Synonyms: at most one spelling of each of these concepts exists.
+    for group in [
+        &["out", "output", "out-dir"][..],
+        &["scene-dir", "scenes-dir", "shared-scenes"],
+        &["quiet", "silent"],
+        &["sample", "sampling", "sample-rate"],
+        &["fov", "field-of-view"],
+        &["animated", "animated-scenes"],
+        &["json", "format-json"],
+        &["seed", "rng-seed"],
+    ] {
+        let present: Vec<&&str> = group.iter().filter(|g| opts.contains_key(**g)).collect();
+        assert!(present.len() <= 1, "one concept, spellings {present:?}");
+    }
+    // `--animation` picks a glTF animation wherever it is spelled so.
+    for (path, value) in &opts["animation"] {
+        assert_eq!(value, "NAME|INDEX", "{path} --animation");
+    }
+}

@@ -18,7 +18,7 @@ fn report_system_json_and_files() {
         "--json",
         "--scenes",
         HAIRBALL,
-        "--animation",
+        "--animated",
         CLOTH,
         "--frames",
         "3",
@@ -102,9 +102,9 @@ fn report_system_bad_options_are_one_line_errors() {
     assert!(run(&["--dram", "ddr9", "--scenes", HAIRBALL]).contains("ddr9"));
     assert!(run(&["--node", "7nm"]).contains("unknown process node"));
     assert!(run(&["--threshold=-1"]).contains("--threshold"));
-    let e = run(&["--scenes", "none", "--animation", HAIRBALL]);
+    let e = run(&["--scenes", "none", "--animated", HAIRBALL]);
     assert!(e.contains("static scene"), "{e}");
-    let e = run(&["--scenes", "/nonexistent.ply", "--animation", "none"]);
+    let e = run(&["--scenes", "/nonexistent.ply", "--animated", "none"]);
     assert!(e.contains("nonexistent"), "{e}");
     // Nothing but the error: no files were written for the failed runs' results.
     assert!(!dir.path().join("report.md").exists());
