@@ -34,6 +34,7 @@ mod bvh2_kernel;
 pub mod camera;
 mod cbvh_kernel;
 mod cbvh_watertight;
+pub mod custom;
 pub mod image;
 pub mod log;
 mod mbvh4_kernel;
@@ -46,6 +47,8 @@ mod stats;
 mod tests;
 #[cfg(test)]
 mod tests_cbvh;
+#[cfg(test)]
+mod tests_custom;
 #[cfg(test)]
 mod tests_refit;
 #[cfg(test)]
