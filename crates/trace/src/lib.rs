@@ -36,6 +36,7 @@ mod cbvh_kernel;
 mod cbvh_watertight;
 pub mod custom;
 pub mod image;
+pub mod instance;
 pub mod log;
 mod mbvh4_kernel;
 mod mbvh8_kernel;
@@ -49,6 +50,8 @@ mod tests;
 mod tests_cbvh;
 #[cfg(test)]
 mod tests_custom;
+#[cfg(test)]
+mod tests_instance;
 #[cfg(test)]
 mod tests_refit;
 #[cfg(test)]
@@ -116,6 +119,9 @@ pub enum TraceError {
     /// The tree's links are malformed.
     #[error("malformed tree: {0}")]
     BadTree(String),
+    /// An instance transform is not finite or not invertible.
+    #[error("bad transform: {0}")]
+    BadTransform(String),
     /// A setting is out of range.
     #[error("{0}")]
     Config(String),
