@@ -206,7 +206,7 @@ impl Transform {
     }
 
     /// A world-space box around the object-space box `b` (its eight corners transformed,
-    /// padded by [`WORLD_BOX_SLACK`]); empty for an empty box.
+    /// padded by 2^-16 of its magnitude, see `WORLD_BOX_SLACK`); empty for an empty box.
     pub fn aabb_to_world(&self, b: &Aabb) -> Aabb {
         if b.is_empty() {
             return Aabb::EMPTY;
