@@ -96,8 +96,11 @@ fn run(
         let start = Instant::now();
         match accel.as_mut() {
             None => accel = Some(build(&tris)?),
+            // A CBVH is not refitted in place (`refit` says false): built anew instead.
             Some(a) => {
-                a.refit(&tris)?;
+                if !a.refit(&tris)? {
+                    *a = build(&tris)?;
+                }
             }
         }
         let update_ms = ms(start);
