@@ -1,9 +1,11 @@
 //! Arbor's ray tracer: traversal kernels for the binary `Bvh2` ([P2] §4.1), the 4-wide
 //! `Mbvh4` ([P4] §3.1) and the compressed `Cbvh` ([P3], boxes decoded on the fly, with the
 //! watertightness check of [P3] §5.5), closest-hit and any-hit queries with per-ray
-//! counters, a pinhole camera, primary-ray and diffuse path-traced rendering, images (shaded PNG, depth PFM or
-//! NPY, a heatmap of traversal cost in the style of the thesis's Fig. 2.2) and traversal
-//! logs, the input of the traversal hardware model ([P4] §3.2).
+//! counters, custom primitives tested by a callback ([`custom`]), two-level instancing
+//! with animated transforms ([`instance`]), a pinhole camera, primary-ray and diffuse
+//! path-traced rendering, images (shaded PNG, depth PFM or NPY, a heatmap of traversal
+//! cost in the style of the thesis's Fig. 2.2) and traversal logs, the input of the
+//! traversal hardware model ([P4] §3.2).
 //!
 //! # Example
 //!
@@ -34,7 +36,9 @@ mod bvh2_kernel;
 pub mod camera;
 mod cbvh_kernel;
 mod cbvh_watertight;
+pub mod custom;
 pub mod image;
+pub mod instance;
 pub mod log;
 mod mbvh4_kernel;
 mod mbvh8_kernel;
@@ -46,6 +50,10 @@ mod stats;
 mod tests;
 #[cfg(test)]
 mod tests_cbvh;
+#[cfg(test)]
+mod tests_custom;
+#[cfg(test)]
+mod tests_instance;
 #[cfg(test)]
 mod tests_refit;
 #[cfg(test)]
@@ -113,6 +121,9 @@ pub enum TraceError {
     /// The tree's links are malformed.
     #[error("malformed tree: {0}")]
     BadTree(String),
+    /// An instance transform is not finite or not invertible.
+    #[error("bad transform: {0}")]
+    BadTransform(String),
     /// A setting is out of range.
     #[error("{0}")]
     Config(String),
