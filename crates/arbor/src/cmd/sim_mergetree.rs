@@ -286,6 +286,14 @@ fn print_text(
         dram,
         r.dram
     );
+    if r.config.read_schedule == mergetree::ReadSchedule::Forecast {
+        println!(
+            "read schedule forecast: fan-in {} = M/B - {} spares, one pass up to {} elements",
+            r.config.fan_in(),
+            r.config.forecast_spares,
+            thousands(r.config.single_pass_limit())
+        );
+    }
     println!(
         "scene {}: {} triangles, {} partial-sort blocks, {} merge pass(es)",
         a.scene.scene,

@@ -70,6 +70,31 @@ impl OutputMode {
     }
 }
 
+/// How the multi-merge unit schedules the reads that refill its scratchpad buffers.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum ReadSchedule {
+    /// Double buffering (\[P1\] §4.2, \[P2\] §5.3): two buffers of B per run; a consumed
+    /// buffer is refilled from its own run at once. Merge width M / (2B).
+    Double,
+    /// Forecasting (\[P1\] §4.2, \[P2\] §7; Knuth's forecasting for external merge sort):
+    /// one buffer of B per run plus a pool of `forecast_spares` spare buffers; a second
+    /// heap keyed by the last key of each run's newest buffer picks the run whose buffer
+    /// empties first as the next to fetch into a free buffer. Merge width
+    /// M / B - `forecast_spares`.
+    Forecast,
+}
+
+impl ReadSchedule {
+    /// The name `--set read_schedule=...` takes.
+    pub fn name(self) -> &'static str {
+        match self {
+            ReadSchedule::Double => "double",
+            ReadSchedule::Forecast => "forecast",
+        }
+    }
+}
+
 /// Errors of configuration.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum ConfigError {
@@ -178,6 +203,13 @@ pub struct MergeTreeConfig {
     /// refills of runs at equal offsets go to one DRAM bank (`docs/mergetree-vs-thesis.md`,
     /// "Fast system: what the gap is made of"); a gap shifts each run's banks.
     pub run_gap_bytes: u32,
+    /// Read scheduling of the multi-merge passes: `double` (the papers' double buffering,
+    /// the presets) or `forecast` (the what-if of \[P2\] §7). The partial sorts are the
+    /// same in both.
+    pub read_schedule: ReadSchedule,
+    /// Spare scratchpad buffers of B elements with `read_schedule = forecast` (the reads
+    /// ahead that hide the memory latency); ignored with `double`.
+    pub forecast_spares: u32,
 }
 
 /// Names of the parameters [`MergeTreeConfig::set`] accepts.
@@ -210,6 +242,8 @@ pub const KEYS: &[&str] = &[
     "cbvh_fifo",
     "cbvh_flush_before_backtrack",
     "run_gap_bytes",
+    "read_schedule",
+    "forecast_spares",
 ];
 
 impl MergeTreeConfig {
@@ -258,6 +292,8 @@ impl MergeTreeConfig {
             cbvh_fifo: 16,
             cbvh_flush_before_backtrack: true,
             run_gap_bytes: 0,
+            read_schedule: ReadSchedule::Double,
+            forecast_spares: 16,
         }
     }
 
@@ -283,12 +319,22 @@ impl MergeTreeConfig {
         }
     }
 
-    /// Merge width of one multi-merge pass: M / (2B) double-buffered queues.
+    /// Merge width of one multi-merge pass: M / (2B) double-buffered queues, or with
+    /// forecasting one buffer per run after the spares, M / B - `forecast_spares`.
     pub fn fan_in(&self) -> u64 {
-        self.m as u64 / (2 * self.b as u64)
+        match self.read_schedule {
+            ReadSchedule::Double => self.m as u64 / (2 * self.b as u64),
+            ReadSchedule::Forecast => self.buffers().saturating_sub(self.forecast_spares as u64),
+        }
     }
 
-    /// Largest scene sorted with one multi-merge pass: M^2 / (2B) (\[P1\] §6).
+    /// Buffers of B elements in the scratchpad: M / B.
+    pub fn buffers(&self) -> u64 {
+        self.m as u64 / self.b as u64
+    }
+
+    /// Largest scene sorted with one multi-merge pass: M x fan-in, M^2 / (2B) with double
+    /// buffering (\[P1\] §6).
     pub fn single_pass_limit(&self) -> u64 {
         self.m as u64 * self.fan_in()
     }
@@ -386,6 +432,14 @@ impl MergeTreeConfig {
             "cbvh_fifo" => self.cbvh_fifo = num32(1)?,
             "cbvh_flush_before_backtrack" => self.cbvh_flush_before_backtrack = boolean()?,
             "run_gap_bytes" => self.run_gap_bytes = num32(0)?,
+            "read_schedule" => {
+                self.read_schedule = match value {
+                    "double" => ReadSchedule::Double,
+                    "forecast" => ReadSchedule::Forecast,
+                    _ => return Err(bad("expected double or forecast")),
+                }
+            }
+            "forecast_spares" => self.forecast_spares = num32(1)?,
             _ => {
                 return Err(ConfigError::UnknownKey {
                     key: key.to_string(),
@@ -491,11 +545,22 @@ impl MergeTreeConfig {
                 1 << 24
             ));
         }
-        if !(self.m as u64).is_multiple_of(2 * self.b as u64) || self.fan_in() < 2 {
+        let double_fan = self.m as u64 / (2 * self.b as u64);
+        if !(self.m as u64).is_multiple_of(2 * self.b as u64) || double_fan < 2 {
             return err(format!(
                 "M ({}) must be a multiple of 2B ({}) with at least two queues",
                 self.m,
                 2 * self.b
+            ));
+        }
+        if self.read_schedule == ReadSchedule::Forecast
+            && !(1..=double_fan).contains(&(self.forecast_spares as u64))
+        {
+            // At most M / (2B) spares: the forecast merge is at least as wide as the
+            // double-buffered one (and the partial sorts' M / (2B) queues fit its heap).
+            return err(format!(
+                "forecast_spares ({}) must be 1..=M/(2B) ({double_fan})",
+                self.forecast_spares
             ));
         }
         if self.run_write_fifo < self.b {

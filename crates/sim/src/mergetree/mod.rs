@@ -38,7 +38,7 @@ pub mod presort;
 pub mod report;
 pub mod toplevel;
 
-pub use config::{ConfigError, MergeTreeConfig, OutputMode};
+pub use config::{ConfigError, MergeTreeConfig, OutputMode, ReadSchedule};
 pub use machine::MemoryLayout;
 pub use report::{CbvhRunReport, MergeTreeReport, PhaseReport, StallReport, TraceRow};
 
@@ -383,5 +383,7 @@ mod tests;
 mod tests_cbvh;
 #[cfg(test)]
 mod tests_exact;
+#[cfg(test)]
+mod tests_forecast;
 #[cfg(test)]
 mod tests_kernel;

@@ -38,6 +38,8 @@ impl MergeOut for KMergeOut<'_, '_> {
 
 impl MergeUnit {
     pub(super) fn push_refills(&mut self, w: &mut KWorld, cx: &mut Ctx) {
+        // With forecasting, free buffers go to the runs the forecast heap names.
+        self.m.forecast_issue(&mut self.refills);
         while let Some(buf) = self.refills.pop_front() {
             let (pos, count) = self.m.peek_fetch(buf);
             self.m.commit_fetch(buf, count);
@@ -48,7 +50,7 @@ impl MergeUnit {
                 count,
             };
             if w.refill.push(cx, f).is_err() {
-                unreachable!("the refill FIFO holds two halves per queue");
+                unreachable!("the refill FIFO holds every buffer of the scratchpad");
             }
         }
     }
@@ -164,7 +166,12 @@ impl<'a> Unit<KWorld<'a>> for MergeUnit {
     }
 
     fn counters(&self) -> Vec<(&'static str, u64)> {
-        vec![("outputs", self.m.outputs), ("heap_ops", self.m.ops)]
+        let mut c = vec![("outputs", self.m.outputs), ("heap_ops", self.m.ops)];
+        if let Some(f) = &self.m.forecast {
+            c.push(("forecast_reads", f.reads));
+            c.push(("forecast_evictions", f.evictions));
+        }
+        c
     }
 
     fn describe(&self, _w: &KWorld<'a>) -> String {

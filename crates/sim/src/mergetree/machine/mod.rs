@@ -71,7 +71,7 @@
 //! |---|---|---|
 //! | `emit_fifo` | `emit_fifo` | merger -> emitter |
 //! | `run_fifo` | `run_write_fifo` | merger -> run writer |
-//! | `refill` | M / B (two halves per queue) | merger -> reader (fetch descriptors) |
+//! | `refill` | M / B (two halves per queue, or the forecast pool) | merger -> reader (fetch descriptors) |
 //! | `fill` | M / B | arbiter -> merger (completed run reads) |
 //! | `ps_data[p]` | `presort_slots` | arbiter -> presorter p (completed input reads) |
 //! | `ps_credit[p]` | `presort_slots` | presorter p -> reader (ring slots freed) |
@@ -112,8 +112,8 @@ use std::collections::VecDeque;
 use geom::{Aabb, MortonQuantizer};
 
 use super::cbvh_unit::{StreamUnitStats, TopdownStats};
-use super::config::OutputMode;
 use super::config::{MergeTreeConfig, ELEM_BYTES, HIGHLEVEL_BYTES, LEAF_ENTRY_BYTES, NODE_BYTES};
+use super::config::{OutputMode, ReadSchedule};
 use super::emitter::{EmitPorts, EmitStatus, EmitUnit, EmitterStalls};
 use super::merge::{MergeOut, MergeStalls, MergeState, Merger, Slot};
 use super::presort::{PresortState, Presorter};
@@ -794,6 +794,8 @@ pub(super) fn run<'a>(
     let npad = n.div_ceil(b) * b;
     let blocks = npad.div_ceil(m).max(1);
     let fan = cfg.fan_in();
+    // Buffers of B in the scratchpad: every one may have a read outstanding.
+    let bufs = (m / b) as usize;
     let mut passes_total = 0;
     let mut runs = blocks;
     while runs > 1 {
@@ -852,8 +854,8 @@ pub(super) fn run<'a>(
             MERGER,
             RUN_WRITER,
         ),
-        refill: fifo("merge->reader", 2 * fan as usize, MERGER, READER),
-        fill: fifo("arbiter->merge", 2 * fan as usize, ARBITER, MERGER),
+        refill: fifo("merge->reader", bufs, MERGER, READER),
+        fill: fifo("arbiter->merge", bufs, ARBITER, MERGER),
         ps_data: (0..cfg.presorters)
             .map(|p| fifo("arbiter->presorter", slots, ARBITER, presorter(p)))
             .collect(),
@@ -939,11 +941,14 @@ pub(super) fn run<'a>(
         ),
     }));
     s.add(Box::new(MergeUnit {
-        m: Merger::new(cfg.m, cfg.b),
+        m: match cfg.read_schedule {
+            ReadSchedule::Double => Merger::new(cfg.m, cfg.b),
+            ReadSchedule::Forecast => Merger::with_forecast(cfg.m, cfg.b, fan as u32),
+        },
         active: false,
         to_emitter: false,
         src: 0,
-        refills: VecDeque::with_capacity(2 * fan as usize),
+        refills: VecDeque::with_capacity(bufs),
     }));
     s.add(Box::new(Reader {
         in_next: 0,
