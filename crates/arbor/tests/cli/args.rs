@@ -194,7 +194,12 @@ fn every_option_is_spelled_one_way() {
             if let Some(long) = arg.get_long() {
                 let value = arg
                     .get_value_names()
-                    .map(|v| v.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(" "))
+                    .map(|v| {
+                        v.iter()
+                            .map(|s| s.to_string())
+                            .collect::<Vec<_>>()
+                            .join(" ")
+                    })
                     .unwrap_or_default();
                 out.entry(long.to_string())
                     .or_default()
@@ -240,4 +245,12 @@ fn every_option_is_spelled_one_way() {
     for (path, value) in &opts["animation"] {
         assert_eq!(value, "NAME|INDEX", "{path} --animation");
     }
+}
+
+/// The README stays short enough to read (issue 32: at most 12 KB).
+#[test]
+fn readme_is_at_most_12_kb() {
+    let readme = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../README.md");
+    let n = std::fs::metadata(&readme).unwrap().len();
+    assert!(n <= 12_000, "README.md is {n} bytes");
 }

@@ -70,6 +70,38 @@ fn small_scratchpad_needs_two_passes_and_still_matches() {
     assert_eq!(j["config"]["presorters"], 4);
 }
 
+/// Forecasting read scheduling (issue 18): the same scratchpad merges about twice the
+/// runs in a pass, so the scene that needs two double-buffered passes needs one, and the
+/// tree is still the software builder's.
+#[test]
+fn forecasting_merges_in_one_pass_what_double_buffering_needs_two_for() {
+    // 24 partial-sort blocks: more than double buffering's 16 runs per pass, fewer than
+    // forecasting's 32 - 2.
+    let run = |schedule: &str| {
+        sim_json(&[
+            "proc:cloth?n=6000",
+            "--preset",
+            "p1",
+            "--set",
+            "m=256",
+            "--set",
+            "b=8",
+            "--set",
+            &format!("read_schedule={schedule}"),
+            "--set",
+            "forecast_spares=2",
+        ])
+    };
+    let (double, forecast) = (run("double"), run("forecast"));
+    assert_eq!(double["merge_passes"], 2);
+    assert_eq!(forecast["merge_passes"], 1);
+    assert_eq!(forecast["tree_matches_software"], true);
+    let bytes =
+        |j: &Value| j["bytes_read"].as_u64().unwrap() + j["bytes_written"].as_u64().unwrap();
+    assert!(bytes(&forecast) < bytes(&double));
+    assert!(sim_error(&[CLOTH, "--set", "read_schedule=psychic"]).contains("read_schedule"));
+}
+
 #[test]
 fn faster_memory_is_faster() {
     let slow = sim_json(&[CLOTH, "--dram", "lpddr3-1600-1x64", "--no-check"]);
