@@ -194,7 +194,12 @@ fn every_option_is_spelled_one_way() {
             if let Some(long) = arg.get_long() {
                 let value = arg
                     .get_value_names()
-                    .map(|v| v.iter().map(|s| s.to_string()).collect::<Vec<_>>().join(" "))
+                    .map(|v| {
+                        v.iter()
+                            .map(|s| s.to_string())
+                            .collect::<Vec<_>>()
+                            .join(" ")
+                    })
                     .unwrap_or_default();
                 out.entry(long.to_string())
                     .or_default()
