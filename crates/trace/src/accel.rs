@@ -318,9 +318,28 @@ impl LeafTriangles {
         triangles: &[Triangle],
         leaves: impl Iterator<Item = &'a mut ChildRef>,
     ) -> Result<Self, PackError> {
-        let mut blocks: Vec<LeafBlock> = huge_page_vec(prim_indices.len().div_ceil(4) + 1);
+        let mut leaves: Vec<&mut ChildRef> = leaves.filter(|c| c.is_leaf()).collect();
+        // Blocks the placement below opens, counted first: the vector is reserved at its
+        // final size so that it never reallocates (a reallocation would drop the huge-page
+        // advice; partly filled blocks make it more than a quarter of the entries).
+        let mut needed = 0usize;
         let mut fill = 4usize; // lanes used in the last block (4: none free)
-        for c in leaves.filter(|c| c.is_leaf()) {
+        for c in &leaves {
+            let count = c.count as usize;
+            if count > 4 || fill + count > 4 {
+                fill = 4;
+            }
+            for _ in 0..count {
+                if fill == 4 {
+                    needed += 1;
+                    fill = 0;
+                }
+                fill += 1;
+            }
+        }
+        let mut blocks: Vec<LeafBlock> = huge_page_vec(needed);
+        let mut fill = 4usize;
+        for c in leaves.iter_mut() {
             let count = c.count as usize;
             if count > 4 || fill + count > 4 {
                 fill = 4;
@@ -345,6 +364,7 @@ impl LeafTriangles {
             }
             c.index = u32::try_from(slot.unwrap_or(0)).map_err(|_| PackError::TooLarge)?;
         }
+        debug_assert_eq!(blocks.len(), needed);
         Ok(Self {
             blocks,
             prims: prim_indices.to_vec(),
