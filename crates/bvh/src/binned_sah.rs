@@ -311,6 +311,15 @@ impl Binner {
         truncate4(f)
     }
 
+    /// The clamped bin coordinate of centroid `c` on `axis`, whose integer part is its bin
+    /// (the same arithmetic as [`Binner::bins`]; monotone in the centroid).
+    #[inline(always)]
+    fn coord(&self, c: Vec4, axis: usize) -> f32 {
+        ((c - self.min) * self.scale)
+            .max(Vec4::ZERO)
+            .min(Vec4::splat(self.last as f32))[axis]
+    }
+
     /// The bin of centroid `c` on `axis` (the same value as [`Binner::bins`]).
     #[inline(always)]
     fn bin(&self, c: Vec4, axis: usize) -> usize {
@@ -470,10 +479,11 @@ fn find_split_n<const N: usize>(ctx: &Ctx, t: &Task) -> Option<Split> {
 const REFINE_MIN_PRIMS: usize = 4096;
 
 /// Refines the best binned plane of a large node, on `axis`, whose best bin boundary is
-/// `k`: the primitives of the two bins beside it (`k - 1` and `k`) are binned again over
-/// their own centroid range ([`zoom`]), with the bins further out as fixed left and right
-/// parts, until few enough are left for an exact sweep; `best` is replaced by any cheaper
-/// plane found on the way.
+/// `k`: the primitives of the two bins beside it (`k - 1` and `k`) are binned again into
+/// [`ZOOM_BINS`] sub-bins, with the bins further out as fixed left and right parts, then
+/// the two sub-bins beside the best sub-boundary are gathered and zoomed into the same way
+/// ([`zoom`]) until few enough are left for an exact sweep; `best` is replaced by any
+/// cheaper plane found on the way.
 ///
 /// Why (issue 34): in nodes whose box spans a whole room (Conference: the walls, floor and
 /// ceiling stay in every node down to depth 5, each costing the root's area), the plane
@@ -481,8 +491,9 @@ const REFINE_MIN_PRIMS: usize = 4096;
 /// centroid range, so no bin boundary comes near it: 16 bins lost 13% of SAH against the
 /// exact sweep, and doubling the bins only halves the bin width (32: 7.8%, 64: 8.4%). The
 /// optimum lies almost always in a bin beside the best boundary of the best axis (refining
-/// all three axes gained nothing more on the four shared scenes), and zooming costs one
-/// pass over the node and a few over shrinking subsets, with no sort of the node.
+/// all three axes gained nothing more on the four shared scenes). The first step works on
+/// the node in the binner's own coordinate while copying the two bins' primitives, of which
+/// the next steps keep about `2 / ZOOM_BINS`; nothing of the node is sorted.
 fn refine<const N: usize>(
     ctx: &Ctx,
     t: &Task,
@@ -492,15 +503,6 @@ fn refine<const N: usize>(
     k: usize,
     best: &mut Split,
 ) {
-    let mut near: Vec<PrimRef> = t
-        .refs
-        .iter()
-        .filter(|r| {
-            let b = binner.bin(r.centroid4(), axis);
-            b + 1 == k || b == k
-        })
-        .copied()
-        .collect();
     let side_of = |range: std::ops::Range<usize>| {
         range.fold(Side::EMPTY, |s, j| {
             let b = Box4 {
@@ -510,9 +512,33 @@ fn refine<const N: usize>(
             s.add(b, bins.cnt[axis][j])
         })
     };
-    let (lo, hi) = (side_of(0..k - 1), side_of(k + 1..ctx.cfg.bins));
+    let (mut lo, mut hi) = (side_of(0..k - 1), side_of(k + 1..ctx.cfg.bins));
     let base = ctx.cfg.sah.c_inner * t.bounds.half_area();
-    zoom(&ctx.cfg.sah, base, axis, lo, hi, &mut near, best);
+    let p = &ctx.cfg.sah;
+    // The sub-bin of a primitive of bins k - 1 and k (None for the others): the binner's
+    // coordinate (monotone in the centroid, its integer part the bin) over [k - 1, k + 1).
+    let half = (ZOOM_BINS / 2) as f32;
+    let sub = |r: &PrimRef| {
+        let f = binner.coord(r.centroid4(), axis);
+        let b = f as usize;
+        (b + 1 == k || b == k).then(|| (((f - (k - 1) as f32) * half) as usize).min(ZOOM_BINS - 1))
+    };
+    let mut side = [Side::EMPTY; ZOOM_BINS];
+    let mut first = [f32::INFINITY; ZOOM_BINS];
+    let m = bins.cnt[axis][k - 1] + bins.cnt[axis][k];
+    let mut near: Vec<PrimRef> = Vec::with_capacity(m as usize);
+    for r in t.refs.iter() {
+        if let Some(j) = sub(r) {
+            side[j] = side[j].add(*r, 1);
+            first[j] = first[j].min(r.centroid4()[axis]);
+            near.push(*r);
+        }
+    }
+    let Some(jb) = sweep_sub(p, base, axis, &mut lo, &mut hi, &side, &first, best) else {
+        return;
+    };
+    near.retain(|r| sub(r).is_some_and(|j| j + 1 == jb || j == jb));
+    zoom(p, base, axis, lo, hi, &mut near, best);
 }
 
 /// A box and the number of primitives in it.
@@ -537,20 +563,86 @@ impl Side {
     }
 }
 
-/// Sub-bins per [`zoom`] step.
+/// Sub-bins per [`refine`] and [`zoom`] step.
 const ZOOM_BINS: usize = 16;
 /// [`zoom`] sweeps exactly (sorted) at most this many primitives.
 const ZOOM_EXACT_MAX: usize = 64;
 /// Most [`zoom`] steps (each narrows the range about `ZOOM_BINS / 2` times).
 const ZOOM_STEPS: usize = 6;
 
+/// The SAH of two sides under `base` (the node's own cost).
+#[inline(always)]
+fn split_cost(p: &SahParams, base: f32, l: &Side, r: &Side) -> f32 {
+    base + l.bbox.half_area() * (p.c_leaf + p.c_tri * l.count as f32)
+        + r.bbox.half_area() * (p.c_leaf + p.c_tri * r.count as f32)
+}
+
+/// Offers `best` the plane `plane` on `axis` between sides `l` and `r` at `cost`.
+fn offer(best: &mut Split, axis: usize, cost: f32, plane: f32, l: &Side, r: &Side) {
+    if cost.is_finite() && cost < best.cost {
+        *best = Split {
+            cost,
+            axis,
+            bin: 0,
+            sorted: false,
+            plane: Some(plane),
+            left: l.bbox.aabb(),
+            right: r.bbox.aabb(),
+        };
+    }
+}
+
+/// Evaluates the boundaries of sub-bins `side` (with `first[j]` the smallest centroid in
+/// sub-bin `j`) between the fixed parts `lo` and `hi`, offering each to `best`; returns
+/// the cheapest boundary `jb` and moves `lo` and `hi` in to the two sub-bins beside it.
+#[allow(clippy::too_many_arguments)]
+fn sweep_sub(
+    p: &SahParams,
+    base: f32,
+    axis: usize,
+    lo: &mut Side,
+    hi: &mut Side,
+    side: &[Side; ZOOM_BINS],
+    first: &[f32; ZOOM_BINS],
+    best: &mut Split,
+) -> Option<usize> {
+    let mut right = [*hi; ZOOM_BINS + 1];
+    for j in (0..ZOOM_BINS).rev() {
+        right[j] = right[j + 1].add(side[j].bbox, side[j].count);
+    }
+    let mut step_best: Option<(f32, usize)> = None;
+    let mut left = *lo;
+    for j in 1..ZOOM_BINS {
+        left = left.add(side[j - 1].bbox, side[j - 1].count);
+        // Planes between two sub-bins only: the outer ones were evaluated before.
+        if !(left.count > lo.count && right[j].count > hi.count) {
+            continue;
+        }
+        // The smallest centroid at or right of sub-bin j (one exists: right[j] holds some).
+        let Some(plane) = first[j..].iter().copied().find(|c| c.is_finite()) else {
+            continue;
+        };
+        let cost = split_cost(p, base, &left, &right[j]);
+        if step_best.is_none_or(|(c, _)| cost < c) {
+            step_best = Some((cost, j));
+        }
+        offer(best, axis, cost, plane, &left, &right[j]);
+    }
+    let (_, jb) = step_best?;
+    for s in &side[..jb - 1] {
+        *lo = lo.add(s.bbox, s.count);
+    }
+    *hi = right[jb + 1];
+    Some(jb)
+}
+
 /// Searches the planes on `axis` among `near`, whose centroids lie between those of the
 /// primitives in `lo` (all left of every plane here) and in `hi` (all right): bins `near`
-/// into [`ZOOM_BINS`] over its own centroid range, evaluates each boundary, keeps the two
-/// sub-bins beside the best one, and repeats until at most [`ZOOM_EXACT_MAX`] primitives
-/// are left, which are swept in sorted order. A plane is the smallest centroid of the
-/// right side, so partitioning by `centroid < plane` reproduces the counts evaluated
-/// (binning is monotone in the centroid). `best` takes any cheaper plane.
+/// into [`ZOOM_BINS`] over its own centroid range ([`sweep_sub`]), keeps the two sub-bins
+/// beside the best boundary, and repeats until at most [`ZOOM_EXACT_MAX`] primitives are
+/// left, which are swept in sorted order. A plane is the smallest centroid of the right
+/// side, so partitioning by `centroid < plane` reproduces the counts evaluated (binning is
+/// monotone in the centroid). `best` takes any cheaper plane.
 fn zoom(
     p: &SahParams,
     base: f32,
@@ -560,23 +652,14 @@ fn zoom(
     near: &mut Vec<PrimRef>,
     best: &mut Split,
 ) {
-    let cost_of = |l: &Side, r: &Side| {
-        base + l.bbox.half_area() * (p.c_leaf + p.c_tri * l.count as f32)
-            + r.bbox.half_area() * (p.c_leaf + p.c_tri * r.count as f32)
+    let range = |v: &[PrimRef]| {
+        v.iter()
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), r| {
+                let c = r.centroid4()[axis];
+                (a.min(c), b.max(c))
+            })
     };
-    let mut take = |cost: f32, plane: f32, l: &Side, r: &Side| {
-        if cost.is_finite() && cost < best.cost {
-            *best = Split {
-                cost,
-                axis,
-                bin: 0,
-                sorted: false,
-                plane: Some(plane),
-                left: l.bbox.aabb(),
-                right: r.bbox.aabb(),
-            };
-        }
-    };
+    let (mut cmin, mut cmax) = range(near);
     for _ in 0..ZOOM_STEPS {
         let m = near.len();
         if m < 2 {
@@ -584,37 +667,31 @@ fn zoom(
         }
         if m <= ZOOM_EXACT_MAX {
             near.sort_unstable_by_key(|r| r.key(axis));
-            let mut right = vec![hi; m];
+            let mut right = [hi; ZOOM_EXACT_MAX];
             for i in (1..m).rev() {
                 right[i - 1] = right[i].add(near[i], 1);
             }
-            // right[i - 1] now holds near[i..] and hi.
+            // right[i - 1] holds near[i..] and hi.
             let mut left = lo;
             for i in 1..m {
                 left = left.add(near[i - 1], 1);
                 let plane = near[i].centroid4()[axis];
                 // Only between distinct centroids does a plane separate the two sides.
                 if near[i - 1].centroid4()[axis] < plane {
-                    take(cost_of(&left, &right[i - 1]), plane, &left, &right[i - 1]);
+                    let cost = split_cost(p, base, &left, &right[i - 1]);
+                    offer(best, axis, cost, plane, &left, &right[i - 1]);
                 }
             }
             return;
         }
-        let (cmin, cmax) = near
-            .iter()
-            .fold((f32::INFINITY, f32::NEG_INFINITY), |(a, b), r| {
-                let c = r.centroid4()[axis];
-                (a.min(c), b.max(c))
-            });
         let scale = ZOOM_BINS as f32 / (cmax - cmin);
         if !(cmax > cmin && scale.is_finite()) {
             // One centroid: no plane inside this range.
             return;
         }
-        let sub = |r: &PrimRef| {
-            // Monotone in the centroid (as `Binner`); the clamp keeps cmax in the last bin.
-            (((r.centroid4()[axis] - cmin) * scale) as usize).min(ZOOM_BINS - 1)
-        };
+        // Monotone in the centroid (as `Binner`); the clamp keeps cmax in the last bin.
+        let sub =
+            |r: &PrimRef| (((r.centroid4()[axis] - cmin) * scale) as usize).min(ZOOM_BINS - 1);
         let mut side = [Side::EMPTY; ZOOM_BINS];
         let mut first = [f32::INFINITY; ZOOM_BINS];
         for r in near.iter() {
@@ -622,40 +699,20 @@ fn zoom(
             side[j] = side[j].add(*r, 1);
             first[j] = first[j].min(r.centroid4()[axis]);
         }
-        let mut right = [hi; ZOOM_BINS + 1];
-        for j in (0..ZOOM_BINS).rev() {
-            right[j] = right[j + 1].add(side[j].bbox, side[j].count);
-        }
-        // The best boundary of this step (to zoom into), whether or not it beats `best`.
-        let mut step_best: Option<(f32, usize)> = None;
-        let mut left = lo;
-        for j in 1..ZOOM_BINS {
-            left = left.add(side[j - 1].bbox, side[j - 1].count);
-            if !(left.count > lo.count && right[j].count > hi.count) {
-                continue;
-            }
-            // The smallest centroid at or right of sub-bin j (one exists: right[j] holds
-            // some of `near`).
-            let Some(plane) = first[j..].iter().copied().find(|c| c.is_finite()) else {
-                continue;
-            };
-            let cost = cost_of(&left, &right[j]);
-            if step_best.is_none_or(|(c, _)| cost < c) {
-                step_best = Some((cost, j));
-            }
-            take(cost, plane, &left, &right[j]);
-        }
-        let Some((_, jb)) = step_best else {
+        let Some(jb) = sweep_sub(p, base, axis, &mut lo, &mut hi, &side, &first, best) else {
             return;
         };
-        for q in 0..jb - 1 {
-            lo = lo.add(side[q].bbox, side[q].count);
-        }
-        hi = right[jb + 1];
+        let (mut a, mut b) = (f32::INFINITY, f32::NEG_INFINITY);
         near.retain(|r| {
             let j = sub(r);
-            j + 1 == jb || j == jb
+            let keep = j + 1 == jb || j == jb;
+            if keep {
+                let c = r.centroid4()[axis];
+                (a, b) = (a.min(c), b.max(c));
+            }
+            keep
         });
+        (cmin, cmax) = (a, b);
     }
 }
 
