@@ -1,6 +1,7 @@
 //! Binned SAH builder (Wald 2007), the builder of Doyle et al. that \[P2\] compares against.
 //!
-//! Top-down over one index array that is partitioned in place (no allocation per node).
+//! Top-down over one index array that is partitioned in place (no allocation per node but
+//! the refinement's copy of two bins in nodes of at least `REFINE_MIN_PRIMS`).
 //! At each node the centroid bounds are cut into `bins` equal intervals per axis; one pass
 //! drops every primitive into a bin on each axis (growing the bin's box and count), and a
 //! right-to-left then left-to-right sweep over the bins evaluates the SAH of the `bins - 1`
