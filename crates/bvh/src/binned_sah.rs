@@ -426,8 +426,6 @@ fn find_split_n<const N: usize>(ctx: &Ctx, t: &Task) -> Option<Split> {
         min: bins.min[axis][k],
         max: bins.max[axis][k],
     };
-    // Per axis, the bin boundary of its cheapest plane (for `refine`).
-    let mut around: [Option<(f32, usize)>; 3] = [None; 3];
     for axis in 0..3 {
         let mut acc = Box4::EMPTY;
         let mut count = 0;
@@ -448,9 +446,6 @@ fn find_split_n<const N: usize>(ctx: &Ctx, t: &Task) -> Option<Split> {
             let cost = base
                 + left.half_area() * (p.c_leaf + p.c_tri * count as f32)
                 + right_area[k] * (p.c_leaf + p.c_tri * right_count[k] as f32);
-            if cost.is_finite() && around[axis].is_none_or(|(c, _)| cost < c) {
-                around[axis] = Some((cost, k));
-            }
             if cost.is_finite() && best.as_ref().is_none_or(|s| cost < s.cost) {
                 best = Some(Split {
                     cost,
@@ -469,9 +464,9 @@ fn find_split_n<const N: usize>(ctx: &Ctx, t: &Task) -> Option<Split> {
         .fold(Box4::EMPTY, |b, k| b.union(bin_box(s.axis, k)))
         .aabb();
     if t.refs.len() >= REFINE_MIN_PRIMS {
-        if let Some((_, k)) = around[s.axis] {
-            refine(ctx, t, &bins, &binner, s.axis, k, &mut s);
-        }
+        // The best plane's boundary is also the best of its axis.
+        let (axis, k) = (s.axis, s.bin);
+        refine(ctx, t, &bins, &binner, axis, k, &mut s);
     }
     Some(s)
 }
