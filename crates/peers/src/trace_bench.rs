@@ -217,6 +217,8 @@ pub struct TraceRow {
     pub agreement: f64,
     /// Tree build time of this tracer, in ms (its own builder).
     pub build_ms: f64,
+    /// Wall time of every round, in round order, ms (for benchmark records' spread).
+    pub round_ms: Vec<f64>,
 }
 
 /// Arbor tracer configurations of the benchmark: (name, builder, format, distance stack).
@@ -375,6 +377,7 @@ pub fn run(
             note(&format!("{set_name} rays, {th} thread(s)"));
             let mut best = vec![f64::INFINITY; tracers.len()];
             let mut best_cpu = vec![f64::INFINITY; tracers.len()];
+            let mut round_ms = vec![Vec::new(); tracers.len()];
             let mut answers: Vec<Vec<Option<(u32, f32)>>> = vec![Vec::new(); tracers.len()];
             for round in 0..repeats.max(1) {
                 for (k, (_, _, f)) in tracers.iter().enumerate() {
@@ -389,6 +392,7 @@ pub fn run(
                     )?;
                     best[k] = best[k].min(m.seconds);
                     best_cpu[k] = best_cpu[k].min(m.cpu_seconds);
+                    round_ms[k].push(m.seconds * 1e3);
                 }
             }
             let mrays = |k: usize| rays.len() as f64 / best[k] / 1e6;
@@ -408,6 +412,7 @@ pub fn run(
                     vs_embree_cpu: embree_cpu.map(|e| mrays_cpu(k) / e),
                     agreement: agreement(&answers[0], &answers[k]),
                     build_ms: *ms,
+                    round_ms: round_ms[k].clone(),
                 });
             }
         }

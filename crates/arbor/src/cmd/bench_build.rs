@@ -21,6 +21,7 @@
 //! The goals of issue 3 are evaluated from the same rows and printed after the table.
 
 use super::bench::{aligned_table, markdown_report, RunInfo};
+use super::bench_record::{Record, RecordEntry};
 use super::build::{builder, mesh_aabbs, BuildConfig, SAH_REFERENCE_MAX_TRIANGLES};
 use super::{open_scene, thousands, SceneArgs};
 use crate::alloc::{peak_bytes, reset_peak, PeakMeter};
@@ -96,6 +97,10 @@ pub struct BenchBuildArgs {
     /// Also write every format to DIR (bench-build.txt, .md, .csv, .json), atomically.
     #[arg(long, value_name = "DIR")]
     pub out: Option<std::path::PathBuf>,
+    /// Also write the timings as a benchmark record to DIR/<cpu-slug>/build.json (for
+    /// `arbor bench compare`; the committed ones are under bench/records).
+    #[arg(long, value_name = "DIR")]
+    pub record: Option<std::path::PathBuf>,
 }
 
 /// A peer library's builder.
@@ -238,6 +243,8 @@ pub struct Row {
     pub best_ms: f64,
     /// Median run, milliseconds.
     pub median_ms: f64,
+    /// Every run, milliseconds, fastest first.
+    pub runs_ms: Vec<f64>,
     /// Millions of primitives per second of the fastest run.
     pub mtris_per_s: f64,
     /// SAH with the thesis weights (a 4-wide node costs `2 C_i`).
@@ -499,7 +506,7 @@ fn check_args(a: &BenchBuildArgs) -> anyhow::Result<Vec<Entry>> {
         a.runs
     );
     anyhow::ensure!(!a.threads.is_empty(), "--threads needs at least one count");
-    if let Some(d) = &a.out {
+    for d in a.out.iter().chain(&a.record) {
         // Fail before the measurements, not after.
         anyhow::ensure!(
             !d.exists() || d.is_dir(),
@@ -591,6 +598,7 @@ pub fn run(args: &BenchBuildArgs, ui: &Ui) -> anyhow::Result<()> {
                     threads,
                     best_ms,
                     median_ms,
+                    runs_ms: m.times.clone(),
                     mtris_per_s: if best_ms > 0.0 {
                         n as f64 / best_ms / 1e3
                     } else {
@@ -633,6 +641,14 @@ pub fn run(args: &BenchBuildArgs, ui: &Ui) -> anyhow::Result<()> {
         goals,
     };
     let json = serde_json::to_string_pretty(&doc)? + "\n";
+    if let Some(dir) = &args.record {
+        let entries = doc
+            .rows
+            .iter()
+            .map(|r| RecordEntry::from_times(short(&r.scene), r.id, r.threads, &r.runs_ms))
+            .collect();
+        Record::new("build", &doc.run, entries).write_under(dir)?;
+    }
     if let Some(dir) = &args.out {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
         for (name, body) in [
@@ -967,6 +983,7 @@ mod tests {
             threads: 1,
             best_ms: ms,
             median_ms: ms,
+            runs_ms: vec![ms],
             mtris_per_s: 1.0 / ms,
             sah,
             sah_vs_sweep: None,

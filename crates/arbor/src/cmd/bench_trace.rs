@@ -17,6 +17,7 @@
 
 use super::bench::{aligned_table, markdown_report, RunInfo};
 pub use super::bench_build::Format;
+use super::bench_record::{Record, RecordEntry};
 use super::report::{shared_scenes, view_camera, write_atomic};
 use super::{open_scene, thousands, SceneArgs};
 use crate::progress::Ui;
@@ -66,6 +67,10 @@ pub struct BenchTraceArgs {
     /// Also write every format to DIR (bench-trace.txt, .md, .csv, .json), atomically.
     #[arg(long, value_name = "DIR")]
     pub out: Option<std::path::PathBuf>,
+    /// Also write the round times as a benchmark record to DIR/<cpu-slug>/trace.json (for
+    /// `arbor bench compare`; the committed ones are under bench/records).
+    #[arg(long, value_name = "DIR")]
+    pub record: Option<std::path::PathBuf>,
 }
 
 /// The goal, per scene and thread count.
@@ -196,6 +201,9 @@ pub fn run(a: &BenchTraceArgs, ui: &Ui) -> anyhow::Result<()> {
     if let Some(dir) = &a.out {
         anyhow::ensure!(!dir.is_file(), "--out {}: is a file", dir.display());
     }
+    if let Some(dir) = &a.record {
+        anyhow::ensure!(!dir.is_file(), "--record {}: is a file", dir.display());
+    }
     let run_info = RunInfo::start();
     let mut notes = Vec::new();
     if !EMBREE {
@@ -253,6 +261,17 @@ pub fn run(a: &BenchTraceArgs, ui: &Ui) -> anyhow::Result<()> {
         goals,
     };
     let json = serde_json::to_string_pretty(&doc)? + "\n";
+    if let Some(dir) = &a.record {
+        let entries = doc
+            .rows
+            .iter()
+            .map(|r| {
+                let subject = format!("{} / {}", r.tracer, r.rays);
+                RecordEntry::from_times(&r.scene, &subject, r.threads, &r.round_ms)
+            })
+            .collect();
+        Record::new("trace", &doc.run, entries).write_under(dir)?;
+    }
     if let Some(dir) = &a.out {
         std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
         for (name, body) in [

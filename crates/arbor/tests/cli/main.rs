@@ -6,6 +6,7 @@ mod common;
 
 mod args;
 mod bench;
+mod bench_compare;
 mod bench_trace;
 mod build;
 mod cbvh;
