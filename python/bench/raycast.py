@@ -226,7 +226,7 @@ def main(argv: list[str] | None = None) -> None:
                 a.scene,
                 "--threads",
                 str(a.threads),
-                "--rounds",
+                "--runs",
                 str(a.rounds),
                 "--out",
                 tmp,

@@ -7,7 +7,7 @@
 //! build quality MEDIUM, plain and ROBUST; obvhs: CWBVH from PLOC, `medium_build`), then two
 //! ray sets from an Arbor render are traced: the primary rays (coherent) and the diffuse
 //! bounce rays of a path-traced render with 4 bounces (\[P4\] §3.2; incoherent). Per ray set
-//! and thread count, `--rounds` rounds time every tracer once in turn, so that load from
+//! and thread count, `--runs` rounds time every tracer once in turn, so that load from
 //! other processes falls on all alike, and each tracer's best round counts, both in wall
 //! time and in worker-thread CPU time (steadier on a shared machine). Every tracer's hits
 //! are compared with Arbor's (`agreement`). The work is in `peers::trace_bench`.
@@ -27,7 +27,7 @@ use serde::Serialize;
 
 /// Issue 4's goal: Arbor's best kernel over Embree's `rtcIntersect1` on incoherent rays.
 pub const GOAL_VS_EMBREE: f64 = 0.7;
-/// Largest `--rounds`.
+/// Largest `--runs`.
 pub const MAX_ROUNDS: usize = 100;
 /// Largest image side of the recorded renders.
 pub const MAX_SIDE: u32 = 4096;
@@ -46,8 +46,9 @@ pub struct BenchTraceArgs {
     /// Thread counts, comma-separated.
     #[arg(long, value_delimiter = ',', default_values_t = [1usize, 2], value_name = "N,...")]
     pub threads: Vec<usize>,
-    /// Rounds per measurement; the fastest counts.
-    #[arg(long, default_value_t = 5, value_name = "N")]
+    /// Runs per measurement, interleaved over the tracers; the fastest counts (the same
+    /// option as `bench build --runs`; `--rounds` is the earlier spelling).
+    #[arg(long = "runs", alias = "rounds", default_value_t = 5, value_name = "N")]
     pub rounds: usize,
     /// Width of the renders whose rays are traced.
     #[arg(long, default_value_t = 640)]
@@ -117,7 +118,7 @@ pub struct BenchTraceJson {
 fn check_args(a: &BenchTraceArgs) -> anyhow::Result<()> {
     anyhow::ensure!(
         (1..=MAX_ROUNDS).contains(&a.rounds),
-        "--rounds must be between 1 and {MAX_ROUNDS}, got {}",
+        "--runs must be between 1 and {MAX_ROUNDS}, got {}",
         a.rounds
     );
     anyhow::ensure!(!a.threads.is_empty(), "--threads needs at least one count");

@@ -237,6 +237,7 @@ fn every_option_is_spelled_one_way() {
         &["animated", "animated-scenes"],
         &["json", "format-json"],
         &["seed", "rng-seed"],
+        &["runs", "rounds", "repeat"],
     ] {
         let present: Vec<&&str> = group.iter().filter(|g| opts.contains_key(**g)).collect();
         assert!(present.len() <= 1, "one concept, spellings {present:?}");

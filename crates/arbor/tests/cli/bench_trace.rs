@@ -36,7 +36,7 @@ fn ok(out: &std::process::Output) {
 
 #[test]
 fn json_has_every_tracer_on_both_ray_sets() {
-    let out = bench(&[SOUP, "--rounds", "2", "--threads", "1,2", "--json"]);
+    let out = bench(&[SOUP, "--runs", "2", "--threads", "1,2", "--json"]);
     ok(&out);
     let j: Value = serde_json::from_slice(&out.stdout).unwrap();
     assert_eq!(j["schema"], "arbor.bench.trace.v1");
@@ -156,7 +156,7 @@ fn text_markdown_csv_and_out_folder() {
 fn bad_arguments_are_one_line_errors() {
     let f = tempfile::NamedTempFile::new().unwrap();
     for (args, want) in [
-        (vec![SOUP, "--rounds", "0"], "--rounds"),
+        (vec![SOUP, "--runs", "0"], "--runs"),
         (vec![SOUP, "--threads", "0"], "--threads"),
         (vec![SOUP, "--width", "0"], "--width"),
         (vec![SOUP, "--bounces", "99"], "--bounces"),
