@@ -724,5 +724,30 @@ mod tests {
             t.knn(q, k, &mut out).unwrap();
             prop_assert_eq!(out, knn_brute(&pts, q, k).unwrap());
         }
+
+        /// Arbitrary finite coordinates over many magnitudes, up to distances that
+        /// overflow to infinity: kNN and radius queries equal brute force.
+        #[test]
+        fn knn_equals_brute_force_on_wide_floats(
+            raw in prop::collection::vec(prop::array::uniform3(-1e20f32..1e20), 1..120),
+            scale in prop::sample::select(vec![1e-30f32, 1e-3, 1.0, 1e15, 1e18]),
+            q in prop::array::uniform3(-1e20f32..1e20),
+            k in 0usize..20,
+        ) {
+            let pts: Vec<Vec3> = raw.iter().map(|a| Vec3::from(*a) * scale).collect();
+            let q = Vec3::from(q) * scale;
+            let t = PointTree::build(&pts, 2).unwrap();
+            prop_assert!(t.validate(&pts).is_ok());
+            let mut out = Vec::new();
+            t.knn(q, k, &mut out).unwrap();
+            let want = knn_brute(&pts, q, k).unwrap();
+            prop_assert_eq!(&out, &want);
+            if let Some(&(r2, _)) = want.last() {
+                t.within(q, r2, &mut out).unwrap();
+                let n = knn_brute(&pts, q, pts.len()).unwrap().into_iter().filter(|o| o.0 <= r2).count();
+                prop_assert_eq!(out.len(), n);
+                prop_assert_eq!(&out[..want.len()], &want[..]);
+            }
+        }
     }
 }
