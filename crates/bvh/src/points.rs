@@ -175,14 +175,31 @@ struct Build<'a> {
     origin: Vec3,
     cell: [f64; 3],
     max_leaf: usize,
-    nodes: Vec<PointNode>,
+}
+
+/// Points below which a node's two subtrees are emitted on one thread.
+const PARALLEL_MIN_POINTS: usize = 1 << 14;
+
+/// Appends `sub` (a subtree whose child links index `sub`) to `out`; returns its root.
+fn append(out: &mut Vec<PointNode>, sub: Vec<PointNode>) -> usize {
+    let base = out.len();
+    out.extend(sub.into_iter().map(|mut n| {
+        if !n.is_leaf() {
+            n.left += base as u32;
+            n.right += base as u32;
+        }
+        n
+    }));
+    base
 }
 
 impl Build<'_> {
-    /// Emits the node over sorted positions `lo..hi` (non-empty) and its subtree.
-    fn node(&mut self, lo: usize, hi: usize) -> usize {
-        let id = self.nodes.len();
-        self.nodes.push(PointNode {
+    /// Emits the node over sorted positions `lo..hi` (non-empty) and its subtree into
+    /// `nodes`, depth-first; returns its index. Large subtrees are emitted in parallel into
+    /// their own vectors and appended, so the result is the same for any thread count.
+    fn node(&self, lo: usize, hi: usize, nodes: &mut Vec<PointNode>) -> usize {
+        let id = nodes.len();
+        nodes.push(PointNode {
             bounds: Aabb::EMPTY,
             first: lo as u32,
             count: (hi - lo) as u32,
@@ -195,7 +212,7 @@ impl Build<'_> {
             let b = self.points[lo..hi]
                 .iter()
                 .fold(Aabb::EMPTY, |b, &p| b.grow(p));
-            self.nodes[id].bounds = b;
+            nodes[id].bounds = b;
             return id;
         }
         let (a, z) = (self.codes[lo], self.codes[hi - 1]);
@@ -214,10 +231,19 @@ impl Build<'_> {
         } else {
             ((lo + hi) / 2, NO_AXIS, f32::NAN)
         };
-        let l = self.node(lo, split);
-        let r = self.node(split, hi);
-        let (lb, rb) = (self.nodes[l].bounds, self.nodes[r].bounds);
-        let n = &mut self.nodes[id];
+        let (l, r) = if hi - lo >= PARALLEL_MIN_POINTS {
+            let sub = |a, b| {
+                let mut v = Vec::with_capacity(2 * (b - a) / self.max_leaf + 1);
+                self.node(a, b, &mut v);
+                v
+            };
+            let (lv, rv) = rayon::join(|| sub(lo, split), || sub(split, hi));
+            (append(nodes, lv), append(nodes, rv))
+        } else {
+            (self.node(lo, split, nodes), self.node(split, hi, nodes))
+        };
+        let (lb, rb) = (nodes[l].bounds, nodes[r].bounds);
+        let n = &mut nodes[id];
         n.bounds = lb.union(rb);
         n.left = l as u32;
         n.right = r as u32;
@@ -257,7 +283,7 @@ impl PointTree {
         let sorted: Vec<Vec3> = ids.iter().map(|&i| points[i as usize]).collect();
         let ext = bounds.max - bounds.min;
         let cells = (1u64 << GRID_BITS) as f64;
-        let mut b = Build {
+        let b = Build {
             codes: &codes,
             points: &sorted,
             origin: bounds.min,
@@ -267,12 +293,11 @@ impl PointTree {
                 ext.z as f64 / cells,
             ],
             max_leaf,
-            nodes: Vec::with_capacity(2 * points.len() / max_leaf + 1),
         };
+        let mut nodes = Vec::with_capacity(2 * points.len() / max_leaf + 1);
         if !points.is_empty() {
-            b.node(0, points.len());
+            b.node(0, points.len(), &mut nodes);
         }
-        let nodes = b.nodes;
         Ok(Self {
             points: sorted,
             ids,
@@ -688,6 +713,51 @@ mod tests {
         let mut bad = t.clone();
         bad.nodes[0].plane = 2.5;
         assert!(bad.validate(&pts).is_err());
+    }
+
+    #[test]
+    fn tree_is_the_same_for_any_thread_count() {
+        let pts = cloud(150_000, 11, 3.0);
+        let one = rayon::ThreadPoolBuilder::new()
+            .num_threads(1)
+            .build()
+            .unwrap()
+            .install(|| PointTree::build(&pts, 4).unwrap());
+        let many = rayon::ThreadPoolBuilder::new()
+            .num_threads(3)
+            .build()
+            .unwrap()
+            .install(|| PointTree::build(&pts, 4).unwrap());
+        one.validate(&pts).unwrap();
+        assert_eq!(one.ids, many.ids);
+        let bits = |t: &PointTree| {
+            t.nodes
+                .iter()
+                .map(|n| {
+                    (
+                        n.first,
+                        n.count,
+                        n.axis,
+                        n.plane.to_bits(),
+                        n.left,
+                        n.right,
+                        n.bounds,
+                    )
+                })
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(bits(&one), bits(&many));
+        // Left children follow their parent (depth-first order).
+        assert!(one
+            .nodes
+            .iter()
+            .enumerate()
+            .all(|(i, n)| n.is_leaf() || n.left as usize == i + 1));
+        let mut out = Vec::new();
+        for q in cloud(50, 12, 3.0) {
+            many.knn(q, 10, &mut out).unwrap();
+            assert_eq!(out, knn_brute(&pts, q, 10).unwrap());
+        }
     }
 
     #[test]
