@@ -15,7 +15,7 @@
 
 use crate::centroid;
 use crate::lbvh::MortonBits;
-use geom::{Aabb, MortonGrid, MortonQuantizer};
+use geom::{Aabb, MortonGrid, MortonQuantizer, Vec3};
 use rayon::prelude::*;
 
 /// Keys per chunk below which a pass runs on one chunk (parallel passes pay a
@@ -107,35 +107,47 @@ pub(crate) fn sorted_codes(
     bits: MortonBits,
     grid: MortonGrid,
 ) -> (Vec<u64>, Vec<u32>) {
-    let cbounds = aabbs
-        .par_iter()
-        .fold(|| Aabb::EMPTY, |b, a| b.grow(centroid(a)))
+    let (codes, order, _) = sorted_codes_of(aabbs.len(), |i| centroid(&aabbs[i]), bits, grid);
+    (codes, order)
+}
+
+/// [`sorted_codes`] over `n` points given by `point(i)` (primitive centroids, or the points
+/// of a point cloud): `(codes, order, bounds)`, `bounds` the points' box that the codes
+/// quantize.
+pub(crate) fn sorted_codes_of(
+    n: usize,
+    point: impl Fn(usize) -> Vec3 + Sync,
+    bits: MortonBits,
+    grid: MortonGrid,
+) -> (Vec<u64>, Vec<u32>, Aabb) {
+    let cbounds = (0..n)
+        .into_par_iter()
+        .fold(|| Aabb::EMPTY, |b, i| b.grow(point(i)))
         .reduce(|| Aabb::EMPTY, Aabb::union);
     let q = MortonQuantizer::with_grid(&cbounds, grid);
-    match bits {
+    let (codes, order) = match bits {
         MortonBits::Bits30 => {
             // Code and index packed in one u64; sorted by the 30 code bits, 10 per pass.
-            let keys: Vec<u64> = aabbs
-                .par_iter()
-                .enumerate()
-                .map(|(i, a)| ((q.code30(centroid(a)) as u64) << 32) | i as u64)
+            let keys: Vec<u64> = (0..n)
+                .into_par_iter()
+                .map(|i| ((q.code30(point(i)) as u64) << 32) | i as u64)
                 .collect();
             let keys = radix_sort(keys, 32, 10, 3);
             keys.par_iter().map(|k| (k >> 32, *k as u32)).unzip()
         }
         MortonBits::Bits63 => {
             // Code in the high u64 of a u128; sorted by the 63 code bits, 9 per pass.
-            let keys: Vec<u128> = aabbs
-                .par_iter()
-                .enumerate()
-                .map(|(i, a)| ((q.code63(centroid(a)) as u128) << 64) | i as u128)
+            let keys: Vec<u128> = (0..n)
+                .into_par_iter()
+                .map(|i| ((q.code63(point(i)) as u128) << 64) | i as u128)
                 .collect();
             let keys = radix_sort(keys, 64, 9, 7);
             keys.par_iter()
                 .map(|k| ((k >> 64) as u64, *k as u32))
                 .unzip()
         }
-    }
+    };
+    (codes, order, cbounds)
 }
 
 #[cfg(test)]
