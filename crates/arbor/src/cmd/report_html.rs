@@ -446,7 +446,7 @@ impl Provenance {
             version: env!("CARGO_PKG_VERSION"),
             commit: git_commit().unwrap_or_else(|| "unknown (no git checkout found)".into()),
             date: super::bench::utc_now(),
-            cpu: cpu_model(),
+            cpu: super::bench_record::cpu_model(),
             threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
         }
     }
@@ -474,19 +474,6 @@ fn git_commit() -> Option<String> {
     } else {
         head
     })
-}
-
-/// The CPU's model name from `/proc/cpuinfo`, or the architecture.
-pub fn cpu_model() -> String {
-    std::fs::read_to_string("/proc/cpuinfo")
-        .ok()
-        .and_then(|s| {
-            s.lines()
-                .find(|l| l.starts_with("model name"))
-                .and_then(|l| l.split_once(':'))
-                .map(|(_, v)| v.trim().to_string())
-        })
-        .unwrap_or_else(|| std::env::consts::ARCH.to_string())
 }
 
 /// A command line as a shell would need it typed (arguments with special characters
