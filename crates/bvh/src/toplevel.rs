@@ -21,12 +21,17 @@ use crate::validate::validate;
 use geom::Aabb;
 use rayon::prelude::*;
 
-/// The default cell level of the toplevel builds: the top 12 code bits (4 octree levels,
-/// at most 4096 cells; the thesis's toplevel trees have "ca. 500–2,000 nodes").
+/// The top code bits whose cells the toplevel builds take as primitives by default: 12
+/// (4 octree levels, at most 4096 cells; the thesis's toplevel trees have "ca. 500–2,000
+/// nodes").
+pub const DEFAULT_TOPLEVEL_BITS: u32 = 12;
+
+/// The default cell level of the toplevel builds: the top [`DEFAULT_TOPLEVEL_BITS`] code
+/// bits.
 pub fn default_threshold(bits: MortonBits) -> u32 {
     match bits {
-        MortonBits::Bits30 => 30 - 12,
-        MortonBits::Bits63 => 63 - 12,
+        MortonBits::Bits30 => 30 - DEFAULT_TOPLEVEL_BITS,
+        MortonBits::Bits63 => 63 - DEFAULT_TOPLEVEL_BITS,
     }
 }
 

@@ -609,23 +609,31 @@ mod tests {
         filled
     }
 
-    /// Runs a multi-merge of `runs` (sorted keys) to the end; returns the output keys and
-    /// the reads in order (buffer ids).
-    fn merge_all(mut m: Merger, runs: &[&[u64]]) -> (Merger, Vec<u64>, Vec<u32>) {
-        let src: Vec<Elem> = runs
+    /// `runs` (sorted keys) laid out one after another in memory: the elements (each
+    /// tagged with its position) and each run's (start, length).
+    fn layout<R: AsRef<[u64]>>(runs: &[R]) -> (Vec<Elem>, Vec<(u64, u64)>) {
+        let src = runs
             .iter()
-            .flat_map(|r| r.iter())
+            .flat_map(|r| r.as_ref().iter())
             .enumerate()
             .map(|(i, &k)| Elem::new(k, i as u32, Aabb::EMPTY))
             .collect();
         let mut start = 0u64;
-        let spans: Vec<(u64, u64)> = runs
+        let spans = runs
             .iter()
             .map(|r| {
-                start += r.len() as u64;
-                (start - r.len() as u64, r.len() as u64)
+                let n = r.as_ref().len() as u64;
+                start += n;
+                (start - n, n)
             })
             .collect();
+        (src, spans)
+    }
+
+    /// Runs a multi-merge of `runs` (sorted keys) to the end; returns the output keys and
+    /// the reads in order (buffer ids).
+    fn merge_all(mut m: Merger, runs: &[&[u64]]) -> (Merger, Vec<u64>, Vec<u32>) {
+        let (src, spans) = layout(runs);
         let mut sink = Sink {
             out: Vec::new(),
             refills: VecDeque::new(),
@@ -696,20 +704,7 @@ mod tests {
         seed: u64,
         max_lat: u64,
     ) -> (Merger, Vec<u64>) {
-        let src: Vec<Elem> = runs
-            .iter()
-            .flat_map(|r| r.iter())
-            .enumerate()
-            .map(|(i, &k)| Elem::new(k, i as u32, Aabb::EMPTY))
-            .collect();
-        let mut start = 0u64;
-        let spans: Vec<(u64, u64)> = runs
-            .iter()
-            .map(|r| {
-                start += r.len() as u64;
-                (start - r.len() as u64, r.len() as u64)
-            })
-            .collect();
+        let (src, spans) = layout(runs);
         let mut sink = Sink {
             out: Vec::new(),
             refills: VecDeque::new(),

@@ -83,7 +83,7 @@ impl Builder {
 
 /// The default of [`SystemConfig::toplevel_bits`]: the cell level of
 /// `bvh::toplevel::default_threshold`.
-pub const TOPLEVEL_BITS: u32 = 12;
+pub const TOPLEVEL_BITS: u32 = bvh::toplevel::DEFAULT_TOPLEVEL_BITS;
 
 /// Errors of the system model.
 #[derive(Debug, thiserror::Error)]
