@@ -35,7 +35,7 @@
 //! the line holding the pair), to be drained with [`StreamEncoder::drain_ops`].
 
 use crate::codec::{
-    check_box, decode_slot, encode_pair, encode_pair_with, slot_ptr, ChildPtr, Ctx,
+    check_box, decode_pair, encode_pair, encode_pair_with, slot_ptr, ChildPtr, Ctx,
 };
 use crate::error::CbvhError;
 use crate::format::{pair_bytes, NodePair, LEAF_END, MAX_PTR};
@@ -437,10 +437,13 @@ impl StreamEncoder {
             .pairs
             .get(addr as usize)
             .ok_or_else(|| CbvhError::Corrupt(format!("pointer {addr} outside the tree")))?;
-        let olds = [0, 1].map(|c| decode_slot(&pair.slots[c], &old, p));
+        let olds = decode_pair(&pair, &old, p);
         let boxes = olds.map(|o| o.map_or(Aabb::EMPTY, |c| c.aabb()));
         let ptrs = [0, 1].map(|c| slot_ptr(&pair.slots[c]));
         let (fresh, kids) = encode_pair_with(&boxes, ptrs, &new, p, true);
+        if fresh == pair {
+            self.stats.backtrack_unchanged += 1;
+        }
         self.pairs[addr as usize] = fresh;
         for c in 0..2 {
             if let (ChildPtr::Inner(k), Some(o)) = (ptrs[c], olds[c]) {
@@ -640,8 +643,15 @@ pub(crate) mod tests {
         assert_eq!(dbu.nodes.len(), bvh.nodes.len());
         assert_eq!(enclosure_violations(&dtd, prims).unwrap(), 0);
         assert_eq!(enclosure_violations(&dbu, prims).unwrap(), 0);
-        // Same topology as the input, boxes at least as large as top-down's.
-        assert_eq!(boxes_not_enclosing(&dbu, &dtd).unwrap(), 0);
+        // Same topology as the input, boxes at least as large as top-down's. Not with
+        // plane sharing: which child is outermost can differ between the two encoders'
+        // grids (a tie in one, strict in the other), and the child that shares in one
+        // keeps its own, finer bound in the other (both enclose the original). In 400
+        // small soups at 3 and 4 bits, 170 of the 187 smaller bottom-up bounds were such
+        // flips; the other 17 sit under a node whose own (shared) plane came out finer.
+        if !c.params.coords.shares_planes() {
+            assert_eq!(boxes_not_enclosing(&dbu, &dtd).unwrap(), 0);
+        }
         assert_eq!(st.nodes_written as usize, bvh.nodes.len());
         st
     }
@@ -655,7 +665,7 @@ pub(crate) mod tests {
         };
         let hl = b.build_highlevel(&prims).unwrap();
         let bvh = hl.to_bvh2();
-        for coords in [Coords::Relative, Coords::Modulo] {
+        for coords in [Coords::Relative, Coords::Modulo, Coords::PlaneSharing] {
             for m in 1..=4 {
                 let c = cfg(coords, 6, m);
                 let (a, sa) = compress_hlbvh(&hl, &c).unwrap();
@@ -755,7 +765,7 @@ pub(crate) mod tests {
             soup(50, 2, true),
         ] {
             let bvh = LbvhBuilder::default().build(&prims).unwrap();
-            for coords in [Coords::Relative, Coords::Modulo] {
+            for coords in [Coords::Relative, Coords::Modulo, Coords::PlaneSharing] {
                 for m in [1, 3] {
                     check_against_topdown(&bvh, &prims, &cfg(coords, 6, m));
                 }
@@ -787,6 +797,14 @@ pub(crate) mod tests {
         assert!(matches!(enc.push(bad), Err(CbvhError::BadBox { .. })));
     }
 
+    fn any_coords() -> impl Strategy<Value = Coords> {
+        prop_oneof![
+            Just(Coords::Relative),
+            Just(Coords::Modulo),
+            Just(Coords::PlaneSharing)
+        ]
+    }
+
     fn any_prims() -> impl Strategy<Value = Vec<Aabb>> {
         proptest::collection::vec(crate::codec::tests::any_box(), 1..120)
     }
@@ -811,8 +829,7 @@ pub(crate) mod tests {
     proptest! {
         #![proptest_config(ProptestConfig::with_cases(48))]
         #[test]
-        fn every_encoder_encloses_grid_geometry(prims in grid_prims(), bits in 3u32..=8, m in 1u32..=3, modulo in any::<bool>()) {
-            let coords = if modulo { Coords::Modulo } else { Coords::Relative };
+        fn every_encoder_encloses_grid_geometry(prims in grid_prims(), bits in 3u32..=8, m in 1u32..=3, coords in any_coords()) {
             let bvh = LbvhBuilder::default().build(&prims).unwrap();
             check_against_topdown(&bvh, &prims, &cfg(coords, bits, m));
             let hl = crate::study::paper_lbvh().build_highlevel(&prims).unwrap();
@@ -823,8 +840,7 @@ pub(crate) mod tests {
         /// Every encoder, on random boxes of every magnitude, gives trees whose decoded
         /// boxes enclose the originals, and the bottom-up ones enclose top-down's.
         #[test]
-        fn every_encoder_encloses(prims in any_prims(), bits in 3u32..=8, m in 1u32..=4, modulo in any::<bool>(), min_e in prop_oneof![Just(-30i32), Just(-126), Just(-8)]) {
-            let coords = if modulo { Coords::Modulo } else { Coords::Relative };
+        fn every_encoder_encloses(prims in any_prims(), bits in 3u32..=8, m in 1u32..=4, coords in any_coords(), min_e in prop_oneof![Just(-30i32), Just(-126), Just(-8)]) {
             let mut c = cfg(coords, bits, m);
             c.params.min_scale_exp = min_e;
             let bvh = LbvhBuilder::default().build(&prims).unwrap();

@@ -69,6 +69,9 @@ impl Ctx {
     /// box encloses its old box keeps that invariant and decodes to the same children.
     /// A same-scale change that does not enclose the old box (rare: a degenerate axis on a
     /// grid line) is also treated as invalidating, where Algorithm 1 tests the scale alone.
+    /// With plane sharing every change of the decoded box invalidates: the children's
+    /// shared planes are the node's decoded planes, so they move with it even where the
+    /// stored fields stay valid (\[P3\] §4.5: "it often invalidates nodes far down").
     #[inline]
     pub fn invalidates(&self, new: &Ctx, p: &Params) -> bool {
         self.axes.iter().zip(&new.axes).any(|(a, b)| {
@@ -76,6 +79,11 @@ impl Ctx {
                 || match p.coords {
                     Coords::Relative => a.lo.to_bits() != b.lo.to_bits(),
                     Coords::Modulo => a.lo < b.lo || a.hi > b.hi,
+                    // The children reuse the node's decoded planes: any change of the
+                    // node's box moves a child's box, so the subtree must be revisited.
+                    Coords::PlaneSharing => {
+                        a.lo.to_bits() != b.lo.to_bits() || a.hi.to_bits() != b.hi.to_bits()
+                    }
                 }
         })
     }
@@ -133,6 +141,7 @@ pub fn encode_pair_with(
 ) -> (NodePair, [Ctx; 2]) {
     let mut pair = NodePair::default();
     let mut out = [*ctx; 2];
+    let mut decoded_boxes = [None; 2];
     for c in 0..2 {
         let (leaf, ptr) = match ptrs[c] {
             ChildPtr::Empty => {
@@ -147,37 +156,86 @@ pub fn encode_pair_with(
             ptr,
             ..Slot::default()
         };
+        let mut lo = [0f32; 3];
+        let mut hi = [0f32; 3];
         for (i, a) in ctx.axes.iter().enumerate() {
             let (r, s) = quantize(boxes[c].min[i], boxes[c].max[i], a, p, decoded);
-            let (lo, hi) = store(r, s, a, p);
-            slot.lo[i] = lo;
-            slot.hi[i] = hi;
-            let (clo, chi) = a.child_bounds(r, s);
-            out[c].axes[i] = AxisCtx::from_decoded(clo, chi, p);
+            (slot.lo[i], slot.hi[i]) = store(r, s, a, p);
+            (lo[i], hi[i]) = a.child_bounds(r, s);
         }
+        decoded_boxes[c] = Some(Aabb::new(Vec3::from(lo), Vec3::from(hi)));
         pair.slots[c] = slot;
+    }
+    if p.coords.shares_planes() {
+        share_planes(&mut decoded_boxes, ctx);
+    }
+    for c in 0..2 {
+        if let Some(b) = decoded_boxes[c] {
+            out[c] = Ctx::from_decoded(&b, p);
+        }
     }
     (pair, out)
 }
 
-/// `Decode` of Algorithm 1 for one slot: the child's decoded context (`None` for the
-/// absent child).
+/// Plane sharing (\[P3\] §4.5; Fabianowski and Dingliana 2009): per axis and side, the
+/// child whose decoded bound is the outermost (child 0 on a tie) takes the node's decoded
+/// plane from `ctx` in place of its own. Every plane of a node's original box is a plane of
+/// one child's original box, and outward rounding keeps that child outermost, so a format
+/// needs to store only the other child's coordinate and one bit naming the sharing child:
+/// six coordinates and six flag bits per pair instead of twelve coordinates. The node's
+/// decoded box encloses its original box, so a shared plane still encloses the child.
+///
+/// The shared value is the node's plane quantized on its parent's (coarser) grid, which is
+/// itself shared from further up when the node is its parent's outermost child: a child's
+/// box depends on the decoded boxes of a chain of ancestors, not only on its node's scale.
+#[inline(always)]
+pub fn share_planes(boxes: &mut [Option<Aabb>; 2], ctx: &Ctx) {
+    for i in 0..3 {
+        let (lo, hi) = (ctx.axes[i].lo, ctx.axes[i].hi);
+        match boxes {
+            [Some(a), Some(b)] => {
+                if a.min[i] <= b.min[i] {
+                    a.min[i] = lo;
+                } else {
+                    b.min[i] = lo;
+                }
+                if a.max[i] >= b.max[i] {
+                    a.max[i] = hi;
+                } else {
+                    b.max[i] = hi;
+                }
+            }
+            [Some(a), None] | [None, Some(a)] => {
+                a.min[i] = lo;
+                a.max[i] = hi;
+            }
+            [None, None] => {}
+        }
+    }
+}
+
+/// `Decode` of Algorithm 1 for both children of `pair`: their decoded contexts (`None`
+/// for an absent child).
 #[inline]
-pub fn decode_slot(slot: &Slot, ctx: &Ctx, p: &Params) -> Option<Ctx> {
-    slot_box(slot, ctx, &lo_mods(ctx, p), p).map(|b| Ctx::from_decoded(&b, p))
+pub fn decode_pair(pair: &NodePair, ctx: &Ctx, p: &Params) -> [Option<Ctx>; 2] {
+    decode_boxes(pair, ctx, p).map(|b| b.map(|b| Ctx::from_decoded(&b, p)))
 }
 
 /// The decoded boxes of both children of `pair` in context `ctx` (`None` for the absent
 /// child), without their contexts: what a traversal kernel tests per node visit (\[P3\]
 /// Fig. 4 lines 1-9). [`Ctx::from_decoded`] of a box gives the child's context, so
-/// `decode_boxes(..)[c].map(|b| Ctx::from_decoded(&b, p))` equals [`decode_slot`].
+/// `decode_boxes(..)[c].map(|b| Ctx::from_decoded(&b, p))` equals [`decode_pair`].
 #[inline]
 pub fn decode_boxes(pair: &NodePair, ctx: &Ctx, p: &Params) -> [Option<Aabb>; 2] {
     let m = lo_mods(ctx, p);
-    [
+    let mut boxes = [
         slot_box(&pair.slots[0], ctx, &m, p),
         slot_box(&pair.slots[1], ctx, &m, p),
-    ]
+    ];
+    if p.coords.shares_planes() {
+        share_planes(&mut boxes, ctx);
+    }
+    boxes
 }
 
 /// Per axis the node's lower-bound modulo coordinate (0 for relative coordinates).
@@ -185,7 +243,7 @@ pub fn decode_boxes(pair: &NodePair, ctx: &Ctx, p: &Params) -> [Option<Aabb>; 2]
 fn lo_mods(ctx: &Ctx, p: &Params) -> [i64; 3] {
     match p.coords {
         Coords::Relative => [0; 3],
-        Coords::Modulo => [
+        Coords::Modulo | Coords::PlaneSharing => [
             ctx.axes[0].lo_mod(p),
             ctx.axes[1].lo_mod(p),
             ctx.axes[2].lo_mod(p),
@@ -278,23 +336,25 @@ pub(crate) mod tests {
         /// gives boxes that enclose them, in both encodings and for every N; decoding
         /// gives the same contexts the encoder reported.
         #[test]
-        fn decoded_children_enclose_originals(a in any_box(), b in any_box(), bits in 3u32..=8, modulo in any::<bool>(), min_e in prop_oneof![Just(-30i32), Just(-126), Just(-10), Just(0)]) {
-            let p = Params { bits, min_scale_exp: min_e, coords: if modulo { Coords::Modulo } else { Coords::Relative } };
+        fn decoded_children_enclose_originals(a in any_box(), b in any_box(), bits in 3u32..=8, coords in prop_oneof![Just(Coords::Relative), Just(Coords::Modulo), Just(Coords::PlaneSharing)], min_e in prop_oneof![Just(-30i32), Just(-126), Just(-10), Just(0)]) {
+            let p = Params { bits, min_scale_exp: min_e, coords };
             let boxes = [a, b];
             let ctx = Ctx::estimate(&a.union(b), &p);
             prop_assert!(ctx.aabb().contains(&a.union(b)));
             let (pair, kids) = encode_pair(&boxes, [ChildPtr::Inner(1), ChildPtr::Leaf(2)], &ctx, &p);
             for c in 0..2 {
                 prop_assert!(kids[c].aabb().contains(&boxes[c]), "{:?} {:?}", kids[c], boxes[c]);
-                prop_assert_eq!(decode_slot(&pair.slots[c], &ctx, &p), Some(kids[c]));
+                prop_assert_eq!(decode_pair(&pair, &ctx, &p)[c], Some(kids[c]));
                 // The child fits its own grid: grandchildren can be encoded under it.
                 for ax in kids[c].axes {
                     prop_assert!(ax.hi as f64 - ax.lo as f64 <= crate::grid::pow2(ax.e + bits as i32));
                 }
                 // Re-encoding the decoded box (backtracking) encloses it and stays inside
                 // the node (Eq. 1's extra cell is clipped at the node's upper bound).
+                // With plane sharing, child 0 of two equal boxes takes the node's planes,
+                // so the check reads child 1.
                 let (_, again) = encode_pair_with(&[kids[c].aabb(), kids[c].aabb()], [ChildPtr::Leaf(0); 2], &ctx, &p, true);
-                prop_assert_eq!(again[0], kids[c]);
+                prop_assert_eq!(again[usize::from(p.coords.shares_planes())], kids[c]);
                 // Under the coarser context of a doubled parent box, re-encoding the
                 // decoded box gives what encoding the original gives.
                 let mut wide = ctx;
@@ -328,7 +388,66 @@ pub(crate) mod tests {
             // A same-scale box that does not enclose the old one invalidates.
             let moved = Ctx::from_decoded(&b(lo + 1, lo + n - shift + 1), &p);
             prop_assert!(old.invalidates(&moved, &p));
-            prop_assert_eq!(decode_slot(&pair.slots[0], &new, &p), Some(kids[0]));
+            prop_assert_eq!(decode_pair(&pair, &new, &p)[0], Some(kids[0]));
         }
+    }
+
+    /// Plane sharing: the outermost child on each side takes the node's decoded plane, the
+    /// other keeps its modulo-decoded bound; a same-scale growth of the node's box, which
+    /// modulo coordinates survive, invalidates (the shared planes move).
+    #[test]
+    fn plane_sharing_reuses_the_nodes_planes() {
+        let m = Params {
+            bits: 6,
+            min_scale_exp: -30,
+            coords: Coords::Modulo,
+        };
+        let ps = Params {
+            coords: Coords::PlaneSharing,
+            ..m
+        };
+        let b = |l: [f32; 3], h: [f32; 3]| Aabb::new(Vec3::from(l), Vec3::from(h));
+        // Children meeting the node's planes: child 0 the low x and both y sides, child 1
+        // the high x; both the z sides (a tie: child 0 shares).
+        let kids = [
+            b([0.3, 0.2, 0.1], [5.2, 9.7, 3.3]),
+            b([2.1, 4.4, 0.1], [9.6, 6.0, 3.3]),
+        ];
+        let node = kids[0].union(kids[1]);
+        // A context coarser than the node's own (as its parent's grid gives it).
+        let ctx = Ctx::from_decoded(&b([0.0, 0.0, 0.0], [10.0, 10.0, 4.0]), &ps);
+        assert!(ctx.aabb().contains(&node));
+        let ptrs = [ChildPtr::Leaf(0), ChildPtr::Leaf(1)];
+        let (pm, km) = encode_pair(&kids, ptrs, &ctx, &m);
+        let (pp, kp) = encode_pair(&kids, ptrs, &ctx, &ps);
+        // The stored fields are the modulo ones; only the decode differs.
+        assert_eq!(pm, pp);
+        let (a, c) = (km[0].aabb(), km[1].aabb());
+        let (sa, sc) = (kp[0].aabb(), kp[1].aabb());
+        let n = ctx.aabb();
+        assert_eq!(sa.min, n.min); // x, y and z (tie) low planes
+        assert_eq!([sa.max.x, sa.max.y, sa.max.z], [a.max.x, n.max.y, n.max.z]);
+        assert_eq!([sc.min.x, sc.min.y, sc.min.z], [c.min.x, c.min.y, c.min.z]);
+        assert_eq!([sc.max.x, sc.max.y, sc.max.z], [n.max.x, c.max.y, c.max.z]);
+        for c in 0..2 {
+            assert!(kp[c].aabb().contains(&kids[c]));
+            assert_eq!(decode_pair(&pp, &ctx, &ps)[c], Some(kp[c]));
+            assert_eq!(decode_boxes(&pp, &ctx, &ps)[c], Some(kp[c].aabb()));
+        }
+        // One child only: it is the node.
+        let (p1, k1) = encode_pair(
+            &[kids[0], Aabb::EMPTY],
+            [ChildPtr::Leaf(0), ChildPtr::Empty],
+            &ctx,
+            &ps,
+        );
+        assert_eq!(k1[0].aabb(), n);
+        assert_eq!(decode_pair(&p1, &ctx, &ps), [Some(k1[0]), None]);
+        // Growth at the same scale: invisible to modulo, visible to plane sharing.
+        let grown = Ctx::from_decoded(&b([-1.0, 0.0, 0.0], [10.0, 10.0, 4.0]), &ps);
+        assert_eq!(grown.scales(), ctx.scales());
+        assert!(!ctx.invalidates(&grown, &m));
+        assert!(ctx.invalidates(&grown, &ps));
+        assert!(!ctx.invalidates(&ctx, &ps));
     }
 }

@@ -62,7 +62,7 @@ pub fn store(r: i64, s: i64, ctx: &AxisCtx, prm: &Params) -> (u8, u8) {
     let mask = prm.cells() - 1;
     match prm.coords {
         Coords::Relative => (r as u8, (s - 1) as u8),
-        Coords::Modulo => {
+        Coords::Modulo | Coords::PlaneSharing => {
             let m = ctx.lo_mod(prm);
             (((m + r) & mask) as u8, ((m + s) & mask) as u8)
         }
@@ -74,7 +74,7 @@ pub fn store(r: i64, s: i64, ctx: &AxisCtx, prm: &Params) -> (u8, u8) {
 pub fn load(a: u8, b: u8, ctx: &AxisCtx, prm: &Params) -> (i64, i64) {
     let m = match prm.coords {
         Coords::Relative => 0,
-        Coords::Modulo => ctx.lo_mod(prm),
+        Coords::Modulo | Coords::PlaneSharing => ctx.lo_mod(prm),
     };
     load_with(a, b, m, prm)
 }
@@ -87,7 +87,7 @@ pub fn load_with(a: u8, b: u8, m: i64, prm: &Params) -> (i64, i64) {
     let mask = prm.cells() - 1;
     match prm.coords {
         Coords::Relative => (a as i64, b as i64 + 1),
-        Coords::Modulo => {
+        Coords::Modulo | Coords::PlaneSharing => {
             let r = (a as i64 - m) & mask;
             let w = ((b as i64 - a as i64 - 1) & mask) + 1;
             (r, r + w)

@@ -41,6 +41,13 @@ pub enum Coords {
     Relative,
     /// Modulo coordinates `(k mod 2^N, l mod 2^N)`, Eq. 8 and 9.
     Modulo,
+    /// Modulo coordinates with plane sharing (\[P3\] §4.5, after Fabianowski and Dingliana
+    /// 2009): per axis and side, one child of a pair reuses its node's decoded plane
+    /// instead of its own quantized coordinate, so a pair needs six stored coordinates and
+    /// six one-bit flags instead of twelve coordinates (see
+    /// [`crate::codec::share_planes`] and `docs/beyond-thesis.md`).
+    #[serde(rename = "plane-sharing")]
+    PlaneSharing,
 }
 
 impl Coords {
@@ -49,7 +56,20 @@ impl Coords {
         match self {
             Coords::Relative => "relative",
             Coords::Modulo => "modulo",
+            Coords::PlaneSharing => "plane-sharing",
         }
+    }
+
+    /// True for the encodings whose stored fields are modulo coordinates (Eq. 8, 9).
+    #[inline(always)]
+    pub fn is_modulo(self) -> bool {
+        !matches!(self, Coords::Relative)
+    }
+
+    /// True when a pair's children reuse their node's decoded planes.
+    #[inline(always)]
+    pub fn shares_planes(self) -> bool {
+        matches!(self, Coords::PlaneSharing)
     }
 }
 

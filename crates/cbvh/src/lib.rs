@@ -54,6 +54,12 @@ pub struct EncodeStats {
     /// Backtracking iterations by recursion depth: entry `d` counts iterations `d + 1`
     /// levels below the node whose encoding invalidated them (\[P3\] Fig. 7).
     pub backtrack_depth_hist: Vec<u64>,
+    /// Backtracking iterations that re-encoded a pair to the same bits (counted in
+    /// `backtrack_steps`): only the contexts of its children moved. With plane sharing
+    /// ([`Coords::PlaneSharing`]) a moved node box must be walked down even where the
+    /// stored fields stay valid; an encoder comparing old and new bits could skip these
+    /// writes (the traffic model counts a read and a write for every step).
+    pub backtrack_unchanged: u64,
     /// Deepest context stack (subtrees waiting for their parent).
     pub max_stack: usize,
 }

@@ -128,7 +128,10 @@ mod tests {
         refit_bvh2(&mut full, prims1).unwrap();
         let (td, _) = compress_topdown(&full, &cfg.params).unwrap();
         let dtd = td.decode_to_bvh2().unwrap();
-        assert_eq!(boxes_not_enclosing(&d1, &dtd).unwrap(), 0);
+        // With plane sharing the sharing child can differ (see `bottomup`'s tests).
+        if !coords.shares_planes() {
+            assert_eq!(boxes_not_enclosing(&d1, &dtd).unwrap(), 0);
+        }
         assert_eq!(st.nodes_written as usize, c0.pairs.len());
         st
     }
@@ -144,7 +147,7 @@ mod tests {
                 Aabb::new(b.min + d, b.max + d + d.abs() * 0.01)
             })
             .collect();
-        for coords in [Coords::Relative, Coords::Modulo] {
+        for coords in [Coords::Relative, Coords::Modulo, Coords::PlaneSharing] {
             for m in 1..=4 {
                 check(&p0, &p1, coords, m, 6);
             }

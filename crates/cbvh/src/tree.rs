@@ -3,7 +3,7 @@
 //! encloses the original geometry (\[P3\] §5.5: "decompressing our bounds to single
 //! precision always gave AABBs that enclose the uncompressed AABB").
 
-use crate::codec::{decode_slot, slot_ptr, ChildPtr, Ctx};
+use crate::codec::{decode_pair, slot_ptr, ChildPtr, Ctx};
 use crate::error::CbvhError;
 use crate::format::{pair_bytes, NodePair, LEAF_END};
 use crate::grid::Params;
@@ -85,7 +85,7 @@ impl Cbvh {
             .pairs
             .get(idx as usize)
             .ok_or_else(|| CbvhError::Corrupt(format!("pointer {idx} outside the tree")))?;
-        Ok([0, 1].map(|c| decode_slot(&pair.slots[c], ctx, &self.params)))
+        Ok(decode_pair(pair, ctx, &self.params))
     }
 
     /// The tree with decoded boxes as a [`Bvh2`] of the same topology (nodes renumbered

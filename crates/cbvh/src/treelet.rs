@@ -53,7 +53,7 @@ mod tests {
         let bvh = bvh::LbvhBuilder::default().build(&prims).unwrap();
         let depth = bvh.stats().max_depth as u32;
         assert!(depth < crate::bottomup::MAX_TREELET_DEPTH);
-        for coords in [Coords::Relative, Coords::Modulo] {
+        for coords in [Coords::Relative, Coords::Modulo, Coords::PlaneSharing] {
             let p = Params {
                 coords,
                 ..Params::default()

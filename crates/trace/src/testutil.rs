@@ -235,7 +235,7 @@ pub fn all_mbvh8(tris: &[Triangle]) -> Named<crate::Mbvh8Accel> {
 
 /// Compressed trees over `tris` with every encoder: top-down, bottom-up (the tree streamed
 /// in postorder, and the LBVH emitter's own stream) with relative and modulo coordinates
-/// and treelet depths 1 to 4, coordinate bits 3 to 8 and three minimum scales, compressed
+/// and plane sharing, and treelet depths 1 to 4, coordinate bits 3 to 8 and three minimum scales, compressed
 /// from the paper's LBVH ([P3] §5.2) and from a binned SAH tree; with and without the
 /// distance stack. Names say tree, encoder, coordinates, treelet depth, bits and scale.
 pub fn all_cbvh(tris: &[Triangle]) -> Named<CbvhAccel> {
@@ -245,7 +245,7 @@ pub fn all_cbvh(tris: &[Triangle]) -> Named<CbvhAccel> {
     let binned = bvh::BinnedSahBuilder::default().build(&prims).unwrap();
     // (tree, encoder, coords, treelet depth, bits, min scale exponent)
     let mut cases: Vec<(&str, &str, Coords, u32, u32, i32)> = Vec::new();
-    for coords in [Coords::Relative, Coords::Modulo] {
+    for coords in [Coords::Relative, Coords::Modulo, Coords::PlaneSharing] {
         cases.push(("lbvh", "topdown", coords, 1, 6, -30));
         for m in 1..=4 {
             cases.push(("lbvh", "bottomup", coords, m, 6, -30));

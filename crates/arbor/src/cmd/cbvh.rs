@@ -21,7 +21,8 @@ pub struct CbvhOptions {
     /// [default: bottomup].
     #[arg(long, value_enum)]
     encoder: Option<EncoderArg>,
-    /// Coordinates: `relative` or `modulo` [default: modulo].
+    /// Coordinates: `relative`, `modulo` or `plane-sharing` (modulo coordinates whose pairs
+    /// reuse their node's planes, \[P3\] §4.5's open problem) [default: modulo].
     #[arg(long, value_enum)]
     coords: Option<CoordsArg>,
     /// Treelet depth (1 = none; 2..=8; bottom-up only) [default: 1].
@@ -88,6 +89,7 @@ impl CbvhOptions {
             coords: match self.coords.unwrap_or(CoordsArg::Modulo) {
                 CoordsArg::Relative => Coords::Relative,
                 CoordsArg::Modulo => Coords::Modulo,
+                CoordsArg::PlaneSharing => Coords::PlaneSharing,
             },
         };
         params.check()?;
@@ -135,6 +137,7 @@ enum EncoderArg {
 enum CoordsArg {
     Relative,
     Modulo,
+    PlaneSharing,
 }
 
 /// The JSON document of `arbor cbvh --json` (`arbor.cbvh.v1`).
@@ -156,6 +159,7 @@ pub struct CbvhJson {
     node_bytes: u64,
     backtrack_steps: u64,
     backtrack_depth_hist: Vec<u64>,
+    backtrack_unchanged: u64,
     traffic_bytes: u64,
     traffic: Traffic,
     topdown_traffic_bytes: u64,
@@ -264,6 +268,7 @@ pub fn run(a: &CbvhArgs, ui: &Ui) -> anyhow::Result<()> {
         node_bytes: tree.node_bytes(),
         backtrack_steps: stats.backtrack_steps,
         backtrack_depth_hist: stats.backtrack_depth_hist.clone(),
+        backtrack_unchanged: stats.backtrack_unchanged,
         traffic_bytes: t.total_bytes(),
         traffic: t,
         topdown_traffic_bytes: td.total_bytes(),
@@ -309,9 +314,10 @@ fn print_text(o: &CbvhJson) {
         o.min_scale_exp
     );
     println!(
-        "backtracking steps  {} ({:.4} per node); by depth {:?}",
+        "backtracking steps  {} ({:.4} per node, {} re-encoded unchanged); by depth {:?}",
         thousands(o.backtrack_steps),
         o.backtrack_steps as f64 / o.nodes.max(1) as f64,
+        thousands(o.backtrack_unchanged),
         o.backtrack_depth_hist
     );
     println!(

@@ -8,6 +8,9 @@ fn cbvh_json_has_the_documented_fields_and_encloses() {
         ("topdown", "relative", "1"),
         ("bottomup", "relative", "1"),
         ("bottomup", "modulo", "3"),
+        // Without treelets plane sharing backtracks more than it saves
+        // (docs/beyond-thesis.md); with them it saves traffic.
+        ("bottomup", "plane-sharing", "4"),
     ] {
         let v = json(
             "cbvh",
@@ -22,9 +25,11 @@ fn cbvh_json_has_the_documented_fields_and_encloses() {
             ],
         );
         assert_eq!(v["schema"], "arbor.cbvh.v1");
+        assert_eq!(v["coords"], coords);
         for k in [
             "nodes",
             "backtrack_steps",
+            "backtrack_unchanged",
             "traffic_bytes",
             "decoded_encloses_original",
             "sah_vs_uncompressed",
@@ -32,6 +37,7 @@ fn cbvh_json_has_the_documented_fields_and_encloses() {
             assert!(!v[k].is_null(), "{k} missing for {enc}");
         }
         assert_eq!(v["decoded_encloses_original"], true);
+        assert!(v["backtrack_unchanged"].as_u64() <= v["backtrack_steps"].as_u64());
         assert!(v["sah_vs_uncompressed"].as_f64().unwrap() >= 1.0);
         let ratio = v["traffic_vs_topdown"].as_f64().unwrap();
         if enc == "topdown" {

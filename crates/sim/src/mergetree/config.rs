@@ -421,7 +421,8 @@ impl MergeTreeConfig {
                 self.cbvh_coords = match value {
                     "relative" => Coords::Relative,
                     "modulo" => Coords::Modulo,
-                    _ => return Err(bad("expected relative or modulo")),
+                    "plane-sharing" => Coords::PlaneSharing,
+                    _ => return Err(bad("expected relative, modulo or plane-sharing")),
                 }
             }
             "cbvh_treelet_depth" => self.cbvh_treelet_depth = num32(1)?,
@@ -694,6 +695,9 @@ mod tests {
         assert_eq!(s.params.min_scale_exp, -126);
         assert!(c.set("output", "cbvh").is_err());
         assert!(c.set("cbvh_coords", "absolute").is_err());
+        let mut ps = c.clone();
+        ps.set("cbvh_coords", "plane-sharing").unwrap();
+        assert_eq!(ps.stream_config(0).params.coords, Coords::PlaneSharing);
         assert!(c.set("cbvh_min_scale_exp", "x").is_err());
         let mut t = c.clone();
         t.set("output", "cbvh-topdown").unwrap();
