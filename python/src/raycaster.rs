@@ -39,13 +39,13 @@ const COUNTERS: [&str; 7] = [
 ];
 
 /// What a `RayCaster` traces: the geometry it owns, its tree and the kernel's form of it.
-struct State {
-    vertices: Vec<Vec3>,
-    indices: Vec<[u32; 3]>,
+pub(crate) struct State {
+    pub(crate) vertices: Vec<Vec3>,
+    pub(crate) indices: Vec<[u32; 3]>,
     /// Shared with the results traced over them (their normals are computed on demand).
-    triangles: Arc<Vec<Triangle>>,
-    tree: Tree,
-    accel: Accel,
+    pub(crate) triangles: Arc<Vec<Triangle>>,
+    pub(crate) tree: Tree,
+    pub(crate) accel: Accel,
     /// Set while a refit changes the state; left set if it failed half way.
     broken: bool,
 }
@@ -53,14 +53,14 @@ struct State {
 /// A prepared ray caster (see the module header).
 #[pyclass(module = "arbor._arbor", frozen)]
 pub struct RayCaster {
-    state: RwLock<State>,
+    pub(crate) state: RwLock<State>,
     /// Refits so far: part of every result, so that results of different geometry are
     /// told apart.
     generation: AtomicU64,
-    kernel: &'static str,
-    distance_stack: bool,
-    builder: String,
-    max_leaf: u32,
+    pub(crate) kernel: &'static str,
+    pub(crate) distance_stack: bool,
+    pub(crate) builder: String,
+    pub(crate) max_leaf: u32,
     vertex_count: usize,
     triangle_count: usize,
     /// The meshes it was built over (one unless `from_meshes`): the first triangle and
@@ -75,7 +75,7 @@ fn c32(x: u64) -> u32 {
 }
 
 /// The kernel name `kernel` (or the tree's own), checked.
-fn kernel_name(tree: &Tree, kernel: Option<&str>) -> Result<&'static str, String> {
+pub(crate) fn kernel_name(tree: &Tree, kernel: Option<&str>) -> Result<&'static str, String> {
     match kernel {
         None => Ok(tree_kernel(tree)),
         Some(k) => ["bvh2", "mbvh4", "mbvh8", "cbvh"]
@@ -99,21 +99,33 @@ pub(crate) fn count_arg<T: TryFrom<i64>>(what: &str, x: Option<i64>) -> PyResult
 }
 
 /// The build arguments of the constructor and `from_meshes`.
-struct BuildOptions<'a> {
-    builder: &'a str,
-    kernel: Option<&'a str>,
-    distance_stack: Option<bool>,
-    max_leaf: Option<i64>,
-    bins: Option<i64>,
-    collapse_from: Option<String>,
-    threads: Option<i64>,
+pub(crate) struct BuildOptions<'a> {
+    pub(crate) builder: &'a str,
+    pub(crate) kernel: Option<&'a str>,
+    pub(crate) distance_stack: Option<bool>,
+    pub(crate) max_leaf: Option<i64>,
+    pub(crate) bins: Option<i64>,
+    pub(crate) collapse_from: Option<String>,
+    pub(crate) threads: Option<i64>,
+}
+
+/// A state that an update failing half way leaves marked.
+pub(crate) trait Healthy {
+    /// Whether an update failed half way.
+    fn broken(&self) -> bool;
+}
+
+impl Healthy for State {
+    fn broken(&self) -> bool {
+        self.broken
+    }
 }
 
 /// Locks for reading, or fails if a panic left the state inconsistent.
-fn read(l: &RwLock<State>) -> Result<std::sync::RwLockReadGuard<'_, State>, String> {
+pub(crate) fn read<S: Healthy>(l: &RwLock<S>) -> Result<std::sync::RwLockReadGuard<'_, S>, String> {
     let broken = || "the ray caster was left inconsistent by an internal error".to_string();
     let s = l.read().map_err(|_| broken())?;
-    if s.broken {
+    if s.broken() {
         return Err(broken());
     }
     Ok(s)
@@ -220,7 +232,10 @@ impl<'a> Closest<'a> {
 
 /// Runs `work(first, len, totals)` over runs of rays: on this thread for few rays, else
 /// in parallel runs of [`CHUNK`]; returns the summed counters.
-fn for_chunks<P: Send>(parts: Vec<P>, work: impl Fn(P, usize, &mut RayStats) + Sync) -> RayStats {
+pub(crate) fn for_chunks<P: Send>(
+    parts: Vec<P>,
+    work: impl Fn(P, usize, &mut RayStats) + Sync,
+) -> RayStats {
     if parts.len() <= 1 {
         let mut total = RayStats::default();
         for p in parts {
@@ -243,7 +258,7 @@ fn for_chunks<P: Send>(parts: Vec<P>, work: impl Fn(P, usize, &mut RayStats) + S
 }
 
 /// The run length for `n` rays: everything at once when few.
-fn chunk_for(n: usize) -> usize {
+pub(crate) fn chunk_for(n: usize) -> usize {
     if n <= SERIAL_RAYS {
         n.max(1)
     } else {
@@ -529,7 +544,7 @@ impl RayCaster {
     }
 
     /// The state prepared over `tree` (built or refitted over these triangles).
-    fn prepare(
+    pub(crate) fn prepare(
         vertices: Vec<Vec3>,
         indices: Vec<[u32; 3]>,
         tree: Tree,
@@ -557,7 +572,7 @@ impl RayCaster {
     }
 
     /// Builds the tree with the options of the constructor and prepares it.
-    fn build(
+    pub(crate) fn build(
         py: Python<'_>,
         vs: &[Vec3],
         ixs: &[[u32; 3]],
@@ -597,7 +612,7 @@ impl RayCaster {
     }
 
     /// Rays from Python, with the checks every query makes.
-    fn rays<'py>(
+    pub(crate) fn rays<'py>(
         origins: &Bound<'py, PyAny>,
         directions: &Bound<'py, PyAny>,
         tmin: Option<&Bound<'py, PyAny>>,
@@ -607,8 +622,29 @@ impl RayCaster {
     }
 }
 
+/// The vertices and indices of `meshes[g]`: a pair `(vertices, indices)`, or an object
+/// with `vertices` and `faces` (trimesh) or `indices` (`arbor.Mesh`).
+pub(crate) fn mesh_arrays<'py>(
+    m: &Bound<'py, PyAny>,
+    g: usize,
+) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    if let Ok((v, ix)) = m.extract::<(Bound<'_, PyAny>, Bound<'_, PyAny>)>() {
+        return Ok((v, ix));
+    }
+    let v = m.getattr("vertices").map_err(|_| {
+        err(format!(
+            "meshes[{g}] is neither (vertices, indices) nor a mesh with vertices"
+        ))
+    })?;
+    let ix = m
+        .getattr("faces")
+        .or_else(|_| m.getattr("indices"))
+        .map_err(|_| err(format!("meshes[{g}] has no faces or indices")))?;
+    Ok((v, ix))
+}
+
 /// `out` as a writable `(n,)` array of `T` (for `out=` arguments), or a fresh one.
-fn out_array<'py, T: numpy::Element>(
+pub(crate) fn out_array<'py, T: numpy::Element>(
     py: Python<'py>,
     out: Option<&Bound<'py, PyAny>>,
     n: usize,
@@ -690,21 +726,7 @@ impl RayCaster {
         let (mut vs, mut ixs) = (Vec::new(), Vec::new());
         let (mut gfirst, mut vfirst) = (vec![0u32], vec![0u32]);
         for (g, m) in meshes.try_iter()?.enumerate() {
-            let m = m?;
-            let (v, ix) = if let Ok((v, ix)) = m.extract::<(Bound<'_, PyAny>, Bound<'_, PyAny>)>() {
-                (v, ix)
-            } else {
-                let v = m.getattr("vertices").map_err(|_| {
-                    err(format!(
-                        "meshes[{g}] is neither (vertices, indices) nor a mesh with vertices"
-                    ))
-                })?;
-                let ix = m
-                    .getattr("faces")
-                    .or_else(|_| m.getattr("indices"))
-                    .map_err(|_| err(format!("meshes[{g}] has no faces or indices")))?;
-                (v, ix)
-            };
+            let (v, ix) = mesh_arrays(&m?, g)?;
             let pv = points(&format!("meshes[{g}] vertices"), &v)?;
             let pvs = pv.as_vec3()?;
             let pix = crate::arrays::indices(&ix, pvs.len())?;
@@ -1285,4 +1307,54 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<RayCaster>()?;
     m.add_class::<RayHits>()?;
     Ok(())
+}
+
+/// What a ray caster traces, copied or moved out of it: an instance's bottom level.
+pub(crate) struct Part {
+    pub(crate) vertices: Vec<Vec3>,
+    pub(crate) indices: Vec<[u32; 3]>,
+    pub(crate) triangles: Arc<Vec<Triangle>>,
+    pub(crate) tree: Tree,
+    pub(crate) accel: Accel,
+    pub(crate) kernel: &'static str,
+    pub(crate) distance_stack: bool,
+    pub(crate) builder: String,
+    pub(crate) max_leaf: u32,
+}
+
+impl RayCaster {
+    /// A copy of its geometry, tree and kernel form.
+    pub(crate) fn part(&self) -> Result<Part, String> {
+        let s = read(&self.state)?;
+        Ok(Part {
+            vertices: s.vertices.clone(),
+            indices: s.indices.clone(),
+            triangles: s.triangles.clone(),
+            tree: s.tree.clone(),
+            accel: s.accel.clone(),
+            kernel: self.kernel,
+            distance_stack: self.distance_stack,
+            builder: self.builder.clone(),
+            max_leaf: self.max_leaf,
+        })
+    }
+
+    /// Its geometry, tree and kernel form, moved out.
+    pub(crate) fn into_part(self) -> Result<Part, String> {
+        let s = self
+            .state
+            .into_inner()
+            .map_err(|_| "the ray caster was left inconsistent by an internal error")?;
+        Ok(Part {
+            vertices: s.vertices,
+            indices: s.indices,
+            triangles: s.triangles,
+            tree: s.tree,
+            accel: s.accel,
+            kernel: self.kernel,
+            distance_stack: self.distance_stack,
+            builder: self.builder,
+            max_leaf: self.max_leaf,
+        })
+    }
 }
