@@ -501,6 +501,20 @@ class RayCaster:
         """Closest hits (origins and directions (N, 3); ``tmin``/``tmax`` a number or (N,),
         default 0 and ``inf``). ``out``: a result of the same length whose arrays are
         overwritten and shared with the returned result (treat ``out`` itself as spent)."""
+    def trace_frames(
+        self,
+        frames: npt.ArrayLike,
+        origins: npt.ArrayLike,
+        directions: npt.ArrayLike,
+        tmin: float | npt.ArrayLike | None = None,
+        tmax: float | npt.ArrayLike | None = None,
+    ) -> list[RayHits]:
+        """An animation in one call: for each ``frames[k]`` ((T, N, 3) vertices of the same
+        triangles) a refit and then :meth:`intersect`, with the GIL released throughout.
+        ``origins``/``directions``: (R, 3) for every frame or (T, R, 3) per frame;
+        ``tmin``/``tmax``: a number, (R,) or (T, R). One result per frame, equal to
+        ``refit(frames[k]); intersect(...)``; the caster is left at the last frame
+        (``generation`` up by T). Every frame is checked before any is applied."""
     def intersect_all(
         self,
         origins: npt.ArrayLike,

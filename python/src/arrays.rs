@@ -22,7 +22,7 @@ pub(crate) fn err(msg: impl Into<String>) -> PyErr {
 }
 
 /// `shape` as Python prints it: `(5,)`, `(4, 2)`.
-fn shape_str(shape: &[usize]) -> String {
+pub(crate) fn shape_str(shape: &[usize]) -> String {
     match shape {
         [n] => format!("({n},)"),
         _ => format!(

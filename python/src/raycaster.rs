@@ -230,6 +230,28 @@ impl<'a> Closest<'a> {
     }
 }
 
+/// Moves `s` to the vertices `vs` (same count, same triangles): the tree refitted and the
+/// kernel's form updated in place (a CBVH encoded again).
+fn refit_state(s: &mut State, vs: &[Vec3], kernel: &'static str, ds: bool) -> Result<(), String> {
+    let triangles = crate::arrays::resolve(vs, &s.indices)?;
+    let prims = aabbs(vs, &s.indices)?;
+    // The triangles were checked above (finite, same count), so nothing below can fail
+    // short of an internal error; if it does, the state is half moved and is marked
+    // broken, so that queries fail instead of answering for it.
+    s.broken = true;
+    s.tree
+        .refit(&prims)
+        .map_err(|e| format!("cannot refit the tree: {e}"))?;
+    if !s.accel.refit(&triangles).unwrap_or(false) {
+        let options = KernelOptions { distance_stack: ds };
+        s.accel = accel_of(&s.tree, Some(kernel), &triangles, options)?;
+    }
+    s.triangles = Arc::new(triangles);
+    s.vertices.copy_from_slice(vs);
+    s.broken = false;
+    Ok(())
+}
+
 /// Runs `work(first, len, totals)` over runs of rays: on this thread for few rays, else
 /// in parallel runs of [`CHUNK`]; returns the summed counters.
 pub(crate) fn for_chunks<P: Send>(
@@ -862,25 +884,182 @@ impl RayCaster {
             let mut s = lock.write().map_err(|_| {
                 "the ray caster was left inconsistent by an internal error".to_string()
             })?;
-            let triangles = crate::arrays::resolve(vs, &s.indices)?;
-            let prims = aabbs(vs, &s.indices)?;
-            // The triangles were checked above (finite, same count), so nothing below can
-            // fail short of an internal error; if it does, the state is half moved and is
-            // marked broken, so that queries fail instead of answering for it.
-            s.broken = true;
-            s.tree
-                .refit(&prims)
-                .map_err(|e| format!("cannot refit the tree: {e}"))?;
-            if !s.accel.refit(&triangles).unwrap_or(false) {
-                let options = KernelOptions { distance_stack: ds };
-                s.accel = accel_of(&s.tree, Some(kernel), &triangles, options)?;
-            }
-            s.triangles = Arc::new(triangles);
-            s.vertices.copy_from_slice(vs);
-            s.broken = false;
+            refit_state(&mut s, vs, kernel, ds)?;
             generation.fetch_add(1, Ordering::SeqCst);
             Ok::<_, String>(())
         })
+    }
+
+    /// Traces the same rays through every frame of an animation: for each `frames[k]`
+    /// ((T, N, 3) vertices of the same triangles), a refit and then `intersect`, all in
+    /// one call with the GIL released. `origins`/`directions`: (R, 3) for every frame, or
+    /// (T, R, 3) per frame; `tmin`/`tmax` a number, (R,) or (T, R). Returns one `RayHits`
+    /// per frame; the caster is left at the last frame (`generation` up by T).
+    #[pyo3(signature = (frames, origins, directions, tmin = None, tmax = None))]
+    fn trace_frames<'py>(
+        &self,
+        py: Python<'py>,
+        frames: &Bound<'py, PyAny>,
+        origins: &Bound<'py, PyAny>,
+        directions: &Bound<'py, PyAny>,
+        tmin: Option<&Bound<'py, PyAny>>,
+        tmax: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Vec<RayHits>> {
+        let np = py.import("numpy")?;
+        let f = np
+            .call_method1("ascontiguousarray", (frames, "float32"))
+            .map_err(|e| err(format!("frames: cannot convert to a float32 array: {e}")))?;
+        let shape: Vec<usize> = f.getattr("shape")?.extract()?;
+        if shape.len() != 3 || shape[1] != self.vertex_count || shape[2] != 3 {
+            return Err(err(format!(
+                "frames must have shape (T, {}, 3) (the vertices of each frame), got {}",
+                self.vertex_count,
+                crate::arrays::shape_str(&shape)
+            )));
+        }
+        let nf = shape[0];
+        let flat = f.call_method1("reshape", ((nf * self.vertex_count, 3),))?;
+        let fv = points("frames", &flat)?;
+        let all = fv.as_vec3()?;
+        // Rays: (R, 3) shared, or (T, R, 3) flattened to (T R, 3) with the ranges broadcast.
+        let o = np.call_method1("asarray", (origins,))?;
+        let per_frame = o.getattr("ndim")?.extract::<usize>()? == 3;
+        let (o, d, lo, hi, r) = if per_frame {
+            let d = np.call_method1("asarray", (directions,))?;
+            let (os, ds): (Vec<usize>, Vec<usize>) = (
+                o.getattr("shape")?.extract()?,
+                d.getattr("shape")?.extract()?,
+            );
+            if os != ds || os[0] != nf || os[2] != 3 {
+                return Err(err(format!(
+                    "per-frame rays: origins and directions must both have shape ({nf}, R, 3), got {} and {}",
+                    crate::arrays::shape_str(&os),
+                    crate::arrays::shape_str(&ds)
+                )));
+            }
+            let r = os[1];
+            let range = |x: Option<&Bound<'py, PyAny>>| -> PyResult<Option<Bound<'py, PyAny>>> {
+                let Some(x) = x else { return Ok(None) };
+                let a = np.call_method1("asarray", (x, "float32"))?;
+                if a.getattr("ndim")?.extract::<usize>()? == 0 {
+                    return Ok(Some(a));
+                }
+                let b = np.call_method1("broadcast_to", (a, (nf, r))).map_err(|_| {
+                    err(format!(
+                        "tmin and tmax must be a number, ({r},) or ({nf}, {r})"
+                    ))
+                })?;
+                Ok(Some(b.call_method1("reshape", (nf * r,))?))
+            };
+            let flat3 = |a: &Bound<'py, PyAny>| a.call_method1("reshape", ((nf * r, 3),));
+            (flat3(&o)?, flat3(&d)?, range(tmin)?, range(tmax)?, r)
+        } else {
+            let r = o.len().unwrap_or(0);
+            (o, directions.clone(), tmin.cloned(), tmax.cloned(), r)
+        };
+        let arrays = Self::rays(&o, &d, lo.as_ref(), hi.as_ref())?;
+        let rays = arrays.slices()?;
+        let n = if per_frame { r } else { rays.len() };
+        // The output arrays of every frame, allocated before the work.
+        type Cols<'py> = (
+            Bound<'py, PyArray1<f32>>,
+            Bound<'py, PyArray1<u32>>,
+            Bound<'py, PyArray1<f32>>,
+            Bound<'py, PyArray1<f32>>,
+            Bound<'py, PyArray1<bool>>,
+            Bound<'py, PyArray2<f32>>,
+        );
+        let outs: Vec<Cols<'py>> = (0..nf)
+            .map(|_| {
+                (
+                    PyArray1::<f32>::zeros(py, n, false),
+                    PyArray1::<u32>::zeros(py, n, false),
+                    PyArray1::<f32>::zeros(py, n, false),
+                    PyArray1::<f32>::zeros(py, n, false),
+                    PyArray1::<bool>::zeros(py, n, false),
+                    PyArray2::<f32>::zeros(py, [n, 3], false),
+                )
+            })
+            .collect();
+        let nc = "internal error: array not contiguous";
+        let mut guards = Vec::with_capacity(nf);
+        for (t, p, u, v, h, l) in &outs {
+            guards.push((
+                t.readwrite(),
+                p.readwrite(),
+                u.readwrite(),
+                v.readwrite(),
+                h.readwrite(),
+                l.readwrite(),
+            ));
+        }
+        let mut cols = Vec::with_capacity(nf);
+        for (t, p, u, v, h, l) in guards.iter_mut() {
+            cols.push(Closest {
+                t: t.as_slice_mut().map_err(|_| err(nc))?,
+                prim: p.as_slice_mut().map_err(|_| err(nc))?,
+                u: u.as_slice_mut().map_err(|_| err(nc))?,
+                v: v.as_slice_mut().map_err(|_| err(nc))?,
+                hit: h.as_slice_mut().map_err(|_| err(nc))?,
+                location: l.as_slice_mut().map_err(|_| err(nc))?,
+                counters: None,
+            });
+        }
+        let (vc, kernel, ds, generation) = (
+            self.vertex_count,
+            self.kernel,
+            self.distance_stack,
+            &self.generation,
+        );
+        let lock = &self.state;
+        let rays = &rays;
+        let done = detached(py, move || {
+            rays.check()?;
+            let mut s = lock.write().map_err(|_| {
+                "the ray caster was left inconsistent by an internal error".to_string()
+            })?;
+            // Every frame is checked before the first moves anything.
+            for (k, frame) in all.chunks_exact(vc.max(1)).enumerate() {
+                crate::arrays::check_finite(frame, &s.indices)
+                    .map_err(|e| format!("frames[{k}]: {e}"))?;
+            }
+            let mut done = Vec::with_capacity(nf);
+            for (k, c) in cols.into_iter().enumerate() {
+                refit_state(&mut s, &all[k * vc..(k + 1) * vc], kernel, ds)?;
+                let g = generation.fetch_add(1, Ordering::SeqCst) + 1;
+                let window = if per_frame {
+                    rays.window(k * n, n)
+                } else {
+                    rays.window(0, n)
+                };
+                let st = &*s;
+                let total = for_chunks(c.split(chunk_for(n)), |p, first, tot| {
+                    p.fill(st, &window, first, tot)
+                });
+                done.push((total, g, s.triangles.clone()));
+            }
+            Ok::<_, String>(done)
+        })?;
+        drop(guards);
+        Ok(outs
+            .into_iter()
+            .zip(done)
+            .map(|((t, p, u, v, h, l), (total, g, triangles))| RayHits {
+                t: t.unbind(),
+                primitive: p.unbind(),
+                u: u.unbind(),
+                v: v.unbind(),
+                hit: h.unbind(),
+                triangles,
+                normal: OnceLock::new(),
+                geometry_first: self.geometry_first.clone(),
+                location: l.unbind(),
+                counter_array: None,
+                generation: g,
+                kernel: self.kernel,
+                total,
+            })
+            .collect())
     }
 
     /// Closest hits of rays (origins and directions float32-convertible (N, 3); `tmin` and

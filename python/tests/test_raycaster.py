@@ -584,3 +584,69 @@ def test_all_hits_along_each_ray(mesh: arbor.Mesh) -> None:
     assert len(rc.intersect_all(o, d, tmax=0.0)[0]) == 0
     with pytest.raises(ArborError, match="max_hits"):
         rc.intersect_all(o, d, max_hits=-1)
+
+
+# ------------------------------------------------------------------- animation frames
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_trace_frames_equals_refit_and_intersect_frame_by_frame(
+    mesh: arbor.Mesh, kernel: Kernel
+) -> None:
+    v, ix = mesh.vertices, mesh.indices
+    frames = np.stack([moved(v, k) for k in range(5)])
+    o, d = rays_at(v, 700, seed=21)  # above the serial limit: the parallel path
+    batched, stepped = RayCaster(v, ix, kernel=kernel), RayCaster(v, ix, kernel=kernel)
+    hits = batched.trace_frames(frames, o, d)
+    assert len(hits) == 5 and batched.generation == 5
+    for k, h in enumerate(hits):
+        stepped.refit(frames[k])
+        ref = stepped.intersect(o, d)
+        assert h.generation == ref.generation == k + 1 and h.kernel == kernel
+        for name in ("t", "primitive", "u", "v", "hit", "location", "normal"):
+            np.testing.assert_array_equal(getattr(h, name), getattr(ref, name), err_msg=name)
+        assert h.totals == ref.totals
+        check_hits(h, o, d, frames[k], ix)
+    np.testing.assert_array_equal(batched.vertices, frames[-1])
+
+
+def test_trace_frames_with_rays_per_frame_and_ranges(mesh: arbor.Mesh) -> None:
+    v, ix = mesh.vertices, mesh.indices
+    frames = np.stack([moved(v, k) for k in range(3)])
+    rays = [rays_at(v, 50, seed=30 + k) for k in range(3)]
+    o, d = np.stack([r[0] for r in rays]), np.stack([r[1] for r in rays])
+    tmin = np.linspace(0.0, 0.3, 50, dtype=np.float32)  # (R,): the same for every frame
+    tmax = np.tile(np.linspace(0.5, 1.5, 50, dtype=np.float32), (3, 1))  # (T, R)
+    tmax[1] = np.inf
+    rc, ref = RayCaster(v, ix, kernel="mbvh8"), RayCaster(v, ix, kernel="mbvh8")
+    hits = rc.trace_frames(frames, o, d, tmin, tmax)
+    for k, h in enumerate(hits):
+        ref.refit(frames[k])
+        r = ref.intersect(o[k], d[k], tmin, tmax[k])
+        np.testing.assert_array_equal(h.t, r.t)
+        np.testing.assert_array_equal(h.primitive, r.primitive)
+    assert hits[1].hit.sum() > hits[0].hit.sum() // 2  # some rays do hit
+
+
+def test_trace_frames_bad_input_changes_nothing(mesh: arbor.Mesh) -> None:
+    v, ix = mesh.vertices, mesh.indices
+    rc = RayCaster(v, ix)
+    o, d = rays_at(v, 10, seed=40)
+    frames = np.stack([moved(v, k) for k in range(4)])
+    frames[2, 7] = np.nan
+    with pytest.raises(ArborError, match=r"frames\[2\]: .*non-finite"):
+        rc.trace_frames(frames, o, d)
+    with pytest.raises(ArborError, match=r"frames must have shape \(T, \d+, 3\)"):
+        rc.trace_frames(frames[:, :-1], o, d)
+    with pytest.raises(ArborError, match=r"frames must have shape"):
+        rc.trace_frames(frames[0], o, d)
+    good = frames[[0, 1]]
+    with pytest.raises(ArborError, match=r"per-frame rays"):
+        rc.trace_frames(good, np.stack([o] * 3), np.stack([d] * 3))
+    with pytest.raises(ArborError, match=r"tmin and tmax"):
+        rc.trace_frames(good, np.stack([o] * 2), np.stack([d] * 2), np.zeros(3))
+    with pytest.raises(ArborError, match=r"directions\[0\]"):
+        rc.trace_frames(good, o, np.zeros_like(d))
+    assert rc.generation == 0
+    np.testing.assert_array_equal(rc.vertices, v)
+    assert rc.trace_frames(good[:0], o, d) == []
