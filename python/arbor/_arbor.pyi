@@ -537,6 +537,15 @@ class RayCaster:
         out: npt.NDArray[np.bool_] | None = None,
     ) -> npt.NDArray[np.bool_]:
         """Any hit within each ray's range, as booleans. ``out``: a bool (N,) array to fill."""
+    def contains_points(
+        self, points: npt.ArrayLike, *, out: npt.NDArray[np.bool_] | None = None
+    ) -> npt.NDArray[np.bool_]:
+        """Whether each point ((N, 3)) lies inside the closed mesh: the parity of the
+        surface crossings along rays from the point in three fixed directions, by majority
+        (a ray through an edge or a vertex is outvoted; two triangles hit at exactly the
+        same distance count once). Undefined on the surface; for a mesh that is not
+        closed, the parity of a majority of three rays. ``out``: a bool (N,) array."""
+
     @property
     def vertices(self) -> _F32:
         """A copy of the vertices traced (those of the last build or refit)."""

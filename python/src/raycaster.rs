@@ -19,7 +19,7 @@ use crate::trace::{
 };
 use ::trace::{Accel, KernelOptions, Query, RayStats, TraversalStack, Traverse};
 use bvh::Tree;
-use geom::{Triangle, Vec3};
+use geom::{Ray, Triangle, Vec3};
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PySlice, PyTuple};
@@ -250,6 +250,47 @@ fn refit_state(s: &mut State, vs: &[Vec3], kernel: &'static str, ds: bool) -> Re
     s.vertices.copy_from_slice(vs);
     s.broken = false;
     Ok(())
+}
+
+/// Directions of the rays of `contains_points` (normalized when used): the first is
+/// trimesh's, the others are far from it, from each other and from the axes, so that a
+/// mesh on a grid rarely has an edge along them.
+const CONTAINS_DIRECTIONS: [[f32; 3]; 3] = [
+    [0.439_506_45, 0.617_598_6, 0.652_231_6],
+    [-0.719_407_3, 0.190_125_8, -0.668_043_1],
+    [0.283_617_6, -0.908_335_2, -0.307_554_9],
+];
+
+/// Walks `ray` through every hit, nearest first, up to `max_hits`, calling `each` on
+/// each, and returns how many. After a hit the ray restarts just past it (the next float
+/// above its `t`), so two triangles hit at exactly the same distance count once.
+fn crossings(
+    accel: &Accel,
+    ray: &Ray,
+    max_hits: u32,
+    stack: &mut TraversalStack,
+    mut each: impl FnMut(&::trace::Hit),
+) -> u32 {
+    let mut r = *ray;
+    let mut n = 0;
+    while n < max_hits {
+        let mut st = RayStats::default();
+        let Some(h) = accel.trace_observed(&r, Query::Closest, stack, &mut st, &mut ()) else {
+            break;
+        };
+        each(&h);
+        n += 1;
+        // The next float above the hit (hits lie at t >= 0).
+        r.t_min = if h.t <= 0.0 {
+            f32::from_bits(1)
+        } else {
+            f32::from_bits(h.t.to_bits() + 1)
+        };
+        if r.t_min > r.t_max {
+            break;
+        }
+    }
+    n
 }
 
 /// Runs `work(first, len, totals)` over runs of rays: on this thread for few rays, else
@@ -1208,31 +1249,11 @@ impl RayCaster {
                 let mut stack = TraversalStack::new();
                 let (mut ray, mut prim, mut t) = (Vec::new(), Vec::new(), Vec::new());
                 for i in range {
-                    let mut r = rays.ray(i);
-                    for _ in 0..max_hits {
-                        let mut st = RayStats::default();
-                        let Some(h) = s.accel.trace_observed(
-                            &r,
-                            Query::Closest,
-                            &mut stack,
-                            &mut st,
-                            &mut (),
-                        ) else {
-                            break;
-                        };
+                    crossings(&s.accel, &rays.ray(i), max_hits, &mut stack, |h| {
                         ray.push(i as u32);
                         prim.push(h.prim);
                         t.push(h.t);
-                        // The next float above the hit (hits lie at t >= 0).
-                        r.t_min = if h.t <= 0.0 {
-                            f32::from_bits(1)
-                        } else {
-                            f32::from_bits(h.t.to_bits() + 1)
-                        };
-                        if r.t_min > r.t_max {
-                            break;
-                        }
-                    }
+                    });
                 }
                 (ray, prim, t)
             };
@@ -1262,6 +1283,65 @@ impl RayCaster {
             PyArray1::from_vec(py, prim),
             PyArray1::from_vec(py, t),
         ))
+    }
+
+    /// Whether each point ((N, 3)) lies inside the closed mesh: the parity of the surface
+    /// crossings along a ray from the point, by majority over three fixed directions
+    /// (`CONTAINS_DIRECTIONS`), so that a ray through an edge or a vertex, or grazing the
+    /// surface, is outvoted. Crossings are counted as in `intersect_all` (a restart just
+    /// past each hit, so two triangles at exactly the same distance count once). A point
+    /// outside the tree's box is outside. On the surface the answer is undefined.
+    /// `out`: a bool (N,) array to fill.
+    #[pyo3(signature = (points, *, out = None))]
+    fn contains_points<'py>(
+        &self,
+        py: Python<'py>,
+        points: &Bound<'py, PyAny>,
+        out: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyArray1<bool>>> {
+        let p = crate::arrays::points("points", points)?;
+        let ps = p.as_vec3()?;
+        let n = ps.len();
+        let a = out_array::<bool>(py, out, n, "contains_points")?;
+        {
+            let mut w = a.try_readwrite().map_err(|_| err("out is in use"))?;
+            let col = w
+                .as_slice_mut()
+                .map_err(|_| err("internal error: array not contiguous"))?;
+            let lock = &self.state;
+            detached(py, move || {
+                if let Some(i) = ps.iter().position(|q| !q.is_finite()) {
+                    return Err(format!("points[{i}] is not finite: {}", ps[i]));
+                }
+                let s = read(lock)?;
+                let s = &*s;
+                let bounds = s.tree.bounds();
+                let dirs = CONTAINS_DIRECTIONS.map(|d| Vec3::from_array(d).normalize());
+                let parts: Vec<&mut [bool]> = col.chunks_mut(chunk_for(n)).collect();
+                for_chunks(parts, |part, first, _| {
+                    let mut stack = TraversalStack::new();
+                    for (k, o) in part.iter_mut().enumerate() {
+                        let q = ps[first + k];
+                        *o = bounds.contains_point(q) && {
+                            let mut odd = |d: Vec3| {
+                                crossings(&s.accel, &Ray::new(q, d), u32::MAX, &mut stack, |_| {})
+                                    % 2
+                                    == 1
+                            };
+                            let (a, b) = (odd(dirs[0]), odd(dirs[1]));
+                            // Two that agree decide; else the third.
+                            if a == b {
+                                a
+                            } else {
+                                odd(dirs[2])
+                            }
+                        };
+                    }
+                });
+                Ok::<_, String>(())
+            })?;
+        }
+        Ok(a)
     }
 
     /// Whether anything lies along each ray within its range (an any-hit query; the

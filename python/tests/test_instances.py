@@ -13,45 +13,11 @@ import pytest
 
 import arbor
 from arbor import ArborError, InstanceCaster, InstanceHits, RayCaster
+from shapes import icosphere
 
 CLOTH = "proc:cloth?n=2000&seed=1"
 Kernel = Literal["bvh2", "mbvh4", "mbvh8", "cbvh"]
 KERNELS: tuple[Kernel, ...] = ("bvh2", "mbvh4", "mbvh8", "cbvh")
-
-
-def icosphere(subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
-    """A closed unit icosphere: (vertices float32, faces int64), outward winding."""
-    p = (1 + 5**0.5) / 2
-    v = [
-        (-1, p, 0), (1, p, 0), (-1, -p, 0), (1, -p, 0),
-        (0, -1, p), (0, 1, p), (0, -1, -p), (0, 1, -p),
-        (p, 0, -1), (p, 0, 1), (-p, 0, -1), (-p, 0, 1),
-    ]  # fmt: skip
-    f = [
-        (0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11),
-        (1, 5, 9), (5, 11, 4), (11, 10, 2), (10, 7, 6), (7, 1, 8),
-        (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8), (3, 8, 9),
-        (4, 9, 5), (2, 4, 11), (6, 2, 10), (8, 6, 7), (9, 8, 1),
-    ]  # fmt: skip
-    verts = [np.array(x, np.float64) / np.linalg.norm(x) for x in v]
-    faces = list(f)
-    mid: dict[tuple[int, int], int] = {}  # edge -> its midpoint vertex
-
-    def middle(a: int, b: int) -> int:
-        key = (min(a, b), max(a, b))
-        if key not in mid:
-            m = verts[a] + verts[b]
-            verts.append(m / np.linalg.norm(m))
-            mid[key] = len(verts) - 1
-        return mid[key]
-
-    for _ in range(subdivisions):
-        new = []
-        for a, b, c in faces:
-            ab, bc, ca = middle(a, b), middle(b, c), middle(c, a)
-            new += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
-        faces = new
-    return np.array(verts, np.float32), np.array(faces, np.int64)
 
 
 @pytest.fixture(scope="module")

@@ -650,3 +650,116 @@ def test_trace_frames_bad_input_changes_nothing(mesh: arbor.Mesh) -> None:
     assert rc.generation == 0
     np.testing.assert_array_equal(rc.vertices, v)
     assert rc.trace_frames(good[:0], o, d) == []
+
+
+# ------------------------------------------------------------------------ inside test
+
+# The directions of `RayCaster.contains_points` (python/src/raycaster.rs).
+CONTAINS_DIRECTIONS = np.array(
+    [
+        [0.43950645, 0.6175986, 0.6522316],
+        [-0.7194073, 0.1901258, -0.6680431],
+        [0.2836176, -0.9083352, -0.3075549],
+    ]
+)
+
+
+def convex_depth(p: np.ndarray, v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Signed distance of each point to a convex polytope's boundary planes, float64:
+    the largest distance above a face plane (negative inside)."""
+    tri = np.asarray(v, np.float64)[f]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    return np.max(np.einsum("pfk,fk->pf", p[:, None, :] - tri[None, :, 0], n), axis=1)
+
+
+def hard_points(v: np.ndarray, f: np.ndarray, seed: int) -> np.ndarray:
+    """Points whose rays in the directions of `contains_points` pass through an edge's
+    midpoint or a vertex: each such point, moved back and forth along that direction."""
+    rng = np.random.default_rng(seed)
+    v = np.asarray(v, np.float64)
+    edges = v[f[:, [0, 1, 2]]] + v[f[:, [1, 2, 0]]]
+    targets = np.concatenate([edges.reshape(-1, 3) / 2, v])
+    targets = targets[rng.choice(len(targets), 400, replace=False)]
+    out = []
+    for d in CONTAINS_DIRECTIONS:
+        s = rng.uniform(-1.0, 1.0, size=(len(targets), 1))
+        out.append(targets - s * d)
+    return np.concatenate(out)
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_contains_points_on_a_convex_mesh_matches_the_planes(kernel: Kernel) -> None:
+    from shapes import icosphere
+
+    v, f = icosphere(3)
+    v = v * 2.0
+    rc = RayCaster(v, f, kernel=kernel)
+    rng = np.random.default_rng(50)
+    tri = np.asarray(v, np.float64)[f]
+    centroid = tri.mean(axis=1)
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    pts = np.concatenate(
+        [
+            rng.uniform(-2.6, 2.6, size=(3000, 3)),  # in and around the box
+            centroid + 1e-3 * normal,  # just outside each face
+            centroid - 1e-3 * normal,  # just inside
+            hard_points(v, f, seed=51),  # rays through edges and vertices
+        ]
+    )
+    depth = convex_depth(pts, v, f)
+    clear = np.abs(depth) > 1e-4  # off the surface by more than float32 rounding
+    assert clear.mean() > 0.98
+    got = rc.contains_points(pts)
+    assert got.dtype == bool and got.shape == (len(pts),)
+    np.testing.assert_array_equal(got[clear], depth[clear] < 0)
+    # The adapter uses it.
+    adapter = arbor.RayMeshIntersector(types_mesh(v, f), kernel=kernel)
+    np.testing.assert_array_equal(adapter.contains_points(pts), got)
+
+
+class types_mesh:  # noqa: N801 (a plain record with the attributes of a mesh)
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+        self.vertices, self.faces = vertices, faces
+
+
+def test_contains_points_on_a_torus_matches_its_equation() -> None:
+    """A non-convex closed mesh: points off the surface against the torus equation
+    (the polygon lies within 0.01 of the smooth torus), hard points included."""
+    from shapes import torus
+
+    big, small = 1.0, 0.35
+    v, f = torus(big, small, 64, 32)
+    rc = RayCaster(v, f)
+    rng = np.random.default_rng(52)
+    pts = np.concatenate([rng.uniform(-1.5, 1.5, size=(6000, 3)), hard_points(v, f, seed=53)])
+    q = np.hypot(pts[:, 0], pts[:, 1]) - big
+    dist = np.hypot(q, pts[:, 2]) - small  # signed distance to the smooth torus
+    clear = np.abs(dist) > 0.01
+    assert clear.mean() > 0.9 and (dist[clear] < 0).sum() > 300
+    got = rc.contains_points(pts)
+    np.testing.assert_array_equal(got[clear], dist[clear] < 0)
+    # Moved: the refitted tree answers for the new place.
+    rc.refit(v + np.float32([5.0, 0.0, 0.0]))
+    np.testing.assert_array_equal(rc.contains_points(pts + [5.0, 0.0, 0.0])[clear], dist[clear] < 0)
+
+
+def test_contains_points_of_several_meshes_and_bad_input() -> None:
+    from shapes import icosphere
+
+    v, f = icosphere(2)
+    rc = RayCaster.from_meshes([(v, f), (v + np.float32([3, 0, 0]), f)])
+    pts = np.array([[0, 0, 0], [3, 0, 0], [1.5, 0, 0], [3, 0, 2], [0.2, 0.1, -0.3]])
+    np.testing.assert_array_equal(rc.contains_points(pts), [True, True, False, False, True])
+    buf = np.zeros(5, bool)
+    assert rc.contains_points(pts, out=buf) is buf and buf.sum() == 3
+    assert rc.contains_points(np.zeros((0, 3))).shape == (0,)
+    bad = pts.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(ArborError, match=r"points\[3\] is not finite"):
+        rc.contains_points(bad)
+    with pytest.raises(ArborError, match=r"points must have shape \(N, 3\)"):
+        rc.contains_points(np.zeros((4, 2)))
+    with pytest.raises(ArborError, match="out"):
+        rc.contains_points(pts, out=np.zeros(4, bool))
