@@ -232,9 +232,20 @@ impl<'a> Closest<'a> {
 
 /// Moves `s` to the vertices `vs` (same count, same triangles): the tree refitted and the
 /// kernel's form updated in place (a CBVH encoded again).
-fn refit_state(s: &mut State, vs: &[Vec3], kernel: &'static str, ds: bool) -> Result<(), String> {
-    let triangles = crate::arrays::resolve(vs, &s.indices)?;
-    let prims = aabbs(vs, &s.indices)?;
+/// `finite_checked`: the caller has checked that the vertices the triangles use are finite.
+fn refit_state(
+    s: &mut State,
+    vs: &[Vec3],
+    kernel: &'static str,
+    ds: bool,
+    finite_checked: bool,
+) -> Result<(), String> {
+    let triangles = if finite_checked {
+        crate::arrays::gather(vs, &s.indices)?
+    } else {
+        crate::arrays::resolve(vs, &s.indices)?
+    };
+    let prims = bvh::triangle_aabbs(&triangles);
     // The triangles were checked above (finite, same count), so nothing below can fail
     // short of an internal error; if it does, the state is half moved and is marked
     // broken, so that queries fail instead of answering for it.
@@ -925,7 +936,7 @@ impl RayCaster {
             let mut s = lock.write().map_err(|_| {
                 "the ray caster was left inconsistent by an internal error".to_string()
             })?;
-            refit_state(&mut s, vs, kernel, ds)?;
+            refit_state(&mut s, vs, kernel, ds, false)?;
             generation.fetch_add(1, Ordering::SeqCst);
             Ok::<_, String>(())
         })
@@ -1059,14 +1070,27 @@ impl RayCaster {
             let mut s = lock.write().map_err(|_| {
                 "the ray caster was left inconsistent by an internal error".to_string()
             })?;
-            // Every frame is checked before the first moves anything.
+            // Every frame is checked before the first moves anything: a sequential pass
+            // over the vertices that triangles use (the message from the indexed check).
+            let mut used = vec![false; vc];
+            for &i in s.indices.iter().flatten() {
+                if let Some(u) = used.get_mut(i as usize) {
+                    *u = true;
+                }
+            }
             for (k, frame) in all.chunks_exact(vc.max(1)).enumerate() {
-                crate::arrays::check_finite(frame, &s.indices)
-                    .map_err(|e| format!("frames[{k}]: {e}"))?;
+                let ok = frame
+                    .iter()
+                    .zip(&used)
+                    .fold(true, |a, (p, &u)| a & (!u | p.is_finite()));
+                if !ok {
+                    crate::arrays::check_finite(frame, &s.indices)
+                        .map_err(|e| format!("frames[{k}]: {e}"))?;
+                }
             }
             let mut done = Vec::with_capacity(nf);
             for (k, c) in cols.into_iter().enumerate() {
-                refit_state(&mut s, &all[k * vc..(k + 1) * vc], kernel, ds)?;
+                refit_state(&mut s, &all[k * vc..(k + 1) * vc], kernel, ds, true)?;
                 let g = generation.fetch_add(1, Ordering::SeqCst) + 1;
                 let window = if per_frame {
                     rays.window(k * n, n)
