@@ -6,6 +6,7 @@ a flat `RayCaster` over their union), after `set_transforms` and mesh refits, pi
 from __future__ import annotations
 
 import pickle
+import threading
 from typing import Literal
 
 import numpy as np
@@ -230,3 +231,47 @@ def test_bad_input_is_a_clear_error(meshes: list[tuple[np.ndarray, np.ndarray]])
     with pytest.raises(ArborError, match="directions"):
         ic.intersect(np.zeros((1, 3)), np.zeros((1, 3)))
     assert ic.generation == 0
+
+
+def test_threads_trace_while_another_moves_the_instances(
+    meshes: list[tuple[np.ndarray, np.ndarray]],
+) -> None:
+    """Queries and transform updates from several threads wait for each other: every
+    result is the one of the transforms of the generation it reports."""
+    mesh_index = np.array([0, 1, 0])
+    poses = [random_transforms(3, seed=20), random_transforms(3, seed=21)]
+    ic = InstanceCaster(meshes, poses[0], mesh_index)
+    o, d = rays_through(np.array([-2.0, -2, -2]), np.array([6.0, 2, 2]), 2000, seed=22)
+    want = []
+    for p in poses:
+        ic.set_transforms(p)
+        want.append(ic.intersect(o, d).t)
+    assert not np.array_equal(want[0], want[1])
+    errors: list[BaseException] = []
+    stop = threading.Event()
+
+    def move() -> None:
+        try:
+            for k in range(200):
+                ic.set_transforms(poses[k % 2])
+        except BaseException as e:  # pragma: no cover - reported below
+            errors.append(e)
+        finally:
+            stop.set()
+
+    def query() -> None:
+        try:
+            while not stop.is_set():
+                h = ic.intersect(o, d)
+                # Generation g >= 2 holds poses[(g + 1) % 2] (generation 1 held poses[0]).
+                np.testing.assert_array_equal(h.t, want[(h.generation + 1) % 2])
+        except BaseException as e:  # pragma: no cover - reported below
+            errors.append(e)
+
+    threads = [threading.Thread(target=move)] + [threading.Thread(target=query) for _ in range(2)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert not errors, errors
+    assert ic.generation == 202
