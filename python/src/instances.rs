@@ -507,7 +507,10 @@ impl InstanceCaster {
     ) -> PyResult<Self> {
         let xf = transforms_arg(transforms, "transforms")?;
         let mut parts = Vec::new();
-        for (g, m) in meshes.try_iter()?.enumerate() {
+        let items = meshes
+            .try_iter()
+            .map_err(|_| err("meshes must be a sequence of meshes"))?;
+        for (g, m) in items.enumerate() {
             let m = m?;
             if let Ok(rc) = m.cast::<RayCaster>() {
                 let rc = rc.get();

@@ -218,6 +218,10 @@ def test_bad_input_is_a_clear_error(meshes: list[tuple[np.ndarray, np.ndarray]])
         InstanceCaster(meshes[:1], np.zeros((0, 3, 4)))
     with pytest.raises(ArborError, match="at least one mesh"):
         InstanceCaster([], xf)
+    with pytest.raises(ArborError, match="meshes must be a sequence"):
+        InstanceCaster(3, xf)  # type: ignore[arg-type]
+    with pytest.raises(ArborError, match=r"meshes\[1\] is neither"):
+        InstanceCaster([meshes[0], 5], xf)
     with pytest.raises(ArborError, match="no mesh 2"):
         ic.refit(2, meshes[0][0])
     with pytest.raises(ArborError, match="non-negative"):
