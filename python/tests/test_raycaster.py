@@ -7,7 +7,7 @@ from __future__ import annotations
 import pickle
 import threading
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import pytest
@@ -410,17 +410,25 @@ def test_a_ray_task_receives_the_structure(mesh: arbor.Mesh) -> None:
     rc = RayCaster(v, ix, kernel="mbvh8")
     o, d = rays_at(v, 200, seed=12)
     want = rc.intersect(o, d).t
+    # And instances of it (the second one moved and turned half a turn about z).
+    xf = np.array([np.eye(4)[:3], [[-1, 0, 0, 0.3], [0, -1, 0, 0], [0, 0, 1, 0.1]]])
+    ic = arbor.InstanceCaster([rc], xf)
+    ic_want = ic.intersect(o, d)
+    assert ic_want.hit.any()
     ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
     try:
 
         @ray.remote  # type: ignore[untyped-decorator]
-        def cast(caster: RayCaster, o: np.ndarray, d: np.ndarray) -> np.ndarray:
-            return caster.intersect(o, d).t
+        def cast(caster: RayCaster | arbor.InstanceCaster, o: np.ndarray, d: np.ndarray) -> Any:
+            return caster.intersect(o, d)
 
         got = ray.get(cast.remote(ray.put(rc), o, d))
+        ic_got = ray.get(cast.remote(ray.put(ic), o, d))
     finally:
         ray.shutdown()
-    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(got.t, want)
+    np.testing.assert_array_equal(ic_got.t, ic_want.t)
+    np.testing.assert_array_equal(ic_got.instance, ic_want.instance)
 
 
 def test_bvh_pickles(mesh: arbor.Mesh, tmp_path: Path) -> None:
