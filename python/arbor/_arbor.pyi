@@ -634,7 +634,8 @@ class InstanceCaster:
         threads: int | None = None,
     ) -> None:
         """``meshes``: each a :class:`RayCaster` (its tree and kernel form are copied and
-        reused), ``(vertices, indices)``, or an object with ``vertices`` and ``faces``
+        reused; one made by :meth:`RayCaster.from_meshes` is one mesh here, its triangles
+        numbered over all its parts), ``(vertices, indices)``, or an object with ``vertices`` and ``faces``
         (a ``trimesh.Trimesh``) or ``indices``, built here with the builder options of
         :class:`RayCaster`. ``transforms``: (K, 3, 4) or (K, 4, 4) object-to-world
         matrices (rows ``[M | t]``; a 4x4's last row ``0 0 0 1``); a singular or
