@@ -32,6 +32,8 @@ __all__ = [
     "builders",
     "DEFAULT_BUILDER",
     "Hits",
+    "InstanceCaster",
+    "InstanceHits",
     "RayCaster",
     "RayHits",
     "Rays",
@@ -499,6 +501,20 @@ class RayCaster:
         """Closest hits (origins and directions (N, 3); ``tmin``/``tmax`` a number or (N,),
         default 0 and ``inf``). ``out``: a result of the same length whose arrays are
         overwritten and shared with the returned result (treat ``out`` itself as spent)."""
+    def trace_frames(
+        self,
+        frames: npt.ArrayLike,
+        origins: npt.ArrayLike,
+        directions: npt.ArrayLike,
+        tmin: float | npt.ArrayLike | None = None,
+        tmax: float | npt.ArrayLike | None = None,
+    ) -> list[RayHits]:
+        """An animation in one call: for each ``frames[k]`` ((T, N, 3) vertices of the same
+        triangles) a refit and then :meth:`intersect`, with the GIL released throughout.
+        ``origins``/``directions``: (R, 3) for every frame or (T, R, 3) per frame;
+        ``tmin``/``tmax``: a number, (R,) or (T, R). One result per frame, equal to
+        ``refit(frames[k]); intersect(...)``; the caster is left at the last frame
+        (``generation`` up by T). Every frame is checked before any is applied."""
     def intersect_all(
         self,
         origins: npt.ArrayLike,
@@ -521,6 +537,15 @@ class RayCaster:
         out: npt.NDArray[np.bool_] | None = None,
     ) -> npt.NDArray[np.bool_]:
         """Any hit within each ray's range, as booleans. ``out``: a bool (N,) array to fill."""
+    def contains_points(
+        self, points: npt.ArrayLike, *, out: npt.NDArray[np.bool_] | None = None
+    ) -> npt.NDArray[np.bool_]:
+        """Whether each point ((N, 3)) lies inside the closed mesh: the parity of the
+        surface crossings along rays from the point in three fixed directions, by majority
+        (a ray through an edge or a vertex is outvoted; two triangles hit at exactly the
+        same distance count once). Undefined on the surface; for a mesh that is not
+        closed, the parity of a majority of three rays. ``out``: a bool (N,) array."""
+
     @property
     def vertices(self) -> _F32:
         """A copy of the vertices traced (those of the last build or refit)."""
@@ -546,6 +571,118 @@ class RayCaster:
     @property
     def geometry_count(self) -> int:
         """Meshes it was built over (1 unless :meth:`from_meshes`)."""
+    def __len__(self) -> int: ...
+
+@final
+class InstanceHits:
+    """Closest hits of :meth:`InstanceCaster.intersect`, one entry per ray: ``t`` (world
+    distance in units of the ray direction, ``inf`` on a miss), ``instance`` and
+    ``primitive`` (the triangle within the instance's mesh; :data:`NO_HIT` on a miss),
+    ``u`` and ``v`` (barycentric weights of the triangle's vertices 1 and 2), ``hit``,
+    ``location`` (world space, NaN on a miss), and on access ``geometry`` (the instance's
+    mesh) and ``normal`` (the world-space unit geometric normal). Pickles."""
+
+    @property
+    def t(self) -> _F32: ...
+    @property
+    def instance(self) -> _U32: ...
+    @property
+    def primitive(self) -> _U32: ...
+    @property
+    def u(self) -> _F32: ...
+    @property
+    def v(self) -> _F32: ...
+    @property
+    def hit(self) -> npt.NDArray[np.bool_]: ...
+    @property
+    def location(self) -> _F32: ...
+    @property
+    def geometry(self) -> _U32:
+        """The mesh of each hit instance (``mesh_index[instance]``), :data:`NO_HIT` on a
+        miss."""
+    @property
+    def normal(self) -> _F32:
+        """The normalized ``cross(p1 - p0, p2 - p0)`` of each hit triangle moved into world
+        space (NaN on a miss), computed on first access."""
+    @property
+    def totals(self) -> dict[str, int]:
+        """Traversal counters summed over all rays, top and bottom levels."""
+    @property
+    def generation(self) -> int:
+        """The :attr:`InstanceCaster.generation` the rays were traced against."""
+    def __len__(self) -> int: ...
+
+@final
+class InstanceCaster:
+    """Two-level instancing: meshes (bottom levels) placed in the world by affine
+    transforms under a top-level tree over the instances. ``set_transforms`` moves the
+    instances and ``refit`` deforms a mesh, both refitting in place. Queries release the
+    GIL and run in parallel; threads may share one object. Pickles."""
+
+    def __init__(
+        self,
+        meshes: Sequence[RayCaster | tuple[npt.ArrayLike, npt.ArrayLike] | Any],
+        transforms: npt.ArrayLike,
+        mesh_index: npt.ArrayLike | None = None,
+        builder: _BuilderName | str = "binned-sah",
+        *,
+        kernel: _KernelName | None = None,
+        distance_stack: bool | None = None,
+        max_leaf: int | None = None,
+        bins: int | None = None,
+        collapse_from: str | None = None,
+        threads: int | None = None,
+    ) -> None:
+        """``meshes``: each a :class:`RayCaster` (its tree and kernel form are copied and
+        reused; one made by :meth:`RayCaster.from_meshes` is one mesh here, its triangles
+        numbered over all its parts), ``(vertices, indices)``, or an object with ``vertices`` and ``faces``
+        (a ``trimesh.Trimesh``) or ``indices``, built here with the builder options of
+        :class:`RayCaster`. ``transforms``: (K, 3, 4) or (K, 4, 4) object-to-world
+        matrices (rows ``[M | t]``; a 4x4's last row ``0 0 0 1``); a singular or
+        non-finite matrix is an error. ``mesh_index``: the mesh of each instance (default:
+        mesh ``i`` for instance ``i`` when there are K meshes, mesh 0 when there is one)."""
+    def set_transforms(self, transforms: npt.ArrayLike, *, rebuild: bool = False) -> None:
+        """Replaces every instance's transform ((K, 3, 4) or (K, 4, 4)) and refits the top
+        level in place (``rebuild=True``: builds it anew); increments ``generation``."""
+    def refit(self, mesh: int, vertices: npt.ArrayLike) -> None:
+        """Moves the vertices of mesh ``mesh`` (same count, same triangles): its tree and
+        the top level are refitted in place; increments ``generation``."""
+    def intersect(
+        self,
+        origins: npt.ArrayLike,
+        directions: npt.ArrayLike,
+        tmin: float | npt.ArrayLike | None = None,
+        tmax: float | npt.ArrayLike | None = None,
+        *,
+        out: InstanceHits | None = None,
+    ) -> InstanceHits:
+        """Closest hits (arguments as in :meth:`RayCaster.intersect`)."""
+    def occluded(
+        self,
+        origins: npt.ArrayLike,
+        directions: npt.ArrayLike,
+        tmin: float | npt.ArrayLike | None = None,
+        tmax: float | npt.ArrayLike | None = None,
+        *,
+        out: npt.NDArray[np.bool_] | None = None,
+    ) -> npt.NDArray[np.bool_]:
+        """Any hit within each ray's range, as booleans."""
+    @property
+    def transforms(self) -> _F32:
+        """The instances' object-to-world matrices, (K, 3, 4) float32."""
+    @property
+    def mesh_index(self) -> _U32:
+        """The mesh of each instance."""
+    @property
+    def generation(self) -> int:
+        """Updates so far (``set_transforms`` and ``refit``; 0 after building)."""
+    @property
+    def instance_count(self) -> int: ...
+    @property
+    def mesh_count(self) -> int: ...
+    @property
+    def kernels(self) -> list[_KernelName]:
+        """The kernel of each mesh."""
     def __len__(self) -> int: ...
 
 # ----------------------------------------------------------------------------- CBVH

@@ -29,9 +29,6 @@ _I64 = npt.NDArray[np.int64]
 _F64 = npt.NDArray[np.float64]
 _B = npt.NDArray[np.bool_]
 
-#: The direction trimesh's ``contains_points`` casts its rays in.
-_CONTAINS_DIRECTION = np.array([0.4395064455, 0.617598629942, 0.652231566745])
-
 
 def _rays(origins: npt.ArrayLike, directions: npt.ArrayLike) -> tuple[Any, Any]:
     o = np.asarray(origins, dtype=np.float32)
@@ -61,13 +58,11 @@ class RayMeshIntersector:
         self.mesh = mesh
         v = np.asarray(mesh.vertices, dtype=np.float32)
         self.caster = RayCaster(v, faces, builder, kernel=kernel)
-        self._bounds = (v.min(axis=0), v.max(axis=0))
 
     def refit(self, vertices: npt.ArrayLike) -> None:
         """Moves the vertices (same triangles); see :meth:`arbor.RayCaster.refit`."""
         v = np.asarray(vertices, dtype=np.float32)
         self.caster.refit(v)
-        self._bounds = (v.min(axis=0), v.max(axis=0))
 
     def intersects_first(self, ray_origins: npt.ArrayLike, ray_directions: npt.ArrayLike) -> _I64:
         """Index of the first triangle each ray hits, -1 for a miss."""
@@ -120,29 +115,8 @@ class RayMeshIntersector:
         return locations, index_ray, index_tri
 
     def contains_points(self, points: npt.ArrayLike) -> _B:
-        """Whether each point lies inside the (closed) mesh, by the parity of the hits of a
-        ray cast forward and backward (trimesh's test; undefined on the surface)."""
-        p = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-        out = np.zeros(len(p), dtype=bool)
-        lo, hi = self._bounds
-        inside = np.all((p >= lo) & (p <= hi), axis=1)
-        q = p[inside]
-        if len(q) == 0:
-            return out
-
-        def odd(pts: _F64, direction: _F64) -> tuple[_B, _B]:
-            """Parity of the hits forward and backward along `direction`."""
-            dirs = np.tile(direction, (len(pts), 1))
-            index_ray = self.intersects_id(np.vstack((pts, pts)), np.vstack((dirs, -dirs)))[1]
-            counts = np.bincount(index_ray, minlength=2 * len(pts)).reshape(2, -1)
-            return counts[0] % 2 == 1, counts[1] % 2 == 1
-
-        forward, backward = odd(q, _CONTAINS_DIRECTION)
-        # Where forward and backward disagree (a ray through an edge or a vertex), ask
-        # again along another direction.
-        unsure = forward != backward
-        if unsure.any():
-            other = _CONTAINS_DIRECTION[[2, 0, 1]] * np.array([1.0, -1.0, 1.0])
-            forward[unsure] = odd(q[unsure], other)[0]
-        out[inside] = forward
-        return out
+        """Whether each point lies inside the (closed) mesh: the parity of the surface
+        crossings along rays from the point in three fixed directions, by majority
+        (:meth:`arbor.RayCaster.contains_points`; undefined on the surface)."""
+        p = np.asarray(points, dtype=np.float32).reshape(-1, 3)
+        return self.caster.contains_points(p)

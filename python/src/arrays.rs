@@ -22,7 +22,7 @@ pub(crate) fn err(msg: impl Into<String>) -> PyErr {
 }
 
 /// `shape` as Python prints it: `(5,)`, `(4, 2)`.
-fn shape_str(shape: &[usize]) -> String {
+pub(crate) fn shape_str(shape: &[usize]) -> String {
     match shape {
         [n] => format!("({n},)"),
         _ => format!(
@@ -419,6 +419,15 @@ pub(crate) fn resolve(
     indices: &[[u32; 3]],
 ) -> Result<Vec<geom::Triangle>, String> {
     check_finite(vertices, indices)?;
+    gather(vertices, indices)
+}
+
+/// The triangles of `indices` over `vertices` whose finiteness was checked before; an
+/// index out of range is an error.
+pub(crate) fn gather(
+    vertices: &[Vec3],
+    indices: &[[u32; 3]],
+) -> Result<Vec<geom::Triangle>, String> {
     let n = vertices.len();
     let at = |t: usize, v: u32| {
         vertices.get(v as usize).copied().ok_or_else(|| {

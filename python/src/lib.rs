@@ -13,6 +13,7 @@ use pyo3::prelude::*;
 mod arrays;
 mod bvh;
 mod cbvh;
+mod instances;
 mod raycaster;
 mod scene;
 mod trace;
@@ -79,6 +80,7 @@ fn _arbor(m: &Bound<'_, PyModule>) -> PyResult<()> {
     trace::register(m)?;
     cbvh::register(m)?;
     raycaster::register(m)?;
+    instances::register(m)?;
     m.add_function(wrap_pyfunction!(check_args, m)?)?;
     Ok(())
 }

@@ -19,7 +19,7 @@ use crate::trace::{
 };
 use ::trace::{Accel, KernelOptions, Query, RayStats, TraversalStack, Traverse};
 use bvh::Tree;
-use geom::{Triangle, Vec3};
+use geom::{Ray, Triangle, Vec3};
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PySlice, PyTuple};
@@ -39,13 +39,13 @@ const COUNTERS: [&str; 7] = [
 ];
 
 /// What a `RayCaster` traces: the geometry it owns, its tree and the kernel's form of it.
-struct State {
-    vertices: Vec<Vec3>,
-    indices: Vec<[u32; 3]>,
+pub(crate) struct State {
+    pub(crate) vertices: Vec<Vec3>,
+    pub(crate) indices: Vec<[u32; 3]>,
     /// Shared with the results traced over them (their normals are computed on demand).
-    triangles: Arc<Vec<Triangle>>,
-    tree: Tree,
-    accel: Accel,
+    pub(crate) triangles: Arc<Vec<Triangle>>,
+    pub(crate) tree: Tree,
+    pub(crate) accel: Accel,
     /// Set while a refit changes the state; left set if it failed half way.
     broken: bool,
 }
@@ -53,14 +53,14 @@ struct State {
 /// A prepared ray caster (see the module header).
 #[pyclass(module = "arbor._arbor", frozen)]
 pub struct RayCaster {
-    state: RwLock<State>,
+    pub(crate) state: RwLock<State>,
     /// Refits so far: part of every result, so that results of different geometry are
     /// told apart.
     generation: AtomicU64,
-    kernel: &'static str,
-    distance_stack: bool,
-    builder: String,
-    max_leaf: u32,
+    pub(crate) kernel: &'static str,
+    pub(crate) distance_stack: bool,
+    pub(crate) builder: String,
+    pub(crate) max_leaf: u32,
     vertex_count: usize,
     triangle_count: usize,
     /// The meshes it was built over (one unless `from_meshes`): the first triangle and
@@ -75,7 +75,7 @@ fn c32(x: u64) -> u32 {
 }
 
 /// The kernel name `kernel` (or the tree's own), checked.
-fn kernel_name(tree: &Tree, kernel: Option<&str>) -> Result<&'static str, String> {
+pub(crate) fn kernel_name(tree: &Tree, kernel: Option<&str>) -> Result<&'static str, String> {
     match kernel {
         None => Ok(tree_kernel(tree)),
         Some(k) => ["bvh2", "mbvh4", "mbvh8", "cbvh"]
@@ -99,21 +99,33 @@ pub(crate) fn count_arg<T: TryFrom<i64>>(what: &str, x: Option<i64>) -> PyResult
 }
 
 /// The build arguments of the constructor and `from_meshes`.
-struct BuildOptions<'a> {
-    builder: &'a str,
-    kernel: Option<&'a str>,
-    distance_stack: Option<bool>,
-    max_leaf: Option<i64>,
-    bins: Option<i64>,
-    collapse_from: Option<String>,
-    threads: Option<i64>,
+pub(crate) struct BuildOptions<'a> {
+    pub(crate) builder: &'a str,
+    pub(crate) kernel: Option<&'a str>,
+    pub(crate) distance_stack: Option<bool>,
+    pub(crate) max_leaf: Option<i64>,
+    pub(crate) bins: Option<i64>,
+    pub(crate) collapse_from: Option<String>,
+    pub(crate) threads: Option<i64>,
+}
+
+/// A state that an update failing half way leaves marked.
+pub(crate) trait Healthy {
+    /// Whether an update failed half way.
+    fn broken(&self) -> bool;
+}
+
+impl Healthy for State {
+    fn broken(&self) -> bool {
+        self.broken
+    }
 }
 
 /// Locks for reading, or fails if a panic left the state inconsistent.
-fn read(l: &RwLock<State>) -> Result<std::sync::RwLockReadGuard<'_, State>, String> {
+pub(crate) fn read<S: Healthy>(l: &RwLock<S>) -> Result<std::sync::RwLockReadGuard<'_, S>, String> {
     let broken = || "the ray caster was left inconsistent by an internal error".to_string();
     let s = l.read().map_err(|_| broken())?;
-    if s.broken {
+    if s.broken() {
         return Err(broken());
     }
     Ok(s)
@@ -218,9 +230,86 @@ impl<'a> Closest<'a> {
     }
 }
 
+/// Moves `s` to the vertices `vs` (same count, same triangles): the tree refitted and the
+/// kernel's form updated in place (a CBVH encoded again).
+/// `finite_checked`: the caller has checked that the vertices the triangles use are finite.
+fn refit_state(
+    s: &mut State,
+    vs: &[Vec3],
+    kernel: &'static str,
+    ds: bool,
+    finite_checked: bool,
+) -> Result<(), String> {
+    let triangles = if finite_checked {
+        crate::arrays::gather(vs, &s.indices)?
+    } else {
+        crate::arrays::resolve(vs, &s.indices)?
+    };
+    let prims = bvh::triangle_aabbs(&triangles);
+    // The triangles were checked above (finite, same count), so nothing below can fail
+    // short of an internal error; if it does, the state is half moved and is marked
+    // broken, so that queries fail instead of answering for it.
+    s.broken = true;
+    s.tree
+        .refit(&prims)
+        .map_err(|e| format!("cannot refit the tree: {e}"))?;
+    if !s.accel.refit(&triangles).unwrap_or(false) {
+        let options = KernelOptions { distance_stack: ds };
+        s.accel = accel_of(&s.tree, Some(kernel), &triangles, options)?;
+    }
+    s.triangles = Arc::new(triangles);
+    s.vertices.copy_from_slice(vs);
+    s.broken = false;
+    Ok(())
+}
+
+/// Directions of the rays of `contains_points` (normalized when used): the first is
+/// trimesh's, the others are far from it, from each other and from the axes, so that a
+/// mesh on a grid rarely has an edge along them.
+const CONTAINS_DIRECTIONS: [[f32; 3]; 3] = [
+    [0.439_506_45, 0.617_598_6, 0.652_231_6],
+    [-0.719_407_3, 0.190_125_8, -0.668_043_1],
+    [0.283_617_6, -0.908_335_2, -0.307_554_9],
+];
+
+/// Walks `ray` through every hit, nearest first, up to `max_hits`, calling `each` on
+/// each, and returns how many. After a hit the ray restarts just past it (the next float
+/// above its `t`), so two triangles hit at exactly the same distance count once.
+fn crossings(
+    accel: &Accel,
+    ray: &Ray,
+    max_hits: u32,
+    stack: &mut TraversalStack,
+    mut each: impl FnMut(&::trace::Hit),
+) -> u32 {
+    let mut r = *ray;
+    let mut n = 0;
+    while n < max_hits {
+        let mut st = RayStats::default();
+        let Some(h) = accel.trace_observed(&r, Query::Closest, stack, &mut st, &mut ()) else {
+            break;
+        };
+        each(&h);
+        n += 1;
+        // The next float above the hit (hits lie at t >= 0).
+        r.t_min = if h.t <= 0.0 {
+            f32::from_bits(1)
+        } else {
+            f32::from_bits(h.t.to_bits() + 1)
+        };
+        if r.t_min > r.t_max {
+            break;
+        }
+    }
+    n
+}
+
 /// Runs `work(first, len, totals)` over runs of rays: on this thread for few rays, else
 /// in parallel runs of [`CHUNK`]; returns the summed counters.
-fn for_chunks<P: Send>(parts: Vec<P>, work: impl Fn(P, usize, &mut RayStats) + Sync) -> RayStats {
+pub(crate) fn for_chunks<P: Send>(
+    parts: Vec<P>,
+    work: impl Fn(P, usize, &mut RayStats) + Sync,
+) -> RayStats {
     if parts.len() <= 1 {
         let mut total = RayStats::default();
         for p in parts {
@@ -243,7 +332,7 @@ fn for_chunks<P: Send>(parts: Vec<P>, work: impl Fn(P, usize, &mut RayStats) + S
 }
 
 /// The run length for `n` rays: everything at once when few.
-fn chunk_for(n: usize) -> usize {
+pub(crate) fn chunk_for(n: usize) -> usize {
     if n <= SERIAL_RAYS {
         n.max(1)
     } else {
@@ -529,7 +618,7 @@ impl RayCaster {
     }
 
     /// The state prepared over `tree` (built or refitted over these triangles).
-    fn prepare(
+    pub(crate) fn prepare(
         vertices: Vec<Vec3>,
         indices: Vec<[u32; 3]>,
         tree: Tree,
@@ -557,7 +646,7 @@ impl RayCaster {
     }
 
     /// Builds the tree with the options of the constructor and prepares it.
-    fn build(
+    pub(crate) fn build(
         py: Python<'_>,
         vs: &[Vec3],
         ixs: &[[u32; 3]],
@@ -597,7 +686,7 @@ impl RayCaster {
     }
 
     /// Rays from Python, with the checks every query makes.
-    fn rays<'py>(
+    pub(crate) fn rays<'py>(
         origins: &Bound<'py, PyAny>,
         directions: &Bound<'py, PyAny>,
         tmin: Option<&Bound<'py, PyAny>>,
@@ -607,8 +696,29 @@ impl RayCaster {
     }
 }
 
+/// The vertices and indices of `meshes[g]`: a pair `(vertices, indices)`, or an object
+/// with `vertices` and `faces` (trimesh) or `indices` (`arbor.Mesh`).
+pub(crate) fn mesh_arrays<'py>(
+    m: &Bound<'py, PyAny>,
+    g: usize,
+) -> PyResult<(Bound<'py, PyAny>, Bound<'py, PyAny>)> {
+    if let Ok((v, ix)) = m.extract::<(Bound<'_, PyAny>, Bound<'_, PyAny>)>() {
+        return Ok((v, ix));
+    }
+    let v = m.getattr("vertices").map_err(|_| {
+        err(format!(
+            "meshes[{g}] is neither (vertices, indices) nor a mesh with vertices"
+        ))
+    })?;
+    let ix = m
+        .getattr("faces")
+        .or_else(|_| m.getattr("indices"))
+        .map_err(|_| err(format!("meshes[{g}] has no faces or indices")))?;
+    Ok((v, ix))
+}
+
 /// `out` as a writable `(n,)` array of `T` (for `out=` arguments), or a fresh one.
-fn out_array<'py, T: numpy::Element>(
+pub(crate) fn out_array<'py, T: numpy::Element>(
     py: Python<'py>,
     out: Option<&Bound<'py, PyAny>>,
     n: usize,
@@ -690,21 +800,7 @@ impl RayCaster {
         let (mut vs, mut ixs) = (Vec::new(), Vec::new());
         let (mut gfirst, mut vfirst) = (vec![0u32], vec![0u32]);
         for (g, m) in meshes.try_iter()?.enumerate() {
-            let m = m?;
-            let (v, ix) = if let Ok((v, ix)) = m.extract::<(Bound<'_, PyAny>, Bound<'_, PyAny>)>() {
-                (v, ix)
-            } else {
-                let v = m.getattr("vertices").map_err(|_| {
-                    err(format!(
-                        "meshes[{g}] is neither (vertices, indices) nor a mesh with vertices"
-                    ))
-                })?;
-                let ix = m
-                    .getattr("faces")
-                    .or_else(|_| m.getattr("indices"))
-                    .map_err(|_| err(format!("meshes[{g}] has no faces or indices")))?;
-                (v, ix)
-            };
+            let (v, ix) = mesh_arrays(&m?, g)?;
             let pv = points(&format!("meshes[{g}] vertices"), &v)?;
             let pvs = pv.as_vec3()?;
             let pix = crate::arrays::indices(&ix, pvs.len())?;
@@ -840,25 +936,195 @@ impl RayCaster {
             let mut s = lock.write().map_err(|_| {
                 "the ray caster was left inconsistent by an internal error".to_string()
             })?;
-            let triangles = crate::arrays::resolve(vs, &s.indices)?;
-            let prims = aabbs(vs, &s.indices)?;
-            // The triangles were checked above (finite, same count), so nothing below can
-            // fail short of an internal error; if it does, the state is half moved and is
-            // marked broken, so that queries fail instead of answering for it.
-            s.broken = true;
-            s.tree
-                .refit(&prims)
-                .map_err(|e| format!("cannot refit the tree: {e}"))?;
-            if !s.accel.refit(&triangles).unwrap_or(false) {
-                let options = KernelOptions { distance_stack: ds };
-                s.accel = accel_of(&s.tree, Some(kernel), &triangles, options)?;
-            }
-            s.triangles = Arc::new(triangles);
-            s.vertices.copy_from_slice(vs);
-            s.broken = false;
+            refit_state(&mut s, vs, kernel, ds, false)?;
             generation.fetch_add(1, Ordering::SeqCst);
             Ok::<_, String>(())
         })
+    }
+
+    /// Traces the same rays through every frame of an animation: for each `frames[k]`
+    /// ((T, N, 3) vertices of the same triangles), a refit and then `intersect`, all in
+    /// one call with the GIL released. `origins`/`directions`: (R, 3) for every frame, or
+    /// (T, R, 3) per frame; `tmin`/`tmax` a number, (R,) or (T, R). Returns one `RayHits`
+    /// per frame; the caster is left at the last frame (`generation` up by T).
+    #[pyo3(signature = (frames, origins, directions, tmin = None, tmax = None))]
+    fn trace_frames<'py>(
+        &self,
+        py: Python<'py>,
+        frames: &Bound<'py, PyAny>,
+        origins: &Bound<'py, PyAny>,
+        directions: &Bound<'py, PyAny>,
+        tmin: Option<&Bound<'py, PyAny>>,
+        tmax: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Vec<RayHits>> {
+        let np = py.import("numpy")?;
+        let f = np
+            .call_method1("ascontiguousarray", (frames, "float32"))
+            .map_err(|e| err(format!("frames: cannot convert to a float32 array: {e}")))?;
+        let shape: Vec<usize> = f.getattr("shape")?.extract()?;
+        if shape.len() != 3 || shape[1] != self.vertex_count || shape[2] != 3 {
+            return Err(err(format!(
+                "frames must have shape (T, {}, 3) (the vertices of each frame), got {}",
+                self.vertex_count,
+                crate::arrays::shape_str(&shape)
+            )));
+        }
+        let nf = shape[0];
+        let flat = f.call_method1("reshape", ((nf * self.vertex_count, 3),))?;
+        let fv = points("frames", &flat)?;
+        let all = fv.as_vec3()?;
+        // Rays: (R, 3) shared, or (T, R, 3) flattened to (T R, 3) with the ranges broadcast.
+        let o = np.call_method1("asarray", (origins,))?;
+        let per_frame = o.getattr("ndim")?.extract::<usize>()? == 3;
+        let (o, d, lo, hi, r) = if per_frame {
+            let d = np.call_method1("asarray", (directions,))?;
+            let (os, ds): (Vec<usize>, Vec<usize>) = (
+                o.getattr("shape")?.extract()?,
+                d.getattr("shape")?.extract()?,
+            );
+            if os != ds || os[0] != nf || os[2] != 3 {
+                return Err(err(format!(
+                    "per-frame rays: origins and directions must both have shape ({nf}, R, 3), got {} and {}",
+                    crate::arrays::shape_str(&os),
+                    crate::arrays::shape_str(&ds)
+                )));
+            }
+            let r = os[1];
+            let range = |x: Option<&Bound<'py, PyAny>>| -> PyResult<Option<Bound<'py, PyAny>>> {
+                let Some(x) = x else { return Ok(None) };
+                let a = np.call_method1("asarray", (x, "float32"))?;
+                if a.getattr("ndim")?.extract::<usize>()? == 0 {
+                    return Ok(Some(a));
+                }
+                let b = np.call_method1("broadcast_to", (a, (nf, r))).map_err(|_| {
+                    err(format!(
+                        "tmin and tmax must be a number, ({r},) or ({nf}, {r})"
+                    ))
+                })?;
+                Ok(Some(b.call_method1("reshape", (nf * r,))?))
+            };
+            let flat3 = |a: &Bound<'py, PyAny>| a.call_method1("reshape", ((nf * r, 3),));
+            (flat3(&o)?, flat3(&d)?, range(tmin)?, range(tmax)?, r)
+        } else {
+            let r = o.len().unwrap_or(0);
+            (o, directions.clone(), tmin.cloned(), tmax.cloned(), r)
+        };
+        let arrays = Self::rays(&o, &d, lo.as_ref(), hi.as_ref())?;
+        let rays = arrays.slices()?;
+        let n = if per_frame { r } else { rays.len() };
+        // The output arrays of every frame, allocated before the work.
+        type Cols<'py> = (
+            Bound<'py, PyArray1<f32>>,
+            Bound<'py, PyArray1<u32>>,
+            Bound<'py, PyArray1<f32>>,
+            Bound<'py, PyArray1<f32>>,
+            Bound<'py, PyArray1<bool>>,
+            Bound<'py, PyArray2<f32>>,
+        );
+        let outs: Vec<Cols<'py>> = (0..nf)
+            .map(|_| {
+                (
+                    PyArray1::<f32>::zeros(py, n, false),
+                    PyArray1::<u32>::zeros(py, n, false),
+                    PyArray1::<f32>::zeros(py, n, false),
+                    PyArray1::<f32>::zeros(py, n, false),
+                    PyArray1::<bool>::zeros(py, n, false),
+                    PyArray2::<f32>::zeros(py, [n, 3], false),
+                )
+            })
+            .collect();
+        let nc = "internal error: array not contiguous";
+        let mut guards = Vec::with_capacity(nf);
+        for (t, p, u, v, h, l) in &outs {
+            guards.push((
+                t.readwrite(),
+                p.readwrite(),
+                u.readwrite(),
+                v.readwrite(),
+                h.readwrite(),
+                l.readwrite(),
+            ));
+        }
+        let mut cols = Vec::with_capacity(nf);
+        for (t, p, u, v, h, l) in guards.iter_mut() {
+            cols.push(Closest {
+                t: t.as_slice_mut().map_err(|_| err(nc))?,
+                prim: p.as_slice_mut().map_err(|_| err(nc))?,
+                u: u.as_slice_mut().map_err(|_| err(nc))?,
+                v: v.as_slice_mut().map_err(|_| err(nc))?,
+                hit: h.as_slice_mut().map_err(|_| err(nc))?,
+                location: l.as_slice_mut().map_err(|_| err(nc))?,
+                counters: None,
+            });
+        }
+        let (vc, kernel, ds, generation) = (
+            self.vertex_count,
+            self.kernel,
+            self.distance_stack,
+            &self.generation,
+        );
+        let lock = &self.state;
+        let rays = &rays;
+        let done = detached(py, move || {
+            rays.check()?;
+            let mut s = lock.write().map_err(|_| {
+                "the ray caster was left inconsistent by an internal error".to_string()
+            })?;
+            // Every frame is checked before the first moves anything: a sequential pass
+            // over the vertices that triangles use (the message from the indexed check).
+            let mut used = vec![false; vc];
+            for &i in s.indices.iter().flatten() {
+                if let Some(u) = used.get_mut(i as usize) {
+                    *u = true;
+                }
+            }
+            for (k, frame) in all.chunks_exact(vc.max(1)).enumerate() {
+                let ok = frame
+                    .iter()
+                    .zip(&used)
+                    .fold(true, |a, (p, &u)| a & (!u | p.is_finite()));
+                if !ok {
+                    crate::arrays::check_finite(frame, &s.indices)
+                        .map_err(|e| format!("frames[{k}]: {e}"))?;
+                }
+            }
+            let mut done = Vec::with_capacity(nf);
+            for (k, c) in cols.into_iter().enumerate() {
+                refit_state(&mut s, &all[k * vc..(k + 1) * vc], kernel, ds, true)?;
+                let g = generation.fetch_add(1, Ordering::SeqCst) + 1;
+                let window = if per_frame {
+                    rays.window(k * n, n)
+                } else {
+                    rays.window(0, n)
+                };
+                let st = &*s;
+                let total = for_chunks(c.split(chunk_for(n)), |p, first, tot| {
+                    p.fill(st, &window, first, tot)
+                });
+                done.push((total, g, s.triangles.clone()));
+            }
+            Ok::<_, String>(done)
+        })?;
+        drop(guards);
+        Ok(outs
+            .into_iter()
+            .zip(done)
+            .map(|((t, p, u, v, h, l), (total, g, triangles))| RayHits {
+                t: t.unbind(),
+                primitive: p.unbind(),
+                u: u.unbind(),
+                v: v.unbind(),
+                hit: h.unbind(),
+                triangles,
+                normal: OnceLock::new(),
+                geometry_first: self.geometry_first.clone(),
+                location: l.unbind(),
+                counter_array: None,
+                generation: g,
+                kernel: self.kernel,
+                total,
+            })
+            .collect())
     }
 
     /// Closest hits of rays (origins and directions float32-convertible (N, 3); `tmin` and
@@ -1007,31 +1273,11 @@ impl RayCaster {
                 let mut stack = TraversalStack::new();
                 let (mut ray, mut prim, mut t) = (Vec::new(), Vec::new(), Vec::new());
                 for i in range {
-                    let mut r = rays.ray(i);
-                    for _ in 0..max_hits {
-                        let mut st = RayStats::default();
-                        let Some(h) = s.accel.trace_observed(
-                            &r,
-                            Query::Closest,
-                            &mut stack,
-                            &mut st,
-                            &mut (),
-                        ) else {
-                            break;
-                        };
+                    crossings(&s.accel, &rays.ray(i), max_hits, &mut stack, |h| {
                         ray.push(i as u32);
                         prim.push(h.prim);
                         t.push(h.t);
-                        // The next float above the hit (hits lie at t >= 0).
-                        r.t_min = if h.t <= 0.0 {
-                            f32::from_bits(1)
-                        } else {
-                            f32::from_bits(h.t.to_bits() + 1)
-                        };
-                        if r.t_min > r.t_max {
-                            break;
-                        }
-                    }
+                    });
                 }
                 (ray, prim, t)
             };
@@ -1061,6 +1307,65 @@ impl RayCaster {
             PyArray1::from_vec(py, prim),
             PyArray1::from_vec(py, t),
         ))
+    }
+
+    /// Whether each point ((N, 3)) lies inside the closed mesh: the parity of the surface
+    /// crossings along a ray from the point, by majority over three fixed directions
+    /// (`CONTAINS_DIRECTIONS`), so that a ray through an edge or a vertex, or grazing the
+    /// surface, is outvoted. Crossings are counted as in `intersect_all` (a restart just
+    /// past each hit, so two triangles at exactly the same distance count once). A point
+    /// outside the tree's box is outside. On the surface the answer is undefined.
+    /// `out`: a bool (N,) array to fill.
+    #[pyo3(signature = (points, *, out = None))]
+    fn contains_points<'py>(
+        &self,
+        py: Python<'py>,
+        points: &Bound<'py, PyAny>,
+        out: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyArray1<bool>>> {
+        let p = crate::arrays::points("points", points)?;
+        let ps = p.as_vec3()?;
+        let n = ps.len();
+        let a = out_array::<bool>(py, out, n, "contains_points")?;
+        {
+            let mut w = a.try_readwrite().map_err(|_| err("out is in use"))?;
+            let col = w
+                .as_slice_mut()
+                .map_err(|_| err("internal error: array not contiguous"))?;
+            let lock = &self.state;
+            detached(py, move || {
+                if let Some(i) = ps.iter().position(|q| !q.is_finite()) {
+                    return Err(format!("points[{i}] is not finite: {}", ps[i]));
+                }
+                let s = read(lock)?;
+                let s = &*s;
+                let bounds = s.tree.bounds();
+                let dirs = CONTAINS_DIRECTIONS.map(|d| Vec3::from_array(d).normalize());
+                let parts: Vec<&mut [bool]> = col.chunks_mut(chunk_for(n)).collect();
+                for_chunks(parts, |part, first, _| {
+                    let mut stack = TraversalStack::new();
+                    for (k, o) in part.iter_mut().enumerate() {
+                        let q = ps[first + k];
+                        *o = bounds.contains_point(q) && {
+                            let mut odd = |d: Vec3| {
+                                crossings(&s.accel, &Ray::new(q, d), u32::MAX, &mut stack, |_| {})
+                                    % 2
+                                    == 1
+                            };
+                            let (a, b) = (odd(dirs[0]), odd(dirs[1]));
+                            // Two that agree decide; else the third.
+                            if a == b {
+                                a
+                            } else {
+                                odd(dirs[2])
+                            }
+                        };
+                    }
+                });
+                Ok::<_, String>(())
+            })?;
+        }
+        Ok(a)
     }
 
     /// Whether anything lies along each ray within its range (an any-hit query; the
@@ -1285,4 +1590,54 @@ pub(crate) fn register(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_class::<RayCaster>()?;
     m.add_class::<RayHits>()?;
     Ok(())
+}
+
+/// What a ray caster traces, copied or moved out of it: an instance's bottom level.
+pub(crate) struct Part {
+    pub(crate) vertices: Vec<Vec3>,
+    pub(crate) indices: Vec<[u32; 3]>,
+    pub(crate) triangles: Arc<Vec<Triangle>>,
+    pub(crate) tree: Tree,
+    pub(crate) accel: Accel,
+    pub(crate) kernel: &'static str,
+    pub(crate) distance_stack: bool,
+    pub(crate) builder: String,
+    pub(crate) max_leaf: u32,
+}
+
+impl RayCaster {
+    /// A copy of its geometry, tree and kernel form.
+    pub(crate) fn part(&self) -> Result<Part, String> {
+        let s = read(&self.state)?;
+        Ok(Part {
+            vertices: s.vertices.clone(),
+            indices: s.indices.clone(),
+            triangles: s.triangles.clone(),
+            tree: s.tree.clone(),
+            accel: s.accel.clone(),
+            kernel: self.kernel,
+            distance_stack: self.distance_stack,
+            builder: self.builder.clone(),
+            max_leaf: self.max_leaf,
+        })
+    }
+
+    /// Its geometry, tree and kernel form, moved out.
+    pub(crate) fn into_part(self) -> Result<Part, String> {
+        let s = self
+            .state
+            .into_inner()
+            .map_err(|_| "the ray caster was left inconsistent by an internal error")?;
+        Ok(Part {
+            vertices: s.vertices,
+            indices: s.indices,
+            triangles: s.triangles,
+            tree: s.tree,
+            accel: s.accel,
+            kernel: self.kernel,
+            distance_stack: self.distance_stack,
+            builder: self.builder,
+            max_leaf: self.max_leaf,
+        })
+    }
 }

@@ -347,7 +347,18 @@ pub(crate) struct RaySlices<'a> {
 /// `RayCaster`): waking the worker pool costs more than they do.
 pub(crate) const SERIAL_RAYS: usize = 512;
 
-impl RaySlices<'_> {
+impl<'a> RaySlices<'a> {
+    /// Rays `first..first + len` (in range).
+    pub(crate) fn window(&self, first: usize, len: usize) -> RaySlices<'a> {
+        let part = |(x, a): (f32, Option<&'a [f32]>)| (x, a.map(|a| &a[first..first + len]));
+        RaySlices {
+            o: &self.o[first..first + len],
+            d: &self.d[first..first + len],
+            tmin: part(self.tmin),
+            tmax: part(self.tmax),
+        }
+    }
+
     /// Number of rays.
     pub(crate) fn len(&self) -> usize {
         self.o.len()

@@ -81,6 +81,32 @@ def test_contains_points_matches_trimesh(sphere: Any) -> None:
     np.testing.assert_array_equal(got[clear], r[clear] < 2.0)
 
 
+def test_contains_points_on_a_torus_matches_trimesh() -> None:
+    """A non-convex closed mesh: the native inside test against trimesh's `contains`
+    on random points, and on points just off each face (inside by construction)."""
+    from shapes import torus
+
+    v, f = torus(1.0, 0.35, 48, 24)
+    m = trimesh.Trimesh(v.astype(np.float64), f, process=False)
+    assert m.is_watertight
+    rng = np.random.default_rng(9)
+    rand = rng.uniform(-1.5, 1.5, size=(3000, 3))
+    ours = arbor.RayMeshIntersector(m)
+    got = ours.contains_points(rand)
+    # Away from the surface (the polygon lies within 0.02 of the smooth torus).
+    dist = np.hypot(np.hypot(rand[:, 0], rand[:, 1]) - 1.0, rand[:, 2]) - 0.35
+    clear = np.abs(dist) > 0.02
+    np.testing.assert_array_equal(got[clear], dist[clear] < 0)
+    np.testing.assert_array_equal(got[clear], m.contains(rand)[clear])
+    assert (got == m.contains(rand)).mean() > 0.995
+    # 1e-3 off each face's centroid, out and in.
+    c, n = m.triangles_center, m.face_normals
+    near = np.concatenate([c + 1e-3 * n, c - 1e-3 * n])
+    want = np.repeat([False, True], len(c))
+    np.testing.assert_array_equal(ours.contains_points(near), want)
+    np.testing.assert_array_equal(m.contains(near), want)
+
+
 def test_refit_and_arbor_meshes(sphere: Any) -> None:
     ours = arbor.RayMeshIntersector(sphere)
     moved = sphere.copy()

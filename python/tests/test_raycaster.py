@@ -7,7 +7,7 @@ from __future__ import annotations
 import pickle
 import threading
 from pathlib import Path
-from typing import Literal
+from typing import Any, Literal
 
 import numpy as np
 import pytest
@@ -410,17 +410,25 @@ def test_a_ray_task_receives_the_structure(mesh: arbor.Mesh) -> None:
     rc = RayCaster(v, ix, kernel="mbvh8")
     o, d = rays_at(v, 200, seed=12)
     want = rc.intersect(o, d).t
+    # And instances of it (the second one moved and turned half a turn about z).
+    xf = np.array([np.eye(4)[:3], [[-1, 0, 0, 0.3], [0, -1, 0, 0], [0, 0, 1, 0.1]]])
+    ic = arbor.InstanceCaster([rc], xf)
+    ic_want = ic.intersect(o, d)
+    assert ic_want.hit.any()
     ray.init(num_cpus=1, include_dashboard=False, log_to_driver=False)
     try:
 
         @ray.remote  # type: ignore[untyped-decorator]
-        def cast(caster: RayCaster, o: np.ndarray, d: np.ndarray) -> np.ndarray:
-            return caster.intersect(o, d).t
+        def cast(caster: RayCaster | arbor.InstanceCaster, o: np.ndarray, d: np.ndarray) -> Any:
+            return caster.intersect(o, d)
 
         got = ray.get(cast.remote(ray.put(rc), o, d))
+        ic_got = ray.get(cast.remote(ray.put(ic), o, d))
     finally:
         ray.shutdown()
-    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(got.t, want)
+    np.testing.assert_array_equal(ic_got.t, ic_want.t)
+    np.testing.assert_array_equal(ic_got.instance, ic_want.instance)
 
 
 def test_bvh_pickles(mesh: arbor.Mesh, tmp_path: Path) -> None:
@@ -584,3 +592,182 @@ def test_all_hits_along_each_ray(mesh: arbor.Mesh) -> None:
     assert len(rc.intersect_all(o, d, tmax=0.0)[0]) == 0
     with pytest.raises(ArborError, match="max_hits"):
         rc.intersect_all(o, d, max_hits=-1)
+
+
+# ------------------------------------------------------------------- animation frames
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_trace_frames_equals_refit_and_intersect_frame_by_frame(
+    mesh: arbor.Mesh, kernel: Kernel
+) -> None:
+    v, ix = mesh.vertices, mesh.indices
+    frames = np.stack([moved(v, k) for k in range(5)])
+    o, d = rays_at(v, 700, seed=21)  # above the serial limit: the parallel path
+    batched, stepped = RayCaster(v, ix, kernel=kernel), RayCaster(v, ix, kernel=kernel)
+    hits = batched.trace_frames(frames, o, d)
+    assert len(hits) == 5 and batched.generation == 5
+    for k, h in enumerate(hits):
+        stepped.refit(frames[k])
+        ref = stepped.intersect(o, d)
+        assert h.generation == ref.generation == k + 1 and h.kernel == kernel
+        for name in ("t", "primitive", "u", "v", "hit", "location", "normal"):
+            np.testing.assert_array_equal(getattr(h, name), getattr(ref, name), err_msg=name)
+        assert h.totals == ref.totals
+        check_hits(h, o, d, frames[k], ix)
+    np.testing.assert_array_equal(batched.vertices, frames[-1])
+
+
+def test_trace_frames_with_rays_per_frame_and_ranges(mesh: arbor.Mesh) -> None:
+    v, ix = mesh.vertices, mesh.indices
+    frames = np.stack([moved(v, k) for k in range(3)])
+    rays = [rays_at(v, 50, seed=30 + k) for k in range(3)]
+    o, d = np.stack([r[0] for r in rays]), np.stack([r[1] for r in rays])
+    tmin = np.linspace(0.0, 0.3, 50, dtype=np.float32)  # (R,): the same for every frame
+    tmax = np.tile(np.linspace(0.5, 1.5, 50, dtype=np.float32), (3, 1))  # (T, R)
+    tmax[1] = np.inf
+    rc, ref = RayCaster(v, ix, kernel="mbvh8"), RayCaster(v, ix, kernel="mbvh8")
+    hits = rc.trace_frames(frames, o, d, tmin, tmax)
+    for k, h in enumerate(hits):
+        ref.refit(frames[k])
+        r = ref.intersect(o[k], d[k], tmin, tmax[k])
+        np.testing.assert_array_equal(h.t, r.t)
+        np.testing.assert_array_equal(h.primitive, r.primitive)
+    assert hits[1].hit.sum() > hits[0].hit.sum() // 2  # some rays do hit
+
+
+def test_trace_frames_bad_input_changes_nothing(mesh: arbor.Mesh) -> None:
+    v, ix = mesh.vertices, mesh.indices
+    rc = RayCaster(v, ix)
+    o, d = rays_at(v, 10, seed=40)
+    frames = np.stack([moved(v, k) for k in range(4)])
+    frames[2, 7] = np.nan
+    with pytest.raises(ArborError, match=r"frames\[2\]: .*non-finite"):
+        rc.trace_frames(frames, o, d)
+    with pytest.raises(ArborError, match=r"frames must have shape \(T, \d+, 3\)"):
+        rc.trace_frames(frames[:, :-1], o, d)
+    with pytest.raises(ArborError, match=r"frames must have shape"):
+        rc.trace_frames(frames[0], o, d)
+    good = frames[[0, 1]]
+    with pytest.raises(ArborError, match=r"per-frame rays"):
+        rc.trace_frames(good, np.stack([o] * 3), np.stack([d] * 3))
+    with pytest.raises(ArborError, match=r"tmin and tmax"):
+        rc.trace_frames(good, np.stack([o] * 2), np.stack([d] * 2), np.zeros(3))
+    with pytest.raises(ArborError, match=r"directions\[0\]"):
+        rc.trace_frames(good, o, np.zeros_like(d))
+    assert rc.generation == 0
+    np.testing.assert_array_equal(rc.vertices, v)
+    assert rc.trace_frames(good[:0], o, d) == []
+
+
+# ------------------------------------------------------------------------ inside test
+
+# The directions of `RayCaster.contains_points` (python/src/raycaster.rs).
+CONTAINS_DIRECTIONS = np.array(
+    [
+        [0.43950645, 0.6175986, 0.6522316],
+        [-0.7194073, 0.1901258, -0.6680431],
+        [0.2836176, -0.9083352, -0.3075549],
+    ]
+)
+
+
+def convex_depth(p: np.ndarray, v: np.ndarray, f: np.ndarray) -> np.ndarray:
+    """Signed distance of each point to a convex polytope's boundary planes, float64:
+    the largest distance above a face plane (negative inside)."""
+    tri = np.asarray(v, np.float64)[f]
+    n = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    return np.max(np.einsum("pfk,fk->pf", p[:, None, :] - tri[None, :, 0], n), axis=1)
+
+
+def hard_points(v: np.ndarray, f: np.ndarray, seed: int) -> np.ndarray:
+    """Points whose rays in the directions of `contains_points` pass through an edge's
+    midpoint or a vertex: each such point, moved back and forth along that direction."""
+    rng = np.random.default_rng(seed)
+    v = np.asarray(v, np.float64)
+    edges = v[f[:, [0, 1, 2]]] + v[f[:, [1, 2, 0]]]
+    targets = np.concatenate([edges.reshape(-1, 3) / 2, v])
+    targets = targets[rng.choice(len(targets), 400, replace=False)]
+    out = []
+    for d in CONTAINS_DIRECTIONS:
+        s = rng.uniform(-1.0, 1.0, size=(len(targets), 1))
+        out.append(targets - s * d)
+    return np.concatenate(out)
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_contains_points_on_a_convex_mesh_matches_the_planes(kernel: Kernel) -> None:
+    from shapes import icosphere
+
+    v, f = icosphere(3)
+    v = v * 2.0
+    rc = RayCaster(v, f, kernel=kernel)
+    rng = np.random.default_rng(50)
+    tri = np.asarray(v, np.float64)[f]
+    centroid = tri.mean(axis=1)
+    normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    normal /= np.linalg.norm(normal, axis=1, keepdims=True)
+    pts = np.concatenate(
+        [
+            rng.uniform(-2.6, 2.6, size=(3000, 3)),  # in and around the box
+            centroid + 1e-3 * normal,  # just outside each face
+            centroid - 1e-3 * normal,  # just inside
+            hard_points(v, f, seed=51),  # rays through edges and vertices
+        ]
+    )
+    depth = convex_depth(pts, v, f)
+    clear = np.abs(depth) > 1e-4  # off the surface by more than float32 rounding
+    assert clear.mean() > 0.98
+    got = rc.contains_points(pts)
+    assert got.dtype == bool and got.shape == (len(pts),)
+    np.testing.assert_array_equal(got[clear], depth[clear] < 0)
+    # The adapter uses it.
+    adapter = arbor.RayMeshIntersector(types_mesh(v, f), kernel=kernel)
+    np.testing.assert_array_equal(adapter.contains_points(pts), got)
+
+
+class types_mesh:  # noqa: N801 (a plain record with the attributes of a mesh)
+    def __init__(self, vertices: np.ndarray, faces: np.ndarray) -> None:
+        self.vertices, self.faces = vertices, faces
+
+
+def test_contains_points_on_a_torus_matches_its_equation() -> None:
+    """A non-convex closed mesh: points off the surface against the torus equation
+    (the polygon lies within 0.01 of the smooth torus), hard points included."""
+    from shapes import torus
+
+    big, small = 1.0, 0.35
+    v, f = torus(big, small, 64, 32)
+    rc = RayCaster(v, f)
+    rng = np.random.default_rng(52)
+    pts = np.concatenate([rng.uniform(-1.5, 1.5, size=(6000, 3)), hard_points(v, f, seed=53)])
+    q = np.hypot(pts[:, 0], pts[:, 1]) - big
+    dist = np.hypot(q, pts[:, 2]) - small  # signed distance to the smooth torus
+    clear = np.abs(dist) > 0.01
+    assert clear.mean() > 0.9 and (dist[clear] < 0).sum() > 300
+    got = rc.contains_points(pts)
+    np.testing.assert_array_equal(got[clear], dist[clear] < 0)
+    # Moved: the refitted tree answers for the new place.
+    rc.refit(v + np.float32([5.0, 0.0, 0.0]))
+    np.testing.assert_array_equal(rc.contains_points(pts + [5.0, 0.0, 0.0])[clear], dist[clear] < 0)
+
+
+def test_contains_points_of_several_meshes_and_bad_input() -> None:
+    from shapes import icosphere
+
+    v, f = icosphere(2)
+    rc = RayCaster.from_meshes([(v, f), (v + np.float32([3, 0, 0]), f)])
+    pts = np.array([[0, 0, 0], [3, 0, 0], [1.5, 0, 0], [3, 0, 2], [0.2, 0.1, -0.3]])
+    np.testing.assert_array_equal(rc.contains_points(pts), [True, True, False, False, True])
+    buf = np.zeros(5, bool)
+    assert rc.contains_points(pts, out=buf) is buf and buf.sum() == 3
+    assert rc.contains_points(np.zeros((0, 3))).shape == (0,)
+    bad = pts.copy()
+    bad[3, 1] = np.nan
+    with pytest.raises(ArborError, match=r"points\[3\] is not finite"):
+        rc.contains_points(bad)
+    with pytest.raises(ArborError, match=r"points must have shape \(N, 3\)"):
+        rc.contains_points(np.zeros((4, 2)))
+    with pytest.raises(ArborError, match="out"):
+        rc.contains_points(pts, out=np.zeros(4, bool))
