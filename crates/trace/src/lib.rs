@@ -73,6 +73,8 @@ mod tests_hostile;
 #[cfg(test)]
 mod tests_instance;
 #[cfg(test)]
+mod tests_log;
+#[cfg(test)]
 mod tests_refit;
 #[cfg(test)]
 mod tests_render;
