@@ -126,13 +126,18 @@ fn check_args(a: &BenchRefitArgs) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// A contender's per-frame update: the frame's mesh in, the tracer up to date.
+type Update<'a> = Box<dyn FnMut(&scene::Mesh) -> anyhow::Result<()> + 'a>;
+/// A contender's closest hit over its current state: (triangle, distance).
+type ClosestHit<'a> = Box<dyn Fn(&Ray) -> Option<(u32, f32)> + 'a>;
+
 /// One contender: a name, its initial build time, a per-frame update, and a closest-hit
 /// query over its current state.
 struct Contender<'a> {
     name: String,
     build_ms: f64,
-    update: Box<dyn FnMut(&scene::Mesh) -> anyhow::Result<()> + 'a>,
-    hit: Box<dyn Fn(&Ray) -> Option<(u32, f32)> + 'a>,
+    update: Update<'a>,
+    hit: ClosestHit<'a>,
 }
 
 /// `mesh`'s triangles written into `out` (reused across frames).
