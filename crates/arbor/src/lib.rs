@@ -50,7 +50,7 @@ pub enum Command {
     /// Regenerate a table or figure of the thesis (CSV, Markdown, SVG).
     Report(cmd::report::ReportArgs),
     /// Benchmark Arbor against peer libraries in one run (`arbor bench build`, `arbor bench
-    /// trace`) and compare two recorded runs (`arbor bench compare`).
+    /// trace`, `arbor bench refit`) and compare two recorded runs (`arbor bench compare`).
     Bench(cmd::bench::BenchArgs),
 }
 

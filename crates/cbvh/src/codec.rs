@@ -22,6 +22,26 @@ pub struct Ctx {
 }
 
 impl Ctx {
+    /// Checks a context that did not come from an encoder (the root context of a tree
+    /// built or read elsewhere): finite bounds in order on every axis, and a scale
+    /// exponent whose powers of two the decoder can form (`FINEST_MIN_SCALE_EXP..=1000`,
+    /// the range `estimate` produces).
+    pub fn check(&self) -> Result<(), CbvhError> {
+        for (a, ax) in self.axes.iter().enumerate() {
+            let ok = ax.lo.is_finite()
+                && ax.hi.is_finite()
+                && ax.lo <= ax.hi
+                && (crate::grid::FINEST_MIN_SCALE_EXP..=1000).contains(&ax.e);
+            if !ok {
+                return Err(CbvhError::Corrupt(format!(
+                    "context axis {a} (scale 2^{}, bounds {}..{}) is out of range",
+                    ax.e, ax.lo, ax.hi
+                )));
+            }
+        }
+        Ok(())
+    }
+
     /// `EstimateContext` (\[P3\] Algorithm 1 line 16) of a node with original box `b`.
     pub fn estimate(b: &Aabb, p: &Params) -> Self {
         if b.is_empty() {

@@ -49,6 +49,9 @@ pub(crate) fn prim_ids_of(bvh: &Bvh2) -> Result<Vec<u32>, CbvhError> {
     Ok(ids)
 }
 
+/// Where a decoded node's parent links to it: (parent node, child slot).
+type Link = (usize, usize);
+
 impl Cbvh {
     /// Bytes of the packed node pairs (16 per pair at 6 bits).
     pub fn node_bytes(&self) -> u64 {
@@ -92,41 +95,61 @@ impl Cbvh {
     /// in depth-first preorder, leaves referencing the same primitive ids), for measuring
     /// tree quality with the full-precision tools.
     pub fn decode_to_bvh2(&self) -> Result<Bvh2, CbvhError> {
-        let mut nodes = Vec::with_capacity(self.pairs.len());
-        self.decode_into(self.root, &self.root_ctx, &mut nodes)?;
+        self.root_ctx.check()?;
+        let mut nodes: Vec<Node> = Vec::with_capacity(self.pairs.len());
+        // An explicit stack (a chain of pairs as long as the tree must not overflow the
+        // thread's stack): (pair, its context, where its parent links to it). Children are
+        // pushed last slot first, so they are numbered in depth-first preorder.
+        let mut stack: Vec<(u32, Ctx, Option<Link>)> = vec![(self.root, self.root_ctx, None)];
+        let mut leaf_entries = 0usize;
+        while let Some((idx, ctx, parent)) = stack.pop() {
+            // Each pair decodes to one node: more nodes than pairs means a pair was
+            // reached twice (a cycle, or a shared subtree).
+            if nodes.len() >= self.pairs.len() {
+                return Err(CbvhError::Corrupt("pointer cycle".into()));
+            }
+            let at = nodes.len();
+            if let Some((p, c)) = parent {
+                nodes[p].children[c] = ChildRef::inner(at as u32);
+            }
+            let kids = self.decode_children(idx, &ctx)?;
+            let pair = self.pairs[idx as usize];
+            let mut node = Node::EMPTY;
+            let mut inner = Vec::new();
+            for (c, k) in kids.into_iter().enumerate() {
+                let Some(k) = k else { continue };
+                node.set_child_aabb(c, &k.aabb());
+                node.children[c] = match slot_ptr(&pair.slots[c]) {
+                    ChildPtr::Leaf(first) => {
+                        let (f, n) = self.leaf_range(first)?;
+                        // Leaves partition the primitive-id array: more entries in
+                        // leaves than in the array means leaves overlap (and would
+                        // multiply the work of everything that walks the leaves).
+                        leaf_entries += n as usize;
+                        if leaf_entries > self.prim_ids.len() {
+                            return Err(CbvhError::Corrupt(format!(
+                                "leaves cover more than the {} primitive ids (they overlap)",
+                                self.prim_ids.len()
+                            )));
+                        }
+                        ChildRef::leaf(f, n)
+                    }
+                    ChildPtr::Inner(p) => {
+                        inner.push((p, k, Some((at, c))));
+                        ChildRef::EMPTY // linked when the child is numbered
+                    }
+                    ChildPtr::Empty => ChildRef::EMPTY,
+                };
+            }
+            nodes.push(node);
+            stack.extend(inner.into_iter().rev());
+        }
         let bounds = nodes[0].aabb();
         Ok(Bvh2 {
             nodes,
             prim_indices: self.prim_ids.iter().map(|&i| i & !LEAF_END).collect(),
             bounds,
         })
-    }
-
-    /// Appends the subtree of pair `idx` in preorder; returns its node index.
-    #[allow(clippy::needless_range_loop)] // two child slots of parallel arrays
-    fn decode_into(&self, idx: u32, ctx: &Ctx, nodes: &mut Vec<Node>) -> Result<u32, CbvhError> {
-        if nodes.len() >= self.pairs.len() {
-            return Err(CbvhError::Corrupt("pointer cycle".into()));
-        }
-        let at = nodes.len();
-        nodes.push(Node::EMPTY);
-        let kids = self.decode_children(idx, ctx)?;
-        let pair = self.pairs[idx as usize];
-        let mut node = Node::EMPTY;
-        for c in 0..2 {
-            let Some(k) = kids[c] else { continue };
-            node.set_child_aabb(c, &k.aabb());
-            node.children[c] = match slot_ptr(&pair.slots[c]) {
-                ChildPtr::Leaf(first) => {
-                    let (f, n) = self.leaf_range(first)?;
-                    ChildRef::leaf(f, n)
-                }
-                ChildPtr::Inner(p) => ChildRef::inner(self.decode_into(p, &k, nodes)?),
-                ChildPtr::Empty => ChildRef::EMPTY,
-            };
-        }
-        nodes[at] = node;
-        Ok(at as u32)
     }
 }
 

@@ -34,7 +34,7 @@ pub use bvh_crate::BvhCrateBuilder;
 #[cfg(feature = "embree")]
 pub use embree::{EmbreeBuilder, EmbreeDevice, EmbreeQuality};
 #[cfg(feature = "embree")]
-pub use embree_rt::{EmbreeScene, EmbreeSceneConfig};
+pub use embree_rt::{EmbreeRefitScene, EmbreeScene, EmbreeSceneConfig};
 pub use obvhs_peer::{ObvhsBuilder, ObvhsPreset};
 pub use obvhs_rt::ObvhsTracer;
 

@@ -160,7 +160,9 @@ fn test2(
 
 impl Bvh2Accel {
     /// Prepares `bvh` (built over `triangles`) for tracing. Fails when a leaf-table entry
-    /// names a triangle that does not exist, or a child link points outside the tree.
+    /// names a triangle that does not exist, or the links fail the checks of the
+    /// crate's "Trees from anywhere" section (out of range, not after the parent, a node
+    /// linked twice, overlapping leaves).
     pub fn new(
         bvh: Bvh2,
         triangles: &[Triangle],
@@ -302,35 +304,61 @@ impl Traverse for Bvh2Accel {
     }
 }
 
-/// Checks that every child link stays inside the tree: inner children name an existing
-/// node, leaves a range of the leaf table. Traversal also needs the tree to be acyclic to
-/// terminate: Arbor's trees are stored depth-first, so every inner child has a larger index
-/// than its parent, and this is checked too. `children` lists the `width` child slots of
-/// each node in node order.
+/// Checks the links of a tree built anywhere (the checks a tracer needs, O(nodes), not the
+/// full `bvh::validate`), so that traversal never indexes outside the tree and always
+/// terminates within one visit per node and ray:
+///
+/// - inner children name an existing node after their parent (Arbor's trees are stored
+///   depth-first), which rules out cycles;
+/// - no node is linked twice: a subtree shared by two parents is visited once per path
+///   to it, and a chain of shared nodes makes a ray's work exponential in the depth;
+/// - leaves name a range of the leaf table, and all leaves together no more entries than
+///   the table holds (leaves partition it; overlapping leaves would multiply the packed
+///   triangles, up to nodes x entries of them).
+///
+/// `children` lists the `width` child slots of each node in node order.
 pub(crate) fn check_links<'a>(
     children: impl Iterator<Item = &'a ChildRef>,
     width: usize,
     nodes: usize,
     entries: usize,
 ) -> Result<(), TraceError> {
-    for (i, c) in children.enumerate() {
-        let parent = i / width;
-        if c.is_inner() && (c.index as usize >= nodes || c.index as usize <= parent) {
-            return Err(TraceError::BadTree(format!(
-                "node {parent} links to inner node {} (nodes: {nodes}; children must follow their parent)",
-                c.index
-            )));
-        }
-        if c.is_leaf() && c.index as u64 + c.count as u64 > entries as u64 {
-            return Err(TraceError::BadTree(format!(
-                "node {parent} has a leaf of entries {}..{} (leaf table: {entries})",
-                c.index,
-                c.index as u64 + c.count as u64
-            )));
-        }
-    }
     if nodes == 0 {
         return Err(TraceError::BadTree("the tree has no root node".into()));
+    }
+    let mut linked = vec![false; nodes];
+    let mut in_leaves = 0u64;
+    for (i, c) in children.enumerate() {
+        let parent = i / width;
+        if c.is_inner() {
+            let k = c.index as usize;
+            if k >= nodes || k <= parent {
+                return Err(TraceError::BadTree(format!(
+                    "node {parent} links to inner node {} (nodes: {nodes}; children must follow their parent)",
+                    c.index
+                )));
+            }
+            if std::mem::replace(&mut linked[k], true) {
+                return Err(TraceError::BadTree(format!(
+                    "node {k} is linked twice (the second time from node {parent}): subtrees cannot be shared"
+                )));
+            }
+        }
+        if c.is_leaf() {
+            let end = c.index as u64 + c.count as u64;
+            if end > entries as u64 {
+                return Err(TraceError::BadTree(format!(
+                    "node {parent} has a leaf of entries {}..{end} (leaf table: {entries})",
+                    c.index
+                )));
+            }
+            in_leaves += c.count as u64;
+            if in_leaves > entries as u64 {
+                return Err(TraceError::BadTree(format!(
+                    "the leaves up to node {parent} hold {in_leaves} entries, more than the leaf table's {entries}: leaves overlap"
+                )));
+            }
+        }
     }
     Ok(())
 }

@@ -79,9 +79,10 @@ pub struct CbvhAccel {
 
 impl CbvhAccel {
     /// Prepares `cbvh` (compressed from a tree over `triangles`) for tracing. Fails when
-    /// its parameters are out of range, a pointer leaves the tree or forms a cycle, a leaf
-    /// has no end, a decoded box is not finite, or a primitive id names a triangle that does
-    /// not exist. (The check decodes the tree once.)
+    /// its parameters or root context are out of range, a pointer leaves the tree, forms a
+    /// cycle or reaches a pair twice, a leaf has no end, leaves overlap, a decoded box is
+    /// not finite, or a primitive id names a triangle that does not exist. (The check
+    /// decodes the tree once, without recursion, so a tree as deep as it is long is fine.)
     pub fn new(
         cbvh: &Cbvh,
         triangles: &[Triangle],

@@ -119,8 +119,11 @@ pub struct CustomAccel {
 
 impl CustomAccel {
     /// Prepares `tree` for queries. Fails when a child link points outside the tree or a
-    /// leaf outside the leaf table, or an inner child does not follow its parent (Arbor's
-    /// trees are depth-first, which also rules out cycles).
+    /// leaf outside the leaf table, an inner child does not follow its parent (Arbor's
+    /// trees are depth-first, which also rules out cycles), a node is linked twice, or
+    /// leaves overlap (see the crate's "Trees from anywhere" section). Primitive ids are
+    /// not checked (the tree does not know the primitive count): the callback receives
+    /// whatever the leaf table holds.
     pub fn new(tree: Bvh2) -> Result<Self, TraceError> {
         check_links(
             tree.nodes.iter().flat_map(|n| n.children.iter()),

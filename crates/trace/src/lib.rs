@@ -27,6 +27,22 @@
 //! # Ok::<(), Box<dyn std::error::Error>>(())
 //! ```
 
+//! # Trees from anywhere
+//!
+//! A kernel can be prepared over a tree built in memory by any code, not only by the
+//! `bvh` builders or the validating file reader. Preparation checks, once and in time
+//! linear in the tree, what traversal relies on, and returns a [`TraceError`] otherwise:
+//! every inner link names an existing node after its parent (no cycles), no node is linked
+//! twice (a shared subtree is walked once per path to it: a chain of 64 shared nodes is
+//! 2^64 visits), leaves lie inside the leaf table and together cover at most its length,
+//! and every leaf-table entry names an existing triangle. Boxes are not checked (that is
+//! `bvh::validate`'s job, and costs a pass over the primitives): NaN, inverted or too
+//! small boxes only lose hits. So a prepared kernel traces every ray without a panic or an
+//! out-of-bounds read, visits each node at most once per ray, and reports only real hits
+//! of existing triangles; over a tree that passes `bvh::validate` it gives the brute-force
+//! hits. Property tests (`tests_hostile.rs`) feed every kernel random mutations of valid
+//! trees and hand-made worst cases.
+
 #![warn(missing_docs)]
 
 mod accel;
@@ -53,7 +69,11 @@ mod tests_cbvh;
 #[cfg(test)]
 mod tests_custom;
 #[cfg(test)]
+mod tests_hostile;
+#[cfg(test)]
 mod tests_instance;
+#[cfg(test)]
+mod tests_log;
 #[cfg(test)]
 mod tests_refit;
 #[cfg(test)]

@@ -16,6 +16,15 @@
 //! [`LogWriter::finish`], so a crash never leaves a truncated log under the final name.
 //! [`LogReader`] decodes a file ray by ray, and [`summarize`] recomputes every counter of
 //! [`RayStats`] from the events alone.
+//!
+//! Reading a damaged or hostile file (truncated anywhere, any bytes changed, chunk CRCs
+//! forged to match) gives an error or data, never a panic: every length, count and index
+//! is checked before use, index deltas that leave 32 bits are errors, a chunk is read only
+//! as far as the file holds it, and [`summarize`]'s distinct-node count uses a bitmap over
+//! the header's node count only when that bitmap is no larger than the file (plus 1 MiB),
+//! a set of the nodes met otherwise, so no allocation grows with a corrupted count beyond
+//! what the file's size justifies. Property tests (`tests_log.rs`) check this on logs
+//! written by [`LogWriter`] for trees of width 2, 4 and 8.
 
 use crate::observer::{Observer, Query};
 use crate::stats::RayStats;
@@ -592,7 +601,10 @@ impl LogReader {
 
     fn delta(&mut self, base: u32) -> Result<u32, TraceError> {
         let d = unzigzag(self.varint()?);
-        u32::try_from(base as i64 + d).map_err(|_| self.bad("index delta out of range"))
+        (base as i64)
+            .checked_add(d)
+            .and_then(|v| u32::try_from(v).ok())
+            .ok_or_else(|| self.bad("index delta out of range"))
     }
 
     fn f32(&mut self) -> Result<f32, TraceError> {
@@ -722,7 +734,8 @@ pub struct LogSummary {
 pub fn summarize(path: &Path) -> Result<LogSummary, TraceError> {
     let mut r = LogReader::open(path)?;
     let header = *r.header();
-    let mut seen = vec![0u64; (header.node_count as usize).div_ceil(64).min(1 << 26)];
+    let file_bytes = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
+    let mut seen = NodeSet::new(header.node_count, file_bytes);
     let mut s = LogSummary {
         header: Some(header),
         ..Default::default()
@@ -752,9 +765,7 @@ pub fn summarize(path: &Path) -> Result<LogSummary, TraceError> {
                     }
                     st.node_visits += 1;
                     st.box_tests += valid.count_ones() as u64;
-                    if let Some(w) = seen.get_mut(node as usize / 64) {
-                        *w |= 1 << (node % 64);
-                    }
+                    seen.insert(node);
                 }
                 LogEvent::Push(c) => {
                     st.pushes += 1;
@@ -799,8 +810,59 @@ pub fn summarize(path: &Path) -> Result<LogSummary, TraceError> {
         s.per_bounce[b].add(&st);
         s.total.add(&st);
     }
-    s.distinct_nodes = seen.iter().map(|w| w.count_ones() as u64).sum();
+    s.distinct_nodes = seen.len();
     s.node_bytes_fetched = s.total.node_visits * header.node_bytes as u64;
-    s.file_bytes = std::fs::metadata(path).map(|m| m.len()).unwrap_or(0);
+    s.file_bytes = file_bytes;
     Ok(s)
+}
+
+/// The distinct node indices below a log's node count that its `NODE` records name, in
+/// memory bounded by the file: a bitmap over the node count when it is no larger than the
+/// file (plus 1 MiB), otherwise the set of the nodes actually met, which grows with the
+/// records read. (The node count comes from the header: a corrupted one must not turn
+/// into a huge allocation.)
+#[derive(Debug)]
+pub(crate) enum NodeSet {
+    /// One bit per node.
+    Bits(Vec<u64>, u64),
+    /// The nodes met, when a bitmap would outgrow the file.
+    Sparse(std::collections::HashSet<u32>, u64),
+}
+
+impl NodeSet {
+    pub(crate) fn new(node_count: u64, file_bytes: u64) -> Self {
+        // Node indices are 32-bit: no more nodes can be named.
+        let node_count = node_count.min(1 << 32);
+        let bitmap_bytes = node_count.div_ceil(64) * 8;
+        if bitmap_bytes <= file_bytes.saturating_add(1 << 20) {
+            NodeSet::Bits(vec![0; node_count.div_ceil(64) as usize], node_count)
+        } else {
+            NodeSet::Sparse(Default::default(), node_count)
+        }
+    }
+
+    /// Records `node` (ignored at or beyond the node count).
+    #[inline]
+    pub(crate) fn insert(&mut self, node: u32) {
+        match self {
+            NodeSet::Bits(w, n) => {
+                if (node as u64) < *n {
+                    w[node as usize / 64] |= 1 << (node % 64);
+                }
+            }
+            NodeSet::Sparse(set, n) => {
+                if (node as u64) < *n {
+                    set.insert(node);
+                }
+            }
+        }
+    }
+
+    /// Distinct nodes recorded.
+    pub(crate) fn len(&self) -> u64 {
+        match self {
+            NodeSet::Bits(w, _) => w.iter().map(|w| w.count_ones() as u64).sum(),
+            NodeSet::Sparse(set, _) => set.len() as u64,
+        }
+    }
 }

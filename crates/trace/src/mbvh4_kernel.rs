@@ -169,7 +169,9 @@ fn child_keys(dist: &[f32; 4], mask: u8) -> [u32; 4] {
 
 impl Mbvh4Accel {
     /// Prepares `bvh` (built over `triangles`) for tracing. Fails when a leaf-table entry
-    /// names a triangle that does not exist, or a child link points outside the tree.
+    /// names a triangle that does not exist, or the links fail the checks of the
+    /// crate's "Trees from anywhere" section (out of range, not after the parent, a node
+    /// linked twice, overlapping leaves).
     pub fn new(
         bvh: Mbvh4,
         triangles: &[Triangle],
@@ -182,7 +184,17 @@ impl Mbvh4Accel {
             bvh.prim_indices.len(),
         )?;
         let mut nodes: Vec<AlignedNode4> = huge_page_vec(bvh.nodes.len());
-        nodes.extend(bvh.nodes.iter().map(|n| AlignedNode4(*n)));
+        nodes.extend(bvh.nodes.iter().map(|n| {
+            let mut n = *n;
+            // The kernel tells used slots by their boxes: an absent child gets the empty
+            // box (never hit, whatever box the tree stored), so it is never entered.
+            for k in 0..4 {
+                if n.children[k].is_empty() {
+                    n.set_child_aabb(k, &geom::Aabb::EMPTY);
+                }
+            }
+            AlignedNode4(n)
+        }));
         let leaf = LeafTriangles::pack(
             &bvh.prim_indices,
             triangles,

@@ -20,7 +20,7 @@ use crate::observer::{Observer, Query};
 use crate::stats::RayStats;
 use crate::{KernelOptions, TraceError};
 use bvh::{ChildRef, WideBvh};
-use geom::{Ray, RayPrecomp, Triangle, SLAB_FAR_SCALE};
+use geom::{Aabb, Ray, RayPrecomp, Triangle, SLAB_FAR_SCALE};
 
 /// Child slots per node.
 pub const WIDTH8: usize = 8;
@@ -40,6 +40,13 @@ impl Node8 {
     fn new(n: &bvh::WideNode<WIDTH8>) -> Self {
         let mut rows = [[0f32; WIDTH8]; 6];
         for (i, b) in n.boxes.iter().enumerate() {
+            // The kernel tells used slots by their boxes: an absent child gets the empty
+            // box (never hit, whatever box the tree stored), so it is never entered.
+            let b = if n.children[i].is_empty() {
+                &Aabb::EMPTY
+            } else {
+                b
+            };
             let v = [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z];
             for p in 0..6 {
                 rows[p][i] = v[p];
@@ -208,8 +215,9 @@ fn key(dist: f32, slot: usize) -> u32 {
 
 impl Mbvh8Accel {
     /// Prepares an 8-wide tree (built over `triangles`) for tracing. Fails when a leaf
-    /// names a triangle that does not exist, or a child link points outside the tree or
-    /// not after its parent.
+    /// names a triangle that does not exist, or the links fail the checks of the
+    /// crate's "Trees from anywhere" section (out of range, not after the parent, a node
+    /// linked twice, overlapping leaves).
     pub fn new(
         bvh: WideBvh<WIDTH8>,
         triangles: &[Triangle],

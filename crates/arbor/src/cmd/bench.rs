@@ -1,7 +1,7 @@
 //! `arbor bench`: benchmarks that run Arbor side by side with peer libraries in one process
 //! and report ratios, one subcommand each (`bench_*.rs`).
 
-use super::{bench_build, bench_compare, bench_trace};
+use super::{bench_build, bench_compare, bench_refit, bench_trace};
 use crate::progress::Ui;
 
 /// Arguments of `arbor bench`.
@@ -20,6 +20,9 @@ pub enum BenchCommand {
     /// Traversal throughput of Arbor's kernels next to Embree 3's rtcIntersect1 and obvhs
     /// on the same primary and diffuse rays, on 1 and 2 threads.
     Trace(bench_trace::BenchTraceArgs),
+    /// Per-frame update of an animated mesh: Arbor's in-place refit of each kernel next to
+    /// Embree 3's RTC_BUILD_QUALITY_REFIT commit, on one thread.
+    Refit(bench_refit::BenchRefitArgs),
     /// Two benchmark records (`--record`) side by side: new/old ratio per entry, with
     /// regressions beyond the runs' own noise flagged.
     Compare(bench_compare::BenchCompareArgs),
@@ -30,6 +33,7 @@ pub fn run(args: &BenchArgs, ui: &Ui) -> anyhow::Result<()> {
     match &args.bench {
         BenchCommand::Build(a) => bench_build::run(a, ui),
         BenchCommand::Trace(a) => bench_trace::run(a, ui),
+        BenchCommand::Refit(a) => bench_refit::run(a, ui),
         BenchCommand::Compare(a) => bench_compare::run(a, ui),
     }
 }

@@ -4,6 +4,7 @@ pub mod bench;
 pub mod bench_build;
 pub mod bench_compare;
 pub mod bench_record;
+pub mod bench_refit;
 pub mod bench_trace;
 pub mod build;
 pub mod cbvh;

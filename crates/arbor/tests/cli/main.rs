@@ -7,6 +7,7 @@ mod common;
 mod args;
 mod bench;
 mod bench_compare;
+mod bench_refit;
 mod bench_trace;
 mod build;
 mod cbvh;
