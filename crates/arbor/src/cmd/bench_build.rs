@@ -657,7 +657,7 @@ pub fn run(args: &BenchBuildArgs, ui: &Ui) -> anyhow::Result<()> {
             ("bench-build.csv", csv(&doc)),
             ("bench-build.json", json.clone()),
         ] {
-            super::report::write_atomic(&dir.join(name), &body)?;
+            report::fs::write_atomic(&dir.join(name), &body)?;
         }
     }
     if !ui.silent {

@@ -17,7 +17,7 @@ use crate::progress::{Ui, Unit};
 use anyhow::Context;
 use geom::Aabb;
 use serde::Serialize;
-use std::io::Write;
+use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -513,7 +513,7 @@ fn mergetree_step(
         let same = sim::mergetree::tree_matches_software(&r, &aabbs)?;
         let svg = out.join(format!("mergetree-{dram}.svg"));
         let title = format!("MergeTree p2, {dram}: frame 0, {} triangles", r.triangles);
-        super::report::write_atomic(&svg, &r.trace_svg(&title))?;
+        report::fs::write_atomic(&svg, &r.trace_svg(&title))?;
         crate::say!(
             ui,
             "             {dram:<17} {:>10} {:>9.4} {:>9.3} {:>11.3} {:>8.1}%  {}",
@@ -849,19 +849,12 @@ fn glam_vec(a: [f32; 3]) -> geom::Vec3 {
 fn write_outputs(dir: &PathBuf, s: &Summary) -> anyhow::Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let json = dir.join("summary.json");
-    std::fs::write(&json, serde_json::to_string_pretty(s)?)
-        .with_context(|| format!("cannot write {}", json.display()))?;
-    let csv = dir.join("frames.csv");
-    let mut w = std::io::BufWriter::new(
-        std::fs::File::create(&csv).with_context(|| format!("cannot write {}", csv.display()))?,
-    );
-    writeln!(
-        w,
-        "frame,time_s,triangles,min_x,min_y,min_z,max_x,max_y,max_z,sample_ms"
-    )?;
+    report::fs::write_atomic(&json, serde_json::to_string_pretty(s)?)?;
+    let mut csv =
+        String::from("frame,time_s,triangles,min_x,min_y,min_z,max_x,max_y,max_z,sample_ms\n");
     for r in &s.frames {
         writeln!(
-            w,
+            csv,
             "{},{},{},{},{},{},{},{},{},{:.4}",
             r.frame,
             r.time_s,
@@ -875,7 +868,6 @@ fn write_outputs(dir: &PathBuf, s: &Summary) -> anyhow::Result<()> {
             r.sample_ms
         )?;
     }
-    w.flush()
-        .with_context(|| format!("cannot write {}", csv.display()))?;
+    report::fs::write_atomic(&dir.join("frames.csv"), csv)?;
     Ok(())
 }

@@ -20,7 +20,7 @@
 //!   `trace_quality.svg`.
 
 use super::build::mesh_aabbs;
-use super::report::{bar_svg, short_name, write_file as write, SHARED_SCENES};
+use super::report::{short_name, SHARED_SCENES};
 use super::report_cbvh_runtime as runtime;
 use crate::progress::{Ui, Unit};
 use anyhow::Context;
@@ -28,6 +28,8 @@ use cbvh::study::{
     bits_sweep, min_scale_sweep, study_scene, BitsPoint, MinScalePoint, SceneStudy, Variant,
 };
 use cbvh::Params;
+use report::fs::write_file as write;
+use report::svg::bar_svg;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 

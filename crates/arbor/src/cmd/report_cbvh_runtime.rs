@@ -29,7 +29,8 @@ use std::fmt::Write as _;
 use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use super::report::{bar_svg, write_file as write};
+use report::fs::write_file as write;
+use report::svg::bar_svg;
 
 /// \[P3\] §5.3's memory: "a dual-channel, 32-bit LPDDR3-1600 memory interface".
 pub const DEFAULT_DRAM: &str = "lpddr3-1600-2x32";

@@ -15,13 +15,14 @@
 //! a difference is a bug, and the report stops with the first few such rays judged by
 //! brute force.
 
-use super::report::{bar_svg, write_file as write};
 use super::report_cbvh::load_triangles;
 use crate::progress::{Ui, Unit};
 use cbvh::bottomup::{compress_hlbvh, StreamConfig};
 use cbvh::{compress_topdown, Coords, Params};
 use geom::Triangle;
 use rayon::prelude::*;
+use report::fs::write_file as write;
+use report::svg::bar_svg;
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::path::Path;

@@ -11,11 +11,12 @@
 //!   (`arbor.report.energy.v1`) the components and the \[P4\] table, also printed by
 //!   `--json`.
 
-use super::report::{write_file, SHARED_SCENES};
+use super::report::SHARED_SCENES;
 use super::report_mergetree::{self, ReportMergetreeArgs};
 use super::report_rtunit::{self, ReportRtunitArgs};
 use crate::progress::Ui;
 use anyhow::Context;
+use report::fs::write_file;
 use serde::Serialize;
 use sim::energy::{component_csv, component_markdown, component_rows, ComponentRow};
 use std::path::PathBuf;

@@ -6,9 +6,11 @@
 //! reports as HTML, and the SVG plots and PNG renders beside them, with how each number
 //! was produced (command line, version, commit, date, CPU).
 
-use super::report::{write_atomic, xml, SHARED_SCENES};
+use super::report::SHARED_SCENES;
 use crate::progress::Ui;
 use anyhow::Context;
+use report::fs::write_atomic;
+use report::svg::xml;
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 use std::time::Instant;

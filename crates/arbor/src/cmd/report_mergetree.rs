@@ -17,12 +17,14 @@
 //! - `report.md` with every table and a summary against the targets.
 
 use super::build::{builder, BuildConfig};
-use super::report::{bar_svg, scene_prims, short_name, write_file, SHARED_SCENES};
+use super::report::{scene_prims, short_name, SHARED_SCENES};
 use super::thousands;
 use crate::progress::{Ui, Unit};
 use anyhow::Context;
 use geom::Aabb;
 use rayon::prelude::*;
+use report::fs::write_file;
+use report::svg::bar_svg;
 use sim::analytic::{binned_sah_hw, gpu_hlbvh};
 use sim::mergetree::{self, MergeTreeConfig, PhaseReport};
 use sim::thesis::{self, P2Scene};

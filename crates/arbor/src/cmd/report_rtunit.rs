@@ -9,10 +9,11 @@
 //!   chunks, against its whole-frame figures;
 //! - `report.md`: both, with the scene list.
 
-use super::report::{write_file, SHARED_SCENES};
+use super::report::SHARED_SCENES;
 use super::report_cbvh_trace::load_traced;
 use super::thousands;
 use crate::progress::{Ui, Unit};
+use report::fs::write_file;
 use sim::rtunit::report::{sampling_check, sampling_markdown, table2, ReportScene};
 use sim::rtunit::RtConfig;
 use std::path::PathBuf;

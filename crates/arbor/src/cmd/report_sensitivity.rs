@@ -7,10 +7,11 @@
 //! - `sensitivity.json`: the document (`arbor.report.sensitivity.v1`), also printed by
 //!   `--json`.
 
-use super::report::{write_file, SHARED_SCENES};
+use super::report::SHARED_SCENES;
 use super::report_system::{load_static, static_scene_specs};
 use crate::progress::{Ui, Unit};
 use anyhow::Context;
+use report::fs::write_file;
 use sim::system::report::SystemScene;
 use sim::system::sensitivity::{assumptions, run as sweep, Assumption, P4Scene};
 use std::path::PathBuf;

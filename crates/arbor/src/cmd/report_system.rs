@@ -12,11 +12,13 @@
 //!   `--json`;
 //! - `report.md`: all of it.
 
-use super::report::{stacked_bar_svg, view_camera, write_file, SHARED_SCENES};
+use super::report::{view_camera, SHARED_SCENES};
 use super::report_cbvh_trace::load_traced;
 use crate::progress::{Ui, Unit};
 use anyhow::Context;
 use rayon::prelude::*;
+use report::fs::write_file;
+use report::svg::stacked_bar_svg;
 use sim::energy::Node;
 use sim::rtunit::RayMode;
 use sim::system::report::{
