@@ -11,7 +11,13 @@
 //! - [`table`]: the one table type and its Markdown, CSV and JSON writers;
 //! - [`svg`]: the bar-chart writer;
 //! - [`progress`]: the [`Progress`](progress::Progress) trait through which a report
-//!   shows progress and warnings (the command line implements it with its progress bars).
+//!   shows progress and warnings (the command line implements it with its progress bars);
+//! - [`scenes`]: the shared scenes folder, scene names and loading;
+//! - one module per area, each a `run` function of its options: [`mergetree`] (\[P2\]
+//!   Tables III, VI), [`cbvh`] (\[P3\] §5), [`rtunit`] (\[P4\] Tables 1, 2), [`energy`]
+//!   (components, \[P2\] IV and VII, \[P4\] 1 and 2; uses `mergetree` and `rtunit`),
+//!   [`system`] (\[P2\] §6.4), [`sensitivity`] (uses `system`);
+//! - [`html`]: the static site of every report.
 //!
 //! See `crates/report/README.md` for where each report lives.
 
@@ -19,3 +25,16 @@ pub mod fs;
 pub mod progress;
 pub mod svg;
 pub mod table;
+
+pub mod scenes;
+
+pub mod cbvh;
+pub mod mergetree;
+pub mod rtunit;
+
+pub mod energy;
+pub mod system;
+
+pub mod sensitivity;
+
+pub mod html;

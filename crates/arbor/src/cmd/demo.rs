@@ -326,7 +326,7 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
         command += &format!(" --frames {f}");
     }
     command += &format!(" --out '{}'", args.out.display());
-    super::report_html::write_folder_page(
+    report::html::write_folder_page(
         &args.out,
         &format!("arbor demo: {}", summary.info.name),
         "The demo's results: every builder at a few frames, refit against rebuild, the \
@@ -334,6 +334,7 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
          4-wide trees with the heatmap, and the accelerator model. `arbor report html` \
          builds the site of every report.",
         &command,
+        &super::report_html::provenance(),
     )?;
     crate::say!(
         ui,

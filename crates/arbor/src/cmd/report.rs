@@ -1,11 +1,9 @@
 //! `arbor report <name>`: regenerates one of the thesis's tables or figures as CSV,
-//! Markdown and SVG in an output folder. Each report lives in its own file
-//! (`report_*.rs`); the helpers they share (scene names and loading) are here, and the
-//! writers (atomic files, tables, bar charts) in the `report` crate.
+//! Markdown and SVG in an output folder. The reports are library code (the `report`
+//! crate, one module per area); each `report_*.rs` here holds one report's command-line
+//! options, which it converts into the library's option struct, and prints the result.
 
 use crate::progress::Ui;
-use anyhow::Context;
-use std::path::Path;
 
 /// Arguments of `arbor report`.
 #[derive(clap::Args, Debug)]
@@ -46,7 +44,7 @@ pub fn run(a: &ReportArgs, ui: &Ui) -> anyhow::Result<()> {
     match &a.kind {
         ReportKind::Cbvh(r) => super::report_cbvh::run(r, ui),
         ReportKind::Mergetree(r) => super::report_mergetree::run(r, ui),
-        ReportKind::Rtunit(r) => super::report_rtunit::run(r, ui).map(|_| ()),
+        ReportKind::Rtunit(r) => super::report_rtunit::run(r, ui),
         ReportKind::Energy(r) => super::report_energy::run(r, ui),
         ReportKind::System(r) => super::report_system::run(r, ui),
         ReportKind::Sensitivity(r) => super::report_sensitivity::run(r, ui),
@@ -73,57 +71,7 @@ impl clap::builder::IntoResettable<clap::builder::OsStr> for SharedScenes {
     }
 }
 
-/// The folder of the shared real scenes (`--scene-dir`'s default), found at run time: the
-/// environment variable `ARBOR_SCENE_DIR` if it is set; else the nearest `shared/scenes`
-/// folder in or above the current folder (`../shared/scenes` from the repository's root),
-/// else in or above the folder of the `arbor` executable; else `../shared/scenes`.
-pub fn shared_scenes() -> std::path::PathBuf {
-    if let Some(d) = std::env::var_os("ARBOR_SCENE_DIR").filter(|d| !d.is_empty()) {
-        return d.into();
-    }
-    let exe_dir = std::env::current_exe()
-        .ok()
-        .and_then(|e| e.parent().map(Path::to_path_buf));
-    for start in [std::env::current_dir().ok(), exe_dir]
-        .into_iter()
-        .flatten()
-    {
-        if let Some(d) = start
-            .ancestors()
-            .map(|a| a.join("shared").join("scenes"))
-            .find(|d| d.is_dir())
-        {
-            return d;
-        }
-    }
-    Path::new("..").join("shared").join("scenes")
-}
-
-pub use scene::camera::{view_camera, INTERIOR_VIEWS};
-
-/// Short name of a scene spec (file stem, or procedural name).
-pub fn short_name(spec: &str) -> String {
-    if let Some(rest) = spec.strip_prefix("proc:") {
-        return rest.split('?').next().unwrap_or(rest).to_string();
-    }
-    Path::new(spec)
-        .file_stem()
-        .map(|s| s.to_string_lossy().into_owned())
-        .unwrap_or_else(|| spec.to_string())
-}
-
-/// The primitive boxes of scene `spec` at time `t`, clamped to its timeline (the report
-/// scenes are sampled once).
-pub fn scene_prims(spec: &str, t: f32) -> anyhow::Result<Vec<geom::Aabb>> {
-    anyhow::ensure!(t.is_finite(), "the sampling time must be finite, got {t}");
-    let scene = scene::open(spec, &scene::LoadOptions::default())
-        .with_context(|| format!("cannot open {spec}"))?;
-    let t = scene.info().timeline.clamp(t);
-    let mesh = scene
-        .mesh_at(t)
-        .with_context(|| format!("cannot sample {spec}"))?;
-    Ok(super::build::mesh_aabbs(&mesh)?.0)
-}
+pub use report::scenes::{scene_prims, shared_scenes, short_name, view_camera, INTERIOR_VIEWS};
 
 #[cfg(test)]
 mod tests {

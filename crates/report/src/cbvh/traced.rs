@@ -15,14 +15,13 @@
 //! a difference is a bug, and the report stops with the first few such rays judged by
 //! brute force.
 
-use super::report_cbvh::load_triangles;
-use crate::progress::{Ui, Unit};
+use crate::fs::write_file as write;
+use crate::progress::Progress;
+use crate::scenes::load_traced;
+use crate::svg::bar_svg;
 use cbvh::bottomup::{compress_hlbvh, StreamConfig};
 use cbvh::{compress_topdown, Coords, Params};
-use geom::Triangle;
 use rayon::prelude::*;
-use report::fs::write_file as write;
-use report::svg::bar_svg;
 use serde::Serialize;
 use std::fmt::Write as _;
 use std::path::Path;
@@ -86,13 +85,6 @@ impl QualityRow {
     }
 }
 
-/// Triangles and camera of a report scene spec: the scene's camera, or the interior one.
-pub(super) fn load_traced(spec: &str) -> anyhow::Result<(String, Vec<Triangle>, scene::Camera)> {
-    let (name, tris, camera) = load_triangles(spec)?;
-    let camera = super::report::view_camera(&name, camera);
-    Ok((name, tris, camera))
-}
-
 /// A closest hit as a comparable key.
 type HitKey = Option<(u32, u32)>;
 
@@ -128,8 +120,12 @@ fn trace_all<T: Traverse>(
 }
 
 /// Traces every scene of `specs` at `size` (width, height); the rows, two per scene.
-pub fn measure(specs: &[String], size: (u32, u32), ui: &Ui) -> anyhow::Result<Vec<QualityRow>> {
-    let bar = ui.progress("report cbvh: tracing", Unit::Items);
+pub fn measure(
+    specs: &[String],
+    size: (u32, u32),
+    ui: &dyn Progress,
+) -> anyhow::Result<Vec<QualityRow>> {
+    let bar = ui.bar("report cbvh: tracing");
     let total = specs.len() as u64 * 2;
     let mut rows = Vec::new();
     let options = KernelOptions::thesis(2);
