@@ -13,7 +13,7 @@ pub fn write_atomic(path: &Path, bytes: impl AsRef<[u8]>) -> anyhow::Result<()> 
     outfile::write_with(
         path,
         |w| Ok(w.write_all(bytes.as_ref())?),
-        |e| anyhow::Error::new(e),
+        anyhow::Error::new,
     )
     .with_context(|| format!("cannot write {}", path.display()))
 }

@@ -867,7 +867,7 @@ pub fn write_folder_page(
     write_atomic(&dir.join("style.css"), STYLE)?;
     write_atomic(
         &dir.join("index.html"),
-        &page_html(title, about, &b, prov, None),
+        page_html(title, about, &b, prov, None),
     )
 }
 

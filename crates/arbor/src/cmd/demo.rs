@@ -17,7 +17,6 @@ use crate::progress::{Ui, Unit};
 use anyhow::Context;
 use geom::Aabb;
 use serde::Serialize;
-use std::fmt::Write as _;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -514,7 +513,7 @@ fn mergetree_step(
         let same = sim::mergetree::tree_matches_software(&r, &aabbs)?;
         let svg = out.join(format!("mergetree-{dram}.svg"));
         let title = format!("MergeTree p2, {dram}: frame 0, {} triangles", r.triangles);
-        report::fs::write_atomic(&svg, &r.trace_svg(&title))?;
+        report::fs::write_atomic(&svg, r.trace_svg(&title))?;
         crate::say!(
             ui,
             "             {dram:<17} {:>10} {:>9.4} {:>9.3} {:>11.3} {:>8.1}%  {}",
@@ -851,24 +850,32 @@ fn write_outputs(dir: &PathBuf, s: &Summary) -> anyhow::Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let json = dir.join("summary.json");
     report::fs::write_atomic(&json, serde_json::to_string_pretty(s)?)?;
-    let mut csv =
-        String::from("frame,time_s,triangles,min_x,min_y,min_z,max_x,max_y,max_z,sample_ms\n");
+    let mut csv = report::table::Table::new(&[
+        "frame",
+        "time_s",
+        "triangles",
+        "min_x",
+        "min_y",
+        "min_z",
+        "max_x",
+        "max_y",
+        "max_z",
+        "sample_ms",
+    ]);
     for r in &s.frames {
-        writeln!(
-            csv,
-            "{},{},{},{},{},{},{},{},{},{:.4}",
-            r.frame,
-            r.time_s,
-            r.triangles,
-            r.min[0],
-            r.min[1],
-            r.min[2],
-            r.max[0],
-            r.max[1],
-            r.max[2],
-            r.sample_ms
-        )?;
+        csv.push([
+            r.frame.to_string(),
+            r.time_s.to_string(),
+            r.triangles.to_string(),
+            r.min[0].to_string(),
+            r.min[1].to_string(),
+            r.min[2].to_string(),
+            r.max[0].to_string(),
+            r.max[1].to_string(),
+            r.max[2].to_string(),
+            format!("{:.4}", r.sample_ms),
+        ]);
     }
-    report::fs::write_atomic(&dir.join("frames.csv"), csv)?;
+    report::fs::write_atomic(&dir.join("frames.csv"), csv.csv())?;
     Ok(())
 }
