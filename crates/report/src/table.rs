@@ -34,6 +34,13 @@ impl Table {
         }
     }
 
+    /// An empty table whose columns are all text (left-aligned, `---` in Markdown).
+    pub fn text<S: AsRef<str>>(headers: &[S]) -> Self {
+        let mut t = Table::new(headers);
+        t.align.fill(Align::Left);
+        t
+    }
+
     /// The table with column `k`'s alignment set.
     pub fn with_align(mut self, k: usize, a: Align) -> Self {
         if let Some(slot) = self.align.get_mut(k) {
@@ -165,6 +172,13 @@ mod tests {
             "| scene | ms | note |\n|---|---:|---|\n| bunny | 1.5 | a\\|b |\n\
              | san, miguel | 12 | say \"hi\" there |\n| short |  |  |\n"
         );
+    }
+
+    #[test]
+    fn text_tables_align_every_column_left() {
+        let mut t = Table::text(&["a", "b"]);
+        t.push(["1", "2"]);
+        assert_eq!(t.markdown(), "| a | b |\n|---|---|\n| 1 | 2 |\n");
     }
 
     #[test]

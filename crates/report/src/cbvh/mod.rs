@@ -26,6 +26,7 @@ use crate::fs::write_file as write;
 use crate::progress::Progress;
 use crate::scenes::{load_triangles, CLOTH};
 use crate::svg::bar_svg;
+use crate::table::Table;
 use anyhow::Context;
 use cbvh::study::{
     bits_sweep, min_scale_sweep, study_scene, BitsPoint, MinScalePoint, SceneStudy, Variant,
@@ -551,47 +552,54 @@ fn write_table3(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Resul
 }
 
 fn write_quality(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Result<()> {
-    let mut csv = String::from(
-        "scene,variant,sah_uncompressed,sah_vs_uncompressed,sah_vs_topdown,enclosure_violations,not_enclosing_topdown\n",
-    );
+    let mut csv = Table::text(&[
+        "scene",
+        "variant",
+        "sah_uncompressed",
+        "sah_vs_uncompressed",
+        "sah_vs_topdown",
+        "enclosure_violations",
+        "not_enclosing_topdown",
+    ]);
     writeln!(md, "## Tree quality (\\[P3\\] §5.4)\n")?;
     writeln!(
         md,
         "SAH of the decoded CBVH over the uncompressed LBVH, and the largest SAH of a bottom-up variant over \
          top-down (the context-estimation looseness; [P3] reports < 0.1%). Every decoded box encloses its geometry.\n"
     )?;
-    writeln!(
-        md,
-        "| scene | SAH CBVH / BVH | max SAH bottom-up / top-down | enclosure violations |"
-    )?;
-    writeln!(md, "|---|---|---|---|")?;
+    let mut table = Table::text(&[
+        "scene",
+        "SAH CBVH / BVH",
+        "max SAH bottom-up / top-down",
+        "enclosure violations",
+    ]);
     for r in runs {
         let s = &r.study;
         let mut worst: f64 = 1.0;
         let mut viol = 0;
         for v in &s.variants {
-            writeln!(
-                csv,
-                "{},{},{:.6},{:.6},{:.6},{},{}",
-                r.name,
-                v.label,
-                s.sah_uncompressed,
-                v.sah_vs_uncompressed,
-                v.sah_vs_topdown,
-                v.enclosure_violations,
-                v.not_enclosing_topdown
-            )?;
+            csv.push([
+                r.name.clone(),
+                v.label.to_string(),
+                format!("{:.6}", s.sah_uncompressed),
+                format!("{:.6}", v.sah_vs_uncompressed),
+                format!("{:.6}", v.sah_vs_topdown),
+                v.enclosure_violations.to_string(),
+                v.not_enclosing_topdown.to_string(),
+            ]);
             worst = worst.max(v.sah_vs_topdown);
             viol += v.enclosure_violations;
         }
-        writeln!(
-            md,
-            "| {} | {:.4} | {:.6} | {} |",
-            r.name, s.variants[0].sah_vs_uncompressed, worst, viol
-        )?;
+        table.push([
+            r.name.clone(),
+            format!("{:.4}", s.variants[0].sah_vs_uncompressed),
+            format!("{worst:.6}"),
+            viol.to_string(),
+        ]);
     }
+    md.push_str(&table.markdown());
     writeln!(md)?;
-    write(out, "quality.csv", &csv)
+    write(out, "quality.csv", &csv.csv())
 }
 
 fn write_fig7(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Result<()> {

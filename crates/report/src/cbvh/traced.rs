@@ -19,6 +19,7 @@ use crate::fs::write_file as write;
 use crate::progress::Progress;
 use crate::scenes::load_traced;
 use crate::svg::bar_svg;
+use crate::table::Table;
 use cbvh::bottomup::{compress_hlbvh, StreamConfig};
 use cbvh::{compress_topdown, Coords, Params};
 use rayon::prelude::*;
@@ -328,9 +329,15 @@ pub fn write_tables(
         ),
     )?;
 
-    let mut csv = String::from(
-        "scene,rays,ray_count,box_tests,original_hits,interval_violations,false_misses\n",
-    );
+    let mut csv = Table::text(&[
+        "scene",
+        "rays",
+        "ray_count",
+        "box_tests",
+        "original_hits",
+        "interval_violations",
+        "false_misses",
+    ]);
     writeln!(md, "## Watertightness (\\[P3\\] §5.5)\n")?;
     writeln!(
         md,
@@ -339,35 +346,50 @@ pub fn write_tables(
          criterion) and false misses (the kernel's slab test misses the decoded box but hits the original). \
          [P3]: the criterion held over every box test; expected 0.\n"
     )?;
-    writeln!(
-        md,
-        "| scene | rays | box tests checked | original box hit | interval violations | false misses |"
-    )?;
-    writeln!(md, "|---|---|---|---|---|---|")?;
+    let mut table = Table::text(&[
+        "scene",
+        "rays",
+        "box tests checked",
+        "original box hit",
+        "interval violations",
+        "false misses",
+    ]);
     let mut sum = WatertightStats::default();
     for r in rows {
         let w = &r.watertight;
         let k = kind_name(r.rays);
-        writeln!(
-            csv,
-            "{},{k},{},{},{},{},{}",
-            r.scene, w.rays, w.box_tests, w.original_hits, w.interval_violations, w.false_misses
-        )?;
-        writeln!(
-            md,
-            "| {} | {k} | {} | {} | {} | {} |",
-            r.scene, w.box_tests, w.original_hits, w.interval_violations, w.false_misses
-        )?;
+        csv.push([
+            r.scene.clone(),
+            k.to_string(),
+            w.rays.to_string(),
+            w.box_tests.to_string(),
+            w.original_hits.to_string(),
+            w.interval_violations.to_string(),
+            w.false_misses.to_string(),
+        ]);
+        table.push([
+            r.scene.clone(),
+            k.to_string(),
+            w.box_tests.to_string(),
+            w.original_hits.to_string(),
+            w.interval_violations.to_string(),
+            w.false_misses.to_string(),
+        ]);
         sum.rays += w.rays;
         sum.box_tests += w.box_tests;
         sum.original_hits += w.original_hits;
         sum.interval_violations += w.interval_violations;
         sum.false_misses += w.false_misses;
     }
-    writeln!(
-        md,
-        "| **all** | {} rays | {} | {} | **{}** | **{}** |\n",
-        sum.rays, sum.box_tests, sum.original_hits, sum.interval_violations, sum.false_misses
-    )?;
-    write(out, "watertight.csv", &csv)
+    table.push([
+        "**all**".to_string(),
+        format!("{} rays", sum.rays),
+        sum.box_tests.to_string(),
+        sum.original_hits.to_string(),
+        format!("**{}**", sum.interval_violations),
+        format!("**{}**", sum.false_misses),
+    ]);
+    md.push_str(&table.markdown());
+    writeln!(md)?;
+    write(out, "watertight.csv", &csv.csv())
 }
