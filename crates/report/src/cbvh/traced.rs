@@ -220,11 +220,23 @@ pub fn write_tables(
     rows: &[QualityRow],
     size: (u32, u32),
 ) -> anyhow::Result<()> {
-    let mut csv = String::from(
-        "scene,rays,ray_count,bvh_box_tests_per_ray,cbvh_box_tests_per_ray,box_increase,thesis_box_increase,\
-         bvh_tri_tests_per_ray,cbvh_tri_tests_per_ray,tri_increase,thesis_tri_increase,\
-         bvh_node_visits_per_ray,cbvh_node_visits_per_ray,bottomup_same_counts,cbvh_time_ratio\n",
-    );
+    let mut csv = Table::text(&[
+        "scene",
+        "rays",
+        "ray_count",
+        "bvh_box_tests_per_ray",
+        "cbvh_box_tests_per_ray",
+        "box_increase",
+        "thesis_box_increase",
+        "bvh_tri_tests_per_ray",
+        "cbvh_tri_tests_per_ray",
+        "tri_increase",
+        "thesis_tri_increase",
+        "bvh_node_visits_per_ray",
+        "cbvh_node_visits_per_ray",
+        "bottomup_same_counts",
+        "cbvh_time_ratio",
+    ]);
     writeln!(md, "## Tree quality by ray tracing (\\[P3\\] §5.4)\n")?;
     writeln!(
         md,
@@ -238,48 +250,59 @@ pub fn write_tables(
          report stops otherwise).\n",
         size.0, size.1
     )?;
-    writeln!(
-        md,
-        "| scene | rays | count | box tests/ray BVH → CBVH | increase | tri tests/ray BVH → CBVH | increase | bottom-up same | time |"
-    )?;
-    writeln!(md, "|---|---|---|---|---|---|---|---|---|")?;
+    let mut table = Table::text(&[
+        "scene",
+        "rays",
+        "count",
+        "box tests/ray BVH → CBVH",
+        "increase",
+        "tri tests/ray BVH → CBVH",
+        "increase",
+        "bottom-up same",
+        "time",
+    ]);
     let pct = |x: f64| format!("{:+.1}%", x * 100.0);
     for r in rows {
         let k = kind_name(r.rays);
         let (b, c) = (&r.bvh, &r.cbvh);
-        writeln!(
-            csv,
-            "{},{k},{},{:.4},{:.4},{:.5},{},{:.4},{:.4},{:.5},{},{:.4},{:.4},{},{:.3}",
-            r.scene,
-            b.rays,
-            b.per_ray(b.box_tests),
-            c.per_ray(c.box_tests),
-            r.box_increase(),
-            P3_BOX_TESTS_INCREASE,
-            b.per_ray(b.tri_tests),
-            c.per_ray(c.tri_tests),
-            r.tri_increase(),
-            P3_TRI_TESTS_INCREASE,
-            b.per_ray(b.node_visits),
-            c.per_ray(c.node_visits),
-            r.bottomup_same_counts,
-            r.time_ratio,
-        )?;
-        writeln!(
-            md,
-            "| {} | {k} | {} | {:.2} → {:.2} | {} | {:.2} → {:.2} | {} | {} | {:.1}x |",
-            r.scene,
-            b.rays,
-            b.per_ray(b.box_tests),
-            c.per_ray(c.box_tests),
+        csv.push([
+            r.scene.clone(),
+            k.to_string(),
+            b.rays.to_string(),
+            format!("{:.4}", b.per_ray(b.box_tests)),
+            format!("{:.4}", c.per_ray(c.box_tests)),
+            format!("{:.5}", r.box_increase()),
+            P3_BOX_TESTS_INCREASE.to_string(),
+            format!("{:.4}", b.per_ray(b.tri_tests)),
+            format!("{:.4}", c.per_ray(c.tri_tests)),
+            format!("{:.5}", r.tri_increase()),
+            P3_TRI_TESTS_INCREASE.to_string(),
+            format!("{:.4}", b.per_ray(b.node_visits)),
+            format!("{:.4}", c.per_ray(c.node_visits)),
+            r.bottomup_same_counts.to_string(),
+            format!("{:.3}", r.time_ratio),
+        ]);
+        table.push([
+            r.scene.clone(),
+            k.to_string(),
+            b.rays.to_string(),
+            format!(
+                "{:.2} → {:.2}",
+                b.per_ray(b.box_tests),
+                c.per_ray(c.box_tests)
+            ),
             pct(r.box_increase()),
-            b.per_ray(b.tri_tests),
-            c.per_ray(c.tri_tests),
+            format!(
+                "{:.2} → {:.2}",
+                b.per_ray(b.tri_tests),
+                c.per_ray(c.tri_tests)
+            ),
             pct(r.tri_increase()),
-            if r.bottomup_same_counts { "yes" } else { "no" },
-            r.time_ratio,
-        )?;
+            (if r.bottomup_same_counts { "yes" } else { "no" }).to_string(),
+            format!("{:.1}x", r.time_ratio),
+        ]);
     }
+    md.push_str(&table.markdown());
     let mut labels = Vec::new();
     let mut series: Vec<(String, Vec<Option<f64>>)> = vec![
         ("box tests, ours".into(), Vec::new()),
@@ -318,7 +341,7 @@ pub fn write_tables(
         series[3].1.push(Some(100.0 * P3_TRI_TESTS_INCREASE));
     }
     writeln!(md)?;
-    write(out, "trace_quality.csv", &csv)?;
+    write(out, "trace_quality.csv", &csv.csv())?;
     write(
         out,
         "trace_quality.svg",
