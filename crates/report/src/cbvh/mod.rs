@@ -481,9 +481,24 @@ fn opt(v: Option<f64>) -> String {
 }
 
 fn write_table3(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Result<()> {
-    let mut csv = String::from(
-        "scene,triangles,node_pairs,avg_leaf_size,thesis_leaf_size,variant,backtrack_steps,lbvh_update_bytes,lbvh_compression_bytes,lbvh_backtrack_bytes,lbvh_total_bytes,refit_backtrack_steps,refit_update_bytes,refit_compression_bytes,refit_backtrack_bytes,refit_total_bytes\n",
-    );
+    let mut csv = Table::text(&[
+        "scene",
+        "triangles",
+        "node_pairs",
+        "avg_leaf_size",
+        "thesis_leaf_size",
+        "variant",
+        "backtrack_steps",
+        "lbvh_update_bytes",
+        "lbvh_compression_bytes",
+        "lbvh_backtrack_bytes",
+        "lbvh_total_bytes",
+        "refit_backtrack_steps",
+        "refit_update_bytes",
+        "refit_compression_bytes",
+        "refit_backtrack_bytes",
+        "refit_total_bytes",
+    ]);
     writeln!(
         md,
         "## Table 3 analogue: traffic per scene (bytes per triangle)\n"
@@ -493,35 +508,39 @@ fn write_table3(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Resul
         "Leaf size beside [P3] Table 2's where we share the scene. Columns: LBVH / refit traffic per triangle \
          for top-down (B), relative (R), relative with depth-2 treelets (R2), modulo (M), modulo with depth-2 treelets (M2).\n"
     )?;
-    writeln!(
-        md,
-        "| scene | triangles | leaf size (ours / [P3]) | B | R | R2 | M | M2 | backtracks R / M |"
-    )?;
-    writeln!(md, "|---|---|---|---|---|---|---|---|---|")?;
+    let mut table = Table::text(&[
+        "scene",
+        "triangles",
+        "leaf size (ours / [P3])",
+        "B",
+        "R",
+        "R2",
+        "M",
+        "M2",
+        "backtracks R / M",
+    ]);
     for r in runs {
         let s = &r.study;
         let thesis = runtime::p3_row(&r.name).map(|x| x.leaf_size);
         for v in &s.variants {
-            writeln!(
-                csv,
-                "{},{},{},{:.3},{},{},{},{},{},{},{},{},{},{},{},{}",
-                r.name,
-                s.prims,
-                s.node_pairs,
-                s.avg_leaf_size,
+            csv.push([
+                r.name.clone(),
+                s.prims.to_string(),
+                s.node_pairs.to_string(),
+                format!("{:.3}", s.avg_leaf_size),
                 opt(thesis),
-                v.label,
-                v.build.backtrack_steps,
-                v.build_traffic.update_bytes,
-                v.build_traffic.compression_bytes,
-                v.build_traffic.backtrack_bytes,
-                v.build_traffic.total_bytes(),
-                v.refit.backtrack_steps,
-                v.refit_traffic.update_bytes,
-                v.refit_traffic.compression_bytes,
-                v.refit_traffic.backtrack_bytes,
-                v.refit_traffic.total_bytes()
-            )?;
+                v.label.to_string(),
+                v.build.backtrack_steps.to_string(),
+                v.build_traffic.update_bytes.to_string(),
+                v.build_traffic.compression_bytes.to_string(),
+                v.build_traffic.backtrack_bytes.to_string(),
+                v.build_traffic.total_bytes().to_string(),
+                v.refit.backtrack_steps.to_string(),
+                v.refit_traffic.update_bytes.to_string(),
+                v.refit_traffic.compression_bytes.to_string(),
+                v.refit_traffic.backtrack_bytes.to_string(),
+                v.refit_traffic.total_bytes().to_string(),
+            ]);
         }
         let per = |l: &str| {
             let v = s.variants.iter().find(|v| v.label == l).expect("variant");
@@ -531,24 +550,24 @@ fn write_table3(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Resul
                 v.refit_traffic.total_bytes() as f64 / s.prims as f64
             )
         };
-        writeln!(
-            md,
-            "| {} | {} | {:.2} / {} | {} | {} | {} | {} | {} | {} / {} |",
-            r.name,
-            s.prims,
-            s.avg_leaf_size,
-            fmt(thesis),
+        table.push([
+            r.name.clone(),
+            s.prims.to_string(),
+            format!("{:.2} / {}", s.avg_leaf_size, fmt(thesis)),
             per("TD"),
             per("R"),
             per("R2"),
             per("M"),
             per("M2"),
-            s.variants[1].build.backtrack_steps,
-            s.variants[5].build.backtrack_steps
-        )?;
+            format!(
+                "{} / {}",
+                s.variants[1].build.backtrack_steps, s.variants[5].build.backtrack_steps
+            ),
+        ]);
     }
+    md.push_str(&table.markdown());
     writeln!(md)?;
-    write(out, "table3.csv", &csv)
+    write(out, "table3.csv", &csv.csv())
 }
 
 fn write_quality(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Result<()> {
