@@ -175,3 +175,25 @@ impl Drop for Spinner {
         }
     }
 }
+
+/// The reports (the `report` crate) show progress and warnings through this.
+impl report::progress::Progress for Ui {
+    fn bar(&self, what: &str) -> Box<dyn report::progress::Bar> {
+        Box::new(self.progress(what, Unit::Items))
+    }
+    fn spinner(&self, what: &str) -> Box<dyn Send> {
+        Box::new(Ui::spinner(self, what))
+    }
+    fn warn(&self, msg: &str) {
+        Ui::warn(self, msg)
+    }
+}
+
+impl report::progress::Bar for LazyBar {
+    fn update(&self, done: u64, total: u64) {
+        LazyBar::update(self, done, total)
+    }
+    fn finish(&self) {
+        LazyBar::finish(self)
+    }
+}

@@ -414,20 +414,9 @@ fn write_atomically(
     path: &Path,
     write: impl FnOnce(&mut std::fs::File) -> Result<(), IoError>,
 ) -> Result<(), IoError> {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d,
-        _ => Path::new("."),
-    };
-    let mut tb = tempfile::Builder::new();
-    tb.prefix(".arbor-tree-").suffix(".tmp");
-    // Temporary files are private (0600) by default; the renamed result should get the
-    // permissions of any file the user creates (0666 less the umask).
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        tb.permissions(std::fs::Permissions::from_mode(0o666));
-    }
-    let mut tmp = tb.tempfile_in(dir)?;
+    // The workspace's one atomic writer's temporary file: an ordinary file's permissions
+    // (0666 less the umask), not tempfile's private 0600.
+    let mut tmp = outfile::temp_file_beside(path, ".arbor-tree-")?;
     write(tmp.as_file_mut())?;
     tmp.as_file().sync_all()?;
     // On failure the temporary file is removed when `tmp` (inside the error) is dropped.

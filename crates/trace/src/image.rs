@@ -17,38 +17,17 @@ fn io_err(path: &Path, source: std::io::Error) -> TraceError {
     }
 }
 
-/// A new temporary file in the folder of `path` (the current folder for a bare file name),
-/// named `prefix...`, to be renamed over `path` once written. On Unix it is created with
-/// mode 0666 less the umask, as an ordinary file is (`tempfile`'s default, 0600, would
-/// make every result private). Every atomic write of Arbor's outputs (images, logs,
-/// reports) starts here.
-pub fn temp_file_beside(path: &Path, prefix: &str) -> std::io::Result<tempfile::NamedTempFile> {
-    let dir = match path.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    let mut b = tempfile::Builder::new();
-    b.prefix(prefix).suffix(".tmp");
-    #[cfg(unix)]
-    {
-        use std::os::unix::fs::PermissionsExt;
-        b.permissions(std::fs::Permissions::from_mode(0o666));
-    }
-    b.tempfile_in(dir)
-}
+/// A new temporary file beside `path`, with an ordinary file's permissions: the
+/// workspace's one atomic writer, [`outfile`], which every output here goes through.
+pub use outfile::temp_file_beside;
 
 /// Writes `path` atomically: `fill` writes the content to a temporary file in the same
-/// folder, which then replaces `path`.
+/// folder, which then replaces `path` ([`outfile::write_with`]).
 pub fn write_atomic(
     path: &Path,
     fill: impl FnOnce(&mut dyn Write) -> Result<(), TraceError>,
 ) -> Result<(), TraceError> {
-    let tmp = temp_file_beside(path, ".arbor-").map_err(|e| io_err(path, e))?;
-    let mut w = std::io::BufWriter::new(tmp);
-    fill(&mut w)?;
-    let tmp = w.into_inner().map_err(|e| io_err(path, e.into_error()))?;
-    tmp.persist(path).map_err(|e| io_err(path, e.error))?;
-    Ok(())
+    outfile::write_with(path, fill, |e| io_err(path, e))
 }
 
 /// Linear to sRGB-encoded 8-bit, clamped.

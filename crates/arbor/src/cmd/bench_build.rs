@@ -657,7 +657,7 @@ pub fn run(args: &BenchBuildArgs, ui: &Ui) -> anyhow::Result<()> {
             ("bench-build.csv", csv(&doc)),
             ("bench-build.json", json.clone()),
         ] {
-            super::report::write_atomic(&dir.join(name), &body)?;
+            report::fs::write_atomic(&dir.join(name), &body)?;
         }
     }
     if !ui.silent {
@@ -904,13 +904,7 @@ fn markdown(d: &BenchJson) -> String {
 
 /// One CSV line per row, with a header; numbers unrounded.
 fn csv(d: &BenchJson) -> String {
-    let q = |v: &str| {
-        if v.contains([',', '"', '\n']) {
-            format!("\"{}\"", v.replace('"', "\"\""))
-        } else {
-            v.to_string()
-        }
-    };
+    let q = report::table::csv_field;
     let o = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
     let mut s = String::from(
         "scene,triangles,builder,library,width,threads,best_ms,median_ms,mtris_per_s,sah,\

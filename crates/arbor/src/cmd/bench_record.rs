@@ -8,8 +8,8 @@
 //! (`binned-sah`) or a tracer on a ray set (`arbor bvh2 binned-sah / diffuse`). Every value
 //! is a time, so lower is better everywhere.
 
-use super::report::write_atomic;
 use anyhow::{bail, Context};
+use report::fs::write_atomic;
 use serde::{Deserialize, Serialize};
 use std::path::{Path, PathBuf};
 

@@ -18,11 +18,12 @@
 use super::bench::{aligned_table, markdown_report, RunInfo};
 pub use super::bench_build::Format;
 use super::bench_record::{Record, RecordEntry};
-use super::report::{shared_scenes, view_camera, write_atomic};
+use super::report::{shared_scenes, view_camera};
 use super::{open_scene, thousands, SceneArgs};
 use crate::progress::Ui;
 use anyhow::Context;
 use peers::trace_bench::{BenchScene, TraceRow};
+use report::fs::write_atomic;
 use serde::Serialize;
 
 /// Issue 4's goal: Arbor's best kernel over Embree's `rtcIntersect1` on incoherent rays.

@@ -17,7 +17,6 @@ use crate::progress::{Ui, Unit};
 use anyhow::Context;
 use geom::Aabb;
 use serde::Serialize;
-use std::io::Write;
 use std::path::PathBuf;
 use std::time::Instant;
 
@@ -326,7 +325,7 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
         command += &format!(" --frames {f}");
     }
     command += &format!(" --out '{}'", args.out.display());
-    super::report_html::write_folder_page(
+    report::html::write_folder_page(
         &args.out,
         &format!("arbor demo: {}", summary.info.name),
         "The demo's results: every builder at a few frames, refit against rebuild, the \
@@ -334,6 +333,7 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
          4-wide trees with the heatmap, and the accelerator model. `arbor report html` \
          builds the site of every report.",
         &command,
+        &super::report_html::provenance(),
     )?;
     crate::say!(
         ui,
@@ -513,7 +513,7 @@ fn mergetree_step(
         let same = sim::mergetree::tree_matches_software(&r, &aabbs)?;
         let svg = out.join(format!("mergetree-{dram}.svg"));
         let title = format!("MergeTree p2, {dram}: frame 0, {} triangles", r.triangles);
-        super::report::write_atomic(&svg, &r.trace_svg(&title))?;
+        report::fs::write_atomic(&svg, r.trace_svg(&title))?;
         crate::say!(
             ui,
             "             {dram:<17} {:>10} {:>9.4} {:>9.3} {:>11.3} {:>8.1}%  {}",
@@ -849,33 +849,33 @@ fn glam_vec(a: [f32; 3]) -> geom::Vec3 {
 fn write_outputs(dir: &PathBuf, s: &Summary) -> anyhow::Result<()> {
     std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
     let json = dir.join("summary.json");
-    std::fs::write(&json, serde_json::to_string_pretty(s)?)
-        .with_context(|| format!("cannot write {}", json.display()))?;
-    let csv = dir.join("frames.csv");
-    let mut w = std::io::BufWriter::new(
-        std::fs::File::create(&csv).with_context(|| format!("cannot write {}", csv.display()))?,
-    );
-    writeln!(
-        w,
-        "frame,time_s,triangles,min_x,min_y,min_z,max_x,max_y,max_z,sample_ms"
-    )?;
+    report::fs::write_atomic(&json, serde_json::to_string_pretty(s)?)?;
+    let mut csv = report::table::Table::new(&[
+        "frame",
+        "time_s",
+        "triangles",
+        "min_x",
+        "min_y",
+        "min_z",
+        "max_x",
+        "max_y",
+        "max_z",
+        "sample_ms",
+    ]);
     for r in &s.frames {
-        writeln!(
-            w,
-            "{},{},{},{},{},{},{},{},{},{:.4}",
-            r.frame,
-            r.time_s,
-            r.triangles,
-            r.min[0],
-            r.min[1],
-            r.min[2],
-            r.max[0],
-            r.max[1],
-            r.max[2],
-            r.sample_ms
-        )?;
+        csv.push([
+            r.frame.to_string(),
+            r.time_s.to_string(),
+            r.triangles.to_string(),
+            r.min[0].to_string(),
+            r.min[1].to_string(),
+            r.min[2].to_string(),
+            r.max[0].to_string(),
+            r.max[1].to_string(),
+            r.max[2].to_string(),
+            format!("{:.4}", r.sample_ms),
+        ]);
     }
-    w.flush()
-        .with_context(|| format!("cannot write {}", csv.display()))?;
+    report::fs::write_atomic(&dir.join("frames.csv"), csv.csv())?;
     Ok(())
 }

@@ -220,11 +220,11 @@ pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
         )
     };
     if let Some(p) = &a.trace {
-        super::report::write_atomic(p, &report.trace_csv())?;
+        report::fs::write_atomic(p, report.trace_csv())?;
     }
     if let Some(p) = &a.svg {
         let title = format!("MergeTree {} on {}: {}", cfg.preset, dram, a.scene.scene);
-        super::report::write_atomic(p, &report.trace_svg(&title))?;
+        report::fs::write_atomic(p, report.trace_svg(&title))?;
     }
     let cps = report.cycles as f64 / (wall_ms / 1e3).max(1e-9);
     let energy =

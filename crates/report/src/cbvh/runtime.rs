@@ -20,7 +20,7 @@
 //! Every run's BVH is checked against the software builder and its CBVH against the
 //! software encoder, bit for bit.
 
-use crate::progress::{Ui, Unit};
+use crate::progress::Progress;
 use anyhow::Context;
 use geom::Aabb;
 use rayon::prelude::*;
@@ -29,7 +29,8 @@ use std::fmt::Write as _;
 use std::path::Path;
 use std::sync::atomic::{AtomicU64, Ordering};
 
-use super::report::{bar_svg, write_file as write};
+use crate::fs::write_file as write;
+use crate::svg::bar_svg;
 
 /// \[P3\] §5.3's memory: "a dual-channel, 32-bit LPDDR3-1600 memory interface".
 pub const DEFAULT_DRAM: &str = "lpddr3-1600-2x32";
@@ -230,7 +231,7 @@ fn run_one(
 pub fn simulate_all(
     scenes: &[(String, Vec<Aabb>)],
     dram: &str,
-    ui: &Ui,
+    ui: &dyn Progress,
 ) -> anyhow::Result<Vec<RuntimeRow>> {
     let cfg = MergeTreeConfig::p3();
     sim::dram::open(dram, cfg.period_fs())?;
@@ -255,7 +256,7 @@ pub fn simulate_all(
         let w = if m.starts_with("simple:") { 1 } else { 20 };
         std::cmp::Reverse(scenes[s].1.len() as u64 * w)
     });
-    let bar = ui.progress("report cbvh: runtime simulations", Unit::Items);
+    let bar = ui.bar("report cbvh: runtime simulations");
     let total = jobs.len() as u64;
     let done = AtomicU64::new(0);
     bar.update(0, total);

@@ -15,12 +15,13 @@
 //! a difference is a bug, and the report stops with the first few such rays judged by
 //! brute force.
 
-use super::report::{bar_svg, write_file as write};
-use super::report_cbvh::load_triangles;
-use crate::progress::{Ui, Unit};
+use crate::fs::write_file as write;
+use crate::progress::Progress;
+use crate::scenes::load_traced;
+use crate::svg::bar_svg;
+use crate::table::Table;
 use cbvh::bottomup::{compress_hlbvh, StreamConfig};
 use cbvh::{compress_topdown, Coords, Params};
-use geom::Triangle;
 use rayon::prelude::*;
 use serde::Serialize;
 use std::fmt::Write as _;
@@ -85,13 +86,6 @@ impl QualityRow {
     }
 }
 
-/// Triangles and camera of a report scene spec: the scene's camera, or the interior one.
-pub(super) fn load_traced(spec: &str) -> anyhow::Result<(String, Vec<Triangle>, scene::Camera)> {
-    let (name, tris, camera) = load_triangles(spec)?;
-    let camera = super::report::view_camera(&name, camera);
-    Ok((name, tris, camera))
-}
-
 /// A closest hit as a comparable key.
 type HitKey = Option<(u32, u32)>;
 
@@ -127,8 +121,12 @@ fn trace_all<T: Traverse>(
 }
 
 /// Traces every scene of `specs` at `size` (width, height); the rows, two per scene.
-pub fn measure(specs: &[String], size: (u32, u32), ui: &Ui) -> anyhow::Result<Vec<QualityRow>> {
-    let bar = ui.progress("report cbvh: tracing", Unit::Items);
+pub fn measure(
+    specs: &[String],
+    size: (u32, u32),
+    ui: &dyn Progress,
+) -> anyhow::Result<Vec<QualityRow>> {
+    let bar = ui.bar("report cbvh: tracing");
     let total = specs.len() as u64 * 2;
     let mut rows = Vec::new();
     let options = KernelOptions::thesis(2);
@@ -222,11 +220,23 @@ pub fn write_tables(
     rows: &[QualityRow],
     size: (u32, u32),
 ) -> anyhow::Result<()> {
-    let mut csv = String::from(
-        "scene,rays,ray_count,bvh_box_tests_per_ray,cbvh_box_tests_per_ray,box_increase,thesis_box_increase,\
-         bvh_tri_tests_per_ray,cbvh_tri_tests_per_ray,tri_increase,thesis_tri_increase,\
-         bvh_node_visits_per_ray,cbvh_node_visits_per_ray,bottomup_same_counts,cbvh_time_ratio\n",
-    );
+    let mut csv = Table::text(&[
+        "scene",
+        "rays",
+        "ray_count",
+        "bvh_box_tests_per_ray",
+        "cbvh_box_tests_per_ray",
+        "box_increase",
+        "thesis_box_increase",
+        "bvh_tri_tests_per_ray",
+        "cbvh_tri_tests_per_ray",
+        "tri_increase",
+        "thesis_tri_increase",
+        "bvh_node_visits_per_ray",
+        "cbvh_node_visits_per_ray",
+        "bottomup_same_counts",
+        "cbvh_time_ratio",
+    ]);
     writeln!(md, "## Tree quality by ray tracing (\\[P3\\] §5.4)\n")?;
     writeln!(
         md,
@@ -240,48 +250,59 @@ pub fn write_tables(
          report stops otherwise).\n",
         size.0, size.1
     )?;
-    writeln!(
-        md,
-        "| scene | rays | count | box tests/ray BVH → CBVH | increase | tri tests/ray BVH → CBVH | increase | bottom-up same | time |"
-    )?;
-    writeln!(md, "|---|---|---|---|---|---|---|---|---|")?;
+    let mut table = Table::text(&[
+        "scene",
+        "rays",
+        "count",
+        "box tests/ray BVH → CBVH",
+        "increase",
+        "tri tests/ray BVH → CBVH",
+        "increase",
+        "bottom-up same",
+        "time",
+    ]);
     let pct = |x: f64| format!("{:+.1}%", x * 100.0);
     for r in rows {
         let k = kind_name(r.rays);
         let (b, c) = (&r.bvh, &r.cbvh);
-        writeln!(
-            csv,
-            "{},{k},{},{:.4},{:.4},{:.5},{},{:.4},{:.4},{:.5},{},{:.4},{:.4},{},{:.3}",
-            r.scene,
-            b.rays,
-            b.per_ray(b.box_tests),
-            c.per_ray(c.box_tests),
-            r.box_increase(),
-            P3_BOX_TESTS_INCREASE,
-            b.per_ray(b.tri_tests),
-            c.per_ray(c.tri_tests),
-            r.tri_increase(),
-            P3_TRI_TESTS_INCREASE,
-            b.per_ray(b.node_visits),
-            c.per_ray(c.node_visits),
-            r.bottomup_same_counts,
-            r.time_ratio,
-        )?;
-        writeln!(
-            md,
-            "| {} | {k} | {} | {:.2} → {:.2} | {} | {:.2} → {:.2} | {} | {} | {:.1}x |",
-            r.scene,
-            b.rays,
-            b.per_ray(b.box_tests),
-            c.per_ray(c.box_tests),
+        csv.push([
+            r.scene.clone(),
+            k.to_string(),
+            b.rays.to_string(),
+            format!("{:.4}", b.per_ray(b.box_tests)),
+            format!("{:.4}", c.per_ray(c.box_tests)),
+            format!("{:.5}", r.box_increase()),
+            P3_BOX_TESTS_INCREASE.to_string(),
+            format!("{:.4}", b.per_ray(b.tri_tests)),
+            format!("{:.4}", c.per_ray(c.tri_tests)),
+            format!("{:.5}", r.tri_increase()),
+            P3_TRI_TESTS_INCREASE.to_string(),
+            format!("{:.4}", b.per_ray(b.node_visits)),
+            format!("{:.4}", c.per_ray(c.node_visits)),
+            r.bottomup_same_counts.to_string(),
+            format!("{:.3}", r.time_ratio),
+        ]);
+        table.push([
+            r.scene.clone(),
+            k.to_string(),
+            b.rays.to_string(),
+            format!(
+                "{:.2} → {:.2}",
+                b.per_ray(b.box_tests),
+                c.per_ray(c.box_tests)
+            ),
             pct(r.box_increase()),
-            b.per_ray(b.tri_tests),
-            c.per_ray(c.tri_tests),
+            format!(
+                "{:.2} → {:.2}",
+                b.per_ray(b.tri_tests),
+                c.per_ray(c.tri_tests)
+            ),
             pct(r.tri_increase()),
-            if r.bottomup_same_counts { "yes" } else { "no" },
-            r.time_ratio,
-        )?;
+            (if r.bottomup_same_counts { "yes" } else { "no" }).to_string(),
+            format!("{:.1}x", r.time_ratio),
+        ]);
     }
+    md.push_str(&table.markdown());
     let mut labels = Vec::new();
     let mut series: Vec<(String, Vec<Option<f64>>)> = vec![
         ("box tests, ours".into(), Vec::new()),
@@ -320,7 +341,7 @@ pub fn write_tables(
         series[3].1.push(Some(100.0 * P3_TRI_TESTS_INCREASE));
     }
     writeln!(md)?;
-    write(out, "trace_quality.csv", &csv)?;
+    write(out, "trace_quality.csv", &csv.csv())?;
     write(
         out,
         "trace_quality.svg",
@@ -331,9 +352,15 @@ pub fn write_tables(
         ),
     )?;
 
-    let mut csv = String::from(
-        "scene,rays,ray_count,box_tests,original_hits,interval_violations,false_misses\n",
-    );
+    let mut csv = Table::text(&[
+        "scene",
+        "rays",
+        "ray_count",
+        "box_tests",
+        "original_hits",
+        "interval_violations",
+        "false_misses",
+    ]);
     writeln!(md, "## Watertightness (\\[P3\\] §5.5)\n")?;
     writeln!(
         md,
@@ -342,35 +369,50 @@ pub fn write_tables(
          criterion) and false misses (the kernel's slab test misses the decoded box but hits the original). \
          [P3]: the criterion held over every box test; expected 0.\n"
     )?;
-    writeln!(
-        md,
-        "| scene | rays | box tests checked | original box hit | interval violations | false misses |"
-    )?;
-    writeln!(md, "|---|---|---|---|---|---|")?;
+    let mut table = Table::text(&[
+        "scene",
+        "rays",
+        "box tests checked",
+        "original box hit",
+        "interval violations",
+        "false misses",
+    ]);
     let mut sum = WatertightStats::default();
     for r in rows {
         let w = &r.watertight;
         let k = kind_name(r.rays);
-        writeln!(
-            csv,
-            "{},{k},{},{},{},{},{}",
-            r.scene, w.rays, w.box_tests, w.original_hits, w.interval_violations, w.false_misses
-        )?;
-        writeln!(
-            md,
-            "| {} | {k} | {} | {} | {} | {} |",
-            r.scene, w.box_tests, w.original_hits, w.interval_violations, w.false_misses
-        )?;
+        csv.push([
+            r.scene.clone(),
+            k.to_string(),
+            w.rays.to_string(),
+            w.box_tests.to_string(),
+            w.original_hits.to_string(),
+            w.interval_violations.to_string(),
+            w.false_misses.to_string(),
+        ]);
+        table.push([
+            r.scene.clone(),
+            k.to_string(),
+            w.box_tests.to_string(),
+            w.original_hits.to_string(),
+            w.interval_violations.to_string(),
+            w.false_misses.to_string(),
+        ]);
         sum.rays += w.rays;
         sum.box_tests += w.box_tests;
         sum.original_hits += w.original_hits;
         sum.interval_violations += w.interval_violations;
         sum.false_misses += w.false_misses;
     }
-    writeln!(
-        md,
-        "| **all** | {} rays | {} | {} | **{}** | **{}** |\n",
-        sum.rays, sum.box_tests, sum.original_hits, sum.interval_violations, sum.false_misses
-    )?;
-    write(out, "watertight.csv", &csv)
+    table.push([
+        "**all**".to_string(),
+        format!("{} rays", sum.rays),
+        sum.box_tests.to_string(),
+        sum.original_hits.to_string(),
+        format!("**{}**", sum.interval_violations),
+        format!("**{}**", sum.false_misses),
+    ]);
+    md.push_str(&table.markdown());
+    writeln!(md)?;
+    write(out, "watertight.csv", &csv.csv())
 }
