@@ -26,6 +26,7 @@ mod node;
 mod ploc;
 mod points;
 mod refit;
+mod reinsert;
 mod sah;
 mod sweep_sah;
 #[cfg(test)]
@@ -53,6 +54,7 @@ pub use node::{ChildRef, Node, EMPTY_INDEX};
 pub use ploc::{PlocBuilder, MAX_PLOC_RADIUS};
 pub use points::{knn_brute, PointError, PointNode, PointTree, NO_AXIS};
 pub use refit::{refit_bvh2, refit_mbvh4, RefitError, RefitFrame, RefitTracker};
+pub use reinsert::{reinsert, ReinsertConfig, ReinsertWork};
 pub use sah::{sah_cost, sah_cost_with, sah_ratio, SahParams};
 pub use sweep_sah::SweepSahBuilder;
 pub use toplevel::{HlbvhAtrbvhBuilder, HlbvhSahBuilder};
