@@ -123,37 +123,86 @@ fn pair_hash(a: usize, b: usize) -> u64 {
     z ^ (z >> 31)
 }
 
-/// The nearest neighbour of cluster `i` within `r` positions (NaN areas, from overflowing
-/// boxes, count as infinite; ties go to the smaller [`pair_hash`]).
-#[inline]
+/// Whether candidate `j` at distance `d` is a better neighbour for cluster `i` than the
+/// current best `b` at `bd` (`usize::MAX`: none yet). One total order on pairs: the
+/// distance, then the nearer position, then [`pair_hash`], then the lower position.
+#[inline(always)]
+fn better(i: usize, j: usize, d: f32, b: usize, bd: f32) -> bool {
+    if b == usize::MAX || d < bd {
+        return true;
+    }
+    if d > bd {
+        return false;
+    }
+    let (dj, db) = (j.abs_diff(i), b.abs_diff(i));
+    if dj != db {
+        return dj < db;
+    }
+    let (hj, hb) = (pair_hash(i.min(j), i.max(j)), pair_hash(i.min(b), i.max(b)));
+    if hj != hb {
+        return hj < hb;
+    }
+    j < b
+}
+
+/// The distance of two clusters: the half area of their union, NaN (from overflowing
+/// boxes) as infinity.
+#[inline(always)]
+fn distance(a: &Cluster, b: &Cluster) -> f32 {
+    let d = a.merged_area(b);
+    if d.is_nan() {
+        f32::INFINITY
+    } else {
+        d
+    }
+}
+
+/// The nearest neighbour of cluster `i` within `r` positions (the reference of
+/// [`nearest_chunk`], which computes the same).
+#[cfg(test)]
 fn nearest(c: &[Cluster], i: usize, r: usize) -> u32 {
     let lo = i.saturating_sub(r);
     let hi = (i + r).min(c.len() - 1);
-    let me = &c[i];
-    let mut best = usize::MAX;
-    let mut best_d = f32::INFINITY;
-    for (j, other) in c.iter().enumerate().take(hi + 1).skip(lo) {
-        if j == i {
-            continue;
-        }
-        let mut d = me.merged_area(other);
-        if d.is_nan() {
-            d = f32::INFINITY;
-        }
-        if best == usize::MAX || d < best_d {
-            best = j;
-            best_d = d;
-        } else if d == best_d {
-            // Ties: the nearer position, then the smaller hash of the pair.
-            let (dj, db) = (j.abs_diff(i), best.abs_diff(i));
-            if dj < db
-                || (dj == db && pair_hash(i.min(j), i.max(j)) < pair_hash(i.min(best), i.max(best)))
-            {
-                best = j;
+    let (mut b, mut bd) = (usize::MAX, f32::INFINITY);
+    for j in lo..=hi {
+        if j != i {
+            let d = distance(&c[i], &c[j]);
+            if better(i, j, d, b, bd) {
+                (b, bd) = (j, d);
             }
         }
     }
-    best as u32
+    b as u32
+}
+
+/// The nearest neighbours (within `r` positions) of the clusters `a..a + out.len()`,
+/// computing each pair's distance once, as Meister and Bittner do: pair `(i, j)`, `i < j`,
+/// is offered to both ends.
+fn nearest_chunk(c: &[Cluster], a: usize, r: usize, out: &mut [u32]) {
+    let b = a + out.len();
+    let mut best: Vec<(usize, f32)> = vec![(usize::MAX, f32::INFINITY); out.len()];
+    for i in a.saturating_sub(r)..b {
+        let me = &c[i];
+        let hi = (i + r).min(c.len() - 1);
+        for j in (i + 1).max(a)..=hi {
+            let d = distance(me, &c[j]);
+            if i >= a {
+                let e = &mut best[i - a];
+                if better(i, j, d, e.0, e.1) {
+                    *e = (j, d);
+                }
+            }
+            if j < b {
+                let e = &mut best[j - a];
+                if better(j, i, d, e.0, e.1) {
+                    *e = (i, d);
+                }
+            }
+        }
+    }
+    for (o, e) in out.iter_mut().zip(best) {
+        *o = e.0 as u32;
+    }
 }
 
 impl PlocBuilder {
@@ -230,24 +279,19 @@ impl PlocBuilder {
         let mut inner_boxes: Vec<Aabb> = vec![Aabb::EMPTY; n - 1];
         let mut next = Vec::with_capacity(n);
         let mut made = 0usize;
-        let mut fallbacks = 0usize;
-        let mut iterations = 0usize;
         let r = self.radius;
         while cur.len() > 1 {
-            iterations += 1;
             let c = &cur;
-            let mut nn: Vec<u32> = (0..c.len())
-                .into_par_iter()
-                .with_min_len(CHUNK)
-                .map(|i| nearest(c, i, r))
-                .collect();
+            let mut nn: Vec<u32> = vec![0; c.len()];
+            nn.par_chunks_mut(CHUNK)
+                .enumerate()
+                .for_each(|(k, out)| nearest_chunk(c, k * CHUNK, r, out));
             let chunks = c.len().div_ceil(CHUNK);
             let mut counts = merge_counts(&nn);
             let mut merges: usize = counts.iter().map(|x| x.1).sum();
             if merges * MIN_MERGE_SHARE < c.len() {
                 // Degenerate input (e.g. nested boxes around one centroid, where every
                 // cluster's nearest neighbour is one below it): pair neighbours instead.
-                fallbacks += 1;
                 nn.par_iter_mut().enumerate().for_each(|(i, x)| {
                     *x = if (i ^ 1) < c.len() { i ^ 1 } else { i - 1 } as u32;
                 });
@@ -310,9 +354,6 @@ impl PlocBuilder {
             std::mem::swap(&mut cur, &mut next);
         }
         debug_assert_eq!(made, n - 1);
-        if std::env::var_os("PLOC_DEBUG").is_some() {
-            eprintln!("ploc: n {n} fallbacks {fallbacks} iterations {iterations}");
-        }
         let root = cur[0].id as usize - n;
         // Leaves under each inner node (children are made before their parents).
         let mut leaves = vec![0u32; n - 1];
@@ -494,7 +535,14 @@ mod tests {
 
     #[test]
     fn nearest_neighbour_is_the_brute_force_minimum() {
-        let prims = soup(300, 3.0, 7);
+        // Random boxes, then all ties, then runs of three equal boxes.
+        let steps: Vec<f32> = (0..200).map(|i| (i / 3) as f32).collect();
+        for prims in [soup(300, 3.0, 7), cubes_at(&[0.0; 100]), cubes_at(&steps)] {
+            nearest_neighbours_of(&prims);
+        }
+    }
+
+    fn nearest_neighbours_of(prims: &[Aabb]) {
         let c: Vec<Cluster> = prims
             .iter()
             .enumerate()
@@ -505,6 +553,14 @@ mod tests {
             })
             .collect();
         for r in [1, 4, 16] {
+            for chunk in [1, 7, 64, 300] {
+                let mut nn = vec![0u32; c.len()];
+                for (k, out) in nn.chunks_mut(chunk).enumerate() {
+                    nearest_chunk(&c, k * chunk, r, out);
+                }
+                let want: Vec<u32> = (0..c.len()).map(|i| nearest(&c, i, r)).collect();
+                assert_eq!(nn, want, "r {r} chunk {chunk}");
+            }
             for i in 0..c.len() {
                 let j = nearest(&c, i, r) as usize;
                 assert!(j != i && j.abs_diff(i) <= r);
@@ -695,6 +751,9 @@ mod probe {
         for spec in ["proc:cloth?n=5000", "proc:soup?n=20000"] {
             scenes.push((spec.to_string(), crate::testutil::proc_scene(spec)));
         }
+        // PLOC_SCENES=substring restricts the table to matching scenes.
+        let only = std::env::var("PLOC_SCENES").unwrap_or_default();
+        scenes.retain(|(name, _)| name.contains(&only));
         for (name, prims) in &scenes {
             let sweep = crate::SweepSahBuilder::default().build(prims).unwrap();
             let lbvh = crate::LbvhBuilder::default().build(prims).unwrap();
