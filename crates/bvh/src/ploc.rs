@@ -43,8 +43,8 @@ pub const MAX_PLOC_RADIUS: usize = 256;
 pub struct PlocBuilder {
     /// Search radius `r` (1..=[`MAX_PLOC_RADIUS`]): each cluster looks for its nearest
     /// neighbour among the `r` clusters before and the `r` after it in Morton order.
-    /// Meister and Bittner study radii up to 100 and recommend small ones (around 16) as
-    /// the balance of speed and quality; the default is 16.
+    /// The radius is the paper's speed/quality knob; the default is 16 (measured against
+    /// 1, 4 and 32 on the shared scenes in docs/builders.md).
     pub radius: usize,
     /// Morton code length of the initial order.
     pub bits: MortonBits,
