@@ -202,7 +202,7 @@ fn area(b: &Aabb) -> f32 {
     }
 }
 
-fn optimize_checked(bvh: &mut Bvh2, cfg: &AtrbvhConfig) -> AtrbvhWork {
+pub(crate) fn optimize_checked(bvh: &mut Bvh2, cfg: &AtrbvhConfig) -> AtrbvhWork {
     let mut work = AtrbvhWork {
         treelets_by_leaves: vec![0; MAX_TREELET_SIZE + 1],
         ..Default::default()

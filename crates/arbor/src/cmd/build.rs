@@ -122,6 +122,21 @@ pub static BUILDERS: &[(&str, BuildFn)] = &[
             .build(p),
         )
     }),
+    ("ploc", |p, c| binary(ploc(c).build(p))),
+    ("ploc+reinsert", |p, c| {
+        let mut t = ploc(&BuildConfig {
+            max_leaf: 1,
+            ..c.clone()
+        })
+        .build(p)?;
+        reinsert(&mut t, p, c)?;
+        Ok(Tree::Bvh2(t))
+    }),
+    ("hlbvh+reinsert", |p, c| {
+        let mut t = hlbvh(c).build(p)?;
+        reinsert(&mut t, p, c)?;
+        Ok(Tree::Bvh2(t))
+    }),
     (COLLAPSE, |p, c| {
         // The binary build and the collapse together are the 4-wide build.
         let from = binary_builder_name(c.collapse_from, CLI_NAMES.collapse_from)?;
@@ -156,6 +171,31 @@ fn hlbvh(c: &BuildConfig) -> bvh::HlbvhBuilder {
         threads: 0,
         ..Default::default()
     }
+}
+
+/// The PLOC builder for a configuration (radius 16, leaves collapsed up to `max_leaf`).
+fn ploc(c: &BuildConfig) -> bvh::PlocBuilder {
+    bvh::PlocBuilder {
+        max_leaf_size: c.max_leaf,
+        threads: 0,
+        ..Default::default()
+    }
+}
+
+/// The reinsertion optimizer (`X+reinsert`) over the tree `t` built over `p`, then the SAH
+/// leaf collapse up to `max_leaf`. `bvh::reinsert` validates its input tree first, so the
+/// time of an `X+reinsert` build includes one validation pass.
+fn reinsert(t: &mut bvh::Bvh2, p: &[Aabb], c: &BuildConfig) -> anyhow::Result<()> {
+    bvh::reinsert(
+        t,
+        p,
+        &bvh::ReinsertConfig {
+            max_leaf_size: c.max_leaf,
+            threads: 0,
+            ..Default::default()
+        },
+    )?;
+    Ok(())
 }
 
 /// The sweep SAH builder for a configuration (also the SAH normalization reference).
@@ -204,8 +244,9 @@ fn binary_builder_name(name: &str, option: &str) -> anyhow::Result<&'static str>
 pub struct BuildArgs {
     #[command(flatten)]
     scene: SceneArgs,
-    /// Builder: lbvh, hlbvh, hlbvh+sah, hlbvh+atrbvh, binned-sah, sweep-sah, atrbvh (binary
-    /// trees), mbvh4-collapse, mbvh4-topdown (4-wide trees).
+    /// Builder: lbvh, hlbvh, hlbvh+sah, hlbvh+atrbvh, binned-sah, sweep-sah, atrbvh, ploc,
+    /// ploc+reinsert, hlbvh+reinsert (binary trees), mbvh4-collapse, mbvh4-topdown (4-wide
+    /// trees).
     #[arg(long, value_name = "NAME")]
     builder: String,
     /// mbvh4-collapse: the binary builder whose tree is collapsed (default binned-sah).
@@ -675,6 +716,9 @@ mod tests {
             "binned-sah",
             "sweep-sah",
             "atrbvh",
+            "ploc",
+            "ploc+reinsert",
+            "hlbvh+reinsert",
             "mbvh4-collapse",
             "mbvh4-topdown",
         ] {

@@ -5,8 +5,8 @@ use crate::common::arbor;
 use serde_json::Value;
 use std::path::Path;
 
-/// Every builder of `arbor build`: seven binary, then the two 4-wide ones.
-const BUILDERS: [&str; 9] = [
+/// Every builder of `arbor build`: ten binary, then the two 4-wide ones.
+const BUILDERS: [&str; 12] = [
     "lbvh",
     "hlbvh",
     "hlbvh+sah",
@@ -14,6 +14,9 @@ const BUILDERS: [&str; 9] = [
     "binned-sah",
     "sweep-sah",
     "atrbvh",
+    "ploc",
+    "ploc+reinsert",
+    "hlbvh+reinsert",
     "mbvh4-collapse",
     "mbvh4-topdown",
 ];
@@ -189,6 +192,20 @@ fn out_file_reads_back_as_the_built_tree() {
                 .build(&aabbs)
                 .unwrap()
                 .into(),
+            "ploc" => bvh::PlocBuilder::default().build(&aabbs).unwrap().into(),
+            "ploc+reinsert" | "hlbvh+reinsert" => {
+                let mut t = if b == "ploc+reinsert" {
+                    let one = bvh::PlocBuilder {
+                        max_leaf_size: 1,
+                        ..Default::default()
+                    };
+                    one.build(&aabbs).unwrap()
+                } else {
+                    bvh::HlbvhBuilder::default().build(&aabbs).unwrap()
+                };
+                bvh::reinsert(&mut t, &aabbs, &Default::default()).unwrap();
+                t.into()
+            }
             "mbvh4-collapse" => bvh::collapse(&binned).unwrap().into(),
             "mbvh4-topdown" => bvh::Mbvh4TopDownBuilder::default()
                 .build(&aabbs)
