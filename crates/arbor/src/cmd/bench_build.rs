@@ -66,8 +66,54 @@ pub enum Format {
     Markdown,
     /// One CSV row per measurement.
     Csv,
-    /// The versioned JSON document (`arbor.bench.build.v1`, `arbor.bench.trace.v1`).
+    /// The versioned JSON document (`arbor.bench.build.v1`, `arbor.bench.trace.v1`,
+    /// `arbor.bench.refit.v1`).
     Json,
+}
+
+/// A benchmark's document in every format: written to `out` as `<stem>.txt`, `.md`,
+/// `.csv` and `.json` (atomically) when given, and printed in `format` unless `quiet`.
+pub(crate) struct Rendered {
+    pub text: String,
+    pub markdown: String,
+    pub csv: String,
+    pub json: String,
+}
+
+impl Rendered {
+    /// Writes and prints the renderings (see the type).
+    pub(crate) fn emit(
+        &self,
+        out: Option<&std::path::Path>,
+        stem: &str,
+        format: Format,
+        quiet: bool,
+    ) -> anyhow::Result<()> {
+        if let Some(dir) = out {
+            std::fs::create_dir_all(dir)
+                .with_context(|| format!("cannot create {}", dir.display()))?;
+            for (ext, body) in [
+                ("txt", &self.text),
+                ("md", &self.markdown),
+                ("csv", &self.csv),
+                ("json", &self.json),
+            ] {
+                report::fs::write_atomic(&dir.join(format!("{stem}.{ext}")), body)?;
+            }
+        }
+        if !quiet {
+            print!(
+                "{}",
+                match format {
+                    Format::Json => &self.json,
+                    Format::Csv => &self.csv,
+                    Format::Markdown => &self.markdown,
+                    Format::Text => &self.text,
+                }
+            );
+        }
+        Ok(())
+    }
 }
 
 /// Arguments of `arbor bench build`.
@@ -649,25 +695,13 @@ pub fn run(args: &BenchBuildArgs, ui: &Ui) -> anyhow::Result<()> {
             .collect();
         Record::new("build", &doc.run, entries).write_under(dir)?;
     }
-    if let Some(dir) = &args.out {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-        for (name, body) in [
-            ("bench-build.txt", text(&doc)),
-            ("bench-build.md", markdown(&doc)),
-            ("bench-build.csv", csv(&doc)),
-            ("bench-build.json", json.clone()),
-        ] {
-            report::fs::write_atomic(&dir.join(name), &body)?;
-        }
+    Rendered {
+        text: text(&doc),
+        markdown: markdown(&doc),
+        csv: csv(&doc),
+        json,
     }
-    if !ui.silent {
-        match format {
-            Format::Json => print!("{json}"),
-            Format::Csv => print!("{}", csv(&doc)),
-            Format::Markdown => print!("{}", markdown(&doc)),
-            Format::Text => print!("{}", text(&doc)),
-        }
-    }
+    .emit(args.out.as_deref(), "bench-build", format, ui.silent)?;
     Ok(())
 }
 

@@ -24,7 +24,7 @@
 
 use super::bench::{aligned_table, markdown_report, RunInfo};
 pub use super::bench_build::Format;
-use super::report::write_atomic;
+use super::bench_build::Rendered;
 use super::{open_scene, thousands, SceneArgs};
 use crate::progress::Ui;
 use anyhow::Context;
@@ -384,23 +384,13 @@ pub fn run(a: &BenchRefitArgs, ui: &Ui) -> anyhow::Result<()> {
         rows,
     };
     let json = serde_json::to_string_pretty(&doc)? + "\n";
-    if let Some(dir) = &a.out {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-        for (name, body) in [
-            ("bench-refit.txt", text(&doc)),
-            ("bench-refit.md", markdown(&doc)),
-            ("bench-refit.csv", csv(&doc)),
-            ("bench-refit.json", json.clone()),
-        ] {
-            write_atomic(&dir.join(name), &body)?;
-        }
+    Rendered {
+        text: text(&doc),
+        markdown: markdown(&doc),
+        csv: csv(&doc),
+        json,
     }
-    match format {
-        Format::Json => print!("{json}"),
-        Format::Csv => print!("{}", csv(&doc)),
-        Format::Markdown => print!("{}", markdown(&doc)),
-        Format::Text => print!("{}", text(&doc)),
-    }
+    .emit(a.out.as_deref(), "bench-refit", format, false)?;
     Ok(())
 }
 

@@ -17,13 +17,13 @@
 
 use super::bench::{aligned_table, markdown_report, RunInfo};
 pub use super::bench_build::Format;
+use super::bench_build::Rendered;
 use super::bench_record::{Record, RecordEntry};
 use super::report::{shared_scenes, view_camera};
 use super::{open_scene, thousands, SceneArgs};
 use crate::progress::Ui;
 use anyhow::Context;
 use peers::trace_bench::{BenchScene, TraceRow};
-use report::fs::write_atomic;
 use serde::Serialize;
 
 /// Issue 4's goal: Arbor's best kernel over Embree's `rtcIntersect1` on incoherent rays.
@@ -274,23 +274,13 @@ pub fn run(a: &BenchTraceArgs, ui: &Ui) -> anyhow::Result<()> {
             .collect();
         Record::new("trace", &doc.run, entries).write_under(dir)?;
     }
-    if let Some(dir) = &a.out {
-        std::fs::create_dir_all(dir).with_context(|| format!("cannot create {}", dir.display()))?;
-        for (name, body) in [
-            ("bench-trace.txt", text(&doc)),
-            ("bench-trace.md", markdown(&doc)),
-            ("bench-trace.csv", csv(&doc)),
-            ("bench-trace.json", json.clone()),
-        ] {
-            write_atomic(&dir.join(name), &body)?;
-        }
+    Rendered {
+        text: text(&doc),
+        markdown: markdown(&doc),
+        csv: csv(&doc),
+        json,
     }
-    match format {
-        Format::Json => print!("{json}"),
-        Format::Csv => print!("{}", csv(&doc)),
-        Format::Markdown => print!("{}", markdown(&doc)),
-        Format::Text => print!("{}", text(&doc)),
-    }
+    .emit(a.out.as_deref(), "bench-trace", format, false)?;
     Ok(())
 }
 
