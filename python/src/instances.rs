@@ -10,9 +10,9 @@
 use crate::arrays::{err, points};
 use crate::bvh::aabbs;
 use crate::detached;
-use crate::query::{ray_column, HitArrays};
+use crate::query::{cached_normals, ray_column, HitArrays};
 use crate::raycaster::{count_arg, mesh_arrays, read, BuildOptions, Healthy, Part, RayCaster};
-use crate::trace::{accel_of, CHUNK, NO_HIT};
+use crate::trace::{accel_of, NO_HIT};
 use ::trace::instance::{BottomLevel, Instance, InstanceAccel, InstanceStack, Transform};
 use ::trace::{KernelOptions, RayStats};
 use geom::{Triangle, Vec3};
@@ -22,7 +22,6 @@ use numpy::{
 };
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyTuple};
-use rayon::prelude::*;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, OnceLock, RwLock};
 
@@ -272,37 +271,15 @@ impl InstanceHits {
     /// computed on first access.
     #[getter]
     fn normal<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        if let Some(n) = self.normal.get() {
-            return Ok(n.bind(py).clone());
-        }
-        let inst = self.instance.bind(py).readonly();
-        let prim = self.primitive.bind(py).readonly();
-        let nc = "internal error: array not contiguous";
-        let insts = inst.as_slice().map_err(|_| err(nc))?;
-        let prims = prim.as_slice().map_err(|_| err(nc))?;
         let (tris, xf, mi) = (&self.triangles, &self.transforms, &self.mesh_index);
-        let flat = py.detach(|| {
-            let mut out = vec![f32::NAN; 3 * prims.len()];
-            out.par_chunks_mut(3 * CHUNK)
-                .zip(prims.par_chunks(CHUNK).zip(insts.par_chunks(CHUNK)))
-                .for_each(|(o, (ps, is))| {
-                    for (n, (p, i)) in o.chunks_exact_mut(3).zip(ps.iter().zip(is)) {
-                        let tri = mi
-                            .get(*i as usize)
-                            .and_then(|&m| tris.get(m as usize))
-                            .and_then(|t| t.get(*p as usize));
-                        if let (Some(tri), Some(x)) = (tri, xf.get(*i as usize)) {
-                            let w = x.triangle_to_world(tri);
-                            let g = (w.v[1] - w.v[0]).cross(w.v[2] - w.v[0]).normalize_or_zero();
-                            n.copy_from_slice(&g.to_array());
-                        }
-                    }
-                });
-            out
-        });
-        let a = crate::arrays::n3_array(py, flat)?;
-        let _ = self.normal.set(a.clone().unbind());
-        Ok(self.normal.get().map_or(a, |n| n.bind(py).clone()))
+        let (prim, inst) = (self.primitive.bind(py), self.instance.bind(py));
+        cached_normals(py, &self.normal, prim, Some(inst), |p, i| {
+            let tri = mi
+                .get(i as usize)
+                .and_then(|&m| tris.get(m as usize))
+                .and_then(|t| t.get(p as usize))?;
+            Some(xf.get(i as usize)?.triangle_to_world(tri))
+        })
     }
 
     /// Counters summed over all rays (top and bottom levels).

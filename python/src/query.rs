@@ -11,13 +11,13 @@ use crate::raycaster::{read, Healthy, COUNTERS};
 use crate::trace::{RaySlices, CHUNK, NO_HIT, SERIAL_RAYS};
 use ::trace::instance::InstanceHit;
 use ::trace::RayStats;
-use geom::Ray;
+use geom::{Ray, Triangle};
 use numpy::{
     PyArray1, PyArray2, PyArrayMethods, PyReadwriteArray1, PyReadwriteArray2, PyUntypedArrayMethods,
 };
 use pyo3::prelude::*;
 use rayon::prelude::*;
-use std::sync::RwLock;
+use std::sync::{OnceLock, RwLock};
 
 /// A counter as u32 (saturating; one ray never comes near).
 fn c32(x: u64) -> u32 {
@@ -420,4 +420,54 @@ impl HitGuards<'_> {
             },
         })
     }
+}
+
+/// The normals of a closest-hit result, cached in `cell`: on the first call computed with
+/// the interpreter released, in parallel, for each hit `k` as the unit geometric normal
+/// (`cross(p1 - p0, p2 - p0)` normalized) of `triangle(prim[k], inst[k])` (`inst` 0 where
+/// there are no instances), NaN where that gives none (a miss).
+pub(crate) fn cached_normals<'py>(
+    py: Python<'py>,
+    cell: &OnceLock<Py<PyArray2<f32>>>,
+    prim: &Bound<'py, PyArray1<u32>>,
+    inst: Option<&Bound<'py, PyArray1<u32>>>,
+    triangle: impl Fn(u32, u32) -> Option<Triangle> + Sync,
+) -> PyResult<Bound<'py, PyArray2<f32>>> {
+    if let Some(n) = cell.get() {
+        return Ok(n.bind(py).clone());
+    }
+    let nc = "internal error: array not contiguous";
+    let inst = inst.map(|a| a.readonly());
+    let prim = prim.readonly();
+    let insts = match &inst {
+        Some(a) => Some(a.as_slice().map_err(|_| err(nc))?),
+        None => None,
+    };
+    let prims = prim.as_slice().map_err(|_| err(nc))?;
+    let flat = py.detach(|| {
+        let mut out = vec![f32::NAN; 3 * prims.len()];
+        out.par_chunks_mut(3 * CHUNK)
+            .zip(prims.par_chunks(CHUNK))
+            .enumerate()
+            .for_each(|(c, (o, ps))| {
+                let is = insts.map(|s| &s[(c * CHUNK).min(s.len())..]);
+                for (k, (n, &p)) in o.chunks_exact_mut(3).zip(ps).enumerate() {
+                    let i = match is {
+                        Some(is) => match is.get(k) {
+                            Some(&i) => i,
+                            None => break,
+                        },
+                        None => 0,
+                    };
+                    if let Some(t) = triangle(p, i) {
+                        let g = (t.v[1] - t.v[0]).cross(t.v[2] - t.v[0]).normalize_or_zero();
+                        n.copy_from_slice(&g.to_array());
+                    }
+                }
+            });
+        out
+    });
+    let a = crate::arrays::n3_array(py, flat)?;
+    let _ = cell.set(a.clone().unbind());
+    Ok(cell.get().map_or(a, |n| n.bind(py).clone()))
 }

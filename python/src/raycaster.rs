@@ -13,7 +13,7 @@
 use crate::arrays::{err, points};
 use crate::bvh::{aabbs, config, in_pool, Bvh};
 use crate::detached;
-use crate::query::{query_column, ray_column, HitArrays};
+use crate::query::{cached_normals, query_column, ray_column, HitArrays};
 use crate::trace::{
     accel_of, check_current, default_distance_stack, tree_kernel, RayArrays, CHUNK, KERNELS,
     NO_HIT, SERIAL_RAYS,
@@ -320,31 +320,10 @@ impl RayHits {
     /// triangles traced: a query pays nothing for it unless it is read.
     #[getter]
     fn normal<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        if let Some(n) = self.normal.get() {
-            return Ok(n.bind(py).clone());
-        }
-        let prim = self.primitive.bind(py).readonly();
-        let prims = prim
-            .as_slice()
-            .map_err(|_| err("internal error: array not contiguous"))?;
         let tris = &self.triangles;
-        let flat = py.detach(|| {
-            let mut out = vec![f32::NAN; 3 * prims.len()];
-            out.par_chunks_mut(3 * CHUNK)
-                .zip(prims.par_chunks(CHUNK))
-                .for_each(|(o, ps)| {
-                    for (n, p) in o.chunks_exact_mut(3).zip(ps) {
-                        if let Some(t) = tris.get(*p as usize) {
-                            let g = (t.v[1] - t.v[0]).cross(t.v[2] - t.v[0]).normalize_or_zero();
-                            n.copy_from_slice(&g.to_array());
-                        }
-                    }
-                });
-            out
-        });
-        let a = crate::arrays::n3_array(py, flat)?;
-        let _ = self.normal.set(a.clone().unbind());
-        Ok(self.normal.get().map_or(a, |n| n.bind(py).clone()))
+        cached_normals(py, &self.normal, self.primitive.bind(py), None, |p, _| {
+            tris.get(p as usize).copied()
+        })
     }
 
     /// The mesh of each hit (its index in `RayCaster.from_meshes`; 0 for a ray caster of
