@@ -10,11 +10,9 @@
 use crate::arrays::{err, points};
 use crate::bvh::aabbs;
 use crate::detached;
-use crate::raycaster::{
-    chunk_for, count_arg, for_chunks, mesh_arrays, out_array, read, BuildOptions, Healthy, Part,
-    RayCaster,
-};
-use crate::trace::{accel_of, RaySlices, CHUNK, NO_HIT};
+use crate::query::{cached_normals, ray_column, HitArrays};
+use crate::raycaster::{count_arg, mesh_arrays, read, BuildOptions, Healthy, Part, RayCaster};
+use crate::trace::{accel_of, NO_HIT};
 use ::trace::instance::{BottomLevel, Instance, InstanceAccel, InstanceStack, Transform};
 use ::trace::{KernelOptions, RayStats};
 use geom::{Triangle, Vec3};
@@ -24,7 +22,6 @@ use numpy::{
 };
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PyTuple};
-use rayon::prelude::*;
 use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, OnceLock, RwLock};
 
@@ -204,88 +201,6 @@ fn assemble(
     })
 }
 
-/// The output columns of a closest-hit query over a run of rays.
-struct Columns<'a> {
-    t: &'a mut [f32],
-    instance: &'a mut [u32],
-    prim: &'a mut [u32],
-    u: &'a mut [f32],
-    v: &'a mut [f32],
-    hit: &'a mut [bool],
-    location: &'a mut [f32],
-}
-
-impl<'a> Columns<'a> {
-    /// The columns split into runs of `chunk` rays.
-    fn split(self, chunk: usize) -> Vec<Columns<'a>> {
-        let mut t = self.t.chunks_mut(chunk);
-        let mut instance = self.instance.chunks_mut(chunk);
-        let mut prim = self.prim.chunks_mut(chunk);
-        let mut u = self.u.chunks_mut(chunk);
-        let mut v = self.v.chunks_mut(chunk);
-        let mut hit = self.hit.chunks_mut(chunk);
-        let mut location = self.location.chunks_mut(3 * chunk);
-        let mut out = Vec::new();
-        while let (
-            Some(t),
-            Some(instance),
-            Some(prim),
-            Some(u),
-            Some(v),
-            Some(hit),
-            Some(location),
-        ) = (
-            t.next(),
-            instance.next(),
-            prim.next(),
-            u.next(),
-            v.next(),
-            hit.next(),
-            location.next(),
-        ) {
-            out.push(Columns {
-                t,
-                instance,
-                prim,
-                u,
-                v,
-                hit,
-                location,
-            });
-        }
-        out
-    }
-
-    /// Traces rays `first..first + self.t.len()` and writes their results.
-    fn fill(self, s: &IState, rays: &RaySlices<'_>, first: usize, totals: &mut RayStats) {
-        let mut stack = InstanceStack::new();
-        for k in 0..self.t.len() {
-            let ray = rays.ray(first + k);
-            let p = &mut self.location[3 * k..3 * k + 3];
-            match s.accel.closest_hit(&ray, &mut stack, totals) {
-                Some(h) => {
-                    self.t[k] = h.t;
-                    self.instance[k] = h.instance;
-                    self.prim[k] = h.prim;
-                    self.u[k] = h.bary[1];
-                    self.v[k] = h.bary[2];
-                    self.hit[k] = true;
-                    p.copy_from_slice(&ray.at(h.t).to_array());
-                }
-                None => {
-                    self.t[k] = f32::INFINITY;
-                    self.instance[k] = NO_HIT;
-                    self.prim[k] = NO_HIT;
-                    self.u[k] = 0.0;
-                    self.v[k] = 0.0;
-                    self.hit[k] = false;
-                    p.fill(f32::NAN);
-                }
-            }
-        }
-    }
-}
-
 /// Closest hits of a batch of rays from [`InstanceCaster::intersect`]: per ray `t` (world
 /// distance in units of the ray direction, `inf` on a miss), the `instance`, the
 /// `primitive` (triangle within the instance's mesh), barycentrics `u`, `v`, `hit`, the
@@ -318,6 +233,22 @@ pub struct InstanceHits {
     total: RayStats,
 }
 
+impl InstanceHits {
+    /// Its arrays, to be overwritten by a query given it as `out`.
+    fn arrays<'py>(&self, py: Python<'py>) -> HitArrays<'py> {
+        HitArrays {
+            t: self.t.bind(py).clone(),
+            instance: Some(self.instance.bind(py).clone()),
+            prim: self.primitive.bind(py).clone(),
+            u: self.u.bind(py).clone(),
+            v: self.v.bind(py).clone(),
+            hit: self.hit.bind(py).clone(),
+            location: self.location.bind(py).clone(),
+            counters: None,
+        }
+    }
+}
+
 #[pymethods]
 impl InstanceHits {
     /// The mesh of each hit instance (`mesh_index[instance]`), `NO_HIT` on a miss.
@@ -340,37 +271,15 @@ impl InstanceHits {
     /// computed on first access.
     #[getter]
     fn normal<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        if let Some(n) = self.normal.get() {
-            return Ok(n.bind(py).clone());
-        }
-        let inst = self.instance.bind(py).readonly();
-        let prim = self.primitive.bind(py).readonly();
-        let nc = "internal error: array not contiguous";
-        let insts = inst.as_slice().map_err(|_| err(nc))?;
-        let prims = prim.as_slice().map_err(|_| err(nc))?;
         let (tris, xf, mi) = (&self.triangles, &self.transforms, &self.mesh_index);
-        let flat = py.detach(|| {
-            let mut out = vec![f32::NAN; 3 * prims.len()];
-            out.par_chunks_mut(3 * CHUNK)
-                .zip(prims.par_chunks(CHUNK).zip(insts.par_chunks(CHUNK)))
-                .for_each(|(o, (ps, is))| {
-                    for (n, (p, i)) in o.chunks_exact_mut(3).zip(ps.iter().zip(is)) {
-                        let tri = mi
-                            .get(*i as usize)
-                            .and_then(|&m| tris.get(m as usize))
-                            .and_then(|t| t.get(*p as usize));
-                        if let (Some(tri), Some(x)) = (tri, xf.get(*i as usize)) {
-                            let w = x.triangle_to_world(tri);
-                            let g = (w.v[1] - w.v[0]).cross(w.v[2] - w.v[0]).normalize_or_zero();
-                            n.copy_from_slice(&g.to_array());
-                        }
-                    }
-                });
-            out
-        });
-        let a = crate::arrays::n3_array(py, flat)?;
-        let _ = self.normal.set(a.clone().unbind());
-        Ok(self.normal.get().map_or(a, |n| n.bind(py).clone()))
+        let (prim, inst) = (self.primitive.bind(py), self.instance.bind(py));
+        cached_normals(py, &self.normal, prim, Some(inst), |p, i| {
+            let tri = mi
+                .get(i as usize)
+                .and_then(|&m| tris.get(m as usize))
+                .and_then(|t| t.get(p as usize))?;
+            Some(xf.get(i as usize)?.triangle_to_world(tri))
+        })
     }
 
     /// Counters summed over all rays (top and bottom levels).
@@ -647,75 +556,33 @@ impl InstanceCaster {
     ) -> PyResult<InstanceHits> {
         let arrays = RayCaster::rays(origins, directions, tmin, tmax)?;
         let rays = arrays.slices()?;
-        let n = rays.len();
-        let (t, inst, prim, u, v, hit, location) = match &out {
-            Some(o) => {
-                let len = o.t.bind(py).len();
-                if len != n {
-                    return Err(err(format!("out holds {len} rays, {n} given")));
-                }
+        let out = out.as_deref().map(|o| o.arrays(py));
+        let a = HitArrays::out_or_new(py, out, rays.len(), true, false)?;
+        let (total, (generation, triangles, transforms)) = a.trace(
+            py,
+            &rays,
+            &self.state,
+            InstanceStack::new,
+            |s, stack, ray, st| s.accel.closest_hit(ray, stack, st),
+            |s| {
                 (
-                    o.t.bind(py).clone(),
-                    o.instance.bind(py).clone(),
-                    o.primitive.bind(py).clone(),
-                    o.u.bind(py).clone(),
-                    o.v.bind(py).clone(),
-                    o.hit.bind(py).clone(),
-                    o.location.bind(py).clone(),
-                )
-            }
-            None => (
-                PyArray1::<f32>::zeros(py, n, false),
-                PyArray1::<u32>::zeros(py, n, false),
-                PyArray1::<u32>::zeros(py, n, false),
-                PyArray1::<f32>::zeros(py, n, false),
-                PyArray1::<f32>::zeros(py, n, false),
-                PyArray1::<bool>::zeros(py, n, false),
-                PyArray2::<f32>::zeros(py, [n, 3], false),
-            ),
-        };
-        let (total, generation, triangles, transforms) = {
-            let in_use = |w: &str| err(format!("out.{w} is in use"));
-            let mut tw = t.try_readwrite().map_err(|_| in_use("t"))?;
-            let mut iw = inst.try_readwrite().map_err(|_| in_use("instance"))?;
-            let mut pw = prim.try_readwrite().map_err(|_| in_use("primitive"))?;
-            let mut uw = u.try_readwrite().map_err(|_| in_use("u"))?;
-            let mut vw = v.try_readwrite().map_err(|_| in_use("v"))?;
-            let mut hw = hit.try_readwrite().map_err(|_| in_use("hit"))?;
-            let mut lw = location.try_readwrite().map_err(|_| in_use("location"))?;
-            let nc = "internal error: array not contiguous";
-            let cols = Columns {
-                t: tw.as_slice_mut().map_err(|_| err(nc))?,
-                instance: iw.as_slice_mut().map_err(|_| err(nc))?,
-                prim: pw.as_slice_mut().map_err(|_| err(nc))?,
-                u: uw.as_slice_mut().map_err(|_| err(nc))?,
-                v: vw.as_slice_mut().map_err(|_| err(nc))?,
-                hit: hw.as_slice_mut().map_err(|_| err(nc))?,
-                location: lw.as_slice_mut().map_err(|_| err(nc))?,
-            };
-            let rays = &rays;
-            detached(py, move || {
-                rays.check()?;
-                let s = read(&self.state)?;
-                let s = &*s;
-                let parts = cols.split(chunk_for(n));
-                let total = for_chunks(parts, |p, first, tot| p.fill(s, rays, first, tot));
-                Ok::<_, String>((
-                    total,
                     self.generation.load(Ordering::SeqCst),
                     s.triangles.clone(),
                     s.transforms.clone(),
-                ))
-            })?
-        };
+                )
+            },
+        )?;
         Ok(InstanceHits {
-            t: t.unbind(),
-            instance: inst.unbind(),
-            primitive: prim.unbind(),
-            u: u.unbind(),
-            v: v.unbind(),
-            hit: hit.unbind(),
-            location: location.unbind(),
+            t: a.t.unbind(),
+            instance: a
+                .instance
+                .ok_or_else(|| err("internal error: no instance column"))?
+                .unbind(),
+            primitive: a.prim.unbind(),
+            u: a.u.unbind(),
+            v: a.v.unbind(),
+            hit: a.hit.unbind(),
+            location: a.location.unbind(),
             triangles,
             transforms,
             mesh_index: self.mesh_index.clone(),
@@ -739,32 +606,15 @@ impl InstanceCaster {
     ) -> PyResult<Bound<'py, PyArray1<bool>>> {
         let arrays = RayCaster::rays(origins, directions, tmin, tmax)?;
         let rays = arrays.slices()?;
-        let n = rays.len();
-        let a = out_array::<bool>(py, out, n, "occluded")?;
-        {
-            let mut w = a.try_readwrite().map_err(|_| err("out is in use"))?;
-            let col = w
-                .as_slice_mut()
-                .map_err(|_| err("internal error: array not contiguous"))?;
-            let rays = &rays;
-            detached(py, move || {
-                rays.check()?;
-                let s = read(&self.state)?;
-                let s = &*s;
-                let parts: Vec<&mut [bool]> = col.chunks_mut(chunk_for(n)).collect();
-                for_chunks(parts, |p, first, tot| {
-                    let mut stack = InstanceStack::new();
-                    for (k, o) in p.iter_mut().enumerate() {
-                        *o = s
-                            .accel
-                            .any_hit(&rays.ray(first + k), &mut stack, tot)
-                            .is_some();
-                    }
-                });
-                Ok::<_, String>(())
-            })?;
-        }
-        Ok(a)
+        ray_column(
+            py,
+            &rays,
+            out,
+            "occluded",
+            &self.state,
+            |_| InstanceStack::new(),
+            |s, stack, ray, tot| s.accel.any_hit(ray, stack, tot).is_some(),
+        )
     }
 
     /// The instances' object-to-world matrices, (K, 3, 4) float32.

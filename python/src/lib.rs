@@ -14,6 +14,7 @@ mod arrays;
 mod bvh;
 mod cbvh;
 mod instances;
+mod query;
 mod raycaster;
 mod scene;
 mod trace;

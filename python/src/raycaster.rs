@@ -13,10 +13,12 @@
 use crate::arrays::{err, points};
 use crate::bvh::{aabbs, config, in_pool, Bvh};
 use crate::detached;
+use crate::query::{cached_normals, query_column, ray_column, HitArrays};
 use crate::trace::{
-    accel_of, check_current, default_distance_stack, tree_kernel, RayArrays, RaySlices, CHUNK,
-    KERNELS, NO_HIT, SERIAL_RAYS,
+    accel_of, check_current, default_distance_stack, tree_kernel, RayArrays, CHUNK, KERNELS,
+    NO_HIT, SERIAL_RAYS,
 };
+use ::trace::instance::InstanceHit;
 use ::trace::{Accel, KernelOptions, Query, RayStats, TraversalStack, Traverse};
 use bvh::Tree;
 use geom::{Ray, Triangle, Vec3};
@@ -28,7 +30,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, OnceLock, RwLock};
 
 /// Names of the per-ray counters, in the column order of `RayHits.counters`.
-const COUNTERS: [&str; 7] = [
+pub(crate) const COUNTERS: [&str; 7] = [
     "node_visits",
     "box_tests",
     "tri_tests",
@@ -67,11 +69,6 @@ pub struct RayCaster {
     /// the first vertex of each, and the totals at the end.
     geometry_first: Arc<Vec<u32>>,
     vertex_first: Vec<u32>,
-}
-
-/// A counter as u32 (saturating; one ray never comes near).
-fn c32(x: u64) -> u32 {
-    x.min(u32::MAX as u64) as u32
 }
 
 /// The kernel name `kernel` (or the tree's own), checked.
@@ -131,105 +128,6 @@ pub(crate) fn read<S: Healthy>(l: &RwLock<S>) -> Result<std::sync::RwLockReadGua
     Ok(s)
 }
 
-/// The output columns of a closest-hit query over a run of rays (one chunk of the arrays).
-struct Closest<'a> {
-    t: &'a mut [f32],
-    prim: &'a mut [u32],
-    u: &'a mut [f32],
-    v: &'a mut [f32],
-    hit: &'a mut [bool],
-    location: &'a mut [f32],
-    /// `(n, 7)` counters (the order of [`COUNTERS`]), when asked for.
-    counters: Option<&'a mut [u32]>,
-}
-
-impl<'a> Closest<'a> {
-    /// The columns split into runs of `chunk` rays.
-    fn split(self, chunk: usize) -> Vec<Closest<'a>> {
-        let mut t = self.t.chunks_mut(chunk);
-        let mut prim = self.prim.chunks_mut(chunk);
-        let mut u = self.u.chunks_mut(chunk);
-        let mut v = self.v.chunks_mut(chunk);
-        let mut hit = self.hit.chunks_mut(chunk);
-        let mut location = self.location.chunks_mut(3 * chunk);
-        let mut counters = self.counters.map(|c| c.chunks_mut(COUNTERS.len() * chunk));
-        let mut out = Vec::new();
-        while let (Some(t), Some(prim), Some(u), Some(v), Some(hit), Some(location)) = (
-            t.next(),
-            prim.next(),
-            u.next(),
-            v.next(),
-            hit.next(),
-            location.next(),
-        ) {
-            out.push(Closest {
-                t,
-                prim,
-                u,
-                v,
-                hit,
-                location,
-                counters: counters.as_mut().and_then(|c| c.next()),
-            });
-        }
-        out
-    }
-
-    /// Traces rays `first..first + self.t.len()` and writes their results.
-    fn fill(self, s: &State, rays: &RaySlices<'_>, first: usize, totals: &mut RayStats) {
-        let mut stack = TraversalStack::new();
-        let mut counters = self.counters;
-        for k in 0..self.t.len() {
-            let ray = rays.ray(first + k);
-            // Without per-ray counters the kernel counts straight into the totals (it adds
-            // to what it is given); with them, one ray's counters first.
-            let mut st = RayStats::default();
-            let into = if counters.is_some() {
-                &mut st
-            } else {
-                &mut *totals
-            };
-            let h = s
-                .accel
-                .trace_observed(&ray, Query::Closest, &mut stack, into, &mut ());
-            let p = &mut self.location[3 * k..3 * k + 3];
-            match h {
-                Some(h) => {
-                    self.t[k] = h.t;
-                    self.prim[k] = h.prim;
-                    self.u[k] = h.bary[1];
-                    self.v[k] = h.bary[2];
-                    self.hit[k] = true;
-                    p.copy_from_slice(&ray.at(h.t).to_array());
-                }
-                None => {
-                    self.t[k] = f32::INFINITY;
-                    self.prim[k] = NO_HIT;
-                    self.u[k] = 0.0;
-                    self.v[k] = 0.0;
-                    self.hit[k] = false;
-                    p.fill(f32::NAN);
-                }
-            }
-            if let Some(c) = counters.as_deref_mut() {
-                let row = [
-                    st.node_visits,
-                    st.box_tests,
-                    st.tri_tests,
-                    st.leaf_visits,
-                    st.pops,
-                    st.culled_pops,
-                    st.max_stack_depth,
-                ];
-                for (j, x) in row.into_iter().enumerate() {
-                    c[COUNTERS.len() * k + j] = c32(x);
-                }
-                totals.add(&st);
-            }
-        }
-    }
-}
-
 /// Moves `s` to the vertices `vs` (same count, same triangles): the tree refitted and the
 /// kernel's form updated in place (a CBVH encoded again).
 /// `finite_checked`: the caller has checked that the vertices the triangles use are finite.
@@ -261,6 +159,23 @@ fn refit_state(
     s.vertices.copy_from_slice(vs);
     s.broken = false;
     Ok(())
+}
+
+/// The closest hit of `ray` in `accel`, as the columns of [`HitArrays`] take it.
+#[inline(always)]
+fn closest(
+    accel: &Accel,
+    ray: &Ray,
+    stack: &mut TraversalStack,
+    st: &mut RayStats,
+) -> Option<InstanceHit> {
+    let h = accel.trace_observed(ray, Query::Closest, stack, st, &mut ())?;
+    Some(InstanceHit {
+        t: h.t,
+        instance: 0,
+        prim: h.prim,
+        bary: h.bary,
+    })
 }
 
 /// Directions of the rays of `contains_points` (normalized when used): the first is
@@ -304,42 +219,6 @@ fn crossings(
     n
 }
 
-/// Runs `work(first, len, totals)` over runs of rays: on this thread for few rays, else
-/// in parallel runs of [`CHUNK`]; returns the summed counters.
-pub(crate) fn for_chunks<P: Send>(
-    parts: Vec<P>,
-    work: impl Fn(P, usize, &mut RayStats) + Sync,
-) -> RayStats {
-    if parts.len() <= 1 {
-        let mut total = RayStats::default();
-        for p in parts {
-            work(p, 0, &mut total);
-        }
-        return total;
-    }
-    parts
-        .into_par_iter()
-        .enumerate()
-        .map(|(i, p)| {
-            let mut s = RayStats::default();
-            work(p, i * CHUNK, &mut s);
-            s
-        })
-        .reduce(RayStats::default, |mut a, b| {
-            a.add(&b);
-            a
-        })
-}
-
-/// The run length for `n` rays: everything at once when few.
-pub(crate) fn chunk_for(n: usize) -> usize {
-    if n <= SERIAL_RAYS {
-        n.max(1)
-    } else {
-        CHUNK
-    }
-}
-
 /// Closest hits of a batch of rays from [`RayCaster::intersect`]: per ray the distance `t`
 /// (`inf` on a miss), the triangle (`NO_HIT` on a miss), the barycentric weights `u`, `v`
 /// of its vertices 1 and 2, the unit geometric normal (NaN on a miss; computed when first
@@ -373,6 +252,20 @@ pub struct RayHits {
 }
 
 impl RayHits {
+    /// Its arrays, to be overwritten by a query given it as `out`.
+    fn arrays<'py>(&self, py: Python<'py>) -> HitArrays<'py> {
+        HitArrays {
+            t: self.t.bind(py).clone(),
+            instance: None,
+            prim: self.primitive.bind(py).clone(),
+            u: self.u.bind(py).clone(),
+            v: self.v.bind(py).clone(),
+            hit: self.hit.bind(py).clone(),
+            location: self.location.bind(py).clone(),
+            counters: self.counter_array.as_ref().map(|c| c.bind(py).clone()),
+        }
+    }
+
     /// `f(mesh, triangle within the mesh)` of every hit, `NO_HIT` on a miss.
     fn per_mesh<'py>(
         &self,
@@ -427,31 +320,10 @@ impl RayHits {
     /// triangles traced: a query pays nothing for it unless it is read.
     #[getter]
     fn normal<'py>(&self, py: Python<'py>) -> PyResult<Bound<'py, PyArray2<f32>>> {
-        if let Some(n) = self.normal.get() {
-            return Ok(n.bind(py).clone());
-        }
-        let prim = self.primitive.bind(py).readonly();
-        let prims = prim
-            .as_slice()
-            .map_err(|_| err("internal error: array not contiguous"))?;
         let tris = &self.triangles;
-        let flat = py.detach(|| {
-            let mut out = vec![f32::NAN; 3 * prims.len()];
-            out.par_chunks_mut(3 * CHUNK)
-                .zip(prims.par_chunks(CHUNK))
-                .for_each(|(o, ps)| {
-                    for (n, p) in o.chunks_exact_mut(3).zip(ps) {
-                        if let Some(t) = tris.get(*p as usize) {
-                            let g = (t.v[1] - t.v[0]).cross(t.v[2] - t.v[0]).normalize_or_zero();
-                            n.copy_from_slice(&g.to_array());
-                        }
-                    }
-                });
-            out
-        });
-        let a = crate::arrays::n3_array(py, flat)?;
-        let _ = self.normal.set(a.clone().unbind());
-        Ok(self.normal.get().map_or(a, |n| n.bind(py).clone()))
+        cached_normals(py, &self.normal, self.primitive.bind(py), None, |p, _| {
+            tris.get(p as usize).copied()
+        })
     }
 
     /// The mesh of each hit (its index in `RayCaster.from_meshes`; 0 for a ray caster of
@@ -590,6 +462,31 @@ impl RayHits {
 }
 
 impl RayCaster {
+    /// The result of a closest-hit query into `a`, traced over `triangles` of `generation`.
+    fn hits(
+        &self,
+        a: HitArrays<'_>,
+        triangles: Arc<Vec<Triangle>>,
+        generation: u64,
+        total: RayStats,
+    ) -> RayHits {
+        RayHits {
+            t: a.t.unbind(),
+            primitive: a.prim.unbind(),
+            u: a.u.unbind(),
+            v: a.v.unbind(),
+            hit: a.hit.unbind(),
+            triangles,
+            normal: OnceLock::new(),
+            geometry_first: self.geometry_first.clone(),
+            location: a.location.unbind(),
+            counter_array: a.counters.map(|c| c.unbind()),
+            generation,
+            kernel: self.kernel,
+            total,
+        }
+    }
+
     /// Wraps prepared state.
     #[allow(clippy::too_many_arguments)]
     fn wrap(
@@ -715,33 +612,6 @@ pub(crate) fn mesh_arrays<'py>(
         .or_else(|_| m.getattr("indices"))
         .map_err(|_| err(format!("meshes[{g}] has no faces or indices")))?;
     Ok((v, ix))
-}
-
-/// `out` as a writable `(n,)` array of `T` (for `out=` arguments), or a fresh one.
-pub(crate) fn out_array<'py, T: numpy::Element>(
-    py: Python<'py>,
-    out: Option<&Bound<'py, PyAny>>,
-    n: usize,
-    what: &str,
-) -> PyResult<Bound<'py, PyArray1<T>>> {
-    match out {
-        None => Ok(PyArray1::zeros(py, n, false)),
-        Some(o) => {
-            let a = o.cast::<PyArray1<T>>().map_err(|_| {
-                err(format!(
-                    "{what}: out must be a numpy array of dtype {} and shape ({n},)",
-                    std::any::type_name::<T>()
-                ))
-            })?;
-            if a.len() != n || !a.is_contiguous() {
-                return Err(err(format!(
-                    "{what}: out must be a contiguous array of shape ({n},), got shape {:?}",
-                    a.shape()
-                )));
-            }
-            Ok(a.clone())
-        }
-    }
 }
 
 #[pymethods]
@@ -1013,49 +883,16 @@ impl RayCaster {
         let rays = arrays.slices()?;
         let n = if per_frame { r } else { rays.len() };
         // The output arrays of every frame, allocated before the work.
-        type Cols<'py> = (
-            Bound<'py, PyArray1<f32>>,
-            Bound<'py, PyArray1<u32>>,
-            Bound<'py, PyArray1<f32>>,
-            Bound<'py, PyArray1<f32>>,
-            Bound<'py, PyArray1<bool>>,
-            Bound<'py, PyArray2<f32>>,
-        );
-        let outs: Vec<Cols<'py>> = (0..nf)
-            .map(|_| {
-                (
-                    PyArray1::<f32>::zeros(py, n, false),
-                    PyArray1::<u32>::zeros(py, n, false),
-                    PyArray1::<f32>::zeros(py, n, false),
-                    PyArray1::<f32>::zeros(py, n, false),
-                    PyArray1::<bool>::zeros(py, n, false),
-                    PyArray2::<f32>::zeros(py, [n, 3], false),
-                )
-            })
+        let outs: Vec<HitArrays<'py>> = (0..nf)
+            .map(|_| HitArrays::new(py, n, false, false))
             .collect();
-        let nc = "internal error: array not contiguous";
         let mut guards = Vec::with_capacity(nf);
-        for (t, p, u, v, h, l) in &outs {
-            guards.push((
-                t.readwrite(),
-                p.readwrite(),
-                u.readwrite(),
-                v.readwrite(),
-                h.readwrite(),
-                l.readwrite(),
-            ));
+        for o in &outs {
+            guards.push(o.borrow()?);
         }
         let mut cols = Vec::with_capacity(nf);
-        for (t, p, u, v, h, l) in guards.iter_mut() {
-            cols.push(Closest {
-                t: t.as_slice_mut().map_err(|_| err(nc))?,
-                prim: p.as_slice_mut().map_err(|_| err(nc))?,
-                u: u.as_slice_mut().map_err(|_| err(nc))?,
-                v: v.as_slice_mut().map_err(|_| err(nc))?,
-                hit: h.as_slice_mut().map_err(|_| err(nc))?,
-                location: l.as_slice_mut().map_err(|_| err(nc))?,
-                counters: None,
-            });
+        for g in guards.iter_mut() {
+            cols.push(g.columns()?);
         }
         let (vc, kernel, ds, generation) = (
             self.vertex_count,
@@ -1097,9 +934,9 @@ impl RayCaster {
                 } else {
                     rays.window(0, n)
                 };
-                let st = &*s;
-                let total = for_chunks(c.split(chunk_for(n)), |p, first, tot| {
-                    p.fill(st, &window, first, tot)
+                let accel = &s.accel;
+                let total = c.run(&window, TraversalStack::new, |stack, ray, st| {
+                    closest(accel, ray, stack, st)
                 });
                 done.push((total, g, s.triangles.clone()));
             }
@@ -1109,21 +946,7 @@ impl RayCaster {
         Ok(outs
             .into_iter()
             .zip(done)
-            .map(|((t, p, u, v, h, l), (total, g, triangles))| RayHits {
-                t: t.unbind(),
-                primitive: p.unbind(),
-                u: u.unbind(),
-                v: v.unbind(),
-                hit: h.unbind(),
-                triangles,
-                normal: OnceLock::new(),
-                geometry_first: self.geometry_first.clone(),
-                location: l.unbind(),
-                counter_array: None,
-                generation: g,
-                kernel: self.kernel,
-                total,
-            })
+            .map(|(a, (total, g, triangles))| self.hits(a, triangles, g, total))
             .collect())
     }
 
@@ -1145,99 +968,18 @@ impl RayCaster {
     ) -> PyResult<RayHits> {
         let arrays = Self::rays(origins, directions, tmin, tmax)?;
         let rays = arrays.slices()?;
-        let n = rays.len();
-        let (t, prim, u, v, hit, location, cnt) = match &out {
-            Some(o) => {
-                let len = o.t.bind(py).len();
-                if len != n {
-                    return Err(err(format!("out holds {len} rays, {n} given")));
-                }
-                if counters != o.counter_array.is_some() {
-                    return Err(err("out must have counters exactly when counters=True"));
-                }
-                (
-                    o.t.bind(py).clone(),
-                    o.primitive.bind(py).clone(),
-                    o.u.bind(py).clone(),
-                    o.v.bind(py).clone(),
-                    o.hit.bind(py).clone(),
-                    o.location.bind(py).clone(),
-                    o.counter_array.as_ref().map(|c| c.bind(py).clone()),
-                )
-            }
-            None => (
-                PyArray1::<f32>::zeros(py, n, false),
-                PyArray1::<u32>::zeros(py, n, false),
-                PyArray1::<f32>::zeros(py, n, false),
-                PyArray1::<f32>::zeros(py, n, false),
-                PyArray1::<bool>::zeros(py, n, false),
-                PyArray2::<f32>::zeros(py, [n, 3], false),
-                counters.then(|| PyArray2::<u32>::zeros(py, [n, COUNTERS.len()], false)),
-            ),
-        };
-        let generation = &self.generation;
-        let (total, generation, triangles) = {
-            let mut tw = t.try_readwrite().map_err(|_| err("out.t is in use"))?;
-            let mut pw = prim
-                .try_readwrite()
-                .map_err(|_| err("out.primitive is in use"))?;
-            let mut uw = u.try_readwrite().map_err(|_| err("out.u is in use"))?;
-            let mut vw = v.try_readwrite().map_err(|_| err("out.v is in use"))?;
-            let mut hw = hit.try_readwrite().map_err(|_| err("out.hit is in use"))?;
-            let mut lw = location
-                .try_readwrite()
-                .map_err(|_| err("out.location is in use"))?;
-            let mut cw = match &cnt {
-                Some(c) => Some(
-                    c.try_readwrite()
-                        .map_err(|_| err("out.counters is in use"))?,
-                ),
-                None => None,
-            };
-            let nc = "internal error: array not contiguous";
-            let cols = Closest {
-                t: tw.as_slice_mut().map_err(|_| err(nc))?,
-                prim: pw.as_slice_mut().map_err(|_| err(nc))?,
-                u: uw.as_slice_mut().map_err(|_| err(nc))?,
-                v: vw.as_slice_mut().map_err(|_| err(nc))?,
-                hit: hw.as_slice_mut().map_err(|_| err(nc))?,
-                location: lw.as_slice_mut().map_err(|_| err(nc))?,
-                counters: match cw.as_mut() {
-                    Some(c) => Some(c.as_slice_mut().map_err(|_| err(nc))?),
-                    None => None,
-                },
-            };
-            let lock = &self.state;
-            let rays = &rays;
-            detached(py, move || {
-                rays.check()?;
-                let s = read(lock)?;
-                let s = &*s;
-                let parts = cols.split(chunk_for(n));
-                let total = for_chunks(parts, |p, first, tot| p.fill(s, rays, first, tot));
-                // Read under the lock: the generation of the geometry just traced.
-                Ok::<_, String>((
-                    total,
-                    generation.load(Ordering::SeqCst),
-                    s.triangles.clone(),
-                ))
-            })?
-        };
-        Ok(RayHits {
-            t: t.unbind(),
-            primitive: prim.unbind(),
-            u: u.unbind(),
-            v: v.unbind(),
-            hit: hit.unbind(),
-            triangles,
-            normal: OnceLock::new(),
-            geometry_first: self.geometry_first.clone(),
-            location: location.unbind(),
-            counter_array: cnt.map(|c| c.unbind()),
-            generation,
-            kernel: self.kernel,
-            total,
-        })
+        let out = out.as_deref().map(|o| o.arrays(py));
+        let a = HitArrays::out_or_new(py, out, rays.len(), false, counters)?;
+        let (total, (generation, triangles)) = a.trace(
+            py,
+            &rays,
+            &self.state,
+            TraversalStack::new,
+            |s, stack, ray, st| closest(&s.accel, ray, stack, st),
+            // Read under the lock: the generation of the geometry just traced.
+            |s| (self.generation.load(Ordering::SeqCst), s.triangles.clone()),
+        )?;
+        Ok(self.hits(a, triangles, generation, total))
     }
 
     /// Every hit along each ray, nearest first, up to `max_hits` per ray (the arguments
@@ -1326,46 +1068,34 @@ impl RayCaster {
         let p = crate::arrays::points("points", points)?;
         let ps = p.as_vec3()?;
         let n = ps.len();
-        let a = out_array::<bool>(py, out, n, "contains_points")?;
-        {
-            let mut w = a.try_readwrite().map_err(|_| err("out is in use"))?;
-            let col = w
-                .as_slice_mut()
-                .map_err(|_| err("internal error: array not contiguous"))?;
-            let lock = &self.state;
-            detached(py, move || {
-                if let Some(i) = ps.iter().position(|q| !q.is_finite()) {
-                    return Err(format!("points[{i}] is not finite: {}", ps[i]));
-                }
-                let s = read(lock)?;
-                let s = &*s;
-                let bounds = s.tree.bounds();
-                let dirs = CONTAINS_DIRECTIONS.map(|d| Vec3::from_array(d).normalize());
-                let parts: Vec<&mut [bool]> = col.chunks_mut(chunk_for(n)).collect();
-                for_chunks(parts, |part, first, _| {
-                    let mut stack = TraversalStack::new();
-                    for (k, o) in part.iter_mut().enumerate() {
-                        let q = ps[first + k];
-                        *o = bounds.contains_point(q) && {
-                            let mut odd = |d: Vec3| {
-                                crossings(&s.accel, &Ray::new(q, d), u32::MAX, &mut stack, |_| {})
-                                    % 2
-                                    == 1
-                            };
-                            let (a, b) = (odd(dirs[0]), odd(dirs[1]));
-                            // Two that agree decide; else the third.
-                            if a == b {
-                                a
-                            } else {
-                                odd(dirs[2])
-                            }
-                        };
+        let dirs = CONTAINS_DIRECTIONS.map(|d| Vec3::from_array(d).normalize());
+        query_column(
+            py,
+            out,
+            n,
+            "contains_points",
+            &self.state,
+            || match ps.iter().position(|q| !q.is_finite()) {
+                Some(i) => Err(format!("points[{i}] is not finite: {}", ps[i])),
+                None => Ok(()),
+            },
+            |s| (TraversalStack::new(), s.tree.bounds()),
+            |s, (stack, bounds), i, _| {
+                let q = ps[i];
+                bounds.contains_point(q) && {
+                    let mut odd = |d: Vec3| {
+                        crossings(&s.accel, &Ray::new(q, d), u32::MAX, stack, |_| {}) % 2 == 1
+                    };
+                    let (a, b) = (odd(dirs[0]), odd(dirs[1]));
+                    // Two that agree decide; else the third.
+                    if a == b {
+                        a
+                    } else {
+                        odd(dirs[2])
                     }
-                });
-                Ok::<_, String>(())
-            })?;
-        }
-        Ok(a)
+                }
+            },
+        )
     }
 
     /// Whether anything lies along each ray within its range (an any-hit query; the
@@ -1383,40 +1113,20 @@ impl RayCaster {
     ) -> PyResult<Bound<'py, PyArray1<bool>>> {
         let arrays = Self::rays(origins, directions, tmin, tmax)?;
         let rays = arrays.slices()?;
-        let n = rays.len();
-        let a = out_array::<bool>(py, out, n, "occluded")?;
-        {
-            let mut w = a.try_readwrite().map_err(|_| err("out is in use"))?;
-            let col = w
-                .as_slice_mut()
-                .map_err(|_| err("internal error: array not contiguous"))?;
-            let lock = &self.state;
-            let rays = &rays;
-            detached(py, move || {
-                rays.check()?;
-                let s = read(lock)?;
-                let s = &*s;
-                let parts: Vec<&mut [bool]> = col.chunks_mut(chunk_for(n)).collect();
-                for_chunks(parts, |p, first, _| {
-                    let mut stack = TraversalStack::new();
-                    for (k, o) in p.iter_mut().enumerate() {
-                        let mut st = RayStats::default();
-                        *o = s
-                            .accel
-                            .trace_observed(
-                                &rays.ray(first + k),
-                                Query::Any,
-                                &mut stack,
-                                &mut st,
-                                &mut (),
-                            )
-                            .is_some();
-                    }
-                });
-                Ok::<_, String>(())
-            })?;
-        }
-        Ok(a)
+        ray_column(
+            py,
+            &rays,
+            out,
+            "occluded",
+            &self.state,
+            |_| TraversalStack::new(),
+            |s, stack, ray, _| {
+                let mut st = RayStats::default();
+                s.accel
+                    .trace_observed(ray, Query::Any, stack, &mut st, &mut ())
+                    .is_some()
+            },
+        )
     }
 
     /// A copy of the vertices the structure traces (those of the last build or refit).
