@@ -702,7 +702,59 @@ pub fn run(args: &BenchBuildArgs, ui: &Ui) -> anyhow::Result<()> {
         json,
     }
     .emit(args.out.as_deref(), "bench-build", format, ui.silent)?;
+    if let Some(dir) = &args.out {
+        for (scene, svg) in sah_time_plots(&doc.rows) {
+            let name = format!("bench-build-sah-{}.svg", super::bench_record::slug(&scene));
+            report::fs::write_atomic(&dir.join(name), &svg)?;
+        }
+    }
     Ok(())
+}
+
+/// Per scene (in the order of the rows), the plot of each builder's SAH over the sweep
+/// SAH tree's against its build time at the scene's fewest threads: the picture of
+/// quality against time the builders page of the HTML report shows. Scenes without the
+/// sweep reference get no plot.
+pub fn sah_time_plots(rows: &[Row]) -> Vec<(String, String)> {
+    let mut scenes: Vec<&str> = Vec::new();
+    for r in rows {
+        if !scenes.contains(&r.scene.as_str()) {
+            scenes.push(&r.scene);
+        }
+    }
+    scenes
+        .into_iter()
+        .filter_map(|scene| {
+            let of_scene = || rows.iter().filter(move |r| r.scene == scene);
+            let threads = of_scene().map(|r| r.threads).min()?;
+            let points: Vec<report::svg::Point> = of_scene()
+                .filter(|r| r.threads == threads)
+                .filter_map(|r| {
+                    Some(report::svg::Point {
+                        x: r.best_ms,
+                        y: r.sah_vs_sweep?,
+                        label: r.builder.clone(),
+                    })
+                })
+                .collect();
+            if points.is_empty() {
+                return None;
+            }
+            let title = format!(
+                "{}: SAH against build time ({threads} thread{}, fastest run)",
+                short(scene),
+                if threads == 1 { "" } else { "s" }
+            );
+            let svg = report::svg::scatter_svg(
+                &title,
+                "build time, ms (log scale)",
+                "SAH / sweep SAH",
+                true,
+                &points,
+            );
+            Some((short(scene).to_string(), svg))
+        })
+        .collect()
 }
 
 /// Fills the SAH and throughput ratios of one scene's rows.

@@ -108,7 +108,7 @@ impl Record {
 
     /// Writes the record to `DIR/<cpu-slug>/<bench>.json` (atomically); returns the path.
     pub fn write_under(&self, dir: &Path) -> anyhow::Result<PathBuf> {
-        let sub = dir.join(cpu_slug(&self.cpu_model));
+        let sub = dir.join(slug(&self.cpu_model));
         std::fs::create_dir_all(&sub)
             .with_context(|| format!("cannot create {}", sub.display()))?;
         let path = sub.join(format!("{}.json", self.bench));
@@ -169,9 +169,10 @@ pub fn cpu_model() -> String {
         .unwrap_or_else(|| "unknown".to_string())
 }
 
-/// A folder name for a CPU model: lowercase ASCII letters and digits, runs of anything
-/// else one `-` (`Intel(R) Xeon(R) Gold 6230` -> `intel-r-xeon-r-gold-6230`).
-pub fn cpu_slug(model: &str) -> String {
+/// A file or folder name for any text (a CPU model, a scene): lowercase ASCII letters and
+/// digits, runs of anything else one `-` (`Intel(R) Xeon(R) Gold 6230` ->
+/// `intel-r-xeon-r-gold-6230`).
+pub fn slug(model: &str) -> String {
     let mut s = String::new();
     for c in model.chars() {
         if c.is_ascii_alphanumeric() {
@@ -211,10 +212,10 @@ mod tests {
     #[test]
     fn slugs_and_entries() {
         assert_eq!(
-            cpu_slug("Intel(R) Xeon(R) Gold 6230 CPU @ 2.10GHz"),
+            slug("Intel(R) Xeon(R) Gold 6230 CPU @ 2.10GHz"),
             "intel-r-xeon-r-gold-6230-cpu-2-10ghz"
         );
-        assert_eq!(cpu_slug("  ()"), "unknown");
+        assert_eq!(slug("  ()"), "unknown");
         let e = RecordEntry::from_times("s", "hlbvh", 2, &[12.0, 10.0, 11.0]);
         assert_eq!((e.runs, e.best_ms, e.median_ms), (3, 10.0, 11.0));
         assert!((e.spread - 0.2).abs() < 1e-12);

@@ -148,6 +148,21 @@ fn text_markdown_and_csv_outputs() {
         lines[1].starts_with("proc:soup?n=3000,3000,arbor lbvh,arbor,2,1,"),
         "{csv}"
     );
+    // --out: every format, and the SAH-against-time plot with one point per builder.
+    let dir = tempfile::tempdir().unwrap();
+    let mut a = args.to_vec();
+    a.extend(["--out", dir.path().to_str().unwrap()]);
+    assert!(bench(&a).status.success());
+    for ext in ["txt", "md", "csv", "json"] {
+        assert!(
+            dir.path().join(format!("bench-build.{ext}")).is_file(),
+            "{ext}"
+        );
+    }
+    let svg =
+        std::fs::read_to_string(dir.path().join("bench-build-sah-proc-soup-n-3000.svg")).unwrap();
+    assert_eq!(svg.matches("<circle").count(), 2, "{svg}");
+    assert!(svg.contains(">arbor lbvh</text>") && svg.contains(">obvhs PLOC fast</text>"));
 }
 
 #[test]
