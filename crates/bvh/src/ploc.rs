@@ -218,14 +218,7 @@ impl PlocBuilder {
                 "PLOC max_leaf_size must be at least 1".into(),
             ));
         }
-        let s = &self.sah;
-        let ok = |w: f32| w.is_finite() && w >= 0.0;
-        if !(ok(s.c_inner) && ok(s.c_leaf) && ok(s.c_tri)) {
-            return Err(BuildError::InvalidConfig(format!(
-                "PLOC SAH weights must be finite and non-negative: {s:?}"
-            )));
-        }
-        Ok(())
+        self.sah.check("PLOC")
     }
 
     /// Builds a tree over the primitive boxes `aabbs`.

@@ -82,14 +82,7 @@ impl ReinsertConfig {
                 self.min_gain
             )));
         }
-        let s = &self.sah;
-        let ok = |w: f32| w.is_finite() && w >= 0.0;
-        if !(ok(s.c_inner) && ok(s.c_leaf) && ok(s.c_tri)) {
-            return Err(BuildError::InvalidConfig(format!(
-                "reinsertion SAH weights must be finite and non-negative: {s:?}"
-            )));
-        }
-        Ok(())
+        self.sah.check("reinsertion")
     }
 }
 

@@ -30,6 +30,19 @@ impl SahParams {
 }
 
 impl SahParams {
+    /// Checks that every weight is finite and non-negative; `who` names the builder in the
+    /// error.
+    pub fn check(&self, who: &str) -> Result<(), crate::BuildError> {
+        let ok = |w: f32| w.is_finite() && w >= 0.0;
+        if ok(self.c_inner) && ok(self.c_leaf) && ok(self.c_tri) {
+            Ok(())
+        } else {
+            Err(crate::BuildError::InvalidConfig(format!(
+                "{who} SAH weights must be finite and non-negative: {self:?}"
+            )))
+        }
+    }
+
     /// These weights for a tree whose nodes test `width` child boxes, in the units of the
     /// binary SAH: `C_i` prices a visit of a binary node, i.e. testing its two child boxes,
     /// so a node that tests `width` boxes costs `C_i · width / 2`; `C_l` and `C_t` stay.
