@@ -17,7 +17,7 @@
 
 use crate::bvh2::Bvh2;
 use crate::mbvh4::{Mbvh4, Node4, MBVH_WIDTH};
-use crate::node::ChildRef;
+use crate::node::{ChildRef, TreeNode};
 use crate::sah::SahParams;
 use geom::Aabb;
 use thiserror::Error;
@@ -88,8 +88,29 @@ pub struct WideNode<const W: usize> {
     pub children: [ChildRef; W],
 }
 
+impl<const W: usize> TreeNode for WideNode<W> {
+    const WIDTH: usize = W;
+    #[inline(always)]
+    fn child_refs(&self) -> &[ChildRef] {
+        &self.children
+    }
+    #[inline(always)]
+    fn slot_aabb(&self, slot: usize) -> Aabb {
+        self.boxes[slot]
+    }
+    #[inline(always)]
+    fn set_slot_aabb(&mut self, slot: usize, b: &Aabb) {
+        self.boxes[slot] = *b;
+    }
+    #[inline(always)]
+    fn own_box(&self) -> Aabb {
+        self.boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(*b))
+    }
+}
+
 /// A `W`-wide tree: nodes in depth-first preorder (slot 0 first; every inner child after
-/// its parent), a leaf table, and the scene bounds.
+/// its parent), a leaf table, and the scene bounds. [`crate::validate_wide`] checks all of
+/// its invariants.
 #[derive(Clone, Debug, PartialEq)]
 pub struct WideBvh<const W: usize> {
     /// Nodes; `nodes[0]` is the root.
@@ -396,6 +417,7 @@ mod tests {
         let prims = proc_scene("proc:soup?n=20000");
         let bvh = BinnedSahBuilder::default().build(&prims).unwrap();
         let w8 = Collapse::default().collapse_wide::<8>(&bvh).unwrap();
+        assert_eq!(crate::validate_wide(&w8, &prims, u32::MAX), Ok(()));
         let m4 = collapse(&bvh).unwrap();
         let mut seen = vec![false; prims.len()];
         for &p in &w8.prim_indices {

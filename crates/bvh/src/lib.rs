@@ -59,7 +59,7 @@ pub use sah::{sah_cost, sah_cost_with, sah_ratio, SahParams};
 pub use sweep_sah::SweepSahBuilder;
 pub use toplevel::{HlbvhAtrbvhBuilder, HlbvhSahBuilder};
 pub use tree::{Tree, TreeKind};
-pub use validate::{validate, ValidationError};
+pub use validate::{validate, validate_wide, ValidationError};
 
 use geom::{Aabb, Triangle, Vec3};
 

@@ -34,7 +34,7 @@
 
 use crate::node::{ChildRef, TreeNode};
 use crate::sah::SahParams;
-use crate::validate::{ValidationError, Walk};
+use crate::validate::{validate_wide_nodes, ValidationError};
 use geom::{Aabb, Vec3};
 
 /// Branching factor of [`Node4`].
@@ -231,52 +231,14 @@ impl TreeNode for Node4 {
 /// box, leaves non-empty, within the maximum and inside the leaf table, every primitive
 /// referenced once and inside its leaf box. Slot rules specific to 4-wide nodes are
 /// reported as [`ValidationError::BadEmptyChild`]: an empty slot must have the empty box and
-/// come after all used slots, and a node below the root must use at least two slots.
+/// come after all used slots, and a node below the root must use at least two slots. The
+/// same implementation checks trees of any width ([`crate::validate_wide`]).
 pub fn validate_mbvh4(
     t: &Mbvh4,
     prims: &[Aabb],
     max_leaf_size: u32,
 ) -> Result<(), ValidationError> {
-    use ValidationError as E;
-    let Some(root) = t.nodes.first() else {
-        return Err(E::NoRoot);
-    };
-    let mut walk = Walk::new(
-        t.nodes.len(),
-        &t.prim_indices,
-        prims,
-        max_leaf_size,
-        root.aabb(),
-        t.bounds,
-    )?;
-    while let Some((i, parent_box)) = walk.next_node()? {
-        let node = &t.nodes[i];
-        // Slot order: used slots first, then empty ones; two or more below the root.
-        let used = node.child_count();
-        for slot in 0..MBVH_WIDTH {
-            let c = node.children[slot];
-            if c.is_empty() != (slot >= used) || (c.is_empty() && !node.child_aabb(slot).is_empty())
-            {
-                return Err(E::BadEmptyChild { node: i, slot });
-            }
-        }
-        if i != 0 && used < 2 {
-            return Err(E::BadEmptyChild {
-                node: i,
-                slot: used,
-            });
-        }
-        for slot in (0..used).rev() {
-            walk.child(
-                i,
-                slot,
-                node.children[slot],
-                node.child_aabb(slot),
-                &parent_box,
-            )?;
-        }
-    }
-    walk.finish()
+    validate_wide_nodes(&t.nodes, &t.prim_indices, t.bounds, prims, max_leaf_size)
 }
 
 #[cfg(test)]

@@ -160,8 +160,9 @@ impl Node {
     }
 }
 
-/// What the tree walks (SAH cost, statistics, refit) need from a node of any width: the
-/// binary [`Node`] and the 4-wide `Node4` both implement it, so each walk is written once.
+/// What the tree walks (SAH cost, statistics, refit, validation) need from a node of any
+/// width: the binary [`Node`], the 4-wide `Node4` and the `W`-wide `WideNode` implement
+/// it, so each walk is written once.
 pub(crate) trait TreeNode: Copy + Send + Sync {
     /// Child slots per node.
     const WIDTH: usize;

@@ -1,15 +1,22 @@
-//! Structural validator for [`Bvh2`], run by every builder test.
+//! Structural validators: [`validate`] for [`Bvh2`], and one implementation for the wide
+//! trees of any width ([`validate_wide`] for the `W`-wide [`WideBvh`] of
+//! [`Collapse::collapse_wide`](crate::Collapse::collapse_wide), e.g. the 8-wide trees of
+//! the trace crate's `Mbvh8Accel`; [`crate::validate_mbvh4`] for [`crate::Mbvh4`]). Every
+//! builder test runs one of them.
 //!
-//! It walks the tree from the root with an explicit stack and checks, in this order per
+//! Each walks the tree from the root with an explicit stack and checks, in this order per
 //! node, that: child indices are in range and never point back to the root; each node is
 //! reached exactly once and in depth-first preorder (which also rules out cycles); child
 //! boxes are finite and inside the parent's box; leaves are non-empty, within the maximum
 //! leaf size and inside the leaf table; every primitive is referenced exactly once and lies
-//! inside its leaf's box; empty children only appear at the root. The first violation is
-//! returned as a typed [`ValidationError`].
+//! inside its leaf's box; empty children only appear at the root (binary trees), or, in
+//! wide trees, only after the used slots of a node, with the empty box, and with at least
+//! two used slots in every node below the root. The first violation is returned as a typed
+//! [`ValidationError`] (the same type for every width).
 
 use crate::bvh2::Bvh2;
-use crate::node::ChildRef;
+use crate::collapse::WideBvh;
+use crate::node::{ChildRef, TreeNode};
 use geom::Aabb;
 use thiserror::Error;
 
@@ -192,8 +199,70 @@ pub fn validate(bvh: &Bvh2, prims: &[Aabb], max_leaf_size: u32) -> Result<(), Va
     walk.finish()
 }
 
+/// Checks every invariant of a `W`-wide tree over `prims` with leaves of at most
+/// `max_leaf_size` primitives; returns the first violation. The checks are those of
+/// [`crate::validate_mbvh4`] (one implementation for every width): root present, leaf
+/// table as long as `prims`, scene bounds equal to the root's box, nodes reached exactly
+/// once in depth-first preorder (no cycles, none unreachable), finite child boxes inside
+/// the parent box, leaves non-empty, within the maximum and inside the leaf table, every
+/// primitive referenced once and inside its leaf box; an empty slot has the empty box and
+/// comes after all used slots, and a node below the root uses at least two slots (both
+/// reported as [`ValidationError::BadEmptyChild`]).
+pub fn validate_wide<const W: usize>(
+    t: &WideBvh<W>,
+    prims: &[Aabb],
+    max_leaf_size: u32,
+) -> Result<(), ValidationError> {
+    validate_wide_nodes(&t.nodes, &t.prim_indices, t.bounds, prims, max_leaf_size)
+}
+
+/// The wide-tree validator over nodes of any width (`Node4`, `WideNode<W>`): see
+/// [`validate_wide`].
+pub(crate) fn validate_wide_nodes<N: TreeNode>(
+    nodes: &[N],
+    prim_indices: &[u32],
+    bounds: Aabb,
+    prims: &[Aabb],
+    max_leaf_size: u32,
+) -> Result<(), ValidationError> {
+    use ValidationError as E;
+    let Some(root) = nodes.first() else {
+        return Err(E::NoRoot);
+    };
+    let mut walk = Walk::new(
+        nodes.len(),
+        prim_indices,
+        prims,
+        max_leaf_size,
+        root.own_box(),
+        bounds,
+    )?;
+    while let Some((i, parent_box)) = walk.next_node()? {
+        let node = &nodes[i];
+        let children = node.child_refs();
+        // Slot order: used slots first, then empty ones; two or more below the root.
+        let used = children.iter().filter(|c| !c.is_empty()).count();
+        for (slot, c) in children.iter().enumerate() {
+            if c.is_empty() != (slot >= used) || (c.is_empty() && !node.slot_aabb(slot).is_empty())
+            {
+                return Err(E::BadEmptyChild { node: i, slot });
+            }
+        }
+        if i != 0 && used < 2 {
+            return Err(E::BadEmptyChild {
+                node: i,
+                slot: used,
+            });
+        }
+        for slot in (0..used).rev() {
+            walk.child(i, slot, children[slot], node.slot_aabb(slot), &parent_box)?;
+        }
+    }
+    walk.finish()
+}
+
 /// A depth-first validation walk over a tree whose nodes hold child boxes and child
-/// references (`Bvh2` and `Mbvh4` alike): the checks of every non-empty child slot, of the
+/// references (`Bvh2` and the wide trees alike): the checks of every non-empty child slot, of the
 /// leaf table, and of reachability. Children must be visited last slot first, so that the
 /// walk's stack reproduces the depth-first storage order.
 pub(crate) struct Walk<'a> {
@@ -563,5 +632,230 @@ mod tests {
         let e = validate(&Bvh2::empty(), &one, 1).unwrap_err();
         assert!(matches!(e, ValidationError::LeafTableLength { .. }));
         assert_eq!(validate(&Bvh2::empty(), &[], 1), Ok(()));
+    }
+}
+
+/// [`validate_wide`] on 8-wide trees from [`Collapse::collapse_wide`](crate::Collapse).
+#[cfg(test)]
+mod wide_tests {
+    use super::*;
+    use crate::collapse::WideNode;
+    use crate::testutil::{adversarial, soup};
+    use crate::{BinnedSahBuilder, Collapse, LbvhBuilder};
+    use geom::Vec3;
+    use ValidationError as E;
+
+    type W8 = WideBvh<8>;
+
+    fn tree() -> (W8, Vec<Aabb>) {
+        let prims = soup(400, 3.0, 7);
+        let b = BinnedSahBuilder::default().build(&prims).unwrap();
+        validate(&b, &prims, 8).unwrap();
+        let w = Collapse::default().collapse_wide::<8>(&b).unwrap();
+        assert_eq!(validate_wide(&w, &prims, 8), Ok(()));
+        assert!(w.nodes.len() > 5);
+        (w, prims)
+    }
+
+    /// The last (node, slot) below the root holding a child that satisfies `f`.
+    fn find(t: &W8, f: impl Fn(&ChildRef) -> bool) -> (usize, usize) {
+        for (i, n) in t.nodes.iter().enumerate().skip(1).rev() {
+            if let Some(s) = n.children.iter().position(&f) {
+                return (i, s);
+            }
+        }
+        panic!("no such child");
+    }
+
+    /// Applies `corrupt` to a valid tree and returns the validator's verdict.
+    fn check(corrupt: impl FnOnce(&mut W8, &mut Vec<Aabb>)) -> ValidationError {
+        let (mut t, mut prims) = tree();
+        corrupt(&mut t, &mut prims);
+        validate_wide(&t, &prims, 8).expect_err("corruption not detected")
+    }
+
+    #[test]
+    fn collapsed_trees_of_every_width_pass() {
+        for (name, prims) in adversarial() {
+            for b in [
+                BinnedSahBuilder::default().build(&prims).unwrap(),
+                LbvhBuilder::default().build(&prims).unwrap(),
+            ] {
+                let c = Collapse::default();
+                let w = c.collapse_wide::<8>(&b).unwrap();
+                assert_eq!(validate_wide(&w, &prims, 8), Ok(()), "{name}");
+                let w = c.collapse_wide::<3>(&b).unwrap();
+                assert_eq!(validate_wide(&w, &prims, 8), Ok(()), "{name}");
+                let w = c.collapse_wide::<16>(&b).unwrap();
+                assert_eq!(validate_wide(&w, &prims, 8), Ok(()), "{name}");
+            }
+        }
+        // Merged leaves stay within the merge bound.
+        let prims = soup(2000, 2.0, 3);
+        let b = LbvhBuilder::default().build(&prims).unwrap();
+        let merged = Collapse {
+            merge_leaves_up_to: 6,
+            ..Default::default()
+        }
+        .collapse_wide::<8>(&b)
+        .unwrap();
+        assert_eq!(validate_wide(&merged, &prims, 6), Ok(()));
+        let empty = Collapse::default()
+            .collapse_wide::<8>(&Bvh2::empty())
+            .unwrap();
+        assert_eq!(validate_wide(&empty, &[], 1), Ok(()));
+    }
+
+    #[test]
+    fn catches_root_table_and_bounds() {
+        assert_eq!(check(|t, _| t.nodes.clear()), E::NoRoot);
+        let e = check(|t, _| {
+            t.prim_indices.pop();
+        });
+        assert!(matches!(e, E::LeafTableLength { .. }), "{e}");
+        assert_eq!(check(|t, _| t.bounds.max.y += 1.0), E::BoundsMismatch);
+    }
+
+    #[test]
+    fn catches_bad_primitive_references() {
+        let e = check(|t, _| {
+            let (i, s) = find(t, |c| c.count >= 2);
+            let first = t.nodes[i].children[s].index as usize;
+            t.prim_indices[first + 1] = t.prim_indices[first];
+        });
+        assert!(matches!(e, E::PrimReferencedTwice { .. }), "{e}");
+        let e = check(|t, _| t.prim_indices[5] = 400);
+        assert!(matches!(e, E::PrimOutOfRange { prim: 400, .. }), "{e}");
+        let e = check(|t, _| {
+            let (i, s) = find(t, |c| c.count >= 2);
+            t.nodes[i].children[s].count -= 1;
+        });
+        assert!(matches!(e, E::PrimMissing { .. }), "{e}");
+        let e = check(|t, prims| {
+            let p = t.prim_indices[0] as usize;
+            prims[p] = Aabb::from_point(Vec3::splat(-50.0));
+        });
+        assert!(matches!(e, E::PrimOutsideLeaf { .. }), "{e}");
+    }
+
+    #[test]
+    fn catches_box_violations() {
+        let e = check(|t, _| {
+            let (i, s) = find(t, ChildRef::is_inner);
+            t.nodes[i].boxes[s].min.x -= 1000.0;
+        });
+        assert!(matches!(e, E::ChildOutsideParent { .. }), "{e}");
+        let e = check(|t, _| {
+            let (i, s) = find(t, ChildRef::is_leaf);
+            let b = &mut t.nodes[i].boxes[s];
+            b.max = b.min;
+        });
+        assert!(matches!(e, E::PrimOutsideLeaf { .. }), "{e}");
+        let e = check(|t, _| {
+            let (i, s) = find(t, ChildRef::is_leaf);
+            t.nodes[i].boxes[s].max.y = f32::NAN;
+        });
+        assert!(matches!(e, E::NonFiniteBox { .. }), "{e}");
+        // An inverted child box (empty) is never inside its parent.
+        let e = check(|t, _| {
+            let (i, s) = find(t, ChildRef::is_leaf);
+            let b = &mut t.nodes[i].boxes[s];
+            std::mem::swap(&mut b.min, &mut b.max);
+        });
+        assert!(matches!(e, E::ChildOutsideParent { .. }), "{e}");
+    }
+
+    #[test]
+    fn catches_bad_links_and_cycles() {
+        let e = check(|t, _| {
+            let (i, s) = find(t, ChildRef::is_inner);
+            t.nodes[i].children[s].index = t.nodes.len() as u32;
+        });
+        assert!(matches!(e, E::ChildOutOfRange { .. }), "{e}");
+        let e = check(|t, _| {
+            let (i, s) = find(t, ChildRef::is_inner);
+            t.nodes[i].children[s].index = 0;
+        });
+        assert!(matches!(e, E::ChildOutOfRange { target: 0, .. }), "{e}");
+        // A node made to point at itself with its own box: only the visit bookkeeping
+        // can catch it.
+        let e = check(|t, _| {
+            let (i, s) = find(t, |c| !c.is_empty());
+            let own = t.nodes[i].own_box();
+            t.nodes[i].children[s] = ChildRef::inner(i as u32);
+            t.nodes[i].boxes[s] = own;
+        });
+        assert!(matches!(e, E::NodeReachedTwice { .. }), "{e}");
+        // A second link to the last node (shared subtree), its box kept consistent.
+        let e = check(|t, _| {
+            let last = t.nodes.len() - 1;
+            let b = t.nodes[last].own_box();
+            let (i, s) = find(t, ChildRef::is_leaf);
+            t.nodes[i].children[s] = ChildRef::inner(last as u32);
+            t.nodes[i].boxes[s] = b;
+        });
+        assert!(
+            matches!(
+                e,
+                E::NodeReachedTwice { .. } | E::ChildOutsideParent { .. } | E::NotDepthFirst { .. }
+            ),
+            "{e}"
+        );
+        let e = check(|t, _| t.nodes.push(t.nodes[1]));
+        assert!(matches!(e, E::Unreachable { .. }), "{e}");
+        // Swapping two inner children of the root keeps the links but breaks preorder.
+        let e = check(|t, _| {
+            let r = &mut t.nodes[0];
+            let inner: Vec<usize> = (0..8).filter(|&k| r.children[k].is_inner()).collect();
+            assert!(inner.len() >= 2);
+            r.children.swap(inner[0], inner[1]);
+            r.boxes.swap(inner[0], inner[1]);
+        });
+        assert!(matches!(e, E::NotDepthFirst { .. }), "{e}");
+    }
+
+    #[test]
+    fn catches_leaf_and_slot_violations() {
+        let (t, prims) = tree();
+        let e = validate_wide(&t, &prims, 1).unwrap_err();
+        assert!(matches!(e, E::LeafTooLarge { max: 1, .. }), "{e}");
+        let e = check(|t, _| {
+            let (i, s) = find(t, ChildRef::is_leaf);
+            t.nodes[i].children[s].index = t.prim_indices.len() as u32;
+        });
+        assert!(matches!(e, E::LeafOutOfRange { .. }), "{e}");
+        // An absent child before a used one.
+        let e = check(|t, _| {
+            let (i, s) = find(t, |c| !c.is_empty());
+            t.nodes[i].children[s] = ChildRef::EMPTY;
+            t.nodes[i].boxes[s] = Aabb::EMPTY;
+            let used = t.nodes[i].children.iter().filter(|c| !c.is_empty()).count();
+            assert!(used >= 1);
+            // Move the hole in front of a used slot if it is not already.
+            if s >= used {
+                t.nodes[i].children.swap(0, s);
+                t.nodes[i].boxes.swap(0, s);
+            }
+        });
+        assert!(matches!(e, E::BadEmptyChild { .. }), "{e}");
+        // An absent child with a real box.
+        let e = check(|t, _| {
+            let (i, s) = find(t, ChildRef::is_empty);
+            t.nodes[i].boxes[s] = t.nodes[i].boxes[0];
+        });
+        assert!(matches!(e, E::BadEmptyChild { .. }), "{e}");
+        // A node below the root with a single used slot.
+        let (t, prims) = tree();
+        let mut c = t.clone();
+        let (i, _) = find(&c, |_| true);
+        let keep = c.nodes[i];
+        c.nodes[i] = WideNode {
+            boxes: [Aabb::EMPTY; 8],
+            children: [ChildRef::EMPTY; 8],
+        };
+        c.nodes[i].boxes[0] = keep.boxes[0];
+        c.nodes[i].children[0] = keep.children[0];
+        let e = validate_wide(&c, &prims, 8).unwrap_err();
+        assert!(matches!(e, E::BadEmptyChild { slot: 1, .. }), "{e}");
     }
 }

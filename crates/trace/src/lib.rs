@@ -39,9 +39,10 @@
 //! `bvh::validate`'s job, and costs a pass over the primitives): NaN, inverted or too
 //! small boxes only lose hits. So a prepared kernel traces every ray without a panic or an
 //! out-of-bounds read, visits each node at most once per ray, and reports only real hits
-//! of existing triangles; over a tree that passes `bvh::validate` it gives the brute-force
-//! hits. Property tests (`tests_hostile.rs`) feed every kernel random mutations of valid
-//! trees and hand-made worst cases.
+//! of existing triangles; over a tree that passes `bvh::validate` (for the wide trees
+//! `bvh::validate_mbvh4` and `bvh::validate_wide`) it gives the brute-force hits. Property
+//! tests (`tests_hostile.rs`) feed every kernel random mutations of valid trees and
+//! hand-made worst cases, and check the brute-force hits for those that still validate.
 
 #![warn(missing_docs)]
 
