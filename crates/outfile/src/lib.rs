@@ -8,9 +8,14 @@
 //! umask, the permissions of any file the user creates (0644 with the usual umask 022).
 //! `tempfile`'s default, 0600, would make every result private.
 //!
-//! The crate is a leaf (it depends on `tempfile` only) so that the lowest crates (`bvh`,
-//! `trace`) can use it as well as `report` (which re-exports it as `report::fs`) and the
-//! command line.
+//! The crate also holds the one table type of every report, [`table::Table`], with its
+//! Markdown, CSV, JSON and aligned-text writers.
+//!
+//! The crate is a leaf (it depends on `tempfile` and `serde_json` only) so that the lowest
+//! crates (`bvh`, `trace`, `sim`) can use it as well as `report` (which re-exports it as
+//! `report::fs` and `report::table`) and the command line.
+
+pub mod table;
 
 use std::io::{self, Write};
 use std::path::Path;

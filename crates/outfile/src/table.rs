@@ -1,5 +1,6 @@
-//! The one table type of the reports and its three writers: Markdown (GitHub's pipe
-//! tables), CSV (RFC 4180) and JSON (an array of objects, one per row).
+//! The one table type of every report and its four writers: Markdown (GitHub's pipe
+//! tables), CSV (RFC 4180), JSON (an array of objects, one per row) and aligned plain text
+//! for a terminal.
 
 /// How a column's cells align in Markdown (numbers right, text left).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -49,6 +50,14 @@ impl Table {
         self
     }
 
+    /// The table with columns `cols` right-aligned (numbers) and the others as they were.
+    pub fn right(mut self, cols: &[usize]) -> Self {
+        for &k in cols {
+            self = self.with_align(k, Align::Right);
+        }
+        self
+    }
+
     /// Adds a row.
     pub fn push<S: ToString>(&mut self, row: impl IntoIterator<Item = S>) {
         self.rows
@@ -92,6 +101,40 @@ impl Table {
         let mut s = line(&mut self.headers.iter().map(String::as_str));
         for r in &self.rows {
             s += &line(&mut self.cells(r));
+        }
+        s
+    }
+
+    /// Aligned plain text for a terminal: each column padded to its widest cell (header
+    /// included), two spaces apart, right-aligned columns padded on the left; one line per
+    /// row, trailing spaces trimmed, a line break in a cell printed as a space.
+    pub fn aligned(&self) -> String {
+        let flat = |c: &str| c.replace(['\r', '\n'], " ");
+        let rows: Vec<Vec<String>> = self
+            .rows
+            .iter()
+            .map(|r| self.cells(r).map(flat).collect())
+            .collect();
+        let mut width: Vec<usize> = self.headers.iter().map(|h| h.chars().count()).collect();
+        for r in &rows {
+            for (w, c) in width.iter_mut().zip(r) {
+                *w = (*w).max(c.chars().count());
+            }
+        }
+        let line = |cells: &mut dyn Iterator<Item = &str>| {
+            let mut l = String::new();
+            for (k, (v, &w)) in cells.zip(&width).enumerate() {
+                if self.align.get(k) == Some(&Align::Right) {
+                    l += &format!("{v:>w$}  ");
+                } else {
+                    l += &format!("{v:<w$}  ");
+                }
+            }
+            l.trim_end().to_string() + "\n"
+        };
+        let mut s = line(&mut self.headers.iter().map(String::as_str));
+        for r in &rows {
+            s += &line(&mut r.iter().map(String::as_str));
         }
         s
     }
@@ -179,6 +222,20 @@ mod tests {
         let mut t = Table::text(&["a", "b"]);
         t.push(["1", "2"]);
         assert_eq!(t.markdown(), "| a | b |\n|---|---|\n| 1 | 2 |\n");
+        let t = Table::text(&["a", "b", "c"]).right(&[0, 2]);
+        assert_eq!(t.markdown(), "| a | b | c |\n|---:|---|---:|\n");
+    }
+
+    #[test]
+    fn aligned_text_pads_columns_and_flattens_line_breaks() {
+        assert_eq!(
+            sample().aligned(),
+            "scene         ms  note\n\
+             bunny        1.5  a|b\n\
+             san, miguel   12  say \"hi\" there\n\
+             short\n"
+        );
+        assert_eq!(Table::text(&["x"]).aligned(), "x\n");
     }
 
     #[test]

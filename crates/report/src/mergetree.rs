@@ -20,7 +20,7 @@ use crate::fs::write_file;
 use crate::progress::Progress;
 use crate::scenes::{scene_prims, short_name};
 use crate::svg::bar_svg;
-use crate::table::thousands;
+use crate::table::{thousands, Table};
 use anyhow::Context;
 use geom::Aabb;
 use rayon::prelude::*;
@@ -490,10 +490,10 @@ fn pair(ours: f64, thesis: Option<f64>, digits: usize) -> String {
 }
 
 /// CSV cells `thesis,diff_pct` (empty without a thesis value).
-fn csv_pair(ours: f64, thesis: Option<f64>) -> String {
+fn csv_pair(ours: f64, thesis: Option<f64>) -> [String; 2] {
     match thesis {
-        Some(t) => format!("{t},{:.2}", (ours / t - 1.0) * 100.0),
-        None => ",".into(),
+        Some(t) => [t.to_string(), format!("{:.2}", (ours / t - 1.0) * 100.0)],
+        None => [String::new(), String::new()],
     }
 }
 
@@ -612,12 +612,32 @@ fn write_summary(md: &mut String, r: &Results) -> anyhow::Result<()> {
 }
 
 fn write_table3(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> {
-    let mut csv = String::from(
-        "scene,triangles,system,memory,cycles,ms,thesis_ms,ms_diff_pct,speedup,thesis_speedup,\
-         speedup_diff_pct,bus_utilization,thesis_implied_utilization,thesis_average_utilization,\
-         bytes_read,bytes_written,merge_passes,row_hit_rate,dram_energy_mj,dram_energy_above_idle_mj,\
-         partial_sort_read_latency,final_merge_read_latency,tree_matches_software,sim_wall_s\n",
-    );
+    let mut csv = Table::text(&[
+        "scene",
+        "triangles",
+        "system",
+        "memory",
+        "cycles",
+        "ms",
+        "thesis_ms",
+        "ms_diff_pct",
+        "speedup",
+        "thesis_speedup",
+        "speedup_diff_pct",
+        "bus_utilization",
+        "thesis_implied_utilization",
+        "thesis_average_utilization",
+        "bytes_read",
+        "bytes_written",
+        "merge_passes",
+        "row_hit_rate",
+        "dram_energy_mj",
+        "dram_energy_above_idle_mj",
+        "partial_sort_read_latency",
+        "final_merge_read_latency",
+        "tree_matches_software",
+        "sim_wall_s",
+    ]);
     writeln!(md, "## Table III analogue: MergeTree build time\n")?;
     writeln!(
         md,
@@ -629,11 +649,20 @@ fn write_table3(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> 
          latency: mean unit cycles from a read request's acceptance to its last burst, in \
          the partial sorts and in the final merge.\n"
     )?;
-    writeln!(
-        md,
-        "| scene | triangles | system | ms | speed-up | bus utilization (ours / [P2] implied) | read latency (sort / merge) | row hits | DRAM mJ (above idle) | passes | same tree |"
-    )?;
-    writeln!(md, "|---|---:|---|---|---|---|---|---:|---:|---:|---|")?;
+    let mut table = Table::text(&[
+        "scene",
+        "triangles",
+        "system",
+        "ms",
+        "speed-up",
+        "bus utilization (ours / [P2] implied)",
+        "read latency (sort / merge)",
+        "row hits",
+        "DRAM mJ (above idle)",
+        "passes",
+        "same tree",
+    ])
+    .right(&[1, 7, 8, 9]);
     let mut labels = Vec::new();
     let (mut ours_ms, mut thesis_ms, mut ours_su, mut thesis_su) =
         (Vec::new(), Vec::new(), Vec::new(), Vec::new());
@@ -647,41 +676,38 @@ fn write_table3(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> 
             let t_util = t.map(|(t, k)| t.implied_utilization()[k]);
             let t_avg = tk.map(|k| thesis::P2_BUS_UTILIZATION[k]);
             let opt = |v: Option<f64>| v.map_or(String::new(), |x| format!("{x:.4}"));
-            writeln!(
-                csv,
-                "{},{},{},{},{},{:.4},{},{:.4},{},{:.4},{},{},{},{},{},{},{},{},{}",
-                scene.name,
-                scene.prims.len(),
-                r.label(k),
-                r.drams[k],
-                row.cycles,
-                row.ms,
-                csv_pair(row.ms, t_ms),
-                speedup,
-                csv_pair(speedup, t_su),
-                row.bus_utilization,
+            let [t_ms_cell, ms_diff] = csv_pair(row.ms, t_ms);
+            let [t_su_cell, su_diff] = csv_pair(speedup, t_su);
+            csv.push([
+                scene.name.clone(),
+                scene.prims.len().to_string(),
+                r.label(k).to_string(),
+                r.drams[k].to_string(),
+                row.cycles.to_string(),
+                format!("{:.4}", row.ms),
+                t_ms_cell,
+                ms_diff,
+                format!("{speedup:.4}"),
+                t_su_cell,
+                su_diff,
+                row.bus_utilization.to_string(),
                 opt(t_util),
                 opt(t_avg),
-                row.bytes_read,
-                row.bytes_written,
-                row.merge_passes,
+                row.bytes_read.to_string(),
+                row.bytes_written.to_string(),
+                row.merge_passes.to_string(),
                 opt(row.row_hit_rate),
                 opt(row.energy_mj),
                 opt(row.energy_above_idle_mj),
-                format_args!(
-                    "{:.1},{:.1},{},{:.2}",
-                    row.read_latency()[0],
-                    row.read_latency()[1],
-                    row.tree_matches_software,
-                    row.wall_s
-                ),
-            )?;
-            writeln!(
-                md,
-                "| {} | {} | {} | {} | {} | {} | {:.0} / {:.0} | {} | {} | {} | {} |",
-                scene.name,
+                format!("{:.1}", row.read_latency()[0]),
+                format!("{:.1}", row.read_latency()[1]),
+                row.tree_matches_software.to_string(),
+                format!("{:.2}", row.wall_s),
+            ]);
+            table.push([
+                scene.name.clone(),
                 thousands(scene.prims.len() as u64),
-                r.label(k),
+                r.label(k).to_string(),
                 pair(row.ms, t_ms, 3),
                 if k == 0 {
                     "1".to_string()
@@ -692,21 +718,25 @@ fn write_table3(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> 
                     Some(u) => format!("{:.0}% / {:.0}%", row.bus_utilization * 100.0, u * 100.0),
                     None => format!("{:.0}%", row.bus_utilization * 100.0),
                 },
-                row.read_latency()[0],
-                row.read_latency()[1],
+                format!(
+                    "{:.0} / {:.0}",
+                    row.read_latency()[0],
+                    row.read_latency()[1]
+                ),
                 row.row_hit_rate
                     .map_or("-".into(), |h| format!("{:.0}%", h * 100.0)),
                 match (row.energy_mj, row.energy_above_idle_mj) {
                     (Some(e), Some(a)) => format!("{e:.2} ({a:.2})"),
                     _ => "-".into(),
                 },
-                row.merge_passes,
+                row.merge_passes.to_string(),
                 if row.tree_matches_software {
                     "yes"
                 } else {
                     "NO"
                 }
-            )?;
+                .to_string(),
+            ]);
             if scene.thesis.is_some() {
                 labels.push(format!("{} {}", scene.name, r.label(k)));
                 ours_ms.push(Some(row.ms));
@@ -718,8 +748,8 @@ fn write_table3(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> 
             }
         }
     }
-    writeln!(md)?;
-    write_file(out, "table3.csv", &csv)?;
+    writeln!(md, "{}", table.markdown())?;
+    write_file(out, "table3.csv", &csv.csv())?;
     if !labels.is_empty() {
         write_file(
             out,
@@ -751,10 +781,18 @@ fn write_table3(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> 
 }
 
 fn write_sah(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> {
-    let mut csv = String::from(
-        "scene,triangles,builder,sah,sweep_sah,sah_vs_sweep_pct,thesis_pct,diff_pct,\
-         toplevel_unit_ms,thesis_toplevel_ms\n",
-    );
+    let mut csv = Table::text(&[
+        "scene",
+        "triangles",
+        "builder",
+        "sah",
+        "sweep_sah",
+        "sah_vs_sweep_pct",
+        "thesis_pct",
+        "diff_pct",
+        "toplevel_unit_ms",
+        "thesis_toplevel_ms",
+    ]);
     writeln!(md, "## Table III analogue: tree quality\n")?;
     writeln!(
         md,
@@ -767,11 +805,16 @@ fn write_sah(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> {
          in addition to the HLBVH build ([P2] \"HW Binned SAH topl.\"), on the {} system.\n",
         r.label(0)
     )?;
-    writeln!(
-        md,
-        "| scene | triangles | hlbvh | hlbvh+sah | hlbvh+atrbvh | binned-sah | toplevel unit ms |"
-    )?;
-    writeln!(md, "|---|---:|---|---|---|---|---|")?;
+    let mut table = Table::text(&[
+        "scene",
+        "triangles",
+        "hlbvh",
+        "hlbvh+sah",
+        "hlbvh+atrbvh",
+        "binned-sah",
+        "toplevel unit ms",
+    ])
+    .right(&[1]);
     for (s, scene) in r.scenes.iter().enumerate() {
         let sw = &r.sw[s];
         let mut cells = Vec::new();
@@ -782,32 +825,30 @@ fn write_sah(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> {
                 let ms = r.top[s].toplevel_cycles as f64 / 1e6;
                 (ms, scene.thesis.map(|t| t.toplevel_sah_ms))
             });
-            writeln!(
-                csv,
-                "{},{},{name},{:.4},{:.4},{pct:.2},{},{},{}",
-                scene.name,
-                scene.prims.len(),
-                sw.sah[i],
-                sw.sweep_sah,
-                csv_pair(pct, t),
+            let [t_cell, diff_cell] = csv_pair(pct, t);
+            csv.push([
+                scene.name.clone(),
+                scene.prims.len().to_string(),
+                name.to_string(),
+                format!("{:.4}", sw.sah[i]),
+                format!("{:.4}", sw.sweep_sah),
+                format!("{pct:.2}"),
+                t_cell,
+                diff_cell,
                 top.map_or(String::new(), |x| format!("{:.4}", x.0)),
                 top.and_then(|x| x.1)
                     .map_or(String::new(), |x| x.to_string()),
-            )?;
+            ]);
             cells.push(pair(pct, t, 1));
         }
         let ms = r.top[s].toplevel_cycles as f64 / 1e6;
-        writeln!(
-            md,
-            "| {} | {} | {} | {} |",
-            scene.name,
-            thousands(scene.prims.len() as u64),
-            cells.join(" | "),
-            pair(ms, scene.thesis.map(|t| t.toplevel_sah_ms), 3)
-        )?;
+        let mut row = vec![scene.name.clone(), thousands(scene.prims.len() as u64)];
+        row.extend(cells);
+        row.push(pair(ms, scene.thesis.map(|t| t.toplevel_sah_ms), 3));
+        table.push(row);
     }
-    writeln!(md)?;
-    write_file(out, "sah.csv", &csv)
+    writeln!(md, "{}", table.markdown())?;
+    write_file(out, "sah.csv", &csv.csv())
 }
 
 /// MergeTree's traffic split as \[P2\] §4.2 counts it: input read, sort runs written and
@@ -849,9 +890,21 @@ fn write_table7(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> 
 
 /// [`write_table7`]'s tables, appended to `md`.
 fn write_table7_into(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> {
-    let mut csv = String::from(
-        "system,memory,scenes,traffic_gbs,thesis_traffic_gbs,logic_mw,thesis_logic_mw,dram_mw,dram_above_idle_mw,thesis_dram_mw,total_mw,thesis_total_mw,dram_share\n",
-    );
+    let mut csv = Table::text(&[
+        "system",
+        "memory",
+        "scenes",
+        "traffic_gbs",
+        "thesis_traffic_gbs",
+        "logic_mw",
+        "thesis_logic_mw",
+        "dram_mw",
+        "dram_above_idle_mw",
+        "thesis_dram_mw",
+        "total_mw",
+        "thesis_total_mw",
+        "dram_share",
+    ]);
     writeln!(md, "## Tables IV and VII analogues: MergeTree power\n")?;
     writeln!(
         md,
@@ -861,11 +914,15 @@ fn write_table7_into(out: &Path, md: &mut String, r: &Results) -> anyhow::Result
          total = logic + DRAM above idle. Ours / [P2] Table VII.\n",
         r.energy.describe()
     )?;
-    writeln!(
-        md,
-        "| system | traffic GB/s | logic mW | DRAM mW | total mW | DRAM share |"
-    )?;
-    writeln!(md, "|---|---|---|---|---|---:|")?;
+    let mut table = Table::text(&[
+        "system",
+        "traffic GB/s",
+        "logic mW",
+        "DRAM mW",
+        "total mW",
+        "DRAM share",
+    ])
+    .right(&[5]);
     for k in 0..r.drams.len() {
         let rows: Vec<&SimRow> = r.sims.iter().filter_map(|s| s.get(k)).collect();
         let es: Vec<&sim::mergetree::energy::MergeTreeEnergy> =
@@ -895,31 +952,33 @@ fn write_table7_into(out: &Path, md: &mut String, r: &Results) -> anyhow::Result
             Some(t) => format!("{ours:.1} / {}", t[i]),
             None => format!("{ours:.1}"),
         };
-        writeln!(
-            md,
-            "| {} | {} | {} | {} | {} | {:.0}% |",
-            r.label(k),
+        table.push([
+            r.label(k).to_string(),
             pair(traffic, 0),
             pair(logic, 1),
             pair(above, 2),
             pair(total, 3),
-            100.0 * above / total
-        )?;
+            format!("{:.0}%", 100.0 * above / total),
+        ]);
         let th = |i: usize| t.map_or(String::new(), |t| t[i].to_string());
-        writeln!(
-            csv,
-            "{},{},{},{traffic:.3},{},{logic:.2},{},{dram:.2},{above:.2},{},{total:.2},{},{:.4}",
-            r.label(k),
-            r.drams[k],
-            es.len(),
+        csv.push([
+            r.label(k).to_string(),
+            r.drams[k].to_string(),
+            es.len().to_string(),
+            format!("{traffic:.3}"),
             th(0),
+            format!("{logic:.2}"),
             th(1),
+            format!("{dram:.2}"),
+            format!("{above:.2}"),
             th(2),
+            format!("{total:.2}"),
             th(3),
-            above / total
-        )?;
+            format!("{:.4}", above / total),
+        ]);
     }
-    write_file(out, "table7.csv", &csv)?;
+    md.push_str(&table.markdown());
+    write_file(out, "table7.csv", &csv.csv())?;
     // Table IV: the largest scene on the last system.
     let last = r.drams.len().saturating_sub(1);
     let big = (0..r.scenes.len()).max_by_key(|&s| r.scenes[s].prims.len());
@@ -934,46 +993,73 @@ fn write_table7_into(out: &Path, md: &mut String, r: &Results) -> anyhow::Result
             r.scenes[s].name,
             r.label(last)
         )?;
-        writeln!(md, "| unit | area | power |")?;
-        writeln!(md, "|---|---|---|")?;
-        let mut t4 = String::from("unit,area_mm2,thesis_area_mm2,power_mw,thesis_power_mw\n");
-        for (u, t) in e.units[..4].iter().zip(thesis::P2_TABLE_IV) {
-            writeln!(
-                md,
-                "| {} | {:.3} / {} | {:.1} / {} |",
-                u.unit, u.area_mm2, t.1, u.power_mw, t.2
-            )?;
-            writeln!(
-                t4,
-                "{},{:.4},{},{:.3},{}",
-                u.unit, u.area_mm2, t.1, u.power_mw, t.2
-            )?;
+        let mut table = Table::text(&["unit", "area", "power"]);
+        let mut t4 = Table::text(&[
+            "unit",
+            "area_mm2",
+            "thesis_area_mm2",
+            "power_mw",
+            "thesis_power_mw",
+        ]);
+        // The unit's name in the Markdown and in the CSV (the total row: "total", "Total").
+        let units = e.units[..4].iter().map(|u| {
+            (
+                u.unit.to_string(),
+                u.unit.to_string(),
+                u.area_mm2,
+                u.power_mw,
+            )
+        });
+        let total = [("total".into(), "Total".into(), e.area_mm2, e.logic_mw)];
+        for ((unit, csv_unit, area, power), t) in units.chain(total).zip(thesis::P2_TABLE_IV) {
+            table.push([
+                unit,
+                format!("{area:.3} / {}", t.1),
+                format!("{power:.1} / {}", t.2),
+            ]);
+            t4.push([
+                csv_unit,
+                format!("{area:.4}"),
+                t.1.to_string(),
+                format!("{power:.3}"),
+                t.2.to_string(),
+            ]);
         }
-        let t = thesis::P2_TABLE_IV[4];
-        writeln!(
-            md,
-            "| total | {:.3} / {} | {:.1} / {} |\n",
-            e.area_mm2, t.1, e.logic_mw, t.2
-        )?;
-        writeln!(
-            t4,
-            "Total,{:.4},{},{:.3},{}",
-            e.area_mm2, t.1, e.logic_mw, t.2
-        )?;
-        write_file(out, "table4.csv", &t4)?;
+        writeln!(md, "{}", table.markdown())?;
+        write_file(out, "table4.csv", &t4.csv())?;
     }
     Ok(())
 }
 
 fn write_table6(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> {
-    let mut csv = String::from(
-        "scene,triangles,mergetree_mb,thesis_mergetree_mb,mergetree_diff_pct,\
-         binned_sah_hw_mb,thesis_binned_sah_hw_mb,binned_sah_hw_diff_pct,binned_ratio,thesis_binned_ratio,\
-         gpu_hlbvh_mb,thesis_gpu_hlbvh_mb,gpu_hlbvh_diff_pct,gpu_ratio,thesis_gpu_ratio,\
-         input_mb,runs_written_mb,runs_read_mb,output_mb,bytes_per_triangle,\
-         mergetree_mib,mergetree_diff_pct_mib,leaf_size,box_grid_mb,box_grid_diff_pct,\
-         box_grid_leaf_size\n",
-    );
+    let mut csv = Table::text(&[
+        "scene",
+        "triangles",
+        "mergetree_mb",
+        "thesis_mergetree_mb",
+        "mergetree_diff_pct",
+        "binned_sah_hw_mb",
+        "thesis_binned_sah_hw_mb",
+        "binned_sah_hw_diff_pct",
+        "binned_ratio",
+        "thesis_binned_ratio",
+        "gpu_hlbvh_mb",
+        "thesis_gpu_hlbvh_mb",
+        "gpu_hlbvh_diff_pct",
+        "gpu_ratio",
+        "thesis_gpu_ratio",
+        "input_mb",
+        "runs_written_mb",
+        "runs_read_mb",
+        "output_mb",
+        "bytes_per_triangle",
+        "mergetree_mib",
+        "mergetree_diff_pct_mib",
+        "leaf_size",
+        "box_grid_mb",
+        "box_grid_diff_pct",
+        "box_grid_leaf_size",
+    ]);
     writeln!(md, "## Table VI analogue: memory traffic (MB)\n")?;
     writeln!(
         md,
@@ -988,11 +1074,20 @@ fn write_table6(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> 
          leaves of at most 8 (not the thesis's unit), in 10^6 bytes.\n",
         r.label(0)
     )?;
-    writeln!(
-        md,
-        "| scene | triangles | MergeTree | binned SAH HW | ratio | GPU HLBVH | ratio | input / runs w / runs r / output | B per triangle | MergeTree (MiB) | box grid |"
-    )?;
-    writeln!(md, "|---|---:|---|---|---|---|---|---|---:|---|---|")?;
+    let mut table = Table::text(&[
+        "scene",
+        "triangles",
+        "MergeTree",
+        "binned SAH HW",
+        "ratio",
+        "GPU HLBVH",
+        "ratio",
+        "input / runs w / runs r / output",
+        "B per triangle",
+        "MergeTree (MiB)",
+        "box grid",
+    ])
+    .right(&[1, 8]);
     let mut labels = Vec::new();
     let mut series: Vec<(String, Vec<Option<f64>>)> = [
         "MergeTree ours",
@@ -1019,47 +1114,49 @@ fn write_table6(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> 
         let boxed = &r.boxgrid[s];
         let box_mb = boxed.mb();
         let box_leaf = n as f64 / (boxed.nodes + 1) as f64;
-        writeln!(
-            csv,
-            "{},{n},{mt:.3},{},{bh:.3},{},{:.3},{},{gpu:.3},{},{:.3},{},{:.3},{:.3},{:.3},{:.3},{:.1},{mib:.3},{},{leaf:.2},{box_mb:.3},{},{box_leaf:.2}",
-            scene.name,
-            csv_pair(mt, t.map(|t| t[0])),
-            csv_pair(bh, t.map(|t| t[1])),
-            bh / mt,
-            ratio(1).map_or(String::new(), |x| format!("{x:.3}")),
-            csv_pair(gpu, t.map(|t| t[2])),
-            gpu / mt,
-            ratio(2).map_or(String::new(), |x| format!("{x:.3}")),
-            split[0],
-            split[1],
-            split[2],
-            split[3],
-            mt * 1e6 / n as f64,
-            t.map_or(String::new(), |t| format!("{:.2}", (mib / t[0] - 1.0) * 100.0)),
-            t.map_or(String::new(), |t| format!("{:.2}", (box_mb / t[0] - 1.0) * 100.0)),
-        )?;
+        let mut row = vec![scene.name.clone(), n.to_string(), format!("{mt:.3}")];
+        row.extend(csv_pair(mt, t.map(|t| t[0])));
+        row.push(format!("{bh:.3}"));
+        row.extend(csv_pair(bh, t.map(|t| t[1])));
+        row.push(format!("{:.3}", bh / mt));
+        row.push(ratio(1).map_or(String::new(), |x| format!("{x:.3}")));
+        row.push(format!("{gpu:.3}"));
+        row.extend(csv_pair(gpu, t.map(|t| t[2])));
+        row.push(format!("{:.3}", gpu / mt));
+        row.push(ratio(2).map_or(String::new(), |x| format!("{x:.3}")));
+        row.extend(split.map(|x| format!("{x:.3}")));
+        row.push(format!("{:.1}", mt * 1e6 / n as f64));
+        row.push(format!("{mib:.3}"));
+        row.push(t.map_or(String::new(), |t| {
+            format!("{:.2}", (mib / t[0] - 1.0) * 100.0)
+        }));
+        row.push(format!("{leaf:.2}"));
+        row.push(format!("{box_mb:.3}"));
+        row.push(t.map_or(String::new(), |t| {
+            format!("{:.2}", (box_mb / t[0] - 1.0) * 100.0)
+        }));
+        row.push(format!("{box_leaf:.2}"));
+        csv.push(row);
         let rat = |x: f64, i: usize| match ratio(i) {
             Some(tr) => format!("{:.1}x / {tr:.1}x", x / mt),
             None => format!("{:.1}x", x / mt),
         };
-        writeln!(
-            md,
-            "| {} | {} | {} | {} | {} | {} | {} | {:.1} / {:.1} / {:.1} / {:.1} | {:.0} | {} ({leaf:.2}) | {} ({box_leaf:.2}) |",
-            scene.name,
+        table.push([
+            scene.name.clone(),
             thousands(n as u64),
             pair(mt, t.map(|t| t[0]), 1),
             pair(bh, t.map(|t| t[1]), 1),
             rat(bh, 1),
             pair(gpu, t.map(|t| t[2]), 1),
             rat(gpu, 2),
-            split[0],
-            split[1],
-            split[2],
-            split[3],
-            mt * 1e6 / n as f64,
-            pair(mib, t.map(|t| t[0]), 1),
-            pair(box_mb, t.map(|t| t[0]), 1),
-        )?;
+            format!(
+                "{:.1} / {:.1} / {:.1} / {:.1}",
+                split[0], split[1], split[2], split[3]
+            ),
+            format!("{:.0}", mt * 1e6 / n as f64),
+            format!("{} ({leaf:.2})", pair(mib, t.map(|t| t[0]), 1)),
+            format!("{} ({box_leaf:.2})", pair(box_mb, t.map(|t| t[0]), 1)),
+        ]);
         if let Some(t) = t {
             labels.push(scene.name.clone());
             for (i, v) in [mt, t[0], bh, t[1], gpu, t[2]].into_iter().enumerate() {
@@ -1067,8 +1164,8 @@ fn write_table6(out: &Path, md: &mut String, r: &Results) -> anyhow::Result<()> 
             }
         }
     }
-    writeln!(md)?;
-    write_file(out, "table6.csv", &csv)?;
+    writeln!(md, "{}", table.markdown())?;
+    write_file(out, "table6.csv", &csv.csv())?;
     if !labels.is_empty() {
         write_file(
             out,
@@ -1115,8 +1212,8 @@ mod tests {
         assert_eq!(diff(0.9, 1.0), "-10.0%");
         assert_eq!(pair(2.0, Some(4.0), 1), "2.0 / 4.0 (-50.0%)");
         assert_eq!(pair(2.0, None, 2), "2.00");
-        assert_eq!(csv_pair(3.0, Some(2.0)), "2,50.00");
-        assert_eq!(csv_pair(3.0, None), ",");
+        assert_eq!(csv_pair(3.0, Some(2.0)), ["2", "50.00"]);
+        assert_eq!(csv_pair(3.0, None), ["", ""]);
     }
 
     #[test]

@@ -18,6 +18,7 @@
 //!
 //! Every figure here is a model input with its source; `docs/energy-model.md` lists them.
 
+use outfile::table::Table;
 use serde::Serialize;
 
 /// A process node with CACTI data.
@@ -755,28 +756,35 @@ pub fn component_rows(conv: &Conventions) -> Vec<ComponentRow> {
 
 /// [`component_rows`] as Markdown.
 pub fn component_markdown(rows: &[ComponentRow]) -> String {
-    let mut m = String::from(
-        "| kind | what | node | energy pJ | static mW | area mm2 |\n|---|---|---|---:|---:|---:|\n",
-    );
+    let mut t = Table::text(&["kind", "what", "node", "energy pJ", "static mW", "area mm2"])
+        .right(&[3, 4, 5]);
     for r in rows {
-        m += &format!(
-            "| {} | {} | {} | {:.3} | {:.3} | {:.4} |\n",
-            r.kind, r.what, r.node, r.energy_pj, r.static_mw, r.area_mm2
-        );
+        t.push([
+            r.kind.to_string(),
+            r.what.clone(),
+            r.node.to_string(),
+            format!("{:.3}", r.energy_pj),
+            format!("{:.3}", r.static_mw),
+            format!("{:.4}", r.area_mm2),
+        ]);
     }
-    m
+    t.markdown()
 }
 
 /// [`component_rows`] as CSV.
 pub fn component_csv(rows: &[ComponentRow]) -> String {
-    let mut c = String::from("kind,what,node,energy_pj,static_mw,area_mm2\n");
+    let mut t = Table::text(&["kind", "what", "node", "energy_pj", "static_mw", "area_mm2"]);
     for r in rows {
-        c += &format!(
-            "{},\"{}\",{},{},{},{}\n",
-            r.kind, r.what, r.node, r.energy_pj, r.static_mw, r.area_mm2
-        );
+        t.push([
+            r.kind.to_string(),
+            r.what.clone(),
+            r.node.to_string(),
+            r.energy_pj.to_string(),
+            r.static_mw.to_string(),
+            r.area_mm2.to_string(),
+        ]);
     }
-    c
+    t.csv()
 }
 
 #[cfg(test)]

@@ -3,6 +3,7 @@
 
 use super::{bench_build, bench_compare, bench_refit, bench_trace};
 use crate::progress::Ui;
+use report::table::Table;
 
 /// Arguments of `arbor bench`.
 #[derive(clap::Args, Debug)]
@@ -93,63 +94,39 @@ impl RunInfo {
     }
 }
 
-/// A table as aligned text: each column padded to its widest cell (header included), two
-/// spaces apart, one line per row with trailing spaces trimmed; `right(k)` right-aligns
-/// column `k` (numbers), the others are left-aligned.
-pub fn aligned_table(
-    headers: &[&str],
-    rows: &[Vec<String>],
-    right: impl Fn(usize) -> bool,
-) -> String {
-    let mut width: Vec<usize> = headers.iter().map(|h| h.chars().count()).collect();
-    for r in rows {
-        for (w, c) in width.iter_mut().zip(r) {
-            *w = (*w).max(c.chars().count());
-        }
-    }
-    let line = |cells: &mut dyn Iterator<Item = &str>| {
-        let mut l = String::new();
-        for (k, (v, &w)) in cells.zip(&width).enumerate() {
-            if right(k) {
-                l += &format!("{v:>w$}  ");
-            } else {
-                l += &format!("{v:<w$}  ");
-            }
-        }
-        l.trim_end().to_string() + "\n"
-    };
-    let mut s = line(&mut headers.iter().copied());
-    for r in rows {
-        s += &line(&mut r.iter().map(String::as_str));
-    }
-    s
+/// The goal table of a benchmark report: one row per goal, its last column named `last`.
+pub fn goal_table(last: &str) -> Table {
+    Table::text(&["goal", "scene", "threads", "value", "target", "met", last]).right(&[2, 3, 4])
 }
 
-/// A benchmark report in Markdown: the preamble as a list, the measurement table (`align`
-/// is its separator row), and, when there are goals, the goal table whose last column is
-/// named `goal_last` (each goal line already `a | b | ...`).
-pub fn markdown_report(
-    preamble: &[String],
-    headers: &[&str],
-    align: &str,
-    rows: &[Vec<String>],
-    goal_last: &str,
-    goals: &[String],
-) -> String {
+/// A benchmark report in Markdown: the preamble as a list, the measurement table and, when
+/// it has rows, the goal table.
+pub fn markdown_report(preamble: &[String], table: &Table, goals: Option<&Table>) -> String {
     let mut s = String::new();
     for l in preamble {
         s += &format!("- {l}\n");
     }
-    s += &format!("\n| {} |\n{align}\n", headers.join(" | "));
-    for r in rows {
-        s += &format!("| {} |\n", r.join(" | "));
+    s += "\n";
+    s += &table.markdown();
+    if let Some(g) = goals.filter(|g| !g.rows.is_empty()) {
+        s += "\n";
+        s += &g.markdown();
     }
-    if !goals.is_empty() {
-        s += &format!("\n| goal | scene | threads | value | target | met | {goal_last} |\n");
-        s += "|---|---|---:|---:|---:|---|---|\n";
-        for l in goals {
-            s += &format!("| {l} |\n");
-        }
+    s
+}
+
+/// A benchmark report as terminal text: the preamble lines, the measurement table aligned
+/// and, when it has rows, the goal table after a `goals:` line.
+pub fn text_report(preamble: &[String], table: &Table, goals: Option<&Table>) -> String {
+    let mut s = String::new();
+    for l in preamble {
+        s += &format!("{l}\n");
+    }
+    s += "\n";
+    s += &table.aligned();
+    if let Some(g) = goals.filter(|g| !g.rows.is_empty()) {
+        s += "\ngoals:\n";
+        s += &g.aligned();
     }
     s
 }

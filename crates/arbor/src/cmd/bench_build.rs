@@ -20,7 +20,7 @@
 //!
 //! The goals of issue 3 are evaluated from the same rows and printed after the table.
 
-use super::bench::{aligned_table, markdown_report, RunInfo};
+use super::bench::{goal_table, markdown_report, text_report, RunInfo};
 use super::bench_record::{Record, RecordEntry};
 use super::build::{builder, mesh_aabbs, BuildConfig, SAH_REFERENCE_MAX_TRIANGLES};
 use super::{open_scene, thousands, SceneArgs};
@@ -30,6 +30,7 @@ use anyhow::{bail, Context};
 use bvh::Tree;
 use geom::Aabb;
 use peers::{BuildProbe, BvhCrateBuilder, ObvhsBuilder, ObvhsPreset};
+use report::table::{Align, Table};
 use serde::Serialize;
 use std::sync::atomic::{AtomicUsize, Ordering::Relaxed};
 use std::time::{Duration, Instant};
@@ -938,88 +939,86 @@ fn preamble(d: &BenchJson) -> Vec<String> {
     v
 }
 
-fn goal_lines(d: &BenchJson) -> Vec<String> {
-    d.goals
-        .iter()
-        .map(|g| {
-            format!(
-                "{} | {} | {} | {:.3} | {} | {} | {}",
-                g.goal,
-                short(&g.scene),
-                g.threads,
-                g.value,
-                g.target,
-                if g.met { "met" } else { "NOT met" },
-                g.detail
-            )
-        })
-        .collect()
+/// The goals as a table.
+fn goal_rows(d: &BenchJson) -> Table {
+    let mut t = goal_table("detail");
+    for g in &d.goals {
+        t.push([
+            g.goal.to_string(),
+            short(&g.scene).to_string(),
+            g.threads.to_string(),
+            format!("{:.3}", g.value),
+            g.target.to_string(),
+            if g.met { "met" } else { "NOT met" }.to_string(),
+            g.detail.clone(),
+        ]);
+    }
+    t
 }
 
-/// The aligned text table.
+/// The measurements as a table (text columns left, numbers right).
+fn table(d: &BenchJson) -> Table {
+    let mut t = Table::new(&HEADERS).with_align(2, Align::Left);
+    for r in &d.rows {
+        t.push(cells(r));
+    }
+    t
+}
+
+/// The aligned text tables.
 fn text(d: &BenchJson) -> String {
-    let mut s = String::new();
-    for l in preamble(d) {
-        s += &format!("{l}\n");
-    }
-    s += "\n";
-    let rows: Vec<Vec<String>> = d.rows.iter().map(|r| cells(r).to_vec()).collect();
-    // Text columns left-aligned, numbers right-aligned.
-    s += &aligned_table(&HEADERS, &rows, |k| k != 0 && k != 2);
-    if !d.goals.is_empty() {
-        s += "\ngoals (goal | scene | threads | value | target | met | detail):\n";
-        for l in goal_lines(d) {
-            s += &format!("  {l}\n");
-        }
-    }
-    s
+    text_report(&preamble(d), &table(d), Some(&goal_rows(d)))
 }
 
 /// Markdown tables: the measurements and the goals.
 fn markdown(d: &BenchJson) -> String {
-    let rows: Vec<Vec<String>> = d.rows.iter().map(|r| cells(r).to_vec()).collect();
-    markdown_report(
-        &preamble(d),
-        &HEADERS,
-        "|---|---:|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|",
-        &rows,
-        "detail",
-        &goal_lines(d),
-    )
+    markdown_report(&preamble(d), &table(d), Some(&goal_rows(d)))
 }
 
 /// One CSV line per row, with a header; numbers unrounded.
 fn csv(d: &BenchJson) -> String {
-    let q = report::table::csv_field;
     let o = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
-    let mut s = String::from(
-        "scene,triangles,builder,library,width,threads,best_ms,median_ms,mtris_per_s,sah,\
-         sah_vs_sweep,vs_embree_low,vs_embree_medium,peak_bytes,input_bytes,output_bytes,\
-         memory_ratio\n",
-    );
+    let mut t = Table::text(&[
+        "scene",
+        "triangles",
+        "builder",
+        "library",
+        "width",
+        "threads",
+        "best_ms",
+        "median_ms",
+        "mtris_per_s",
+        "sah",
+        "sah_vs_sweep",
+        "vs_embree_low",
+        "vs_embree_medium",
+        "peak_bytes",
+        "input_bytes",
+        "output_bytes",
+        "memory_ratio",
+    ]);
     for r in &d.rows {
-        s += &format!(
-            "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n",
-            q(&r.scene),
-            r.triangles,
-            q(&r.builder),
-            q(r.library),
-            r.width,
-            r.threads,
-            r.best_ms,
-            r.median_ms,
-            r.mtris_per_s,
-            r.sah,
+        t.push([
+            r.scene.clone(),
+            r.triangles.to_string(),
+            r.builder.clone(),
+            r.library.to_string(),
+            r.width.to_string(),
+            r.threads.to_string(),
+            r.best_ms.to_string(),
+            r.median_ms.to_string(),
+            r.mtris_per_s.to_string(),
+            r.sah.to_string(),
             o(r.sah_vs_sweep),
             o(r.vs_embree_low),
             o(r.vs_embree_medium),
-            r.peak_bytes,
-            r.input_bytes,
-            r.output_bytes,
-            r.memory_ratio
-        );
+            r.peak_bytes.to_string(),
+            r.input_bytes.to_string(),
+            r.output_bytes.to_string(),
+            r.memory_ratio.to_string(),
+        ]);
     }
-    s
+    t.csv()
 }
 
 #[cfg(test)]

@@ -7,10 +7,10 @@
 //! between its own runs cannot show a 5% change. Records from different CPU models are
 //! compared with a warning, since their ratios measure the machines, not the code.
 
-use super::bench::aligned_table;
 use super::bench_record::{Record, RecordEntry};
 use crate::progress::Ui;
 use anyhow::bail;
+use report::table::Table;
 use serde::Serialize;
 use std::path::PathBuf;
 
@@ -183,34 +183,28 @@ fn text(c: &Comparison, old: &Record, new: &Record) -> String {
         s += &format!("warning: {w}\n");
     }
     s += "\n";
-    let rows: Vec<Vec<String>> = c
-        .entries
-        .iter()
-        .map(|e| {
-            vec![
-                e.scene.clone(),
-                e.subject.clone(),
-                e.threads.to_string(),
-                format!("{:.3}", e.old_ms),
-                format!("{:.3}", e.new_ms),
-                format!("{:.3}", e.ratio),
-                format!("{:.1}%", e.noise * 100.0),
-                match e.verdict {
-                    Verdict::Regression => "REGRESSION",
-                    Verdict::Faster => "faster",
-                    Verdict::Same => "within noise",
-                }
-                .to_string(),
-            ]
-        })
-        .collect();
-    s += &aligned_table(
-        &[
-            "scene", "subject", "threads", "old ms", "new ms", "new/old", "noise", "verdict",
-        ],
-        &rows,
-        |k| (2..=6).contains(&k),
-    );
+    let mut t = Table::text(&[
+        "scene", "subject", "threads", "old ms", "new ms", "new/old", "noise", "verdict",
+    ])
+    .right(&[2, 3, 4, 5, 6]);
+    for e in &c.entries {
+        t.push([
+            e.scene.clone(),
+            e.subject.clone(),
+            e.threads.to_string(),
+            format!("{:.3}", e.old_ms),
+            format!("{:.3}", e.new_ms),
+            format!("{:.3}", e.ratio),
+            format!("{:.1}%", e.noise * 100.0),
+            match e.verdict {
+                Verdict::Regression => "REGRESSION",
+                Verdict::Faster => "faster",
+                Verdict::Same => "within noise",
+            }
+            .to_string(),
+        ]);
+    }
+    s += &t.aligned();
     let faster = c
         .entries
         .iter()

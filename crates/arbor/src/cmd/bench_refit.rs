@@ -22,13 +22,14 @@
 //! (`agreement`): Arbor's kernels must agree exactly (a refitted tree traces like a fresh
 //! one), Embree up to its own rounding.
 
-use super::bench::{aligned_table, markdown_report, RunInfo};
+use super::bench::{markdown_report, text_report, RunInfo};
 pub use super::bench_build::Format;
 use super::bench_build::Rendered;
 use super::{open_scene, thousands, SceneArgs};
 use crate::progress::Ui;
 use anyhow::Context;
 use geom::{Ray, Triangle};
+use report::table::Table;
 use serde::Serialize;
 use std::time::Instant;
 use trace::{Accel, KernelOptions, RayStats, TraversalStack, Traverse};
@@ -431,47 +432,49 @@ fn cells(r: &RefitRow) -> [String; 8] {
     ]
 }
 
-fn text(d: &BenchRefitJson) -> String {
-    let mut s = String::new();
-    for l in preamble(d) {
-        s += &format!("{l}\n");
+/// The measurements as a table.
+fn table(d: &BenchRefitJson) -> Table {
+    let mut t = Table::text(&HEADERS).right(&[1, 3, 4, 5, 6, 7]);
+    for r in &d.rows {
+        t.push(cells(r));
     }
-    let rows: Vec<Vec<String>> = d.rows.iter().map(|r| cells(r).to_vec()).collect();
-    s += &aligned_table(&HEADERS, &rows, |_| false);
-    s
+    t
+}
+
+fn text(d: &BenchRefitJson) -> String {
+    text_report(&preamble(d), &table(d), None)
 }
 
 fn markdown(d: &BenchRefitJson) -> String {
-    let rows: Vec<Vec<String>> = d.rows.iter().map(|r| cells(r).to_vec()).collect();
-    markdown_report(
-        &preamble(d),
-        &HEADERS,
-        "|---|---:|---|---:|---:|---:|---:|---:|",
-        &rows,
-        "",
-        &[],
-    )
+    markdown_report(&preamble(d), &table(d), None)
 }
 
 fn csv(d: &BenchRefitJson) -> String {
-    let mut s = String::from(
-        "scene,triangles,frames,tracer,best_ms_per_frame,median_ms_per_frame,vs_embree,agreement,build_ms\n",
-    );
+    let mut t = Table::text(&[
+        "scene",
+        "triangles",
+        "frames",
+        "tracer",
+        "best_ms_per_frame",
+        "median_ms_per_frame",
+        "vs_embree",
+        "agreement",
+        "build_ms",
+    ]);
     for r in &d.rows {
-        s += &format!(
-            "{},{},{},\"{}\",{},{},{},{},{}\n",
-            r.scene,
-            r.triangles,
-            r.frames,
-            r.tracer.replace('"', "\"\""),
-            r.best_ms_per_frame,
-            r.median_ms_per_frame,
+        t.push([
+            r.scene.clone(),
+            r.triangles.to_string(),
+            r.frames.to_string(),
+            r.tracer.clone(),
+            r.best_ms_per_frame.to_string(),
+            r.median_ms_per_frame.to_string(),
             r.vs_embree.map_or(String::new(), |v| v.to_string()),
-            r.agreement,
-            r.build_ms
-        );
+            r.agreement.to_string(),
+            r.build_ms.to_string(),
+        ]);
     }
-    s
+    t.csv()
 }
 
 #[cfg(test)]

@@ -15,7 +15,7 @@
 //! The issue's goal is evaluated from the same rows: Arbor's best kernel at least 0.7x of
 //! Embree's single-ray throughput on incoherent rays.
 
-use super::bench::{aligned_table, markdown_report, RunInfo};
+use super::bench::{goal_table, markdown_report, text_report, RunInfo};
 pub use super::bench_build::Format;
 use super::bench_build::Rendered;
 use super::bench_record::{Record, RecordEntry};
@@ -24,6 +24,7 @@ use super::{open_scene, thousands, SceneArgs};
 use crate::progress::Ui;
 use anyhow::Context;
 use peers::trace_bench::{BenchScene, TraceRow};
+use report::table::Table;
 use serde::Serialize;
 
 /// Issue 4's goal: Arbor's best kernel over Embree's `rtcIntersect1` on incoherent rays.
@@ -325,68 +326,69 @@ fn cells(r: &TraceRow) -> [String; 10] {
     ]
 }
 
-fn goal_lines(d: &BenchTraceJson) -> Vec<String> {
-    d.goals
-        .iter()
-        .map(|g| {
-            format!(
-                "best Arbor kernel vs Embree, diffuse | {} | {} | {:.2}x (CPU {:.2}x) | >= {GOAL_VS_EMBREE}x | {} | {}",
-                g.scene,
-                g.threads,
-                g.vs_embree,
-                g.vs_embree_cpu,
-                if g.met { "yes" } else { "no" },
-                g.best_kernel
-            )
-        })
-        .collect()
+/// The goals as a table.
+fn goal_rows(d: &BenchTraceJson) -> Table {
+    let mut t = goal_table("kernel");
+    for g in &d.goals {
+        t.push([
+            "best Arbor kernel vs Embree, diffuse".to_string(),
+            g.scene.clone(),
+            g.threads.to_string(),
+            format!("{:.2}x (CPU {:.2}x)", g.vs_embree, g.vs_embree_cpu),
+            format!(">= {GOAL_VS_EMBREE}x"),
+            if g.met { "yes" } else { "no" }.to_string(),
+            g.best_kernel.clone(),
+        ]);
+    }
+    t
+}
+
+/// The measurements as a table.
+fn table(d: &BenchTraceJson) -> Table {
+    let mut t = Table::text(&HEADERS).right(&[3, 4, 5, 6, 7, 8, 9]);
+    for r in &d.rows {
+        t.push(cells(r));
+    }
+    t
 }
 
 fn text(d: &BenchTraceJson) -> String {
-    let mut s = String::new();
-    for l in preamble(d) {
-        s += &format!("{l}\n");
-    }
-    let rows: Vec<Vec<String>> = d.rows.iter().map(|r| cells(r).to_vec()).collect();
-    s += &aligned_table(&HEADERS, &rows, |_| false);
-    for g in goal_lines(d) {
-        s += &format!("goal: {}\n", g.replace(" | ", "; "));
-    }
-    s
+    text_report(&preamble(d), &table(d), Some(&goal_rows(d)))
 }
 
 fn markdown(d: &BenchTraceJson) -> String {
-    let rows: Vec<Vec<String>> = d.rows.iter().map(|r| cells(r).to_vec()).collect();
-    markdown_report(
-        &preamble(d),
-        &HEADERS,
-        "|---|---|---|---:|---:|---:|---:|---:|---:|---:|",
-        &rows,
-        "kernel",
-        &goal_lines(d),
-    )
+    markdown_report(&preamble(d), &table(d), Some(&goal_rows(d)))
 }
 
 fn csv(d: &BenchTraceJson) -> String {
-    let mut s = String::from(
-        "scene,rays,ray_count,tracer,threads,mrays_per_s,vs_embree,mrays_per_cpu_s,vs_embree_cpu,agreement,build_ms\n",
-    );
     let opt = |v: Option<f64>| v.map_or(String::new(), |v| v.to_string());
+    let mut t = Table::text(&[
+        "scene",
+        "rays",
+        "ray_count",
+        "tracer",
+        "threads",
+        "mrays_per_s",
+        "vs_embree",
+        "mrays_per_cpu_s",
+        "vs_embree_cpu",
+        "agreement",
+        "build_ms",
+    ]);
     for r in &d.rows {
-        s += &format!(
-            "{},{},{},\"{}\",{},{},{},{},{},{},{}\n",
-            r.scene,
-            r.rays,
-            r.ray_count,
-            r.tracer.replace('"', "\"\""),
-            r.threads,
-            r.mrays_per_s,
+        t.push([
+            r.scene.clone(),
+            r.rays.to_string(),
+            r.ray_count.to_string(),
+            r.tracer.clone(),
+            r.threads.to_string(),
+            r.mrays_per_s.to_string(),
             opt(r.vs_embree),
-            r.mrays_per_cpu_s,
+            r.mrays_per_cpu_s.to_string(),
             opt(r.vs_embree_cpu),
-            r.agreement,
-            r.build_ms
-        );
+            r.agreement.to_string(),
+            r.build_ms.to_string(),
+        ]);
     }
-    s
+    t.csv()
 }

@@ -138,7 +138,7 @@ fn text_markdown_csv_and_out_folder() {
     assert!(lines[0].starts_with("scene,rays,ray_count,tracer,threads,mrays_per_s"));
     assert_eq!(lines.len(), rows + 1);
     assert!(
-        lines[1].starts_with("soup,primary,1536,\"arbor bvh2 binned-sah\",1,"),
+        lines[1].starts_with("soup,primary,1536,arbor bvh2 binned-sah,1,"),
         "{csv}"
     );
     let md = std::fs::read_to_string(out_dir.join("bench-trace.md")).unwrap();

@@ -444,24 +444,33 @@ fn write_table1(
     variants: &[Variant],
 ) -> anyhow::Result<()> {
     let labels: Vec<String> = variants.iter().map(Variant::label).collect();
-    let mut csv = String::from("metric,stat,variant,ours,thesis\n");
+    let mut csv = Table::text(&["metric", "stat", "variant", "ours", "thesis"]);
     writeln!(
         md,
         "## Table 1 analogue: backtracking and traffic (ours / [P3])\n"
     )?;
-    writeln!(md, "| metric | stat | {} |", labels.join(" | "))?;
-    writeln!(md, "|---|---|{}", "---|".repeat(labels.len()))?;
+    let headers: Vec<&str> = ["metric", "stat"]
+        .into_iter()
+        .chain(labels.iter().map(String::as_str))
+        .collect();
+    let mut table = Table::text(&headers);
     for (row, (m, k, ours)) in t.iter().enumerate() {
         let thesis = P3_TABLE1[row].2;
-        let mut cells = Vec::new();
+        let mut cells = vec![m.to_string(), k.to_string()];
         for (i, l) in labels.iter().enumerate() {
-            writeln!(csv, "{m},{k},{l},{},{}", opt(ours[i]), opt(thesis[i]))?;
+            csv.push([
+                m.to_string(),
+                k.to_string(),
+                l.clone(),
+                opt(ours[i]),
+                opt(thesis[i]),
+            ]);
             cells.push(format!("{} / {}", fmt(ours[i]), fmt(thesis[i])));
         }
-        writeln!(md, "| {m} | {k} | {} |", cells.join(" | "))?;
+        table.push(cells);
     }
-    writeln!(md)?;
-    write(out, "table1.csv", &csv)?;
+    writeln!(md, "{}", table.markdown())?;
+    write(out, "table1.csv", &csv.csv())?;
     // SVG: average traffic (LBVH and refit), ours vs thesis, per variant.
     let mut series = Vec::new();
     for (row, name) in [(5usize, "LBVH"), (8, "refit")] {
@@ -622,15 +631,20 @@ fn write_quality(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Resu
 }
 
 fn write_fig7(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Result<()> {
-    let mut csv = String::from("scene,variant,depth,iterations\n");
+    let mut csv = Table::text(&["scene", "variant", "depth", "iterations"]);
     for r in runs {
         for v in &r.study.variants[1..] {
             for (d, n) in v.build.backtrack_depth_hist.iter().enumerate() {
-                writeln!(csv, "{},{},{},{}", r.name, v.label, d + 1, n)?;
+                csv.push([
+                    r.name.to_string(),
+                    v.label.to_string(),
+                    (d + 1).to_string(),
+                    n.to_string(),
+                ]);
             }
         }
     }
-    write(out, "fig7.csv", &csv)?;
+    write(out, "fig7.csv", &csv.csv())?;
     // Figure for the first scene (the paper shows Elephant, which we do not have).
     let Some(r) = runs.first() else { return Ok(()) };
     let rel = &r.study.variants[1].build.backtrack_depth_hist;
@@ -659,22 +673,27 @@ fn write_fig7(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Result<
         "## Backtracking depth histogram ({}, cf. \\[P3\\] Fig. 7)\n",
         r.name
     )?;
-    writeln!(md, "| depth | {} |", labels.join(" | "))?;
-    writeln!(md, "|---|{}", "---|".repeat(depth))?;
+    let headers: Vec<&str> = std::iter::once("depth")
+        .chain(labels.iter().map(String::as_str))
+        .collect();
+    let mut table = Table::text(&headers);
     for (n, h) in [("relative", rel), ("modulo", modu)] {
-        let cells: Vec<String> = (0..depth)
-            .map(|d| h.get(d).unwrap_or(&0).to_string())
-            .collect();
-        writeln!(md, "| {n} | {} |", cells.join(" | "))?;
+        let cells = (0..depth).map(|d| h.get(d).unwrap_or(&0).to_string());
+        table.push(std::iter::once(n.to_string()).chain(cells));
     }
-    writeln!(md)?;
+    writeln!(md, "{}", table.markdown())?;
     Ok(())
 }
 
 fn write_fig10(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Result<()> {
-    let mut csv = String::from(
-        "scene,min_scale_exp,backtrack_per_prim,backtrack_per_prim_m4,sah,sah_vs_min\n",
-    );
+    let mut csv = Table::text(&[
+        "scene",
+        "min_scale_exp",
+        "backtrack_per_prim",
+        "backtrack_per_prim_m4",
+        "sah",
+        "sah_vs_min",
+    ]);
     let mut cloth: Option<Vec<(f64, f64, f64)>> = None;
     let mut others: Vec<Vec<(f64, f64, f64)>> = Vec::new();
     for r in runs {
@@ -683,11 +702,14 @@ fn write_fig10(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Result
         let mut pts = Vec::new();
         for p in sw {
             let rel = if min_sah > 0.0 { p.sah / min_sah } else { 1.0 };
-            writeln!(
-                csv,
-                "{},{},{:.6},{:.6},{:.6},{:.6}",
-                r.name, p.min_scale_exp, p.backtrack_per_prim, p.backtrack_per_prim_m4, p.sah, rel
-            )?;
+            csv.push([
+                r.name.to_string(),
+                p.min_scale_exp.to_string(),
+                format!("{:.6}", p.backtrack_per_prim),
+                format!("{:.6}", p.backtrack_per_prim_m4),
+                format!("{:.6}", p.sah),
+                format!("{rel:.6}"),
+            ]);
             pts.push((p.backtrack_per_prim, p.backtrack_per_prim_m4, rel));
         }
         if r.name == "cloth" {
@@ -696,7 +718,7 @@ fn write_fig10(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Result
             others.push(pts);
         }
     }
-    write(out, "fig10.csv", &csv)?;
+    write(out, "fig10.csv", &csv.csv())?;
     let labels: Vec<String> = SWEEP_EXPS.iter().map(|e| e.to_string()).collect();
     let avg = |k: usize| -> Vec<Option<f64>> {
         (0..SWEEP_EXPS.len())
@@ -723,8 +745,10 @@ fn write_fig10(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Result
          against the minimum scale exponent; cloth vs the average of the other scenes. [P3]: cloth backtracks \
          heavily below 2^-30; quality is unaffected up to 2^-15 and suffers near 2^-10.\n"
     )?;
-    writeln!(md, "| min scale | {} |", labels.join(" | "))?;
-    writeln!(md, "|---|{}", "---|".repeat(labels.len()))?;
+    let headers: Vec<&str> = std::iter::once("min scale")
+        .chain(labels.iter().map(String::as_str))
+        .collect();
+    let mut table = Table::text(&headers);
     for (n, v) in [
         ("cloth backtracks/tri", cl(0)),
         ("cloth backtracks/tri (M4)", cl(1)),
@@ -733,13 +757,12 @@ fn write_fig10(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Result
         ("others backtracks/tri (M4)", avg(1)),
         ("others SAH / min", avg(2)),
     ] {
-        let cells: Vec<String> = v
+        let cells = v
             .iter()
-            .map(|x| x.map_or("-".into(), |x| format!("{x:.3}")))
-            .collect();
-        writeln!(md, "| {n} | {} |", cells.join(" | "))?;
+            .map(|x| x.map_or("-".into(), |x| format!("{x:.3}")));
+        table.push(std::iter::once(n.to_string()).chain(cells));
     }
-    writeln!(md)?;
+    writeln!(md, "{}", table.markdown())?;
     write(
         out,
         "fig10.svg",
@@ -753,45 +776,45 @@ fn write_fig10(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Result
 }
 
 fn write_bits(out: &Path, md: &mut String, runs: &[SceneRun]) -> anyhow::Result<()> {
-    let mut csv = String::from(
-        "scene,bits,pair_bytes,sah_vs_uncompressed,backtrack_per_prim,backtrack_per_prim_m4\n",
-    );
+    let mut csv = Table::text(&[
+        "scene",
+        "bits",
+        "pair_bytes",
+        "sah_vs_uncompressed",
+        "backtrack_per_prim",
+        "backtrack_per_prim_m4",
+    ]);
     writeln!(md, "## Coordinate bits\n")?;
     writeln!(
         md,
         "SAH of the decoded (top-down) CBVH over the uncompressed LBVH, and backtracking steps per triangle \
          (plain relative / modulo with depth-4 treelets), against the bits per coordinate. [P3] uses 6 bits.\n"
     )?;
-    writeln!(
-        md,
-        "| scene | {} |",
-        BITS.map(|b| format!("N = {b} ({} B)", cbvh::format::pair_bytes(b)))
-            .join(" | ")
-    )?;
-    writeln!(md, "|---|{}", "---|".repeat(BITS.len()))?;
+    let headers: Vec<String> = std::iter::once("scene".to_string())
+        .chain(BITS.map(|b| format!("N = {b} ({} B)", cbvh::format::pair_bytes(b))))
+        .collect();
+    let mut table = Table::text(&headers);
     for r in runs {
         let Some(pts) = &r.bits else { continue };
-        let mut cells = Vec::new();
+        let mut cells = vec![r.name.to_string()];
         for p in pts {
-            writeln!(
-                csv,
-                "{},{},{},{:.6},{:.6},{:.6}",
-                r.name,
-                p.bits,
-                p.pair_bytes,
-                p.sah_vs_uncompressed,
-                p.backtrack_per_prim,
-                p.backtrack_per_prim_m4
-            )?;
+            csv.push([
+                r.name.to_string(),
+                p.bits.to_string(),
+                p.pair_bytes.to_string(),
+                format!("{:.6}", p.sah_vs_uncompressed),
+                format!("{:.6}", p.backtrack_per_prim),
+                format!("{:.6}", p.backtrack_per_prim_m4),
+            ]);
             cells.push(format!(
                 "{:.3}, {:.2} / {:.3}",
                 p.sah_vs_uncompressed, p.backtrack_per_prim, p.backtrack_per_prim_m4
             ));
         }
-        writeln!(md, "| {} | {} |", r.name, cells.join(" | "))?;
+        table.push(cells);
     }
-    writeln!(md)?;
-    write(out, "bits.csv", &csv)
+    writeln!(md, "{}", table.markdown())?;
+    write(out, "bits.csv", &csv.csv())
 }
 
 #[cfg(test)]

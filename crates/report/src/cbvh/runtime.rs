@@ -31,6 +31,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use crate::fs::write_file as write;
 use crate::svg::bar_svg;
+use crate::table::Table;
 
 /// \[P3\] §5.3's memory: "a dual-channel, 32-bit LPDDR3-1600 memory interface".
 pub const DEFAULT_DRAM: &str = "lpddr3-1600-2x32";
@@ -299,9 +300,20 @@ pub fn write_table2(
     rows: &[RuntimeRow],
     dram: &str,
 ) -> anyhow::Result<()> {
-    let mut csv = String::from(
-        "scene,avg_leaf_size,thesis_leaf_size,variant,ms,vs_bvh,thesis_ms,thesis_vs_bvh,diff_vs_bvh_pct,bytes,backtrack_steps,node_pairs\n",
-    );
+    let mut csv = Table::text(&[
+        "scene",
+        "avg_leaf_size",
+        "thesis_leaf_size",
+        "variant",
+        "ms",
+        "vs_bvh",
+        "thesis_ms",
+        "thesis_vs_bvh",
+        "diff_vs_bvh_pct",
+        "bytes",
+        "backtrack_steps",
+        "node_pairs",
+    ]);
     writeln!(md, "## Table 2 analogue: LBVH runtime (\\[P3\\] §5.3)\n")?;
     writeln!(
         md,
@@ -312,11 +324,17 @@ pub fn write_table2(
          relative to BVH, ours / [P3] (difference of our ratio from [P3]'s). [P3] prints one or two \
          digits, so its small scenes' ratios are uncertain by several percent.\n"
     )?;
-    writeln!(
-        md,
-        "| scene | leaf size | BVH ms | TD ms | R ms | M4 ms | TD / BVH | R / BVH | M4 / BVH |"
-    )?;
-    writeln!(md, "|---|---|---|---|---|---|---|---|---|")?;
+    let mut table = Table::text(&[
+        "scene",
+        "leaf size",
+        "BVH ms",
+        "TD ms",
+        "R ms",
+        "M4 ms",
+        "TD / BVH",
+        "R / BVH",
+        "M4 / BVH",
+    ]);
     let mut ours_sum = [0.0; 3];
     let (mut shared_ours, mut shared_p3, mut shared) = ([0.0; 3], [0.0; 3], 0usize);
     for (i, row) in rows.iter().enumerate() {
@@ -342,22 +360,20 @@ pub fn write_table2(
                 0
             };
             let pairs = row.main[k.max(1) - 1].node_pairs;
-            writeln!(
-                csv,
-                "{},{:.3},{},{},{:.4},{:.4},{},{},{},{},{},{}",
-                names[i],
-                leaf[i],
+            csv.push([
+                names[i].clone(),
+                format!("{:.3}", leaf[i]),
                 p3.map_or(String::new(), |p| p.leaf_size.to_string()),
-                LABELS[k],
-                ms[k],
-                v,
+                LABELS[k].to_string(),
+                format!("{:.4}", ms[k]),
+                format!("{v:.4}"),
                 p3.map_or(String::new(), |p| p.ms[k].to_string()),
                 tv.map_or(String::new(), |t| format!("{t:.4}")),
                 tv.map_or(String::new(), |t| format!("{:.1}", (v / t - 1.0) * 100.0)),
-                bytes[k],
-                steps,
-                pairs
-            )?;
+                bytes[k].to_string(),
+                steps.to_string(),
+                pairs.to_string(),
+            ]);
         }
         for k in 0..3 {
             ours_sum[k] += rel[k];
@@ -377,30 +393,34 @@ pub fn write_table2(
             Some(t) => format!("{:.2} / {:.2} ({})", rel[k], t[k], pct(rel[k], t[k])),
             None => format!("{:.2}", rel[k]),
         };
-        writeln!(
-            md,
-            "| {} | {:.2}{} | {} | {} | {} | {} | {} | {} | {} |",
-            names[i],
-            leaf[i],
-            p3.map_or(String::new(), |p| format!(" / {}", p.leaf_size)),
+        table.push([
+            names[i].clone(),
+            format!(
+                "{:.2}{}",
+                leaf[i],
+                p3.map_or(String::new(), |p| format!(" / {}", p.leaf_size))
+            ),
             cell_ms(0),
             cell_ms(1),
             cell_ms(2),
             cell_ms(3),
             cell_rel(0),
             cell_rel(1),
-            cell_rel(2)
-        )?;
+            cell_rel(2),
+        ]);
     }
+    // The averages: rows under the scenes, their middle cells empty.
     let n = rows.len().max(1) as f64;
-    writeln!(
-        md,
-        "| average, our {} scenes | | | | | | {:.2} | {:.2} | {:.2} |",
-        rows.len(),
-        ours_sum[0] / n,
-        ours_sum[1] / n,
-        ours_sum[2] / n
-    )?;
+    let average = |label: String, cells: [String; 3]| {
+        std::iter::once(label)
+            .chain(std::iter::repeat_n(String::new(), 5))
+            .chain(cells)
+            .collect::<Vec<String>>()
+    };
+    table.push(average(
+        format!("average, our {} scenes", rows.len()),
+        [0, 1, 2].map(|k| format!("{:.2}", ours_sum[k] / n)),
+    ));
     if shared > 0 {
         let s = shared as f64;
         let cell = |k: usize| {
@@ -411,20 +431,18 @@ pub fn write_table2(
                 pct(shared_ours[k], shared_p3[k])
             )
         };
-        writeln!(
-            md,
-            "| average, the {shared} shared scenes | | | | | | {} | {} | {} |",
-            cell(0),
-            cell(1),
-            cell(2)
-        )?;
+        table.push(average(
+            format!("average, the {shared} shared scenes"),
+            [cell(0), cell(1), cell(2)],
+        ));
     }
-    writeln!(
-        md,
-        "| [P3] average, its 16 scenes | | | | | | {:.2} | {:.2} | {:.2} |\n",
-        P3_TABLE2_AVERAGE[0], P3_TABLE2_AVERAGE[1], P3_TABLE2_AVERAGE[2]
-    )?;
-    write(out, "table2.csv", &csv)?;
+    table.push(average(
+        "[P3] average, its 16 scenes".to_string(),
+        P3_TABLE2_AVERAGE.map(|v| format!("{v:.2}")),
+    ));
+    md.push_str(&table.markdown());
+    md.push('\n');
+    write(out, "table2.csv", &csv.csv())?;
     // SVG: the three ratios per scene, ours beside [P3]'s.
     let mut series = Vec::new();
     for (k, name) in ["TD", "R", "M4"].iter().enumerate() {
@@ -459,9 +477,24 @@ fn write_dram(
     names: &[String],
     rows: &[RuntimeRow],
 ) -> anyhow::Result<()> {
-    let mut csv = String::from(
-        "scene,backtrack_steps,steps_per_node,mean_read_latency_cycles,reads_under_4_cycles,flushes,r_bytes,r_dram_command_bytes,ns_per_step,thesis_ns_per_step,r_no_flush_ms,r_no_flush_vs_bvh,r_no_flush_mean_latency,simple_td_vs_bvh,simple_r_vs_bvh,simple_m4_vs_bvh\n",
-    );
+    let mut csv = Table::text(&[
+        "scene",
+        "backtrack_steps",
+        "steps_per_node",
+        "mean_read_latency_cycles",
+        "reads_under_4_cycles",
+        "flushes",
+        "r_bytes",
+        "r_dram_command_bytes",
+        "ns_per_step",
+        "thesis_ns_per_step",
+        "r_no_flush_ms",
+        "r_no_flush_vs_bvh",
+        "r_no_flush_mean_latency",
+        "simple_td_vs_bvh",
+        "simple_r_vs_bvh",
+        "simple_m4_vs_bvh",
+    ]);
     writeln!(md, "### Backtracking in the R runs, and two what-ifs\n")?;
     writeln!(
         md,
@@ -474,11 +507,18 @@ fn write_dram(
          on the simple memory model of the same peak bandwidth (no write queue, 40 ns per read), \
          relative to its own BVH time.\n"
     )?;
-    writeln!(
-        md,
-        "| scene | R steps | per pair | read latency | under 4 cycles | flushed | DRAM / port bytes | ns per step | R / BVH, no flush | simple: TD, R, M4 / BVH |"
-    )?;
-    writeln!(md, "|---|---|---|---|---|---|---|---|---|---|")?;
+    let mut table = Table::text(&[
+        "scene",
+        "R steps",
+        "per pair",
+        "read latency",
+        "under 4 cycles",
+        "flushed",
+        "DRAM / port bytes",
+        "ns per step",
+        "R / BVH, no flush",
+        "simple: TD, R, M4 / BVH",
+    ]);
     for (i, row) in rows.iter().enumerate() {
         let r = &row.main[1];
         let bvh = row.main[0].build_ms;
@@ -493,18 +533,16 @@ fn write_dram(
             let b = s[0].build_ms;
             [s[0].ms / b, s[1].ms / b, s[2].ms / b]
         });
-        writeln!(
-            csv,
-            "{},{},{:.4},{:.2},{},{},{},{},{:.2},{},{},{},{},{},{},{}",
-            names[i],
-            r.backtrack_steps,
-            per,
-            r.backtrack_latency,
-            r.backtrack_fast,
-            r.backtrack_flushes,
-            r.bytes,
-            r.dram_command_bytes,
-            ns,
+        csv.push([
+            names[i].clone(),
+            r.backtrack_steps.to_string(),
+            format!("{per:.4}"),
+            format!("{:.2}", r.backtrack_latency),
+            r.backtrack_fast.to_string(),
+            r.backtrack_flushes.to_string(),
+            r.bytes.to_string(),
+            r.dram_command_bytes.to_string(),
+            format!("{ns:.2}"),
             p3_ns.map_or(String::new(), |x| format!("{x:.2}")),
             nf.map_or(String::new(), |x| format!("{:.4}", x.ms)),
             nf.map_or(String::new(), |x| format!("{:.4}", x.ms / bvh)),
@@ -512,36 +550,33 @@ fn write_dram(
             simple_rel.map_or(String::new(), |s| format!("{:.4}", s[0])),
             simple_rel.map_or(String::new(), |s| format!("{:.4}", s[1])),
             simple_rel.map_or(String::new(), |s| format!("{:.4}", s[2])),
-        )?;
-        writeln!(
-            md,
-            "| {} | {} | {:.2} | {:.1} | {:.0}% | {} | {} | {:.1}{} | {} | {} |",
-            names[i],
-            r.backtrack_steps,
-            per,
-            r.backtrack_latency,
-            fast * 100.0,
-            r.backtrack_flushes,
+        ]);
+        table.push([
+            names[i].clone(),
+            r.backtrack_steps.to_string(),
+            format!("{per:.2}"),
+            format!("{:.1}", r.backtrack_latency),
+            format!("{:.0}%", fast * 100.0),
+            r.backtrack_flushes.to_string(),
             if r.dram_command_bytes > 0 {
                 format!("{dram_share:.2}")
             } else {
                 "-".into()
             },
-            ns,
-            p3_ns.map_or(String::new(), |x| format!(" / {x:.1}")),
-            nf.map_or("-".into(), |x| format!(
-                "{:.2} (latency {:.1})",
-                x.ms / bvh,
-                x.backtrack_latency
-            )),
-            simple_rel.map_or("-".into(), |s| format!(
-                "{:.2}, {:.2}, {:.2}",
-                s[0], s[1], s[2]
-            )),
-        )?;
+            format!(
+                "{ns:.1}{}",
+                p3_ns.map_or(String::new(), |x| format!(" / {x:.1}"))
+            ),
+            nf.map_or("-".into(), |x| {
+                format!("{:.2} (latency {:.1})", x.ms / bvh, x.backtrack_latency)
+            }),
+            simple_rel.map_or("-".into(), |s| {
+                format!("{:.2}, {:.2}, {:.2}", s[0], s[1], s[2])
+            }),
+        ]);
     }
-    writeln!(md)?;
-    write(out, "table2-dram.csv", &csv)
+    writeln!(md, "{}", table.markdown())?;
+    write(out, "table2-dram.csv", &csv.csv())
 }
 
 #[cfg(test)]

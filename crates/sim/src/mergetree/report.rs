@@ -204,26 +204,34 @@ impl MergeTreeReport {
 
     /// The time series as CSV: one row per window, fractions of the window's cycles.
     pub fn trace_csv(&self) -> String {
-        let mut s = String::from(
-            "cycle_start,cycles,phase,bus_utilization,presort_busy,merge_elements_per_cycle,emitter_busy,toplevel_busy\n",
-        );
+        let mut t = outfile::table::Table::text(&[
+            "cycle_start",
+            "cycles",
+            "phase",
+            "bus_utilization",
+            "presort_busy",
+            "merge_elements_per_cycle",
+            "emitter_busy",
+            "toplevel_busy",
+        ]);
         let p = self.config.presorters.max(1) as f64;
         for r in &self.trace {
             let c = r.cycles.max(1) as f64;
-            let _ = writeln!(
-                s,
-                "{},{},{},{:.4},{:.4},{:.4},{:.4},{:.4}",
-                r.cycle_start,
-                r.cycles,
-                r.phase,
-                r.bus_bytes as f64 / (self.peak_bytes_per_cycle * c),
-                r.presort_busy as f64 / (p * c),
-                r.merge_outputs as f64 / c,
-                r.emitter_steps as f64 / c,
-                r.toplevel_busy as f64 / c,
-            );
+            t.push([
+                r.cycle_start.to_string(),
+                r.cycles.to_string(),
+                r.phase.to_string(),
+                format!(
+                    "{:.4}",
+                    r.bus_bytes as f64 / (self.peak_bytes_per_cycle * c)
+                ),
+                format!("{:.4}", r.presort_busy as f64 / (p * c)),
+                format!("{:.4}", r.merge_outputs as f64 / c),
+                format!("{:.4}", r.emitter_steps as f64 / c),
+                format!("{:.4}", r.toplevel_busy as f64 / c),
+            ]);
         }
-        s
+        t.csv()
     }
 
     /// The time series as an SVG line plot (\[P2\] Fig. 6 style): bus utilization,

@@ -11,6 +11,7 @@
 use std::fmt::Write as _;
 
 use geom::Triangle;
+use outfile::table::{Align, Table};
 use serde::Serialize;
 use trace::PinholeCamera;
 
@@ -232,15 +233,34 @@ fn pct(x: f64) -> String {
 impl Table2 {
     /// The table as Markdown, with a legend and a summary.
     pub fn markdown(&self) -> String {
-        let mut m = String::new();
-        let _ = writeln!(
-            m,
-            "| scene | rays | BVH MRPS | MBVH4 MRPS | perf | thesis perf | BVH MB | MBVH4 MB | traffic | thesis traffic | BVH mJ | MBVH4 mJ | energy | thesis energy | BVH MRPS/mm2 | MBVH4 MRPS/mm2 | perf/area | thesis perf/area | within 25% (perf, traffic, energy, perf/area) | thesis MRPS | thesis MB | thesis mJ | node MB (BVH, MBVH4) | timed |"
-        );
-        let _ = writeln!(
-            m,
-            "|---|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---:|---|---:|---:|---:|---:|---:|"
-        );
+        let mut t = Table::new(&[
+            "scene",
+            "rays",
+            "BVH MRPS",
+            "MBVH4 MRPS",
+            "perf",
+            "thesis perf",
+            "BVH MB",
+            "MBVH4 MB",
+            "traffic",
+            "thesis traffic",
+            "BVH mJ",
+            "MBVH4 mJ",
+            "energy",
+            "thesis energy",
+            "BVH MRPS/mm2",
+            "MBVH4 MRPS/mm2",
+            "perf/area",
+            "thesis perf/area",
+            "within 25% (perf, traffic, energy, perf/area)",
+            "thesis MRPS",
+            "thesis MB",
+            "thesis mJ",
+            "node MB (BVH, MBVH4)",
+            "timed",
+        ])
+        .with_align(1, Align::Left)
+        .with_align(18, Align::Left);
         for r in &self.rows {
             let (tp, tt, te, ta, tm, tb, tj) = match r.thesis {
                 Some(t) => (
@@ -264,27 +284,39 @@ impl Table2 {
             } else {
                 format!("1/{} of the tiles", r.bvh.sample)
             };
-            let _ = writeln!(
-                m,
-                "| {} | {} | {:.1} | {:.1} | {} | {tp} | {:.1} | {:.1} | {} | {tt} | {:.1} | {:.1} | {} | {te} | {:.1} | {:.1} | {} | {ta} | {agree} | {tm} | {tb} | {tj} | {:.1}, {:.1} | {timed} |",
-                r.scene,
-                r.rays,
-                r.bvh.mrps,
-                r.mbvh4.mrps,
+            let f1 = |x: f64| format!("{x:.1}");
+            t.push([
+                r.scene.clone(),
+                r.rays.to_string(),
+                f1(r.bvh.mrps),
+                f1(r.mbvh4.mrps),
                 pct(r.perf_change_pct),
-                r.bvh.frame_dram_mb,
-                r.mbvh4.frame_dram_mb,
+                tp,
+                f1(r.bvh.frame_dram_mb),
+                f1(r.mbvh4.frame_dram_mb),
                 pct(r.traffic_change_pct),
-                r.bvh.frame_mj,
-                r.mbvh4.frame_mj,
+                tt,
+                f1(r.bvh.frame_mj),
+                f1(r.mbvh4.frame_mj),
                 pct(r.energy_change_pct),
-                r.bvh.mrps_per_mm2,
-                r.mbvh4.mrps_per_mm2,
+                te,
+                f1(r.bvh.mrps_per_mm2),
+                f1(r.mbvh4.mrps_per_mm2),
                 pct(r.ppa_change_pct),
-                r.bvh.node_bytes as f64 / 1e6,
-                r.mbvh4.node_bytes as f64 / 1e6,
-            );
+                ta,
+                agree,
+                tm,
+                tb,
+                tj,
+                format!(
+                    "{:.1}, {:.1}",
+                    r.bvh.node_bytes as f64 / 1e6,
+                    r.mbvh4.node_bytes as f64 / 1e6
+                ),
+                timed,
+            ]);
         }
+        let mut m = t.markdown();
         let _ = writeln!(m);
         let _ = writeln!(
             m,
@@ -350,16 +382,12 @@ impl Table2 {
             "Area and power per unit on {} (ours; the thesis's figure in parentheses is Fairy's, [P4] Table 1): area in mm^2, mean power in mW with primary (P) and diffuse (D) rays.\n",
             p.scene
         );
-        let _ = writeln!(
-            m,
-            "| tree | figure | {} | sum |",
-            super::energy::UNITS.join(" | ")
-        );
-        let _ = writeln!(
-            m,
-            "|---|---|{}---:|",
-            "---:|".repeat(super::energy::UNITS.len())
-        );
+        let headers: Vec<&str> = ["tree", "figure"]
+            .into_iter()
+            .chain(super::energy::UNITS.iter().copied())
+            .chain(["sum"])
+            .collect();
+        let mut table = Table::new(&headers).with_align(1, Align::Left);
         for (t, (fp, fd)) in [(&p.bvh, &d.bvh), (&p.mbvh4, &d.mbvh4)]
             .into_iter()
             .enumerate()
@@ -379,29 +407,52 @@ impl Table2 {
                         format!("{x:.0}")
                     }
                 };
-                let cells: Vec<String> = ours
-                    .iter()
-                    .zip(thesis.iter())
-                    .map(|(o, th)| format!("{} ({th})", fmt(*o)))
-                    .collect();
                 let sum: f64 = ours.iter().sum();
-                let _ = writeln!(
-                    m,
-                    "| {tree} | {what} | {} | {} ({}) |",
-                    cells.join(" | "),
-                    fmt(sum),
-                    thesis[6]
+                table.push(
+                    [tree.to_string(), what.to_string()]
+                        .into_iter()
+                        .chain(
+                            ours.iter()
+                                .zip(thesis.iter())
+                                .map(|(o, th)| format!("{} ({th})", fmt(*o))),
+                        )
+                        .chain([format!("{} ({})", fmt(sum), thesis[6])]),
                 );
             }
         }
+        m += &table.markdown();
         m
     }
 
     /// The table as CSV, one line per row and tree.
     pub fn csv(&self) -> String {
-        let mut c = String::from(
-            "scene,triangles,rays,tree,mrps,frame_dram_mb,frame_mj,area_mm2,mrps_per_mm2,cycles,rays_simulated,sample,bus_utilization,max_stack_depth,hits_match_software,node_bytes,visits_per_ray,tests_per_ray,l1_hit_rate,node_hit_rate,prim_hit_rate,thesis_mrps,thesis_mb,thesis_mj,thesis_mrps_per_mm2\n",
-        );
+        let mut c = Table::text(&[
+            "scene",
+            "triangles",
+            "rays",
+            "tree",
+            "mrps",
+            "frame_dram_mb",
+            "frame_mj",
+            "area_mm2",
+            "mrps_per_mm2",
+            "cycles",
+            "rays_simulated",
+            "sample",
+            "bus_utilization",
+            "max_stack_depth",
+            "hits_match_software",
+            "node_bytes",
+            "visits_per_ray",
+            "tests_per_ray",
+            "l1_hit_rate",
+            "node_hit_rate",
+            "prim_hit_rate",
+            "thesis_mrps",
+            "thesis_mb",
+            "thesis_mj",
+            "thesis_mrps_per_mm2",
+        ]);
         for r in &self.rows {
             for (tree, f, t) in [
                 ("bvh2", &r.bvh, r.thesis.map(|t| t.bvh)),
@@ -415,33 +466,36 @@ impl Table2 {
                         t[2].to_string(),
                     )
                 });
-                let _ = writeln!(
-                    c,
-                    "{},{},{},{tree},{:.3},{:.4},{:.4},{:.4},{:.4},{},{},{},{:.4},{},{},{},{:.3},{:.3},{:.4},{:.4},{:.4},{tm},{tb},{tj},{ta}",
-                    r.scene,
-                    r.triangles,
-                    r.rays,
-                    f.mrps,
-                    f.frame_dram_mb,
-                    f.frame_mj,
-                    f.area_mm2,
-                    f.mrps_per_mm2,
-                    f.cycles,
-                    f.rays,
-                    f.sample,
-                    f.bus_utilization,
-                    f.max_stack_depth,
-                    f.hits_match_software,
-                    f.node_bytes,
-                    f.visits_per_ray,
-                    f.tests_per_ray,
-                    f.hit_rates[0],
-                    f.hit_rates[1],
-                    f.hit_rates[2],
-                );
+                c.push([
+                    r.scene.clone(),
+                    r.triangles.to_string(),
+                    r.rays.to_string(),
+                    tree.to_string(),
+                    format!("{:.3}", f.mrps),
+                    format!("{:.4}", f.frame_dram_mb),
+                    format!("{:.4}", f.frame_mj),
+                    format!("{:.4}", f.area_mm2),
+                    format!("{:.4}", f.mrps_per_mm2),
+                    f.cycles.to_string(),
+                    f.rays.to_string(),
+                    f.sample.to_string(),
+                    format!("{:.4}", f.bus_utilization),
+                    f.max_stack_depth.to_string(),
+                    f.hits_match_software.to_string(),
+                    f.node_bytes.to_string(),
+                    format!("{:.3}", f.visits_per_ray),
+                    format!("{:.3}", f.tests_per_ray),
+                    format!("{:.4}", f.hit_rates[0]),
+                    format!("{:.4}", f.hit_rates[1]),
+                    format!("{:.4}", f.hit_rates[2]),
+                    tm,
+                    tb,
+                    tj,
+                    ta,
+                ]);
             }
         }
-        c
+        c.csv()
     }
 }
 
@@ -527,26 +581,34 @@ pub fn sampling_check(
 
 /// The sampling checks as a Markdown table.
 pub fn sampling_markdown(checks: &[SamplingCheck]) -> String {
-    let mut m = String::from(
-        "| scene | rays | tree | full MRPS | sampled MRPS | error | full MB | sampled MB | error | wall s (full, sampled) |\n|---|---|---|---:|---:|---:|---:|---:|---:|---:|\n",
-    );
+    let mut t = Table::new(&[
+        "scene",
+        "rays",
+        "tree",
+        "full MRPS",
+        "sampled MRPS",
+        "error",
+        "full MB",
+        "sampled MB",
+        "error",
+        "wall s (full, sampled)",
+    ])
+    .with_align(1, Align::Left)
+    .with_align(2, Align::Left);
     for c in checks {
         let [em, et] = c.errors();
-        let _ = writeln!(
-            m,
-            "| {} | {} | {} | {:.1} | {:.1} | {:+.1}% | {:.2} | {:.2} | {:+.1}% | {:.1}, {:.1} |",
-            c.scene,
-            c.rays,
-            c.tree.name(),
-            c.full.mrps,
-            c.sampled.mrps,
-            100.0 * em,
-            c.full.frame_dram_mb,
-            c.sampled.frame_dram_mb,
-            100.0 * et,
-            c.full.wall_seconds,
-            c.sampled.wall_seconds
-        );
+        t.push([
+            c.scene.clone(),
+            c.rays.to_string(),
+            c.tree.name().to_string(),
+            format!("{:.1}", c.full.mrps),
+            format!("{:.1}", c.sampled.mrps),
+            format!("{:+.1}%", 100.0 * em),
+            format!("{:.2}", c.full.frame_dram_mb),
+            format!("{:.2}", c.sampled.frame_dram_mb),
+            format!("{:+.1}%", 100.0 * et),
+            format!("{:.1}, {:.1}", c.full.wall_seconds, c.sampled.wall_seconds),
+        ]);
     }
-    m
+    t.markdown()
 }

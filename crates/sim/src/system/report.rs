@@ -5,7 +5,7 @@
 //! per frame of an animated sequence under three tree-update policies. The command line
 //! (`arbor report system`) loads the scenes and writes the files; everything else is here.
 
-use std::fmt::Write as _;
+use outfile::table::Table;
 
 use geom::Triangle;
 use serde::Serialize;
@@ -341,9 +341,21 @@ impl SystemReport {
 
     /// Table VIII as Markdown, ours beside the thesis's.
     pub fn table8_markdown(&self) -> String {
-        let mut m = String::from(
-            "| rays | scenes | n | builder | build | thesis | trace | thesis | total | thesis | total diff (pp) | above idle: build, trace, total | DRAM wait: build, total |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|\n",
-        );
+        let mut t = Table::text(&[
+            "rays",
+            "scenes",
+            "n",
+            "builder",
+            "build",
+            "thesis",
+            "trace",
+            "thesis",
+            "total",
+            "thesis",
+            "total diff (pp)",
+            "above idle: build, trace, total",
+            "DRAM wait: build, total",
+        ]);
         // A sampled figure carries its standard error from sampling.
         let pm = |x: f64, se: f64| {
             if se >= 0.0005 {
@@ -353,129 +365,165 @@ impl SystemReport {
             }
         };
         for r in &self.table8 {
-            let t = r.thesis;
-            let th = |k: usize| t.map_or("-".into(), |t| pct(t[k]));
-            let _ = writeln!(
-                m,
-                "| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {}, {}, {} | {}, {} |",
-                r.rays,
-                r.scenes,
-                r.count,
-                r.builder,
+            let th = |k: usize| r.thesis.map_or("-".into(), |t| pct(t[k]));
+            t.push([
+                r.rays.to_string(),
+                r.scenes.to_string(),
+                r.count.to_string(),
+                r.builder.to_string(),
                 pct(r.build),
                 th(0),
                 pm(r.trace, r.sampling_se[1]),
                 th(1),
                 pm(r.total, r.sampling_se[2]),
                 th(2),
-                t.map_or("-".into(), |t| format!("{:+.0}", 100.0 * (r.total - t[2]))),
-                pct(r.above_idle[0]),
-                pct(r.above_idle[1]),
-                pct(r.above_idle[2]),
-                pct(r.with_dram_wait[0]),
-                pct(r.with_dram_wait[2]),
-            );
+                r.thesis
+                    .map_or("-".into(), |t| format!("{:+.0}", 100.0 * (r.total - t[2]))),
+                format!(
+                    "{}, {}, {}",
+                    pct(r.above_idle[0]),
+                    pct(r.above_idle[1]),
+                    pct(r.above_idle[2])
+                ),
+                format!("{}, {}", pct(r.with_dram_wait[0]), pct(r.with_dram_wait[2])),
+            ]);
         }
-        m
+        t.markdown()
     }
 
     /// The balance of build and trace energy behind each Table VIII total, ours beside
     /// the thesis's implied one, and our ratios re-weighted with the thesis's balance, as
     /// Markdown.
     pub fn balance_markdown(&self) -> String {
-        let mut m = String::from(
-            "| rays | scenes | builder | binned SAH build share | thesis (implied) | total | at thesis share | thesis total |\n|---|---|---|---|---|---|---|---|\n",
-        );
+        let mut t = Table::text(&[
+            "rays",
+            "scenes",
+            "builder",
+            "binned SAH build share",
+            "thesis (implied)",
+            "total",
+            "at thesis share",
+            "thesis total",
+        ]);
         let opt = |x: Option<f64>| x.map_or("-".into(), pct);
         for r in self
             .table8
             .iter()
             .filter(|r| r.builder != Builder::BinnedSah.name())
         {
-            let _ = writeln!(
-                m,
-                "| {} | {} | {} | {} | {} | {} | {} | {} |",
-                r.rays,
-                r.scenes,
-                r.builder,
+            t.push([
+                r.rays.to_string(),
+                r.scenes.to_string(),
+                r.builder.to_string(),
                 pct(r.sah_build_share),
                 opt(r.thesis_build_share),
                 pct(r.total),
                 opt(r.total_at_thesis_share),
                 opt(r.thesis.map(|t| t[2])),
-            );
+            ]);
         }
-        m
+        t.markdown()
     }
 
     /// Table VIII as CSV.
     pub fn table8_csv(&self) -> String {
-        let mut c = String::from(
-            "rays,scenes,count,builder,build,trace,total,thesis_build,thesis_trace,thesis_total,build_above_idle,trace_above_idle,total_above_idle,sah_build_share,thesis_build_share,total_at_thesis_share,build_with_dram_wait,total_with_dram_wait,trace_sampling_se,total_sampling_se\n",
-        );
+        let mut c = Table::text(&[
+            "rays",
+            "scenes",
+            "count",
+            "builder",
+            "build",
+            "trace",
+            "total",
+            "thesis_build",
+            "thesis_trace",
+            "thesis_total",
+            "build_above_idle",
+            "trace_above_idle",
+            "total_above_idle",
+            "sah_build_share",
+            "thesis_build_share",
+            "total_at_thesis_share",
+            "build_with_dram_wait",
+            "total_with_dram_wait",
+            "trace_sampling_se",
+            "total_sampling_se",
+        ]);
         for r in &self.table8 {
             let t = |k: usize| r.thesis.map_or(String::new(), |t| format!("{:.2}", t[k]));
             let o = |x: Option<f64>| x.map_or(String::new(), |x| format!("{x:.4}"));
-            let _ = writeln!(
-                c,
-                "{},{},{},{},{:.4},{:.4},{:.4},{},{},{},{:.4},{:.4},{:.4},{:.4},{},{},{:.4},{:.4},{:.4},{:.4}",
-                r.rays,
-                r.scenes,
-                r.count,
-                r.builder,
-                r.build,
-                r.trace,
-                r.total,
+            let f = |x: f64| format!("{x:.4}");
+            c.push([
+                r.rays.to_string(),
+                r.scenes.to_string(),
+                r.count.to_string(),
+                r.builder.to_string(),
+                f(r.build),
+                f(r.trace),
+                f(r.total),
                 t(0),
                 t(1),
                 t(2),
-                r.above_idle[0],
-                r.above_idle[1],
-                r.above_idle[2],
-                r.sah_build_share,
+                f(r.above_idle[0]),
+                f(r.above_idle[1]),
+                f(r.above_idle[2]),
+                f(r.sah_build_share),
                 o(r.thesis_build_share),
                 o(r.total_at_thesis_share),
-                r.with_dram_wait[0],
-                r.with_dram_wait[2],
-                r.sampling_se[1],
-                r.sampling_se[2]
-            );
+                f(r.with_dram_wait[0]),
+                f(r.with_dram_wait[2]),
+                f(r.sampling_se[1]),
+                f(r.sampling_se[2]),
+            ]);
         }
-        c
+        c.csv()
     }
 
     /// Per scene and builder: build figures and both traces, as CSV.
     pub fn scenes_csv(&self) -> String {
-        let mut c = String::from(
-            "scene,triangles,builder,sah,build_ms,build_dram_mb,build_mj,build_dram_mj,build_dram_wait_mj,primary_mj,diffuse_mj,primary_mrps,diffuse_mrps,primary_dram_mb,diffuse_dram_mb,sample\n",
-        );
+        let mut c = Table::text(&[
+            "scene",
+            "triangles",
+            "builder",
+            "sah",
+            "build_ms",
+            "build_dram_mb",
+            "build_mj",
+            "build_dram_mj",
+            "build_dram_wait_mj",
+            "primary_mj",
+            "diffuse_mj",
+            "primary_mrps",
+            "diffuse_mrps",
+            "primary_dram_mb",
+            "diffuse_dram_mb",
+            "sample",
+        ]);
         for s in &self.scenes {
             for b in Builder::ALL {
                 let e = s.build(b);
                 let (p, d) = (s.trace(b, RayMode::Primary), s.trace(b, RayMode::Diffuse));
-                let _ = writeln!(
-                    c,
-                    "{},{},{},{:.3},{:.4},{:.3},{:.4},{:.4},{:.4},{:.4},{:.4},{:.2},{:.2},{:.2},{:.2},{}",
-                    s.scene,
-                    s.triangles,
-                    b.name(),
-                    e.sah,
-                    e.ms,
-                    e.dram_bytes as f64 / 1e6,
-                    e.mj,
-                    e.dram_mj,
-                    e.dram_wait_mj,
-                    p.frame_mj,
-                    d.frame_mj,
-                    p.mrps,
-                    d.mrps,
-                    p.frame_dram_mb,
-                    d.frame_dram_mb,
-                    p.sample
-                );
+                c.push([
+                    s.scene.clone(),
+                    s.triangles.to_string(),
+                    b.name().to_string(),
+                    format!("{:.3}", e.sah),
+                    format!("{:.4}", e.ms),
+                    format!("{:.3}", e.dram_bytes as f64 / 1e6),
+                    format!("{:.4}", e.mj),
+                    format!("{:.4}", e.dram_mj),
+                    format!("{:.4}", e.dram_wait_mj),
+                    format!("{:.4}", p.frame_mj),
+                    format!("{:.4}", d.frame_mj),
+                    format!("{:.2}", p.mrps),
+                    format!("{:.2}", d.mrps),
+                    format!("{:.2}", p.frame_dram_mb),
+                    format!("{:.2}", d.frame_dram_mb),
+                    p.sample.to_string(),
+                ]);
             }
         }
-        c
+        c.csv()
     }
 
     /// Fig. 7's data for `rays`: per scene (label) and builder, (build, trace) power in mW
@@ -500,9 +548,19 @@ impl SystemReport {
     /// Per scene and builder, the build and trace energy in mJ and power at 30 FPS, as
     /// Markdown.
     pub fn scenes_markdown(&self) -> String {
-        let mut m = String::from(
-            "| scene | triangles | builder | SAH | build ms | build MB | build mJ | primary mJ | diffuse mJ | primary mW @30 | diffuse mW @30 |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
-        );
+        let mut t = Table::text(&[
+            "scene",
+            "triangles",
+            "builder",
+            "SAH",
+            "build ms",
+            "build MB",
+            "build mJ",
+            "primary mJ",
+            "diffuse mJ",
+            "primary mW @30",
+            "diffuse mW @30",
+        ]);
         for s in &self.scenes {
             for b in Builder::ALL {
                 let e = s.build(b);
@@ -510,31 +568,39 @@ impl SystemReport {
                     s.total_mj(b, RayMode::Primary),
                     s.total_mj(b, RayMode::Diffuse),
                 );
-                let _ = writeln!(
-                    m,
-                    "| {} | {} | {} | {:.1} | {:.2} | {:.1} | {:.2} | {:.2} | {:.2} | {:.0} | {:.0} |",
-                    s.scene,
-                    s.triangles,
-                    b.name(),
-                    e.sah,
-                    e.ms,
-                    e.dram_bytes as f64 / 1e6,
-                    e.mj,
-                    s.trace(b, RayMode::Primary).frame_mj,
-                    s.trace(b, RayMode::Diffuse).frame_mj,
-                    p * FPS,
-                    d * FPS
-                );
+                t.push([
+                    s.scene.clone(),
+                    s.triangles.to_string(),
+                    b.name().to_string(),
+                    format!("{:.1}", e.sah),
+                    format!("{:.2}", e.ms),
+                    format!("{:.1}", e.dram_bytes as f64 / 1e6),
+                    format!("{:.2}", e.mj),
+                    format!("{:.2}", s.trace(b, RayMode::Primary).frame_mj),
+                    format!("{:.2}", s.trace(b, RayMode::Diffuse).frame_mj),
+                    format!("{:.0}", p * FPS),
+                    format!("{:.0}", d * FPS),
+                ]);
             }
         }
-        m
+        t.markdown()
     }
 
     /// The animation study as Markdown.
     pub fn animation_markdown(&self) -> String {
-        let mut m = String::from(
-            "| scene | rays | policy | frames | rebuilds | build mJ/frame | refit mJ/frame | trace mJ/frame | total mJ/frame | vs rebuild | worst SAH ratio |\n|---|---|---|---|---|---|---|---|---|---|---|\n",
-        );
+        let mut t = Table::text(&[
+            "scene",
+            "rays",
+            "policy",
+            "frames",
+            "rebuilds",
+            "build mJ/frame",
+            "refit mJ/frame",
+            "trace mJ/frame",
+            "total mJ/frame",
+            "vs rebuild",
+            "worst SAH ratio",
+        ]);
         for a in &self.animation {
             for rays in &a.rays {
                 let base = rays
@@ -546,25 +612,26 @@ impl SystemReport {
                     let n = p.frames.len().max(1) as f64;
                     let sum =
                         |f: &dyn Fn(&FrameEnergy) -> f64| p.frames.iter().map(f).sum::<f64>() / n;
-                    let _ = writeln!(
-                        m,
-                        "| {} | {} | {} | {} | {} | {:.3} | {:.3} | {:.3} | {:.3} | {} | {:.2} |",
-                        a.scene,
-                        rays.rays,
-                        p.policy.name(),
-                        p.frames.len(),
-                        p.frames.iter().filter(|f| f.rebuilt).count(),
-                        sum(&|f| f.build_mj),
-                        sum(&|f| f.refit_mj),
-                        sum(&|f| f.trace_mj),
-                        p.mean_mj(),
+                    t.push([
+                        a.scene.to_string(),
+                        rays.rays.to_string(),
+                        p.policy.name().to_string(),
+                        p.frames.len().to_string(),
+                        p.frames.iter().filter(|f| f.rebuilt).count().to_string(),
+                        format!("{:.3}", sum(&|f| f.build_mj)),
+                        format!("{:.3}", sum(&|f| f.refit_mj)),
+                        format!("{:.3}", sum(&|f| f.trace_mj)),
+                        format!("{:.3}", p.mean_mj()),
                         pct(p.mean_mj() / base),
-                        p.frames.iter().map(|f| f.sah_ratio).fold(1.0, f64::max),
-                    );
+                        format!(
+                            "{:.2}",
+                            p.frames.iter().map(|f| f.sah_ratio).fold(1.0, f64::max)
+                        ),
+                    ]);
                 }
             }
         }
-        m
+        t.markdown()
     }
 }
 

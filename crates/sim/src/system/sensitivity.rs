@@ -13,7 +13,7 @@
 //! conventions, the IST division's FLOPs) reuse the runs ([`SimMemo`]), so those cost
 //! almost nothing; the timing parameters and the sampling rate simulate again.
 
-use std::fmt::Write as _;
+use outfile::table::Table;
 
 use rayon::prelude::*;
 use serde::Serialize;
@@ -780,9 +780,17 @@ impl SensitivityReport {
     /// The figures as Markdown: value, range, driver, thesis; fractions (ratios to
     /// binned SAH, relative changes) in percent, the rest in their units.
     pub fn markdown(&self) -> String {
-        let mut m = String::from(
-            "| figure | unit | thesis | default | low | high | driver (spread) | thesis in range |\n|---|---|---:|---:|---:|---:|---|---|\n",
-        );
+        let mut t = Table::text(&[
+            "figure",
+            "unit",
+            "thesis",
+            "default",
+            "low",
+            "high",
+            "driver (spread)",
+            "thesis in range",
+        ])
+        .right(&[2, 3, 4, 5]);
         for r in &self.rows {
             let fraction = matches!(r.unit, "ratio" | "change");
             let fmt = |x: f64| {
@@ -792,11 +800,9 @@ impl SensitivityReport {
                     significant(x)
                 }
             };
-            let _ = writeln!(
-                m,
-                "| {} | {} | {} | {} | {} | {} | {} | {} |",
-                r.figure,
-                if fraction { "%" } else { r.unit },
+            t.push([
+                r.figure.to_string(),
+                if fraction { "%" } else { r.unit }.to_string(),
                 r.thesis.map_or("-".into(), fmt),
                 fmt(r.default),
                 fmt(r.low),
@@ -813,45 +819,51 @@ impl SensitivityReport {
                     Some(false) => "no",
                     None => "-",
                 }
-            );
+                .to_string(),
+            ]);
         }
-        m
+        t.markdown()
     }
 
     /// The assumptions as Markdown.
     pub fn assumptions_markdown(&self) -> String {
-        let mut m = String::from("| key | default | tried | what |\n|---|---|---|---|\n");
+        let mut t = Table::text(&["key", "default", "tried", "what"]);
         for a in &self.assumptions {
-            let _ = writeln!(
-                m,
-                "| `{}` | {} | {} | {} |",
-                a.key,
-                a.default,
+            t.push([
+                format!("`{}`", a.key),
+                a.default.to_string(),
                 a.values.join(", "),
-                a.what
-            );
+                a.what.to_string(),
+            ]);
         }
-        m
+        t.markdown()
     }
 
     /// One CSV row per figure.
     pub fn csv(&self) -> String {
-        let mut c = String::from("figure,unit,thesis,default,low,high,driver,driver_spread\n");
+        let mut c = Table::text(&[
+            "figure",
+            "unit",
+            "thesis",
+            "default",
+            "low",
+            "high",
+            "driver",
+            "driver_spread",
+        ]);
         for r in &self.rows {
-            let _ = writeln!(
-                c,
-                "{},{},{},{},{},{},{},{}",
-                r.figure,
-                r.unit,
+            c.push([
+                r.figure.to_string(),
+                r.unit.to_string(),
                 r.thesis.map_or(String::new(), |t| t.to_string()),
-                r.default,
-                r.low,
-                r.high,
-                r.driver,
-                r.driver_spread
-            );
+                r.default.to_string(),
+                r.low.to_string(),
+                r.high.to_string(),
+                r.driver.to_string(),
+                r.driver_spread.to_string(),
+            ]);
         }
-        c
+        c.csv()
     }
 }
 
