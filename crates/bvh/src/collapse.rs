@@ -53,6 +53,40 @@ pub enum CollapseError {
         /// Child slot.
         slot: usize,
     },
+    /// Streaming collapse ([`crate::StreamCollapse`]): an emitted node's inner child is not
+    /// the last open subtree (the stream is not in emission order), or a node follows the
+    /// end of the stream.
+    #[error("emitted node {node} child {slot} is not the last open subtree: the stream is not in emission order")]
+    StreamOrder {
+        /// Emission index of the node.
+        node: usize,
+        /// Child slot.
+        slot: usize,
+    },
+    /// Streaming collapse: an emitted leaf of no primitives.
+    #[error("emitted node {node} child {slot} is a leaf of no primitives")]
+    EmptyLeaf {
+        /// Emission index of the node.
+        node: usize,
+        /// Child slot.
+        slot: usize,
+    },
+    /// Streaming collapse: the stream ended elsewhere than at its one open subtree (or has
+    /// not ended).
+    #[error("the stream ended (or was read) with {open} open subtrees besides its root")]
+    StreamEnd {
+        /// Open subtrees held.
+        open: usize,
+    },
+    /// Streaming collapse: the emitter cut the tree into several roots (a high-level
+    /// threshold); the collapse needs one tree.
+    #[error(
+        "{roots} high-level roots: the streaming collapse needs one tree (no high-level threshold)"
+    )]
+    ManyRoots {
+        /// Number of roots.
+        roots: usize,
+    },
 }
 
 /// Configuration of the collapse.
