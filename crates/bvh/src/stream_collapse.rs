@@ -589,4 +589,38 @@ mod tests {
             best.normalized_sah()
         );
     }
+
+    /// The shared scenes with MergeTree's `p2` tree options (30-bit codes on the cube grid,
+    /// equal codes in one leaf of any size): node counts and 4-wide SAH of the streaming,
+    /// offline greedy and SAH-optimal collapses of one HLBVH tree (`docs/beyond-thesis.md`;
+    /// `cargo test -p bvh@0.1.0 --lib stream_collapse -- --ignored --nocapture`).
+    #[test]
+    #[ignore = "reads the shared scenes; prints a table"]
+    fn shared_scenes_table() {
+        let Some(scenes) = crate::testutil::real_scenes() else {
+            return;
+        };
+        let b = HlbvhBuilder {
+            max_leaf_size: u32::MAX,
+            grid: crate::MortonGrid::Cube,
+            ..Default::default()
+        };
+        println!("| scene | binary nodes | stream nodes | offline nodes | optimal nodes | stream SAH | offline SAH | optimal SAH | max open |");
+        for (name, prims) in scenes {
+            let (m, bvh, open) = check(&name, &prims, &b);
+            let off = collapse(&bvh).unwrap();
+            let best = collapse_sah_optimal(&bvh, &SahParams::THESIS).unwrap();
+            assert!(m.normalized_sah() >= best.normalized_sah() * (1.0 - 1e-9));
+            println!(
+                "| {name} | {} | {} | {} | {} | {:.3} | {:.3} | {:.3} | {open} |",
+                bvh.nodes.len(),
+                m.nodes.len(),
+                off.nodes.len(),
+                best.nodes.len(),
+                m.normalized_sah(),
+                off.normalized_sah(),
+                best.normalized_sah()
+            );
+        }
+    }
 }
