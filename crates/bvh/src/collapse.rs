@@ -53,6 +53,40 @@ pub enum CollapseError {
         /// Child slot.
         slot: usize,
     },
+    /// Streaming collapse ([`crate::StreamCollapse`]): an emitted node's inner child is not
+    /// the last open subtree (the stream is not in emission order), or a node follows the
+    /// end of the stream.
+    #[error("emitted node {node} child {slot} is not the last open subtree: the stream is not in emission order")]
+    StreamOrder {
+        /// Emission index of the node.
+        node: usize,
+        /// Child slot.
+        slot: usize,
+    },
+    /// Streaming collapse: an emitted leaf of no primitives.
+    #[error("emitted node {node} child {slot} is a leaf of no primitives")]
+    EmptyLeaf {
+        /// Emission index of the node.
+        node: usize,
+        /// Child slot.
+        slot: usize,
+    },
+    /// Streaming collapse: the stream ended elsewhere than at its one open subtree (or has
+    /// not ended).
+    #[error("the stream ended (or was read) with {open} open subtrees besides its root")]
+    StreamEnd {
+        /// Open subtrees held.
+        open: usize,
+    },
+    /// Streaming collapse: the emitter cut the tree into several roots (a high-level
+    /// threshold); the collapse needs one tree.
+    #[error(
+        "{roots} high-level roots: the streaming collapse needs one tree (no high-level threshold)"
+    )]
+    ManyRoots {
+        /// Number of roots.
+        roots: usize,
+    },
 }
 
 /// Configuration of the collapse.
@@ -148,6 +182,24 @@ impl Collapse {
     /// boxes: the 4-wide collapse of [P4] generalized to any branching factor (8-wide
     /// nodes suit 8-lane SIMD).
     pub fn collapse_wide<const W: usize>(&self, bvh: &Bvh2) -> Result<WideBvh<W>, CollapseError> {
+        self.collapse_wide_roots(bvh, &mut Vec::new())
+    }
+
+    /// The binary node (index into `bvh.nodes`) that roots each node of the 4-wide
+    /// [`Collapse::collapse`] of `bvh`, in the wide tree's node order: the binary nodes a
+    /// collapse pass writes a wide node for (the others are pulled into their parent's).
+    pub fn wide_roots(&self, bvh: &Bvh2) -> Result<Vec<u32>, CollapseError> {
+        let mut roots = Vec::new();
+        self.collapse_wide_roots::<MBVH_WIDTH>(bvh, &mut roots)?;
+        Ok(roots)
+    }
+
+    /// [`Collapse::collapse_wide`], also recording each wide node's binary root in `roots`.
+    fn collapse_wide_roots<const W: usize>(
+        &self,
+        bvh: &Bvh2,
+        roots: &mut Vec<u32>,
+    ) -> Result<WideBvh<W>, CollapseError> {
         const { assert!(W >= 2) };
         let n = bvh.nodes.len();
         if n == 0 {
@@ -163,6 +215,7 @@ impl Collapse {
         let mut kids: Vec<Kid> = Vec::with_capacity(W);
         while let Some((bi, patch)) = stack.pop() {
             let at = out.len();
+            roots.push(bi as u32);
             if let Some((p, slot)) = patch {
                 out[p].children[slot] = ChildRef::inner(at as u32);
             }
@@ -476,6 +529,27 @@ mod tests {
         let m = check("cubes", &bvh, &prims, 1);
         assert_eq!(m.nodes.len(), 5);
         assert!(m.nodes.iter().all(|n| n.child_count() == 4));
+    }
+
+    /// Every wide node's recorded binary root has the wide node's box, and only wide
+    /// roots are recorded, once each, the tree's root first.
+    #[test]
+    fn wide_roots_are_the_roots_of_the_wide_nodes() {
+        let prims = soup(3000, 2.0, 5);
+        let bvh = LbvhBuilder::default().build(&prims).unwrap();
+        let m = collapse(&bvh).unwrap();
+        let roots = Collapse::default().wide_roots(&bvh).unwrap();
+        assert_eq!(roots.len(), m.nodes.len());
+        assert_eq!(roots[0], 0);
+        let mut seen = vec![false; bvh.nodes.len()];
+        for (k, &r) in roots.iter().enumerate() {
+            assert!(!std::mem::replace(&mut seen[r as usize], true));
+            assert_eq!(
+                bvh.nodes[r as usize].aabb(),
+                m.nodes[k].aabb(),
+                "wide node {k}"
+            );
+        }
     }
 
     #[test]

@@ -28,6 +28,7 @@ mod points;
 mod refit;
 mod reinsert;
 mod sah;
+mod stream_collapse;
 mod sweep_sah;
 #[cfg(test)]
 mod testutil;
@@ -56,6 +57,7 @@ pub use points::{knn_brute, PointError, PointNode, PointTree, NO_AXIS};
 pub use refit::{refit_bvh2, refit_mbvh4, RefitError, RefitFrame, RefitTracker};
 pub use reinsert::{reinsert, ReinsertConfig, ReinsertWork};
 pub use sah::{sah_cost, sah_cost_with, sah_ratio, SahParams};
+pub use stream_collapse::{stream_collapse, StreamCollapse};
 pub use sweep_sah::SweepSahBuilder;
 pub use toplevel::{HlbvhAtrbvhBuilder, HlbvhSahBuilder};
 pub use tree::{Tree, TreeKind};

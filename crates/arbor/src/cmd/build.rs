@@ -5,7 +5,8 @@
 //!
 //! Builders are looked up by name in [`BUILDERS`], so adding one is one line. The binary
 //! builders make a `Bvh2`; `mbvh4-collapse` (a binary build, `--collapse-from`, collapsed
-//! by `bvh::collapse`) and `mbvh4-topdown` make the 4-wide `Mbvh4` of \[P4\]. A 4-wide
+//! by `bvh::collapse`), `mbvh4-stream` (the HLBVH emitter's stream collapsed as it is
+//! emitted, `bvh::stream_collapse`) and `mbvh4-topdown` make the 4-wide `Mbvh4` of \[P4\]. A 4-wide
 //! tree's SAH is `Mbvh4::normalized_sah` (each node costs `2 C_i` for its four box tests),
 //! so it divides by the binary sweep SAH like any other.
 
@@ -145,6 +146,12 @@ pub static BUILDERS: &[(&str, BuildFn)] = &[
         };
         Ok(Tree::Mbvh4(bvh::collapse(&t)?))
     }),
+    ("mbvh4-stream", |p, c| {
+        // The HLBVH emitter's stream collapsed as it is emitted (issue 18 part 2): the tree
+        // MergeTree writes with `--set output=mbvh4`.
+        let hl = hlbvh(c).build_highlevel(p)?;
+        Ok(Tree::Mbvh4(bvh::stream_collapse(&hl)?.0))
+    }),
     ("mbvh4-topdown", |p, c| {
         Ok(Tree::Mbvh4(
             bvh::Mbvh4TopDownBuilder {
@@ -245,8 +252,8 @@ pub struct BuildArgs {
     #[command(flatten)]
     scene: SceneArgs,
     /// Builder: lbvh, hlbvh, hlbvh+sah, hlbvh+atrbvh, binned-sah, sweep-sah, atrbvh, ploc,
-    /// ploc+reinsert, hlbvh+reinsert (binary trees), mbvh4-collapse, mbvh4-topdown (4-wide
-    /// trees).
+    /// ploc+reinsert, hlbvh+reinsert (binary trees), mbvh4-collapse, mbvh4-stream,
+    /// mbvh4-topdown (4-wide trees).
     #[arg(long, value_name = "NAME")]
     builder: String,
     /// mbvh4-collapse: the binary builder whose tree is collapsed (default binned-sah).
@@ -720,6 +727,7 @@ mod tests {
             "ploc+reinsert",
             "hlbvh+reinsert",
             "mbvh4-collapse",
+            "mbvh4-stream",
             "mbvh4-topdown",
         ] {
             assert!(BUILDERS.iter().any(|(b, _)| *b == n), "{n}");

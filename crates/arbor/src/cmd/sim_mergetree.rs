@@ -4,7 +4,11 @@
 //! phase, bus utilization, stall causes and a utilization trace (CSV and SVG, \[P2\] Fig. 6
 //! style). With `--cbvh` the unit writes a compressed BVH (\[P3\] §5.3): through the
 //! streaming bottom-up encoder attached to the emitter, or with a top-down pass after the
-//! build; the CBVH is then also checked bit for bit against the software encoder. The JSON
+//! build; the CBVH is then also checked bit for bit against the software encoder. With
+//! `--set output=mbvh4` the unit writes 128-byte MBVH4 nodes through the streaming collapse
+//! behind the emitter, and with `--set output=mbvh4-collapse` through a collapse pass after
+//! the build (issue 18 part 2); the MBVH4 is then checked node for node against the
+//! software collapse. The JSON
 //! form (`arbor.sim.mergetree.v1`) is documented in `docs/cli-json.md`.
 
 use super::build::mesh_aabbs;
@@ -97,6 +101,7 @@ struct Output<'a> {
     report: &'a MergeTreeReport,
     tree_matches_software: Option<bool>,
     cbvh_matches_software: Option<bool>,
+    mbvh4_matches_software: Option<bool>,
     trace: Option<String>,
     svg: Option<String>,
     sim_wall_ms: f64,
@@ -210,13 +215,14 @@ pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
     let (aabbs, _) = mesh_aabbs(&mesh)?;
     drop(mesh);
     let (report, wall_ms) = simulate(ui, &aabbs, &cfg, dram)?;
-    let (matches, cbvh_matches) = if a.no_check {
-        (None, None)
+    let (matches, cbvh_matches, mbvh4_matches) = if a.no_check {
+        (None, None, None)
     } else {
         let _s = ui.spinner("building the software HLBVH tree to compare");
         (
             Some(mergetree::tree_matches_software(&report, &aabbs)?),
             mergetree::cbvh_matches_software(&report, &aabbs)?,
+            mergetree::mbvh4_matches_software(&report, &aabbs)?,
         )
     };
     if let Some(p) = &a.trace {
@@ -238,6 +244,7 @@ pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
             report: &report,
             tree_matches_software: matches,
             cbvh_matches_software: cbvh_matches,
+            mbvh4_matches_software: mbvh4_matches,
             trace: a.trace.as_ref().map(|p| p.display().to_string()),
             svg: a.svg.as_ref().map(|p| p.display().to_string()),
             sim_wall_ms: wall_ms,
@@ -246,7 +253,13 @@ pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
         };
         ui.emit_json(&out)?;
     } else {
-        print_text(a, dram, &report, [matches, cbvh_matches], wall_ms);
+        print_text(
+            a,
+            dram,
+            &report,
+            [matches, cbvh_matches, mbvh4_matches],
+            wall_ms,
+        );
         if let Some(e) = &energy {
             println!(
                 "power at 28 nm: logic {:.1} mW, DRAM {:.1} mW ({:.1} mW above idle); on-chip area {:.2} mm^2",
@@ -266,6 +279,9 @@ pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
     if cbvh_matches == Some(false) {
         anyhow::bail!("the simulated CBVH differs from the software encoder's");
     }
+    if mbvh4_matches == Some(false) {
+        anyhow::bail!("the simulated MBVH4 differs from the software collapse's");
+    }
     Ok(())
 }
 
@@ -273,7 +289,7 @@ fn print_text(
     a: &MergetreeArgs,
     dram: &str,
     r: &MergeTreeReport,
-    [matches, cbvh_matches]: [Option<bool>; 2],
+    [matches, cbvh_matches, mbvh4_matches]: [Option<bool>; 3],
     wall_ms: f64,
 ) {
     println!(
@@ -380,6 +396,47 @@ fn print_text(
         println!(
             "CBVH matches the software encoder: {}",
             yes_no(cbvh_matches)
+        );
+    }
+    if let Some(m) = &r.mbvh4 {
+        let st = m.tree.stats();
+        println!(
+            "MBVH4 ({}): {} wide nodes of {} B ({:.2} children each, depth {}) from {} binary \
+             nodes; SAH {:.3} (4-wide nodes at 2 C_i); build {:.3} ms{}",
+            m.mode.name(),
+            thousands(m.wide_nodes),
+            m.node_bytes,
+            m.mean_children,
+            st.max_depth,
+            thousands(m.binary_nodes),
+            m.sah,
+            m.build_ms,
+            if m.collapse_cycles > 0 {
+                format!(
+                    " + collapse pass {:.3} ms",
+                    m.collapse_cycles as f64 / (r.config.clock_mhz as f64 * 1e3)
+                )
+            } else {
+                String::new()
+            }
+        );
+        if let Some(c) = &m.stream {
+            println!(
+                "  collapse unit: busy {} cycles, starved {}, write buffer full {}; at most {} \
+                 open subtrees ({} B of slots; emitter stack depth {}); emitter waiting for \
+                 the unit {} cycles",
+                thousands(c.busy_cycles),
+                thousands(c.starved_cycles),
+                thousands(c.write_full_cycles),
+                c.max_open,
+                c.max_open * m.node_bytes,
+                r.max_stack_depth,
+                thousands(s.emitter.encoder_full_cycles)
+            );
+        }
+        println!(
+            "MBVH4 matches the software collapse: {}",
+            yes_no(mbvh4_matches)
         );
     }
     println!(

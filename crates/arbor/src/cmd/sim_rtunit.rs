@@ -23,6 +23,11 @@ pub struct RtunitArgs {
     /// for bvh2 and cbvh, a 4-wide one for mbvh4), e.g. hlbvh for MergeTree's trees.
     #[arg(long, value_name = "NAME")]
     builder: Option<String>,
+    /// With --builder mbvh4-collapse: the binary builder whose tree is collapsed (default
+    /// binned-sah), e.g. hlbvh for MergeTree's tree collapsed after the build (against
+    /// --builder mbvh4-stream, the tree collapsed as it is emitted).
+    #[arg(long, value_name = "NAME")]
+    collapse_from: Option<String>,
     /// How the mbvh4 tree is built: topdown (Wald's top-down builder, thesis P4 3.2, with
     /// the 4-wide node cost in its leaf decision), topdown-binary-leaf (the same with the
     /// earlier leaf decision, which priced the node as a binary one), collapse
@@ -80,6 +85,23 @@ fn config_of(a: &RtunitArgs) -> anyhow::Result<RtConfig> {
     Ok(cfg)
 }
 
+/// The settings of `--builder`: the defaults, with `--collapse-from` (which only
+/// `--builder mbvh4-collapse` takes).
+fn build_config_of(a: &RtunitArgs) -> anyhow::Result<super::build::BuildConfig> {
+    let mut bc = super::build::BuildConfig::default();
+    if let Some(from) = &a.collapse_from {
+        anyhow::ensure!(
+            a.builder.as_deref() == Some(super::build::COLLAPSE),
+            "--collapse-from needs --builder {}",
+            super::build::COLLAPSE
+        );
+        bc.collapse_from = super::build::available_builders()
+            .find(|n| n == from)
+            .with_context(|| format!("unknown --collapse-from builder '{from}'"))?;
+    }
+    Ok(bc)
+}
+
 /// The options of `a` that need no scene, checked: tree kind, ray set, MBVH4 builder and
 /// the configuration.
 fn options_of(a: &RtunitArgs) -> anyhow::Result<(TreeKind, RayMode, rtunit::Mbvh4Build, RtConfig)> {
@@ -92,6 +114,7 @@ fn options_of(a: &RtunitArgs) -> anyhow::Result<(TreeKind, RayMode, rtunit::Mbvh
     if let Some(name) = &a.builder {
         super::build::builder(name)?;
     }
+    build_config_of(a)?;
     let mbvh4 = match a.mbvh4_builder.as_str() {
         "topdown" => rtunit::Mbvh4Build::Topdown,
         "collapse" => rtunit::Mbvh4Build::Collapse,
@@ -153,7 +176,7 @@ pub fn run_rtunit(a: &RtunitArgs, ui: &Ui) -> anyhow::Result<()> {
             None => rtunit::build_tree_with(kind, &triangles, mbvh4)?,
             Some(name) => {
                 let (aabbs, _) = super::build::mesh_aabbs(&mesh)?;
-                let tree = super::build::builder(name)?(&aabbs, &Default::default())?;
+                let tree = super::build::builder(name)?(&aabbs, &build_config_of(a)?)?;
                 rtunit::tree_from(kind, tree, &triangles)?
             }
         }

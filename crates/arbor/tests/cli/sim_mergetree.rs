@@ -223,3 +223,62 @@ fn cbvh_bad_arguments_are_one_line_errors() {
     );
     assert!(sim_error(&[CLOTH, "--cbvh", "stream", "--set", "cbvh_bits=2"]).contains("bits"));
 }
+
+#[test]
+fn mbvh4_output_modes() {
+    const SOUP: &str = "proc:soup?n=6000";
+    let dram = ["--dram", "simple:lpddr3-1600-1x64"];
+    let run = |output: &str| {
+        let set = format!("output={output}");
+        let mut a = vec![SOUP, "--set", set.as_str()];
+        a.extend_from_slice(&dram);
+        sim_json(&a)
+    };
+    let plain = run("bvh");
+    assert!(plain["mbvh4"].is_null() && plain["mbvh4_matches_software"].is_null());
+    let s = run("mbvh4");
+    assert_eq!(s["config"]["output"], "mbvh4");
+    assert_eq!(s["tree_matches_software"], true);
+    assert_eq!(s["mbvh4_matches_software"], true);
+    let m = &s["mbvh4"];
+    assert_eq!(m["mode"], "mbvh4");
+    assert_eq!(m["node_bytes"], 128);
+    assert_eq!(m["binary_nodes"], plain["nodes"]);
+    assert_eq!(m["stream"]["nodes_written"], m["wide_nodes"]);
+    assert!(
+        m["stream"]["max_open"].as_u64().unwrap() <= s["max_stack_depth"].as_u64().unwrap() + 1
+    );
+    assert!(m["pass"].is_null() && s["cbvh"].is_null());
+    // Same reads; 128-byte wide nodes written instead of 64-byte binary nodes.
+    let (wide, binary) = (
+        m["wide_nodes"].as_u64().unwrap(),
+        plain["nodes"].as_u64().unwrap(),
+    );
+    let u = |j: &Value, k: &str| j[k].as_u64().unwrap();
+    assert_eq!(u(&s, "bytes_read"), u(&plain, "bytes_read"));
+    assert_eq!(
+        u(&s, "bytes_written") + 64 * binary,
+        u(&plain, "bytes_written") + 128 * wide
+    );
+    let p = run("mbvh4-collapse");
+    assert_eq!(p["mbvh4_matches_software"], true);
+    let mp = &p["mbvh4"];
+    assert_eq!(mp["build_cycles"], plain["cycles"]);
+    assert_eq!(
+        u(mp, "build_cycles") + u(mp, "collapse_cycles"),
+        u(&p, "cycles")
+    );
+    assert_eq!(mp["pass"]["node_reads"], plain["nodes"]);
+    assert_eq!(u(&p, "bytes_read"), u(&plain, "bytes_read") + 64 * binary);
+    assert!(u(&s, "cycles") < u(&p, "cycles"));
+    // One tree only.
+    assert!(sim_error(&[
+        CLOTH,
+        "--set",
+        "output=mbvh4",
+        "--set",
+        "highlevel_threshold=18"
+    ])
+    .contains("highlevel_threshold"));
+    assert!(sim_error(&[CLOTH, "--set", "output=mbvh8"]).contains("mbvh4"));
+}

@@ -91,7 +91,7 @@ pub struct TopdownStats {
     pub node_reads: u64,
     /// Sum of their latencies in unit cycles.
     pub read_latency_cycles: u64,
-    /// Node pairs handed to the write buffer.
+    /// Node pairs handed to the write buffer (wide nodes, in the MBVH4 collapse pass).
     pub pairs_written: u64,
     /// Cycles the next node to encode had not arrived.
     pub read_wait_cycles: u64,

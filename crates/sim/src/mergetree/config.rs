@@ -17,7 +17,9 @@
 //! The output mode ([`OutputMode`]) chooses what becomes of the emitted hierarchy: 64-byte
 //! single-precision nodes, a CBVH written by the streaming bottom-up encoder attached to
 //! the emitter, or 64-byte nodes followed by a separate top-down compression pass (the
-//! four alternatives of \[P3\] §5.3 and Table 2). Every field can be overridden by name with [`MergeTreeConfig::set`], or from a
+//! four alternatives of \[P3\] §5.3 and Table 2); or 128-byte MBVH4 nodes (\[P4\] §3.1),
+//! written by the streaming collapse unit behind the emitter (`mbvh4`) or by a collapse pass
+//! after the build (`mbvh4-collapse`, see [`super::mbvh4_unit`]). Every field can be overridden by name with [`MergeTreeConfig::set`], or from a
 //! file of `key = value` lines (flat TOML) or a flat JSON object
 //! ([`MergeTreeConfig::apply_file`]).
 
@@ -33,6 +35,9 @@ pub const ELEM_BYTES: u64 = 32;
 
 /// Bytes of one BVH node (\[P2\] §4.1: two child AABBs, two references).
 pub const NODE_BYTES: u64 = 64;
+
+/// Bytes of one MBVH4 node (\[P4\] §3.1: four child AABBs, four references).
+pub const MBVH4_NODE_BYTES: u64 = std::mem::size_of::<bvh::Node4>() as u64;
 
 /// Bytes of one leaf-table entry (\[P2\] §4.1: a pointer to primitive data).
 pub const LEAF_ENTRY_BYTES: u64 = 4;
@@ -52,6 +57,13 @@ pub enum OutputMode {
     /// 64-byte nodes, then a separate top-down compression pass that reads them back and
     /// writes the CBVH (the postprocessing baseline of \[P3\] Fig. 2a).
     CbvhTopdown,
+    /// 128-byte MBVH4 nodes (\[P4\] §3.1) written by the streaming collapse unit behind the
+    /// emitter ([`bvh::StreamCollapse`], issue 18 part 2).
+    Mbvh4,
+    /// 64-byte nodes, then a collapse pass that reads them back and writes the offline
+    /// greedy collapse ([`bvh::collapse`]) as 128-byte MBVH4 nodes: the baseline of
+    /// `mbvh4`.
+    Mbvh4Collapse,
 }
 
 impl OutputMode {
@@ -61,12 +73,19 @@ impl OutputMode {
             OutputMode::Bvh => "bvh",
             OutputMode::CbvhStream => "cbvh-stream",
             OutputMode::CbvhTopdown => "cbvh-topdown",
+            OutputMode::Mbvh4 => "mbvh4",
+            OutputMode::Mbvh4Collapse => "mbvh4-collapse",
         }
     }
 
     /// True for the two CBVH modes.
     pub fn is_cbvh(self) -> bool {
-        self != OutputMode::Bvh
+        matches!(self, OutputMode::CbvhStream | OutputMode::CbvhTopdown)
+    }
+
+    /// True for the two MBVH4 modes.
+    pub fn is_mbvh4(self) -> bool {
+        matches!(self, OutputMode::Mbvh4 | OutputMode::Mbvh4Collapse)
     }
 }
 
@@ -192,7 +211,8 @@ pub struct MergeTreeConfig {
     pub cbvh_bits: u32,
     /// Minimum scale exponent of the CBVH grids (\[P3\] §4.4, §5.1: -30).
     pub cbvh_min_scale_exp: i32,
-    /// Nodes in the FIFO from the hierarchy emitter to the streaming encoder.
+    /// Nodes in the FIFO from the hierarchy emitter to the unit behind it: the streaming
+    /// CBVH encoder (`cbvh-stream`) or the streaming MBVH4 collapse (`mbvh4`).
     pub cbvh_fifo: u32,
     /// A backtracking read of a line that still has bytes in the node-pair write buffer
     /// first writes them out (coherent, the default); `false` is a timing what-if that reads
@@ -414,7 +434,13 @@ impl MergeTreeConfig {
                     "bvh" => OutputMode::Bvh,
                     "cbvh-stream" => OutputMode::CbvhStream,
                     "cbvh-topdown" => OutputMode::CbvhTopdown,
-                    _ => return Err(bad("expected bvh, cbvh-stream or cbvh-topdown")),
+                    "mbvh4" => OutputMode::Mbvh4,
+                    "mbvh4-collapse" => OutputMode::Mbvh4Collapse,
+                    _ => {
+                        return Err(bad(
+                            "expected bvh, cbvh-stream, cbvh-topdown, mbvh4 or mbvh4-collapse",
+                        ))
+                    }
                 }
             }
             "cbvh_coords" => {
@@ -578,14 +604,25 @@ impl MergeTreeConfig {
         if self.toplevel_sah && self.highlevel_threshold.is_none() {
             return err("toplevel_sah needs a highlevel_threshold".into());
         }
+        if (self.output.is_cbvh() || self.output.is_mbvh4())
+            && (self.highlevel_threshold.is_some() || self.toplevel_sah)
+        {
+            return err(format!(
+                "output = {} builds one LBVH: it needs highlevel_threshold = none and \
+                 toplevel_sah = false",
+                self.output.name()
+            ));
+        }
+        if (self.output.is_cbvh() || self.output == OutputMode::Mbvh4)
+            && self.cbvh_fifo as u64 > 1 << 20
+        {
+            return err(format!(
+                "cbvh_fifo ({}) exceeds the model's limit of {}",
+                self.cbvh_fifo,
+                1 << 20
+            ));
+        }
         if self.output.is_cbvh() {
-            if self.highlevel_threshold.is_some() || self.toplevel_sah {
-                return err(format!(
-                    "output = {} builds one LBVH: it needs highlevel_threshold = none and \
-                     toplevel_sah = false",
-                    self.output.name()
-                ));
-            }
             self.cbvh_params()
                 .check()
                 .map_err(|e| ConfigError::Inconsistent(e.to_string()))?;
@@ -597,13 +634,6 @@ impl MergeTreeConfig {
             }
             if self.output == OutputMode::CbvhTopdown && self.cbvh_treelet_depth != 1 {
                 return err("treelets apply to output = cbvh-stream only".into());
-            }
-            if self.cbvh_fifo as u64 > 1 << 20 {
-                return err(format!(
-                    "cbvh_fifo ({}) exceeds the model's limit of {}",
-                    self.cbvh_fifo,
-                    1 << 20
-                ));
             }
         }
         if let Some(t) = self.highlevel_threshold {

@@ -15,6 +15,9 @@
 //! full), and the leaf-table entry that ends each leaf carries the CBVH format's leaf-end
 //! flag (set when the leaf's node is emitted, before the entry is written out; the write
 //! buffer models bytes, so the flag costs no traffic).
+//!
+//! With the streaming MBVH4 collapse attached (issue 18 part 2, [`super::mbvh4_unit`]),
+//! emitted nodes go into the collapse unit's input FIFO the same way.
 
 use bvh::{EmittedNode, Emitter, HighlevelRoot, Prim, Step};
 use cbvh::bottomup::{input_of_emitted, input_of_root, InputNode};
@@ -29,7 +32,8 @@ pub struct EmitterStalls {
     pub starved_cycles: u64,
     /// Cycles a write buffer (nodes, leaf table, high-level) was full.
     pub write_full_cycles: u64,
-    /// Cycles the streaming CBVH encoder's input FIFO was full.
+    /// Cycles the input FIFO of the unit behind the emitter (the streaming CBVH encoder or
+    /// the streaming MBVH4 collapse) was full.
     pub encoder_full_cycles: u64,
 }
 
@@ -106,7 +110,7 @@ impl EmitUnit {
             return EmitStatus::Finished;
         }
         // Room for whatever this step may write.
-        if io.encoder_attached() {
+        if io.encoder_attached() || io.collapse_attached() {
             if !io.node_room() {
                 return EmitStatus::EncoderFull;
             }
@@ -159,6 +163,8 @@ impl EmitUnit {
                 if io.encoder_attached() {
                     let n = input_of_emitted_in(&n, &mut self.cbvh_ids);
                     self.send_to_encoder(io, n)
+                } else if io.collapse_attached() {
+                    io.push_collapse(n);
                 } else {
                     io.add_node();
                 }
@@ -200,7 +206,7 @@ pub(super) enum EmitStatus {
     Starved,
     /// A write buffer had no room.
     WriteFull,
-    /// The CBVH encoder's input FIFO was full.
+    /// The input FIFO of the CBVH encoder or MBVH4 collapse unit was full.
     EncoderFull,
     /// The step machine has finished.
     Finished,
@@ -214,7 +220,9 @@ pub(super) trait EmitPorts {
     fn pop(&mut self) -> Option<Elem>;
     /// Inner nodes go to the streaming CBVH encoder (else to the node write buffer).
     fn encoder_attached(&self) -> bool;
-    /// Room for one inner node (node buffer bytes, or an encoder FIFO slot).
+    /// Inner nodes go to the streaming MBVH4 collapse unit.
+    fn collapse_attached(&self) -> bool;
+    /// Room for one inner node (node buffer bytes, or an encoder or collapse FIFO slot).
     fn node_room(&self) -> bool;
     /// Room for one leaf-table entry.
     fn leaf_room(&self) -> bool;
@@ -224,6 +232,8 @@ pub(super) trait EmitPorts {
     fn add_node(&mut self);
     /// Pushes an encoder input (room was checked).
     fn push_encoder(&mut self, n: InputNode);
+    /// Pushes an emitted node to the collapse unit (room was checked).
+    fn push_collapse(&mut self, n: EmittedNode);
     /// Adds a leaf-table entry's bytes.
     fn add_leaf(&mut self);
     /// Adds a high-level record's bytes.

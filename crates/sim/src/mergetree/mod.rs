@@ -18,6 +18,8 @@
 //! - [`cbvh_unit`]: the CBVH output of \[P3\] §5.3: the streaming bottom-up encoder behind
 //!   the emitter (backtracking steps as DRAM reads and writes), or a top-down compression
 //!   pass after the build;
+//! - [`mbvh4_unit`]: the MBVH4 output (issue 18 part 2): the streaming collapse behind the
+//!   emitter, or a collapse pass after the build (the baseline);
 //! - [`report`]: cycles, traffic, utilization, stalls, time series (CSV and SVG).
 //!
 //! The centroid bounds that scale the Morton codes are an input of the unit (a
@@ -33,6 +35,7 @@ pub mod emitter;
 pub mod energy;
 pub mod heap;
 pub mod machine;
+pub mod mbvh4_unit;
 pub mod merge;
 pub mod presort;
 pub mod report;
@@ -40,6 +43,7 @@ pub mod toplevel;
 
 pub use config::{ConfigError, MergeTreeConfig, OutputMode, ReadSchedule};
 pub use machine::MemoryLayout;
+pub use mbvh4_unit::{CollapseUnitStats, Mbvh4RunReport};
 pub use report::{CbvhRunReport, MergeTreeReport, PhaseReport, StallReport, TraceRow};
 
 use bvh::{Bvh2, HlbvhBuilder, HlbvhSahBuilder, MortonBits};
@@ -115,6 +119,10 @@ pub enum MergeTreeError {
     /// address).
     #[error("CBVH output: {0}")]
     Cbvh(#[from] cbvh::CbvhError),
+    /// The MBVH4 collapse refused the emitted stream (cannot happen with a correct
+    /// emitter).
+    #[error("MBVH4 output: {0}")]
+    Collapse(#[from] bvh::CollapseError),
 }
 
 /// The centroid bounds of `aabbs`, with the software builder's centroid expression.
@@ -169,6 +177,7 @@ fn run_machine<'a>(
         cbvh::bottomup::check_stream(1, aabbs.len())?;
     }
     let mut k = machine::run(aabbs, &cb, cfg, port, progress)?;
+    let collapse = k.collapse.take();
     let out = KernelCbvh {
         stream: k.stream.take(),
         ids: k.cbvh_ids.take(),
@@ -200,6 +209,13 @@ fn run_machine<'a>(
         roots: std::mem::take(&mut k.roots),
         order: std::mem::take(&mut k.order),
     };
+    let mbvh4 = kernel_mbvh4_result(
+        collapse,
+        out.topdown.clone(),
+        &highlevel,
+        cfg,
+        [out.build_cycles, out.cycles],
+    )?;
     let cbvh = kernel_cbvh_result(out, &highlevel, cfg)?;
     let mem = k.mem;
     Ok(MergeTreeReport {
@@ -235,8 +251,48 @@ fn run_machine<'a>(
         highlevel,
         top_tree,
         cbvh,
+        mbvh4,
         units: k.run.units,
     })
+}
+
+/// The MBVH4 the machine wrote, with its counts, in the MBVH4 output modes: the streaming
+/// unit's collapse, or the offline collapse of the built tree (the pass's result).
+fn kernel_mbvh4_result(
+    collapse: Option<(bvh::StreamCollapse, CollapseUnitStats)>,
+    pass: Option<cbvh_unit::TopdownStats>,
+    hl: &bvh::Highlevel,
+    cfg: &MergeTreeConfig,
+    [build_cycles, cycles]: [u64; 2],
+) -> Result<Option<Mbvh4RunReport>, MergeTreeError> {
+    let build_cycles = if hl.order.is_empty() { 0 } else { build_cycles };
+    let (tree, stream, pass) = match cfg.output {
+        OutputMode::Mbvh4 => match collapse {
+            Some((sc, st)) => (sc.tree(hl.order.clone())?, Some(st), None),
+            // An empty scene: the unit did not start.
+            None => (bvh::stream_collapse(hl)?.0, None, None),
+        },
+        OutputMode::Mbvh4Collapse => (bvh::collapse(&hl.to_bvh2())?, None, pass),
+        _ => return Ok(None),
+    };
+    Ok(Some(Mbvh4RunReport {
+        mode: cfg.output,
+        wide_nodes: tree.nodes.len() as u64,
+        node_bytes: config::MBVH4_NODE_BYTES,
+        binary_nodes: hl.nodes.len() as u64,
+        sah: tree.normalized_sah(),
+        mean_children: tree.stats().mean_children,
+        build_cycles,
+        build_ms: build_cycles as f64 / (cfg.clock_mhz as f64 * 1e3),
+        collapse_cycles: if cfg.output == OutputMode::Mbvh4Collapse {
+            cycles - build_cycles
+        } else {
+            0
+        },
+        stream,
+        pass,
+        tree,
+    }))
 }
 
 /// What the kernel machine's CBVH units left behind.
@@ -261,7 +317,7 @@ fn kernel_cbvh_result(
         k.build_cycles
     };
     let (tree, encode, stream, topdown) = match cfg.output {
-        OutputMode::Bvh => return Ok(None),
+        OutputMode::Bvh | OutputMode::Mbvh4 | OutputMode::Mbvh4Collapse => return Ok(None),
         OutputMode::CbvhStream => match k.stream.take() {
             Some((enc, stats)) if !hl.order.is_empty() => {
                 let ids = k.ids.take().unwrap_or_default();
@@ -335,7 +391,7 @@ pub fn software_cbvh(
     cfg: &MergeTreeConfig,
 ) -> Result<Option<(cbvh::Cbvh, cbvh::EncodeStats)>, MergeTreeError> {
     Ok(match cfg.output {
-        OutputMode::Bvh => None,
+        OutputMode::Bvh | OutputMode::Mbvh4 | OutputMode::Mbvh4Collapse => None,
         OutputMode::CbvhStream => {
             let hl = software_builder(cfg).build_highlevel(aabbs)?;
             Some(cbvh::compress_hlbvh(&hl, &cfg.stream_config(0))?)
@@ -359,6 +415,35 @@ pub fn cbvh_matches_software(
         return Ok(None);
     };
     Ok(Some(ours.tree == tree && ours.encode == stats))
+}
+
+/// The MBVH4 software makes for `cfg`'s output mode: [`bvh::stream_collapse`] of the
+/// software emitter's stream (`mbvh4`), or [`bvh::collapse`] of the software tree
+/// (`mbvh4-collapse`); `None` in the other modes.
+pub fn software_mbvh4(
+    aabbs: &[Aabb],
+    cfg: &MergeTreeConfig,
+) -> Result<Option<bvh::Mbvh4>, MergeTreeError> {
+    Ok(match cfg.output {
+        OutputMode::Mbvh4 => {
+            let hl = software_builder(cfg).build_highlevel(aabbs)?;
+            Some(bvh::stream_collapse(&hl)?.0)
+        }
+        OutputMode::Mbvh4Collapse => Some(bvh::collapse(&software_tree(aabbs, cfg)?)?),
+        _ => None,
+    })
+}
+
+/// In the MBVH4 output modes, true when the MBVH4 the unit wrote equals the software
+/// collapse's node for node; `None` in the other modes.
+pub fn mbvh4_matches_software(
+    report: &MergeTreeReport,
+    aabbs: &[Aabb],
+) -> Result<Option<bool>, MergeTreeError> {
+    let (Some(ours), Some(tree)) = (&report.mbvh4, software_mbvh4(aabbs, &report.config)?) else {
+        return Ok(None);
+    };
+    Ok(Some(ours.tree == tree))
 }
 
 /// True when the simulated unit's tree equals the software builder's node for node (and,
@@ -387,3 +472,5 @@ mod tests_exact;
 mod tests_forecast;
 #[cfg(test)]
 mod tests_kernel;
+#[cfg(test)]
+mod tests_mbvh4;

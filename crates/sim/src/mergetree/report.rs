@@ -149,6 +149,8 @@ pub struct MergeTreeReport {
     pub top_tree: Option<bvh::Bvh2>,
     /// The CBVH output (\[P3\] §5.3), in the CBVH output modes.
     pub cbvh: Option<CbvhRunReport>,
+    /// The MBVH4 output (issue 18 part 2), in the MBVH4 output modes.
+    pub mbvh4: Option<super::mbvh4_unit::Mbvh4RunReport>,
     /// Busy / stalled / idle cycles and counters of every unit (the kernel machine).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub units: Vec<crate::kernel::UnitReport>,

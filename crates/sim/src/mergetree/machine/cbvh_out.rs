@@ -195,6 +195,9 @@ pub(super) struct Topdown {
     pub(super) arrived: Vec<bool>,
     pub(super) next_encode: u64,
     pub(super) pairs: u64,
+    /// Bytes written after consuming each position (a node pair each for the CBVH; a
+    /// wide node at the wide roots for the MBVH4 collapse pass).
+    pub(super) bytes: Vec<u64>,
     pub(super) pair_bytes: u64,
     pub(super) stats: TopdownStats,
 }
@@ -221,6 +224,22 @@ impl<'a> Unit<KWorld<'a>> for Topdown {
             self.nodes = w.out.nodes.len() as u64;
             self.arrived = vec![false; self.nodes as usize];
             self.pairs = self.nodes.max(1);
+            self.bytes = if w.cfg.output == OutputMode::Mbvh4Collapse {
+                let hl = bvh::Highlevel {
+                    nodes: w.out.nodes.clone(),
+                    roots: w.out.roots.clone(),
+                    order: w.out.order.clone(),
+                };
+                match crate::mergetree::mbvh4_unit::collapse_pass_writes(&hl) {
+                    Ok(b) => b,
+                    Err(e) => {
+                        w.out.collapse_fault = Some(e);
+                        vec![0; self.pairs as usize]
+                    }
+                }
+            } else {
+                vec![self.pair_bytes; self.pairs as usize]
+            };
             w.td_data = fifo(
                 "arbiter->topdown",
                 self.nodes as usize,
@@ -254,16 +273,19 @@ impl<'a> Unit<KWorld<'a>> for Topdown {
         }
         // A tree that is one leaf has no node to read: its box is the root record.
         let here = self.nodes == 0 || self.arrived[self.next_encode as usize];
+        let bytes = self.bytes[self.next_encode as usize];
         let wake = if !here {
             cx.set_state(State::Stalled(TD_READ_WAIT));
             Wake::OnEvent
-        } else if !w.nodes.has_room(now, self.pair_bytes) {
+        } else if !w.nodes.has_room(now, bytes) {
             cx.set_state(State::Stalled(TD_WRITE_FULL));
             Wake::OnEvent
         } else {
-            w.nodes.add(cx, self.pair_bytes);
+            if bytes > 0 {
+                w.nodes.add(cx, bytes);
+                self.stats.pairs_written += 1;
+            }
             self.next_encode += 1;
-            self.stats.pairs_written += 1;
             cx.set_state(State::Busy);
             if self.next_encode == self.pairs {
                 w.out.topdown = Some(self.stats.clone());

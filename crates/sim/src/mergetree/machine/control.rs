@@ -196,7 +196,8 @@ impl<'a> Unit<KWorld<'a>> for Control {
             Phase::Emit => {
                 // The final merge's done token is not needed: the emitter ends the phase.
                 let _ = w.merge_done.pop(cx);
-                let streaming = w.cfg.output == OutputMode::CbvhStream;
+                // A streaming encoder or collapse writes nodes until it is done.
+                let streaming = matches!(w.cfg.output, OutputMode::CbvhStream | OutputMode::Mbvh4);
                 if !self.draining {
                     if w.emit_done.pop(cx).is_none() {
                         return Wake::OnEvent;
@@ -230,7 +231,10 @@ impl<'a> Unit<KWorld<'a>> for Control {
                     self.set_phase(w, now, Phase::Toplevel);
                     return Wake::OnEvent;
                 }
-                if w.cfg.output == OutputMode::CbvhTopdown {
+                if matches!(
+                    w.cfg.output,
+                    OutputMode::CbvhTopdown | OutputMode::Mbvh4Collapse
+                ) {
                     w.nodes = KBuf::new(
                         WriteBuffer::new(
                             w.layout.cbvh,

@@ -15,6 +15,7 @@ pub(super) struct KPorts<'c, 'w> {
     pub(super) cx: &'c mut Ctx,
     pub(super) input: &'w mut LatencyFifo<Elem>,
     pub(super) enc: Option<&'w mut LatencyFifo<cbvh::bottomup::InputNode>>,
+    pub(super) col: Option<&'w mut LatencyFifo<bvh::EmittedNode>>,
     pub(super) nodes: &'w mut KBuf,
     pub(super) leaves: &'w mut KBuf,
     pub(super) hl: &'w mut KBuf,
@@ -36,10 +37,15 @@ impl EmitPorts for KPorts<'_, '_> {
         self.enc.is_some()
     }
     #[inline]
+    fn collapse_attached(&self) -> bool {
+        self.col.is_some()
+    }
+    #[inline]
     fn node_room(&self) -> bool {
-        match &self.enc {
-            Some(f) => !f.is_full(self.cx),
-            None => self.nodes.has_room(self.cx.now(), NODE_BYTES),
+        match (&self.enc, &self.col) {
+            (Some(f), _) => !f.is_full(self.cx),
+            (None, Some(f)) => !f.is_full(self.cx),
+            (None, None) => self.nodes.has_room(self.cx.now(), NODE_BYTES),
         }
     }
     #[inline]
@@ -58,6 +64,12 @@ impl EmitPorts for KPorts<'_, '_> {
         let f = self.enc.as_mut().expect("an encoder attached");
         if f.push(self.cx, n).is_err() {
             unreachable!("room in the encoder FIFO was checked before the step");
+        }
+    }
+    fn push_collapse(&mut self, n: bvh::EmittedNode) {
+        let f = self.col.as_mut().expect("a collapse unit attached");
+        if f.push(self.cx, n).is_err() {
+            unreachable!("room in the collapse FIFO was checked before the step");
         }
     }
     #[inline]
@@ -85,9 +97,11 @@ impl<'a> Unit<KWorld<'a>> for Emitter {
             return Wake::Done;
         }
         let streaming = w.cfg.output == OutputMode::CbvhStream;
+        let collapsing = w.cfg.output == OutputMode::Mbvh4;
         let KWorld {
             emit_fifo,
             enc_fifo,
+            col_fifo,
             nodes,
             leaves,
             hl,
@@ -97,6 +111,7 @@ impl<'a> Unit<KWorld<'a>> for Emitter {
             cx: &mut *cx,
             input: emit_fifo,
             enc: streaming.then_some(enc_fifo),
+            col: collapsing.then_some(col_fifo),
             nodes,
             leaves,
             hl,

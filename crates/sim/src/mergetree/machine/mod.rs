@@ -18,7 +18,9 @@
 //! - `highlevel`: 32-byte high-level roots (with a threshold) and the toplevel nodes;
 //! - `cbvh`: the compressed tree's node pairs, in the CBVH output modes (\[P3\] §5.3), written
 //!   by the streaming encoder (in its write order) or by the top-down pass (in its read
-//!   order; see [`super::cbvh_unit`]). With the streaming encoder, `nodes` stays unused.
+//!   order; see [`super::cbvh_unit`]); or the 128-byte MBVH4 nodes in the MBVH4 output
+//!   modes, written by the streaming collapse or the collapse pass
+//!   ([`super::mbvh4_unit`]). With the streaming encoder or collapse, `nodes` stays unused.
 //!
 //!
 //!
@@ -34,7 +36,8 @@
 //! | 6 | presorter bank: presorters `0..P` (one kernel unit, `PresortBank`; each presorter keeps its own intervals) | per presorter a `Presorter` (ring, sort buffer) | `ps_data[p]`, `scratch_open` | the scratchpad's write side (one write port, taken in presorter order), `ps_credit[p]`, `sub_ready` |
 //! | then | toplevel SAH unit (with `toplevel_sah`) | `TopUnit` | `top_start`, the published cell roots | high-level write buffer, `top_done` |
 //! | then | streaming CBVH encoder (`cbvh-stream`) | the encoder, its queued accesses | `enc_fifo`, `bt_data`, `emit_finished` | node-pair write buffer, `req_cbvh`, `stream_done` |
-//! | then | top-down CBVH pass (`cbvh-topdown`) | read / encode positions | `td_start`, `td_data` | node-pair write buffer, `req_cbvh`, `td_done` |
+//! | then | streaming MBVH4 collapse (`mbvh4`, in the encoder's place) | the collapse, its open subtrees | `col_fifo`, `emit_finished` | wide-node write buffer, `stream_done` |
+//! | then | top-down CBVH pass (`cbvh-topdown`), or the MBVH4 collapse pass (`mbvh4-collapse`) | read / encode positions | `td_start`, `td_data` | node-pair (wide-node) write buffer, `req_cbvh`, `td_done` |
 //!
 //! The units live in files of their own: `control` (the FSM), `emit` (hierarchy emitter
 //! and toplevel SAH unit), `merge_unit`, `memory` (reader, run writer, arbiter),
@@ -78,6 +81,7 @@
 //! | `req_read`, `req_run` | 2 | reader / run writer -> arbiter |
 //! | `cmd` | 1 | control -> merger |
 //! | `enc_fifo` | `cbvh_fifo` | emitter -> streaming encoder |
+//! | `col_fifo` | `cbvh_fifo` | emitter -> streaming MBVH4 collapse |
 //! | `req_cbvh` | 2 | CBVH unit -> arbiter |
 //! | `bt_data` | 1 | arbiter -> streaming encoder (backtracking read done) |
 //! | `td_data` | nodes | arbiter -> top-down pass (node reads done) |
@@ -96,6 +100,7 @@
 mod cbvh_out;
 mod control;
 mod emit;
+mod mbvh4_out;
 mod memory;
 mod merge_unit;
 mod presort_bank;
@@ -103,6 +108,7 @@ mod presort_bank;
 use cbvh_out::*;
 use control::*;
 use emit::*;
+use mbvh4_out::*;
 use memory::*;
 use merge_unit::*;
 use presort_bank::*;
@@ -112,9 +118,12 @@ use std::collections::VecDeque;
 use geom::{Aabb, MortonQuantizer};
 
 use super::cbvh_unit::{StreamUnitStats, TopdownStats};
-use super::config::{MergeTreeConfig, ELEM_BYTES, HIGHLEVEL_BYTES, LEAF_ENTRY_BYTES, NODE_BYTES};
+use super::config::{
+    MergeTreeConfig, ELEM_BYTES, HIGHLEVEL_BYTES, LEAF_ENTRY_BYTES, MBVH4_NODE_BYTES, NODE_BYTES,
+};
 use super::config::{OutputMode, ReadSchedule};
 use super::emitter::{EmitPorts, EmitStatus, EmitUnit, EmitterStalls};
+use super::mbvh4_unit::CollapseUnitStats;
 use super::merge::{MergeOut, MergeStalls, MergeState, Merger, Slot};
 use super::presort::{PresortState, Presorter};
 use super::report::{PhaseReport, StallReport, TraceRow};
@@ -143,7 +152,7 @@ pub struct MemoryLayout {
     pub leaves: u64,
     /// High-level roots and toplevel nodes.
     pub highlevel: u64,
-    /// CBVH node pairs (CBVH output modes).
+    /// CBVH node pairs (CBVH output modes), or MBVH4 nodes (MBVH4 output modes).
     pub cbvh: u64,
     /// First byte after the layout.
     pub end: u64,
@@ -162,8 +171,10 @@ impl MemoryLayout {
         let leaves = up(nodes + n.saturating_sub(1) * super::config::NODE_BYTES);
         let highlevel = up(leaves + n * super::config::LEAF_ENTRY_BYTES);
         let cbvh = up(highlevel + n * super::config::HIGHLEVEL_BYTES);
-        let pair_max = cbvh::format::pair_bytes(cbvh::grid::MAX_BITS) as u64;
-        let end = up(cbvh + n.max(1) * pair_max);
+        // Room for a node pair of the widest coordinates or a 128-byte MBVH4 node per
+        // primitive (a tree of n leaves has fewer of either).
+        let out_max = (cbvh::format::pair_bytes(cbvh::grid::MAX_BITS) as u64).max(MBVH4_NODE_BYTES);
+        let end = up(cbvh + n.max(1) * out_max);
         Self {
             input,
             runs: [run0, run1],
@@ -595,6 +606,8 @@ struct Outputs {
     cbvh_ids: Option<Vec<u32>>,
     stream: Option<(cbvh::bottomup::StreamEncoder, StreamUnitStats)>,
     topdown: Option<TopdownStats>,
+    collapse: Option<(bvh::StreamCollapse, CollapseUnitStats)>,
+    collapse_fault: Option<bvh::CollapseError>,
 }
 
 /// The world of the kernel-based machine: channels, shared resources, outputs.
@@ -627,6 +640,8 @@ pub(super) struct KWorld<'a> {
     hl: KBuf,
     /// Emitter -> streaming CBVH encoder.
     enc_fifo: LatencyFifo<cbvh::bottomup::InputNode>,
+    /// Emitter -> streaming MBVH4 collapse.
+    col_fifo: LatencyFifo<bvh::EmittedNode>,
     /// Streaming encoder's and top-down pass's requests to the arbiter.
     req_cbvh: LatencyFifo<Req>,
     /// Arbiter -> streaming encoder: a backtracking read's latency.
@@ -743,6 +758,7 @@ pub(super) struct KRun {
     pub cbvh_ids: Option<Vec<u32>>,
     pub stream: Option<(cbvh::bottomup::StreamEncoder, StreamUnitStats)>,
     pub topdown: Option<TopdownStats>,
+    pub collapse: Option<(bvh::StreamCollapse, CollapseUnitStats)>,
     pub build_cycles: u64,
     pub passes_total: u32,
     pub layout: MemoryLayout,
@@ -781,6 +797,7 @@ pub(super) fn run<'a>(
             cbvh_ids: None,
             stream: None,
             topdown: None,
+            collapse: None,
             build_cycles: 0,
             passes_total: 0,
             layout: MemoryLayout::new(0, 0, 1, 0),
@@ -819,12 +836,20 @@ pub(super) fn run<'a>(
     };
     let ids = Optional {
         toplevel: take(cfg.toplevel_sah),
-        stream: take(cfg.output == OutputMode::CbvhStream),
-        topdown: take(cfg.output == OutputMode::CbvhTopdown),
+        // The streaming encoder or collapse behind the emitter; the pass after the build.
+        stream: take(matches!(
+            cfg.output,
+            OutputMode::CbvhStream | OutputMode::Mbvh4
+        )),
+        topdown: take(matches!(
+            cfg.output,
+            OutputMode::CbvhTopdown | OutputMode::Mbvh4Collapse
+        )),
     };
     let (toplevel, stream, topdown) = (ids.toplevel, ids.stream, ids.topdown);
     let region_len = |needed: bool| if needed { npad as usize } else { 0 };
     let streaming = cfg.output == OutputMode::CbvhStream;
+    let behind = streaming || cfg.output == OutputMode::Mbvh4;
     let wb = |base: u64, cap: u32| WriteBuffer::new(base, cap as u64, cfg.write_chunk_bytes as u64);
     let mut w = KWorld {
         cfg: cfg.clone(),
@@ -864,7 +889,7 @@ pub(super) fn run<'a>(
             .collect(),
         req_read: fifo("reader->arbiter", 2, READER, ARBITER),
         req_run: fifo("run writer->arbiter", 2, RUN_WRITER, ARBITER),
-        nodes: if streaming {
+        nodes: if behind {
             KBuf::new(wb(layout.cbvh, cfg.node_buffer_bytes), [stream, stream])
         } else {
             KBuf::new(wb(layout.nodes, cfg.node_buffer_bytes), [EMITTER, EMITTER])
@@ -876,6 +901,12 @@ pub(super) fn run<'a>(
         ),
         enc_fifo: fifo(
             "emitter->cbvh encoder",
+            cfg.cbvh_fifo as usize,
+            EMITTER,
+            stream,
+        ),
+        col_fifo: fifo(
+            "emitter->mbvh4 collapse",
             cfg.cbvh_fifo as usize,
             EMITTER,
             stream,
@@ -1019,7 +1050,20 @@ pub(super) fn run<'a>(
         }));
         debug_assert_eq!(id, stream);
     }
-    if cfg.output == OutputMode::CbvhTopdown {
+    if cfg.output == OutputMode::Mbvh4 {
+        let id = s.add(Box::new(Collapse {
+            sc: Some(bvh::StreamCollapse::new()),
+            writes: 0,
+            ended: false,
+            done: false,
+            stats: CollapseUnitStats::default(),
+        }));
+        debug_assert_eq!(id, stream);
+    }
+    if matches!(
+        cfg.output,
+        OutputMode::CbvhTopdown | OutputMode::Mbvh4Collapse
+    ) {
         let id = s.add(Box::new(Topdown {
             started: false,
             nodes: 0,
@@ -1027,6 +1071,7 @@ pub(super) fn run<'a>(
             arrived: Vec::new(),
             next_encode: 0,
             pairs: 0,
+            bytes: Vec::new(),
             pair_bytes: cbvh::format::pair_bytes(cfg.cbvh_bits) as u64,
             stats: TopdownStats::default(),
         }));
@@ -1036,6 +1081,9 @@ pub(super) fn run<'a>(
         .run(&mut w)
         .map_err(|e| MergeTreeError::Deadlock(e.to_string()))?;
     if let Some(f) = w.out.fault.take() {
+        return Err(f.into());
+    }
+    if let Some(f) = w.out.collapse_fault.take() {
         return Err(f.into());
     }
     let cycles = rep.cycles;
@@ -1072,6 +1120,13 @@ pub(super) fn run<'a>(
             st.flush_wait_cycles = stalled(a, ST_FLUSH_WAIT as usize);
             st.write_full_cycles = stalled(a, ST_WRITE_FULL as usize);
             (e, st)
+        }),
+        collapse: w.out.collapse.take().map(|(c, mut st)| {
+            let a = &rep.units[w.ids.stream.index()];
+            st.busy_cycles = a.activity.busy_cycles;
+            st.starved_cycles = stalled(a, CO_STARVED as usize);
+            st.write_full_cycles = stalled(a, CO_WRITE_FULL as usize);
+            (c, st)
         }),
         topdown: w.out.topdown.take().map(|mut t| {
             let a = &rep.units[w.ids.topdown.index()];

@@ -1,0 +1,132 @@
+//! The MBVH4 outputs of MergeTree (issue 18 part 2): 128-byte 4-wide nodes (\[P4\] §3.1)
+//! from the streaming collapse unit behind the hierarchy emitter, or from a collapse pass
+//! after a build of 64-byte binary nodes (the baseline).
+//!
+//! # Streaming collapse unit (`output = mbvh4`)
+//! The unit (`Collapse` in [`super::machine`]) consumes the emitter's binary nodes from a
+//! FIFO (`cbvh_fifo` entries; the emitter stalls while it is full), exactly as the
+//! streaming CBVH encoder does ([`super::cbvh_unit`]), and drives the software collapse
+//! [`bvh::StreamCollapse`], so the tree it writes is, node for node, the one
+//! [`bvh::stream_collapse`] makes from the same stream. Timing: one cycle to consume a
+//! node (the open/close decision compares two slot counts and two box areas; the areas
+//! are a few multiply-adds, pipelined), then one cycle per wide node the decision closes
+//! (0, 1 or 2), each handing 128 bytes to the node write buffer (stalling while it is
+//! full); at the end of the stream one cycle to take the root and one to write it. The
+//! binary nodes are never written: the node traffic is 128 bytes per wide node instead of
+//! 64 bytes per binary node. The unit holds one 128-byte node of slots per open subtree,
+//! at most the emitter's deepest stack + 1 (see [`bvh::StreamCollapse`]; the report gives
+//! the peak). Wide nodes go to the output region (`cbvh` in [`super::MemoryLayout`]) in
+//! write order, each after the nodes it references.
+//!
+//! # Collapse pass (`output = mbvh4-collapse`)
+//! The baseline builds as `output = bvh` (64-byte nodes in emission order), then a pass
+//! reads the nodes back and writes the offline greedy collapse ([`bvh::collapse`] of the
+//! built tree: what \[P4\]-style software does after a binary build). It is the top-down
+//! pass unit of the CBVH baseline (`Topdown` in [`super::machine`], see
+//! [`super::cbvh_unit`]) with another output: it reads the 64-byte nodes from the end of
+//! the array backwards (a preorder: every parent before its children), with one read
+//! offered per cycle and no limit on reads in flight, consumes one node per cycle in that
+//! order, and writes a 128-byte wide node when it consumes the binary node that roots one
+//! ([`bvh::Collapse::wide_roots`]). The bytes are exact (every binary node read once,
+//! every wide node written once); the write times are optimistic, since a wide node is
+//! complete only once the binary nodes it pulls up (children and grandchildren of its
+//! root) have been read, a few reads later.
+
+use serde::Serialize;
+
+use super::cbvh_unit::TopdownStats;
+use super::config::{OutputMode, MBVH4_NODE_BYTES};
+
+/// Counters of the streaming collapse unit.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct CollapseUnitStats {
+    /// Binary nodes taken from the emitter.
+    pub nodes_in: u64,
+    /// Wide nodes handed to the write buffer (128 B each).
+    pub nodes_written: u64,
+    /// Peak number of open subtrees held (one 128-byte node of slots each).
+    pub max_open: u64,
+    /// Cycles the unit consumed a node, took the root or wrote a wide node.
+    pub busy_cycles: u64,
+    /// Cycles it had nothing to do and the emitter had not finished.
+    pub starved_cycles: u64,
+    /// Cycles the write buffer had no room for a wide node.
+    pub write_full_cycles: u64,
+}
+
+/// What the MBVH4 output of a run did.
+#[derive(Clone, Debug, Serialize)]
+pub struct Mbvh4RunReport {
+    /// `mbvh4` or `mbvh4-collapse`.
+    pub mode: OutputMode,
+    /// Wide nodes written.
+    pub wide_nodes: u64,
+    /// Bytes of one wide node (128).
+    pub node_bytes: u64,
+    /// Binary nodes the emitter produced (written and read back by the collapse pass;
+    /// never written by the streaming unit).
+    pub binary_nodes: u64,
+    /// SAH of the MBVH4 with 4-wide nodes costing `2 C_i` ([`bvh::Mbvh4::normalized_sah`]).
+    pub sah: f64,
+    /// Mean used slots per wide node.
+    pub mean_children: f64,
+    /// Cycles until the build's output was complete in DRAM: for the collapse pass, the
+    /// binary build before the pass; for streaming, the whole run.
+    pub build_cycles: u64,
+    /// `build_cycles` in milliseconds.
+    pub build_ms: f64,
+    /// Cycles of the collapse pass (0 for streaming).
+    pub collapse_cycles: u64,
+    /// Streaming unit counters.
+    pub stream: Option<CollapseUnitStats>,
+    /// Collapse pass counters (`pairs_written` counts the wide nodes written).
+    pub pass: Option<TopdownStats>,
+    /// The MBVH4 written (depth-first preorder).
+    #[serde(skip)]
+    pub tree: bvh::Mbvh4,
+}
+
+/// The emission (postorder) index of every node of a tree in the preorder that
+/// [`bvh::Highlevel::to_bvh2`] lays the emitted nodes out in: child 0's subtree, child 1's
+/// subtree, then the node.
+pub fn emission_index(bvh: &bvh::Bvh2) -> Vec<u32> {
+    let n = bvh.nodes.len();
+    let mut rank = vec![0u32; n];
+    let mut next = 0u32;
+    let mut stack: Vec<(usize, bool)> = Vec::with_capacity(64);
+    if n > 0 {
+        stack.push((0, false));
+    }
+    while let Some((i, expanded)) = stack.pop() {
+        if expanded {
+            rank[i] = next;
+            next += 1;
+            continue;
+        }
+        stack.push((i, true));
+        for c in bvh.nodes[i].children.iter().rev() {
+            if c.is_inner() && (c.index as usize) < n {
+                stack.push((c.index as usize, false));
+            }
+        }
+    }
+    rank
+}
+
+/// Bytes the collapse pass writes after consuming each binary node, in its read order
+/// (emitted node `nodes - 1 - j` at position `j`): 128 for the binary nodes that root a
+/// wide node of the offline collapse, 0 for the others. A scene that is one leaf has no
+/// binary node and one position, the root node.
+pub fn collapse_pass_writes(hl: &bvh::Highlevel) -> Result<Vec<u64>, bvh::CollapseError> {
+    let m = hl.nodes.len();
+    if m == 0 {
+        return Ok(vec![MBVH4_NODE_BYTES]);
+    }
+    let bvh = hl.to_bvh2();
+    let rank = emission_index(&bvh);
+    let mut bytes = vec![0; m];
+    for r in bvh::Collapse::default().wide_roots(&bvh)? {
+        bytes[m - 1 - rank[r as usize] as usize] = MBVH4_NODE_BYTES;
+    }
+    Ok(bytes)
+}
