@@ -40,6 +40,9 @@ pub const LEAF_ENTRY_BYTES: u64 = 4;
 /// Bytes of one high-level output record: the cell root's AABB and reference.
 pub const HIGHLEVEL_BYTES: u64 = 32;
 
+/// Largest leaf of the point k-d tree (`output = kdtree-points`).
+pub const MAX_POINT_LEAF: u32 = 1024;
+
 /// What the unit does with the hierarchy it emits (\[P3\] §5.3).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "kebab-case")]
@@ -52,6 +55,12 @@ pub enum OutputMode {
     /// 64-byte nodes, then a separate top-down compression pass that reads them back and
     /// writes the CBVH (the postprocessing baseline of \[P3\] Fig. 2a).
     CbvhTopdown,
+    /// A k-d tree of points (issue 18, part 3): the primitives are points (degenerate
+    /// boxes), and a point writer ([`bvh::PointStream`]) behind the emitter collapses
+    /// subtrees of at most `max_leaf_size` points into leaves and writes the other nodes
+    /// as 64-byte k-d nodes (two child boxes, two references, the split plane and axis).
+    /// The tree equals `bvh::PointTree::build` of the points.
+    KdtreePoints,
 }
 
 impl OutputMode {
@@ -61,12 +70,13 @@ impl OutputMode {
             OutputMode::Bvh => "bvh",
             OutputMode::CbvhStream => "cbvh-stream",
             OutputMode::CbvhTopdown => "cbvh-topdown",
+            OutputMode::KdtreePoints => "kdtree-points",
         }
     }
 
     /// True for the two CBVH modes.
     pub fn is_cbvh(self) -> bool {
-        self != OutputMode::Bvh
+        matches!(self, OutputMode::CbvhStream | OutputMode::CbvhTopdown)
     }
 }
 
@@ -414,7 +424,12 @@ impl MergeTreeConfig {
                     "bvh" => OutputMode::Bvh,
                     "cbvh-stream" => OutputMode::CbvhStream,
                     "cbvh-topdown" => OutputMode::CbvhTopdown,
-                    _ => return Err(bad("expected bvh, cbvh-stream or cbvh-topdown")),
+                    "kdtree-points" => OutputMode::KdtreePoints,
+                    _ => {
+                        return Err(bad(
+                            "expected bvh, cbvh-stream, cbvh-topdown or kdtree-points",
+                        ))
+                    }
                 }
             }
             "cbvh_coords" => {
@@ -603,6 +618,29 @@ impl MergeTreeConfig {
                     "cbvh_fifo ({}) exceeds the model's limit of {}",
                     self.cbvh_fifo,
                     1 << 20
+                ));
+            }
+        }
+        if self.output == OutputMode::KdtreePoints {
+            if self.highlevel_threshold.is_some() || self.toplevel_sah {
+                return err(
+                    "output = kdtree-points builds one tree: it needs highlevel_threshold = \
+                     none and toplevel_sah = false"
+                        .into(),
+                );
+            }
+            if self.morton_bits != 63 || self.morton_grid != MortonGrid::Box {
+                return err(
+                    "output = kdtree-points needs morton_bits = 63 and morton_grid = box (the \
+                     grid of the point tree's planes, bvh::PointTree)"
+                        .into(),
+                );
+            }
+            if !(1..=MAX_POINT_LEAF).contains(&self.max_leaf_size) {
+                return err(format!(
+                    "output = kdtree-points takes its leaf size from max_leaf_size ({}), \
+                     which must be 1..={MAX_POINT_LEAF} (8 is usual)",
+                    self.max_leaf_size
                 ));
             }
         }
