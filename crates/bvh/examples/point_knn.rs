@@ -1,14 +1,17 @@
 //! Build time and k-nearest-neighbour throughput of the Morton-order point k-d tree
-//! ([`bvh::PointTree`], issue 18 part 3), checked against brute force.
+//! ([`bvh::PointTree`]) and octree ([`bvh::Octree`]) of issue 18 part 3, checked against
+//! brute force, and the streaming build of the MergeTree point mode
+//! ([`bvh::PointTree::build_streaming`], checked equal to the top-down build).
 //!
 //! `cargo run --release -p bvh --example point_knn -- [SCENE] [N_RANDOM]`
 //! (defaults `../shared/scenes/dragon.ply` and 1000000). Two point sets: the triangle
 //! centroids of SCENE and N_RANDOM uniform random points in the scene's box. For each:
-//! build time (median of 3), tree size, kNN throughput for k = 1, 8, 32 over two sets of 50K
-//! queries (random picks of the set's own points; uniform points in its box), and an exact
-//! comparison with brute force on `POINT_CHECK` (default 300) of those queries.
+//! build time (median of 3) and size of both trees, kNN throughput of both for k = 1, 8, 32
+//! over two sets of 50K queries (random picks of the set's own points; uniform points in
+//! its box), and an exact comparison of both with brute force on `POINT_CHECK` (default
+//! 300) of those queries.
 
-use bvh::{knn_brute, PointTree};
+use bvh::{knn_brute, Octree, PointTree};
 use geom::Vec3;
 use std::time::Instant;
 
@@ -23,18 +26,27 @@ impl Rng {
     }
 }
 
-fn run(name: &str, pts: &[Vec3], checks: usize) -> Result<(), Box<dyn std::error::Error>> {
-    let leaf = 8;
+/// Median of 3 runs of `f` in seconds, and its last result.
+fn median3<T>(
+    mut f: impl FnMut() -> Result<T, bvh::PointError>,
+) -> Result<(f64, T), bvh::PointError> {
     let mut times = Vec::new();
-    let mut tree = None;
+    let mut last = None;
     for _ in 0..3 {
         let t0 = Instant::now();
-        let t = PointTree::build(pts, leaf)?;
+        let t = f()?;
         times.push(t0.elapsed().as_secs_f64());
-        tree = Some(t);
+        last = Some(t);
     }
-    let tree = tree.expect("built");
     times.sort_by(f64::total_cmp);
+    Ok((times[1], last.expect("3 runs")))
+}
+
+type Knn<'a> = &'a dyn Fn(Vec3, usize, &mut Vec<(f32, u32)>) -> Result<(), bvh::PointError>;
+
+fn run(name: &str, pts: &[Vec3], checks: usize) -> Result<(), Box<dyn std::error::Error>> {
+    let leaf = 8;
+    let (kd_time, tree) = median3(|| PointTree::build(pts, leaf))?;
     tree.validate(pts)?;
     let index_splits = tree
         .nodes()
@@ -42,13 +54,41 @@ fn run(name: &str, pts: &[Vec3], checks: usize) -> Result<(), Box<dyn std::error
         .filter(|n| !n.is_leaf() && n.axis == bvh::NO_AXIS)
         .count();
     println!(
-        "{name}: {} points, build {:.1} ms ({:.1} Mpoints/s), {} nodes, depth {}, {} index splits, valid",
+        "{name}: {} points\n  k-d tree: build {:.1} ms ({:.1} Mpoints/s), {} nodes, depth {}, {} index splits, valid",
         pts.len(),
-        times[1] * 1e3,
-        pts.len() as f64 / times[1] / 1e6,
+        kd_time * 1e3,
+        pts.len() as f64 / kd_time / 1e6,
         tree.nodes().len(),
         tree.depth(),
         index_splits,
+    );
+    let (st_time, (streamed, st)) = median3(|| PointTree::build_streaming(pts, leaf))?;
+    let same = streamed.same_as(&tree);
+    println!(
+        "  streaming (emitter + point writer, 1 thread after the sort): build {:.1} ms, {} steps, \
+         {} nodes emitted, {} written, {} collapsed, stack {}, equal to the top-down tree: {same}",
+        st_time * 1e3,
+        st.steps,
+        st.emitted,
+        st.written,
+        st.collapsed,
+        st.max_stack_depth,
+    );
+    if !same {
+        return Err(format!("{name}: the streaming tree differs").into());
+    }
+    let (oc_time, oct) = median3(|| Octree::build(pts, leaf))?;
+    oct.validate(pts)?;
+    let s = oct.stats();
+    println!(
+        "  octree: build {:.1} ms ({:.1} Mpoints/s), {} nodes ({} leaves, {} single-child, {} over-full leaves), depth {}, valid",
+        oc_time * 1e3,
+        pts.len() as f64 / oc_time / 1e6,
+        s.nodes,
+        s.leaves,
+        s.single_child,
+        s.over_full_leaves,
+        s.depth,
     );
     // Two query sets: the set's own points (random picks) and uniform points in its box.
     let b = pts.iter().fold(geom::Aabb::EMPTY, |b, &p| b.grow(p));
@@ -60,32 +100,39 @@ fn run(name: &str, pts: &[Vec3], checks: usize) -> Result<(), Box<dyn std::error
     let boxed: Vec<Vec3> = (0..nq)
         .map(|_| b.min + (b.max - b.min) * Vec3::new(rng.next(), rng.next(), rng.next()))
         .collect();
+    let kd: Knn = &|q, k, out| tree.knn(q, k, out);
+    let oc: Knn = &|q, k, out| oct.knn(q, k, out);
     let mut out = Vec::new();
     for (qname, queries) in [("own points", &own), ("uniform in box", &boxed)] {
         for k in [1usize, 8, 32] {
-            let t0 = Instant::now();
-            let mut sum = 0.0f64;
-            for &q in queries.iter() {
-                tree.knn(q, k, &mut out)?;
-                sum += out.last().map_or(0.0, |o| o.0 as f64);
+            let mut line = format!("  {qname:<14} k {k:>2}:");
+            for (tname, knn) in [("k-d", kd), ("octree", oc)] {
+                let t0 = Instant::now();
+                let mut sum = 0.0f64;
+                for &q in queries.iter() {
+                    knn(q, k, &mut out)?;
+                    sum += out.last().map_or(0.0, |o| o.0 as f64);
+                }
+                let dt = t0.elapsed().as_secs_f64();
+                line += &format!(
+                    " {tname} {:.2} us/query (checksum {sum:.4e});",
+                    dt / nq as f64 * 1e6
+                );
             }
-            let dt = t0.elapsed().as_secs_f64();
             // Exactness on the first `checks` queries, with brute-force timing.
             let t1 = Instant::now();
             let mut mismatches = 0;
             for &q in &queries[..checks] {
-                tree.knn(q, k, &mut out)?;
-                if out != knn_brute(pts, q, k)? {
-                    mismatches += 1;
+                let want = knn_brute(pts, q, k)?;
+                for knn in [kd, oc] {
+                    knn(q, k, &mut out)?;
+                    mismatches += (out != want) as usize;
                 }
             }
             let brute = t1.elapsed().as_secs_f64() / checks as f64;
             println!(
-                "  {qname:<14} k {k:>2}: {:.3} Mqueries/s ({:.2} us/query, 1 thread); \
-                 brute force {:.2} ms/query; {checks} queries vs brute force: {mismatches} \
-                 mismatches (checksum {sum:.4e})",
-                nq as f64 / dt / 1e6,
-                dt / nq as f64 * 1e6,
+                "{line} brute force {:.2} ms/query; {checks} queries x 2 trees vs brute force: \
+                 {mismatches} mismatches",
                 brute * 1e3,
             );
             if mismatches > 0 {

@@ -8,9 +8,12 @@
 //! highest differing code bit turns from 0 to 1. That bit is one bit of one axis's cell
 //! coordinate (bit `3i + 2` of x, `3i + 1` of y, `3i` of z), so the split is an
 //! axis-aligned plane of the Morton grid: the node is a k-d tree node. Positions sharing one
-//! code (the same grid cell) are split by index, at the middle of the range, with no plane.
-//! Ranges of at most `max_leaf` points are leaves (the radix tree's small subtrees
-//! collapsed).
+//! code (the same grid cell) are split by index with no plane, as a radix tree over each
+//! point's index inside its run of equal codes (the node over run indices `s..=e` splits
+//! where the highest bit of `s ^ e` turns to 1): the tree of the keys (code, run index),
+//! which is what the streaming emitter of \[P2\] Algorithm 1 builds from the sorted stream
+//! ([`crate::PointStream`]). Ranges of at most `max_leaf` points are leaves (the radix
+//! tree's small subtrees collapsed).
 //!
 //! Each inner node stores its split axis and plane; every node stores its point range and
 //! the bounds of its points. The plane is the grid plane clamped between the left child's
@@ -56,6 +59,10 @@ pub enum PointError {
     /// A query point with a NaN or infinite coordinate.
     #[error("query point is not finite: {0:?}")]
     NonFiniteQuery(Vec3),
+    /// The streaming writer ([`crate::PointStream`]) was driven out of step with the
+    /// emitter (a node whose children are not its two newest subtrees).
+    #[error("point stream: {0}")]
+    Stream(String),
     /// [`PointTree::validate`] found a broken invariant.
     #[error("invalid point tree: {0}")]
     Invalid(String),
@@ -91,25 +98,25 @@ impl PointNode {
 #[derive(Clone, Debug)]
 pub struct PointTree {
     /// The points in Morton order.
-    points: Vec<Vec3>,
+    pub(crate) points: Vec<Vec3>,
     /// Input index of each sorted point.
-    ids: Vec<u32>,
+    pub(crate) ids: Vec<u32>,
     /// Nodes in depth-first order, the root first (none for no points).
-    nodes: Vec<PointNode>,
-    max_leaf: u32,
+    pub(crate) nodes: Vec<PointNode>,
+    pub(crate) max_leaf: u32,
 }
 
 /// Squared distance, summed in a fixed order (the node bound uses the same sum, so it
 /// never exceeds the distance of a point inside the node).
 #[inline(always)]
-fn dist2(a: Vec3, b: Vec3) -> f32 {
+pub(crate) fn dist2(a: Vec3, b: Vec3) -> f32 {
     let (dx, dy, dz) = (a.x - b.x, a.y - b.y, a.z - b.z);
     dx * dx + dy * dy + dz * dz
 }
 
 /// Squared distance from `q` to the box `b` (0 inside).
 #[inline(always)]
-fn box_dist2(q: Vec3, b: &Aabb) -> f32 {
+pub(crate) fn box_dist2(q: Vec3, b: &Aabb) -> f32 {
     let c = Vec3::new(
         q.x.max(b.min.x).min(b.max.x),
         q.y.max(b.min.y).min(b.max.y),
@@ -121,16 +128,16 @@ fn box_dist2(q: Vec3, b: &Aabb) -> f32 {
 /// Result key: squared distance (non-negative, not NaN, so its bits order like the value)
 /// above the index.
 #[inline(always)]
-fn key(d: f32, id: u32) -> u64 {
+pub(crate) fn key(d: f32, id: u32) -> u64 {
     ((d.to_bits() as u64) << 32) | id as u64
 }
 
 #[inline(always)]
-fn unkey(k: u64) -> (f32, u32) {
+pub(crate) fn unkey(k: u64) -> (f32, u32) {
     (f32::from_bits((k >> 32) as u32), k as u32)
 }
 
-fn check_points(points: &[Vec3]) -> Result<(), PointError> {
+pub(crate) fn check_points(points: &[Vec3]) -> Result<(), PointError> {
     if points.len() > u32::MAX as usize {
         return Err(PointError::TooMany(points.len()));
     }
@@ -141,6 +148,35 @@ fn check_points(points: &[Vec3]) -> Result<(), PointError> {
         }),
         None => Ok(()),
     }
+}
+
+/// Checks that `sorted` (with input indices `ids`) is `points` permuted, bit for bit.
+pub(crate) fn check_permutation(
+    sorted: &[Vec3],
+    ids: &[u32],
+    points: &[Vec3],
+) -> Result<(), PointError> {
+    let bad = |s: String| Err(PointError::Invalid(s));
+    if sorted.len() != points.len() || ids.len() != points.len() {
+        return bad(format!(
+            "{} points for {} inputs",
+            sorted.len(),
+            points.len()
+        ));
+    }
+    let mut seen = vec![false; points.len()];
+    for (k, (&id, p)) in ids.iter().zip(sorted).enumerate() {
+        let Some(orig) = points.get(id as usize) else {
+            return bad(format!("position {k}: id {id} out of range"));
+        };
+        if std::mem::replace(&mut seen[id as usize], true) {
+            return bad(format!("point {id} appears twice"));
+        }
+        if orig.to_array().map(f32::to_bits) != p.to_array().map(f32::to_bits) {
+            return bad(format!("position {k}: point differs from input {id}"));
+        }
+    }
+    Ok(())
 }
 
 /// The `k` points nearest to `q` by brute force: `(squared distance, index)` in increasing
@@ -167,13 +203,94 @@ pub fn knn_brute(points: &[Vec3], q: Vec3, k: usize) -> Result<Vec<(f32, u32)>, 
     Ok(keys.into_iter().map(unkey).collect())
 }
 
+/// The points sorted by Morton code with the grid of their codes: the one sort that the
+/// k-d tree, the octree and the streaming writer share.
+pub(crate) struct Sorted {
+    /// Sorted 63-bit codes.
+    pub codes: Vec<u64>,
+    /// Input index of each sorted point.
+    pub ids: Vec<u32>,
+    /// The points in sorted order.
+    pub points: Vec<Vec3>,
+    /// The grid of the codes.
+    pub grid: Grid,
+}
+
+/// The planes of the Morton grid of a point set's codes (the box grid over the points'
+/// bounds, 2^21 cells per axis): its origin and cell size per axis.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct Grid {
+    origin: Vec3,
+    cell: [f64; 3],
+}
+
+impl Grid {
+    /// The grid of the codes over `bounds` (the points' box).
+    pub(crate) fn new(bounds: &Aabb) -> Self {
+        let ext = bounds.max - bounds.min;
+        let cells = (1u64 << GRID_BITS) as f64;
+        Self {
+            origin: bounds.min,
+            cell: [
+                ext.x as f64 / cells,
+                ext.y as f64 / cells,
+                ext.z as f64 / cells,
+            ],
+        }
+    }
+
+    /// The split between two different codes `a < b`: the axis of their highest differing
+    /// bit and the grid plane at the low edge of `b`'s cell at that bit's level (the plane
+    /// between the two halves of the radix node whose halves `a` ends and `b` starts).
+    pub(crate) fn split(&self, a: u64, b: u64) -> (u8, f32) {
+        let bit = 63 - (a ^ b).leading_zeros();
+        // Bit 3i + 2 is x, 3i + 1 is y, 3i is z.
+        let axis = 2 - (bit % 3) as usize;
+        let level = bit / 3;
+        let c = axis_cell(b, axis) & !((1u32 << level) - 1);
+        let plane = self.origin[axis] as f64 + c as f64 * self.cell[axis];
+        (axis as u8, plane as f32)
+    }
+}
+
+/// Sorts `points` (checked finite) by their 63-bit Morton codes over their bounds.
+pub(crate) fn sort_points(points: &[Vec3]) -> Sorted {
+    let (codes, ids, bounds) = sorted_codes_of(
+        points.len(),
+        |i| points[i],
+        MortonBits::Bits63,
+        MortonGrid::Box,
+    );
+    let sorted: Vec<Vec3> = ids.iter().map(|&i| points[i as usize]).collect();
+    Sorted {
+        codes,
+        ids,
+        points: sorted,
+        grid: Grid::new(&bounds),
+    }
+}
+
+/// Split position of a node over sorted positions `lo..hi` (at least 2) whose codes are
+/// all equal, `run_lo` the first position of their run: the radix split of the run indices
+/// `lo - run_lo ..= hi - 1 - run_lo`, where their highest differing bit turns to 1.
+pub(crate) fn index_split(lo: usize, hi: usize, run_lo: usize) -> usize {
+    let (s, e) = (lo - run_lo, hi - 1 - run_lo);
+    let bit = usize::BITS - 1 - (s ^ e).leading_zeros();
+    run_lo + ((e >> bit) << bit)
+}
+
+/// The plane of a split on `axis` at grid plane `grid_plane`, clamped between the left
+/// child's largest and the right child's smallest coordinate on the axis.
+pub(crate) fn clamp_plane(grid_plane: f32, axis: u8, lb: &Aabb, rb: &Aabb) -> f32 {
+    let a = axis as usize;
+    grid_plane.max(lb.max[a]).min(rb.min[a])
+}
+
 /// Top-down builder over the sorted codes.
 struct Build<'a> {
     codes: &'a [u64],
     points: &'a [Vec3],
-    /// Grid origin and cell size per axis.
-    origin: Vec3,
-    cell: [f64; 3],
+    grid: Grid,
     max_leaf: usize,
 }
 
@@ -195,9 +312,11 @@ fn append(out: &mut Vec<PointNode>, sub: Vec<PointNode>) -> usize {
 
 impl Build<'_> {
     /// Emits the node over sorted positions `lo..hi` (non-empty) and its subtree into
-    /// `nodes`, depth-first; returns its index. Large subtrees are emitted in parallel into
-    /// their own vectors and appended, so the result is the same for any thread count.
-    fn node(&self, lo: usize, hi: usize, nodes: &mut Vec<PointNode>) -> usize {
+    /// `nodes`, depth-first; returns its index. `run_lo` is the first position of the run
+    /// of equal codes holding `lo` (used when all of the node's codes are equal). Large
+    /// subtrees are emitted in parallel into their own vectors and appended, so the result
+    /// is the same for any thread count.
+    fn node(&self, lo: usize, hi: usize, run_lo: usize, nodes: &mut Vec<PointNode>) -> usize {
         let id = nodes.len();
         nodes.push(PointNode {
             bounds: Aabb::EMPTY,
@@ -216,31 +335,31 @@ impl Build<'_> {
             return id;
         }
         let (a, z) = (self.codes[lo], self.codes[hi - 1]);
-        let (split, axis, grid_plane) = if a != z {
+        let (split, axis, grid_plane, lrun, rrun) = if a != z {
             // Highest differing bit: the codes above it are shared, so the range splits
-            // where that bit turns to 1.
+            // where that bit turns to 1. A split between codes never cuts a run of equal
+            // codes, so each child's runs start inside it.
             let bit = 63 - (a ^ z).leading_zeros();
             let split = lo + self.codes[lo..hi].partition_point(|c| (c >> bit) & 1 == 0);
-            // Bit 3i + 2 is x, 3i + 1 is y, 3i is z.
-            let axis = 2 - (bit % 3) as usize;
-            let level = bit / 3;
-            // The plane is the low edge of the right half's cell at that level.
-            let c = axis_cell(self.codes[split], axis) & !((1u32 << level) - 1);
-            let plane = self.origin[axis] as f64 + c as f64 * self.cell[axis];
-            (split, axis as u8, plane as f32)
+            let (axis, plane) = self.grid.split(self.codes[split - 1], self.codes[split]);
+            (split, axis, plane, lo, split)
         } else {
-            ((lo + hi) / 2, NO_AXIS, f32::NAN)
+            let split = index_split(lo, hi, run_lo);
+            (split, NO_AXIS, f32::NAN, run_lo, run_lo)
         };
         let (l, r) = if hi - lo >= PARALLEL_MIN_POINTS {
-            let sub = |a, b| {
+            let sub = |a, b, run| {
                 let mut v = Vec::with_capacity(2 * (b - a) / self.max_leaf + 1);
-                self.node(a, b, &mut v);
+                self.node(a, b, run, &mut v);
                 v
             };
-            let (lv, rv) = rayon::join(|| sub(lo, split), || sub(split, hi));
+            let (lv, rv) = rayon::join(|| sub(lo, split, lrun), || sub(split, hi, rrun));
             (append(nodes, lv), append(nodes, rv))
         } else {
-            (self.node(lo, split, nodes), self.node(split, hi, nodes))
+            (
+                self.node(lo, split, lrun, nodes),
+                self.node(split, hi, rrun, nodes),
+            )
         };
         let (lb, rb) = (nodes[l].bounds, nodes[r].bounds);
         let n = &mut nodes[id];
@@ -249,15 +368,14 @@ impl Build<'_> {
         n.right = r as u32;
         n.axis = axis;
         if axis != NO_AXIS {
-            let a = axis as usize;
-            n.plane = grid_plane.max(lb.max[a]).min(rb.min[a]);
+            n.plane = clamp_plane(grid_plane, axis, &lb, &rb);
         }
         id
     }
 }
 
 /// The cell coordinate on `axis` (0 x, 1 y, 2 z) of a 63-bit Morton code.
-fn axis_cell(code: u64, axis: usize) -> u32 {
+pub(crate) fn axis_cell(code: u64, axis: usize) -> u32 {
     let shift = 2 - axis as u32;
     (0..GRID_BITS).fold(0, |c, i| {
         c | ((((code >> (3 * i + shift)) & 1) as u32) << i)
@@ -274,29 +392,21 @@ impl PointTree {
         if max_leaf == 0 {
             return Err(PointError::ZeroLeaf);
         }
-        let (codes, ids, bounds) = sorted_codes_of(
-            points.len(),
-            |i| points[i],
-            MortonBits::Bits63,
-            MortonGrid::Box,
-        );
-        let sorted: Vec<Vec3> = ids.iter().map(|&i| points[i as usize]).collect();
-        let ext = bounds.max - bounds.min;
-        let cells = (1u64 << GRID_BITS) as f64;
+        let Sorted {
+            codes,
+            ids,
+            points: sorted,
+            grid,
+        } = sort_points(points);
         let b = Build {
             codes: &codes,
             points: &sorted,
-            origin: bounds.min,
-            cell: [
-                ext.x as f64 / cells,
-                ext.y as f64 / cells,
-                ext.z as f64 / cells,
-            ],
+            grid,
             max_leaf,
         };
         let mut nodes = Vec::with_capacity(2 * points.len() / max_leaf + 1);
         if !points.is_empty() {
-            b.node(0, points.len(), &mut nodes);
+            b.node(0, points.len(), 0, &mut nodes);
         }
         Ok(Self {
             points: sorted,
@@ -329,6 +439,41 @@ impl PointTree {
     /// Input index of each point in Morton order.
     pub fn ids(&self) -> &[u32] {
         &self.ids
+    }
+
+    /// Largest leaf the tree was built with.
+    pub fn max_leaf(&self) -> u32 {
+        self.max_leaf
+    }
+
+    /// Whether `other` is the same tree: the same points in the same order, the same leaf
+    /// size, and node for node the same ranges, children, axes, boxes and planes (compared
+    /// as values: NaN planes of leaves and index splits are equal).
+    pub fn same_as(&self, other: &PointTree) -> bool {
+        let plane = |n: &PointNode| (!n.plane.is_nan()).then_some(n.plane);
+        self.ids == other.ids
+            && self.points == other.points
+            && self.max_leaf == other.max_leaf
+            && self.nodes.len() == other.nodes.len()
+            && self.nodes.iter().zip(&other.nodes).all(|(a, b)| {
+                (
+                    a.first,
+                    a.count,
+                    a.axis,
+                    a.left,
+                    a.right,
+                    a.bounds,
+                    plane(a),
+                ) == (
+                    b.first,
+                    b.count,
+                    b.axis,
+                    b.left,
+                    b.right,
+                    b.bounds,
+                    plane(b),
+                )
+            })
     }
 
     /// Depth of the deepest leaf (the root alone is depth 1; 0 for no points).
@@ -455,25 +600,7 @@ impl PointTree {
     /// ancestor's plane.
     pub fn validate(&self, points: &[Vec3]) -> Result<(), PointError> {
         let bad = |s: String| Err(PointError::Invalid(s));
-        if self.points.len() != points.len() || self.ids.len() != points.len() {
-            return bad(format!(
-                "{} points for {} inputs",
-                self.points.len(),
-                points.len()
-            ));
-        }
-        let mut seen = vec![false; points.len()];
-        for (k, (&id, p)) in self.ids.iter().zip(&self.points).enumerate() {
-            let Some(orig) = points.get(id as usize) else {
-                return bad(format!("position {k}: id {id} out of range"));
-            };
-            if std::mem::replace(&mut seen[id as usize], true) {
-                return bad(format!("point {id} appears twice"));
-            }
-            if orig.to_array().map(f32::to_bits) != p.to_array().map(f32::to_bits) {
-                return bad(format!("position {k}: point differs from input {id}"));
-            }
-        }
+        check_permutation(&self.points, &self.ids, points)?;
         if points.is_empty() {
             return if self.nodes.is_empty() {
                 Ok(())
@@ -554,12 +681,12 @@ impl PointTree {
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use proptest::prelude::*;
 
     /// Deterministic pseudo-random points in `[0, scale)^3`.
-    fn cloud(n: usize, seed: u64, scale: f32) -> Vec<Vec3> {
+    pub(crate) fn cloud(n: usize, seed: u64, scale: f32) -> Vec<Vec3> {
         let mut s = seed.wrapping_mul(0x9e37_79b9_7f4a_7c15) | 1;
         let mut next = move || {
             s ^= s << 13;
@@ -634,6 +761,12 @@ mod tests {
         let mut out = Vec::new();
         t.knn(Vec3::ZERO, 3, &mut out).unwrap();
         assert_eq!(out.iter().map(|o| o.1).collect::<Vec<_>>(), [0, 1, 2]);
+        // Index splits are radix splits of the run indices: 5 equal points split 4 + 1
+        // (bit 2 of 0 ^ 4), then 2 + 2, then 1 + 1.
+        let t = PointTree::build(&same[..5], 1).unwrap();
+        let counts: Vec<u32> = t.nodes().iter().map(|n| n.count).collect();
+        assert_eq!(counts, [5, 4, 2, 1, 1, 2, 1, 1, 1]);
+        assert_eq!(index_split(3, 9, 1), 5);
     }
 
     #[test]

@@ -10,6 +10,11 @@
 //! the build (issue 18 part 2); the MBVH4 is then checked node for node against the
 //! software collapse. The JSON
 //! form (`arbor.sim.mergetree.v1`) is documented in `docs/cli-json.md`.
+//! `--set output=kdtree-points` (issue 18, part 3) the unit builds a point k-d tree over the
+//! triangles' centroids (or `--points uniform:N`, random points in the scene's box), checked
+//! node for node against `bvh::PointTree`; `--points` in the other modes builds them over the
+//! same points (degenerate boxes), the baseline of the point mode. The JSON form (`arbor.sim.mergetree.v1`) is
+//! documented in `docs/cli-json.md`.
 
 use super::build::mesh_aabbs;
 use super::{ms, open_scene, thousands, SceneArgs};
@@ -68,6 +73,11 @@ pub struct MergetreeArgs {
     /// Skip the node-for-node comparison with the software builder.
     #[arg(long)]
     no_check: bool,
+    /// Build over points instead of the triangles: `centroids` (the triangles' vertex
+    /// means; the default of `--set output=kdtree-points`) or `uniform:N` (N uniform random
+    /// points in the centroids' box, a fixed seed). Each point is a degenerate box.
+    #[arg(long, value_name = "SPEC")]
+    points: Option<String>,
     #[command(flatten)]
     energy: super::energy_args::EnergyArgs,
     /// Print JSON (schema `arbor.sim.mergetree.v1`) instead of text.
@@ -200,19 +210,25 @@ fn config_and_dram(a: &MergetreeArgs) -> anyhow::Result<(MergeTreeConfig, &str)>
 /// Checks the options of `a` (preset, file, `--set` keys and values, memory system)
 /// without loading the scene or simulating: what a sweep checks before it runs.
 pub fn check_mergetree(a: &MergetreeArgs) -> anyhow::Result<()> {
-    config_and_dram(a).map(|_| ())
+    config_and_dram(a)?;
+    a.points.as_deref().map(points_spec).transpose()?;
+    Ok(())
 }
 
 pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
     // Fail on a bad option or memory name before loading the scene.
     let (cfg, dram) = config_and_dram(a)?;
+    let uniform = a.points.as_deref().map(points_spec).transpose()?;
     let conv = a.energy.conventions()?;
     let (scene, _) = open_scene(&a.scene, ui)?;
     let t = super::resolve_time(scene.info(), a.time, None)?;
     let mesh = scene
         .mesh_at(t)
         .with_context(|| format!("cannot sample the scene at t = {t} s"))?;
-    let (aabbs, _) = mesh_aabbs(&mesh)?;
+    let aabbs = match (&uniform, cfg.output == OutputMode::KdtreePoints) {
+        (None, false) => mesh_aabbs(&mesh)?.0,
+        (u, _) => mergetree::point_boxes(&scene_points(&mesh, u.flatten()))?,
+    };
     drop(mesh);
     let (report, wall_ms) = simulate(ui, &aabbs, &cfg, dram)?;
     let (matches, cbvh_matches, mbvh4_matches) = if a.no_check {
@@ -285,6 +301,54 @@ pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
     Ok(())
 }
 
+/// `--points SPEC`: `None` for the centroids, `Some(n)` for `uniform:n`.
+fn points_spec(spec: &str) -> anyhow::Result<Option<usize>> {
+    if spec == "centroids" {
+        return Ok(None);
+    }
+    let n = spec
+        .strip_prefix("uniform:")
+        .and_then(|n| n.parse::<usize>().ok())
+        .filter(|&n| n > 0 && n < u32::MAX as usize / 2);
+    match n {
+        Some(n) => Ok(Some(n)),
+        None => anyhow::bail!(
+            "--points expects centroids or uniform:N (N from 1 to {}), got '{spec}'",
+            u32::MAX / 2 - 1
+        ),
+    }
+}
+
+/// The points of the point mode: the centroid (vertex mean) of every triangle of `mesh`,
+/// or `uniform` points drawn uniformly in the centroids' box (xorshift, a fixed seed: the
+/// sets of `cargo run -p bvh --example point_knn`).
+pub fn scene_points(mesh: &scene::Mesh, uniform: Option<usize>) -> Vec<geom::Vec3> {
+    let centroids: Vec<geom::Vec3> = mesh
+        .triangles
+        .iter()
+        .map(|t| {
+            t.iter()
+                .map(|&v| mesh.positions[v as usize])
+                .sum::<geom::Vec3>()
+                / 3.0
+        })
+        .collect();
+    let Some(n) = uniform else {
+        return centroids;
+    };
+    let b = centroids.iter().fold(Aabb::EMPTY, |b, &p| b.grow(p));
+    let mut s: u64 = 0x9e37_79b9_7f4a_7c15;
+    let mut next = move || {
+        s ^= s << 13;
+        s ^= s >> 7;
+        s ^= s << 17;
+        (s >> 40) as f32 / (1u64 << 24) as f32
+    };
+    (0..n)
+        .map(|_| b.min + (b.max - b.min) * geom::Vec3::new(next(), next(), next()))
+        .collect()
+}
+
 fn print_text(
     a: &MergetreeArgs,
     dram: &str,
@@ -311,9 +375,14 @@ fn print_text(
         );
     }
     println!(
-        "scene {}: {} triangles, {} partial-sort blocks, {} merge pass(es)",
+        "scene {}: {} {}, {} partial-sort blocks, {} merge pass(es)",
         a.scene.scene,
         thousands(r.triangles),
+        if a.points.is_some() || r.points.is_some() {
+            "points"
+        } else {
+            "triangles"
+        },
         r.partial_sort_blocks,
         r.merge_passes
     );
@@ -437,11 +506,47 @@ fn print_text(
         println!(
             "MBVH4 matches the software collapse: {}",
             yes_no(mbvh4_matches)
+    if let Some(p) = &r.points {
+        println!(
+            "point k-d tree: {} points, leaves of at most {}: {} nodes emitted, {} written \
+             (64 B each), {} collapsed into leaves; {} tree nodes, depth {}",
+            thousands(p.points),
+            p.max_leaf,
+            thousands(p.emitted),
+            thousands(p.written),
+            thousands(p.collapsed),
+            thousands(p.tree_nodes),
+            p.depth
         );
     }
     println!(
-        "tree matches software hlbvh: {}; simulated {:.1} M cycles/s",
+        "tree matches software {}: {}; simulated {:.1} M cycles/s",
+        if r.points.is_some() {
+            "bvh::PointTree"
+        } else {
+            "hlbvh"
+        },
         yes_no(matches),
         r.cycles as f64 / (wall_ms * 1e3).max(1e-9)
     );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn points_spec_parses_and_rejects() {
+        assert_eq!(points_spec("centroids").unwrap(), None);
+        assert_eq!(points_spec("uniform:1000000").unwrap(), Some(1_000_000));
+        for bad in [
+            "uniform:0",
+            "uniform:",
+            "uniform:-3",
+            "cloud",
+            "uniform:9999999999",
+        ] {
+            assert!(points_spec(bad).is_err(), "{bad}");
+        }
+    }
 }

@@ -45,6 +45,9 @@ pub const LEAF_ENTRY_BYTES: u64 = 4;
 /// Bytes of one high-level output record: the cell root's AABB and reference.
 pub const HIGHLEVEL_BYTES: u64 = 32;
 
+/// Largest leaf of the point k-d tree (`output = kdtree-points`).
+pub const MAX_POINT_LEAF: u32 = 1024;
+
 /// What the unit does with the hierarchy it emits (\[P3\] §5.3).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "kebab-case")]
@@ -64,6 +67,12 @@ pub enum OutputMode {
     /// greedy collapse ([`bvh::collapse`]) as 128-byte MBVH4 nodes: the baseline of
     /// `mbvh4`.
     Mbvh4Collapse,
+    /// A k-d tree of points (issue 18, part 3): the primitives are points (degenerate
+    /// boxes), and a point writer ([`bvh::PointStream`]) behind the emitter collapses
+    /// subtrees of at most `max_leaf_size` points into leaves and writes the other nodes
+    /// as 64-byte k-d nodes (two child boxes, two references, the split plane and axis).
+    /// The tree equals `bvh::PointTree::build` of the points.
+    KdtreePoints,
 }
 
 impl OutputMode {
@@ -75,6 +84,7 @@ impl OutputMode {
             OutputMode::CbvhTopdown => "cbvh-topdown",
             OutputMode::Mbvh4 => "mbvh4",
             OutputMode::Mbvh4Collapse => "mbvh4-collapse",
+            OutputMode::KdtreePoints => "kdtree-points",
         }
     }
 
@@ -436,9 +446,11 @@ impl MergeTreeConfig {
                     "cbvh-topdown" => OutputMode::CbvhTopdown,
                     "mbvh4" => OutputMode::Mbvh4,
                     "mbvh4-collapse" => OutputMode::Mbvh4Collapse,
+                    "kdtree-points" => OutputMode::KdtreePoints,
                     _ => {
                         return Err(bad(
-                            "expected bvh, cbvh-stream, cbvh-topdown, mbvh4 or mbvh4-collapse",
+                            "expected bvh, cbvh-stream, cbvh-topdown, mbvh4, mbvh4-collapse or \
+                             kdtree-points",
                         ))
                     }
                 }
@@ -634,6 +646,29 @@ impl MergeTreeConfig {
             }
             if self.output == OutputMode::CbvhTopdown && self.cbvh_treelet_depth != 1 {
                 return err("treelets apply to output = cbvh-stream only".into());
+            }
+        }
+        if self.output == OutputMode::KdtreePoints {
+            if self.highlevel_threshold.is_some() || self.toplevel_sah {
+                return err(
+                    "output = kdtree-points builds one tree: it needs highlevel_threshold = \
+                     none and toplevel_sah = false"
+                        .into(),
+                );
+            }
+            if self.morton_bits != 63 || self.morton_grid != MortonGrid::Box {
+                return err(
+                    "output = kdtree-points needs morton_bits = 63 and morton_grid = box (the \
+                     grid of the point tree's planes, bvh::PointTree)"
+                        .into(),
+                );
+            }
+            if !(1..=MAX_POINT_LEAF).contains(&self.max_leaf_size) {
+                return err(format!(
+                    "output = kdtree-points takes its leaf size from max_leaf_size ({}), \
+                     which must be 1..={MAX_POINT_LEAF} (8 is usual)",
+                    self.max_leaf_size
+                ));
             }
         }
         if let Some(t) = self.highlevel_threshold {

@@ -18,6 +18,14 @@
 //!
 //! With the streaming MBVH4 collapse attached (issue 18 part 2, [`super::mbvh4_unit`]),
 //! emitted nodes go into the collapse unit's input FIFO the same way.
+//!
+//! With the point writer attached (`output = kdtree-points`, issue 18 part 3), the sort
+//! keys' tie field is the index inside each run of equal codes (every key distinct, one
+//! point per leaf), every point read is handed to the writer ([`bvh::PointStream`]) and
+//! every emitted node to it: a node the writer collapses into a leaf is not written, any
+//! other costs one 64-byte node in the node write buffer, as a BVH node does. The writer
+//! is combinational logic beside the emitter's stack (its own stack of subtree boxes and
+//! first/last codes mirrors the emitter's), so it adds no cycles.
 
 use bvh::{EmittedNode, Emitter, HighlevelRoot, Prim, Step};
 use cbvh::bottomup::{input_of_emitted, input_of_root, InputNode};
@@ -65,6 +73,10 @@ pub(super) struct EmitUnit {
     pub cbvh_ids: Option<Vec<u32>>,
     /// An error of the encoder-input conversion (cannot happen with a correct emitter).
     pub fault: Option<cbvh::CbvhError>,
+    /// The point writer (`output = kdtree-points`).
+    pub points: Option<bvh::PointStream>,
+    /// An error of the point writer (cannot happen with a correct emitter).
+    pub point_fault: Option<bvh::PointError>,
 }
 
 impl EmitUnit {
@@ -75,7 +87,14 @@ impl EmitUnit {
         combine: bool,
         max_leaf: u32,
         cbvh: bool,
+        points: Option<bvh::PointStream>,
     ) -> Self {
+        // Points: ties are run indices (chunks of one point), so no keys are equal.
+        let (combine, max_leaf) = if points.is_some() {
+            (true, 1)
+        } else {
+            (combine, max_leaf)
+        };
         Self {
             em: Emitter::new(threshold),
             total,
@@ -92,6 +111,8 @@ impl EmitUnit {
             steps: 0,
             cbvh_ids: cbvh.then(|| Vec::with_capacity(total as usize)),
             fault: None,
+            points,
+            point_fault: None,
         }
     }
 
@@ -148,6 +169,9 @@ impl EmitUnit {
             if let Some(ids) = &mut self.cbvh_ids {
                 ids.push(e.index);
             }
+            if let Some(w) = &mut self.points {
+                w.read(code, e.index, e.aabb.min);
+            }
             self.consumed += 1;
             io.add_leaf();
             prim = Some(Prim {
@@ -155,12 +179,23 @@ impl EmitUnit {
                 tie,
                 aabb: e.aabb,
             });
+        } else if self.em.needs_input() {
+            // The end of the stream.
+            if let Some(w) = &mut self.points {
+                w.end();
+            }
         }
         self.steps += 1;
         match self.em.step(prim) {
             Step::Emitted(n) => {
                 self.nodes.push(n);
-                if io.encoder_attached() {
+                if let Some(w) = &mut self.points {
+                    match w.join(&n) {
+                        Ok(bvh::Joined::Written(_)) => io.add_node(),
+                        Ok(bvh::Joined::Collapsed) => {}
+                        Err(e) => self.point_fault = Some(e),
+                    }
+                } else if io.encoder_attached() {
                     let n = input_of_emitted_in(&n, &mut self.cbvh_ids);
                     self.send_to_encoder(io, n)
                 } else if io.collapse_attached() {

@@ -44,7 +44,9 @@ pub mod toplevel;
 pub use config::{ConfigError, MergeTreeConfig, OutputMode, ReadSchedule};
 pub use machine::MemoryLayout;
 pub use mbvh4_unit::{CollapseUnitStats, Mbvh4RunReport};
-pub use report::{CbvhRunReport, MergeTreeReport, PhaseReport, StallReport, TraceRow};
+pub use report::{
+    CbvhRunReport, MergeTreeReport, PhaseReport, PointRunReport, StallReport, TraceRow,
+};
 
 use bvh::{Bvh2, HlbvhBuilder, HlbvhSahBuilder, MortonBits};
 use geom::Aabb;
@@ -123,6 +125,9 @@ pub enum MergeTreeError {
     /// emitter).
     #[error("MBVH4 output: {0}")]
     Collapse(#[from] bvh::CollapseError),
+    /// The point writer failed (`output = kdtree-points`).
+    #[error("point k-d tree output: {0}")]
+    Points(#[from] bvh::PointError),
 }
 
 /// The centroid bounds of `aabbs`, with the software builder's centroid expression.
@@ -130,6 +135,34 @@ pub fn centroid_bounds(aabbs: &[Aabb]) -> Aabb {
     aabbs
         .iter()
         .fold(Aabb::EMPTY, |b, a| b.grow(a.min * 0.5 + a.max * 0.5))
+}
+
+/// The primitives of the point mode (`output = kdtree-points`): each point as a
+/// degenerate box, whose centroid the reader computes as the point itself. Errors on a
+/// non-finite point, and on a subnormal coordinate, which the centroid expression
+/// (`min * 0.5 + max * 0.5`) would round.
+pub fn point_boxes(points: &[geom::Vec3]) -> Result<Vec<Aabb>, MergeTreeError> {
+    points
+        .iter()
+        .enumerate()
+        .map(|(i, &p)| {
+            if !p.is_finite() {
+                return Err(MergeTreeError::Points(bvh::PointError::NonFinite {
+                    index: i,
+                    point: p,
+                }));
+            }
+            let b = Aabb::new(p, p);
+            let c = b.min * 0.5 + b.max * 0.5;
+            if c.to_array().map(f32::to_bits) != p.to_array().map(f32::to_bits) {
+                return Err(MergeTreeError::Input(format!(
+                    "point {i} ({p:?}) has a subnormal coordinate, which the unit's centroid \
+                     expression rounds"
+                )));
+            }
+            Ok(b)
+        })
+        .collect()
 }
 
 /// Simulates MergeTree building a BVH over the primitive boxes `aabbs` with configuration
@@ -217,6 +250,14 @@ fn run_machine<'a>(
         [out.build_cycles, out.cycles],
     )?;
     let cbvh = kernel_cbvh_result(out, &highlevel, cfg)?;
+    let points = match k.points.take() {
+        Some(w) => Some(point_result(w?, aabbs)?),
+        None if cfg.output == OutputMode::KdtreePoints => Some(point_result(
+            bvh::PointStream::new(&cb, cfg.max_leaf_size)?,
+            aabbs,
+        )?),
+        None => None,
+    };
     let mem = k.mem;
     Ok(MergeTreeReport {
         triangles: aabbs.len() as u64,
@@ -252,6 +293,7 @@ fn run_machine<'a>(
         top_tree,
         cbvh,
         mbvh4,
+        points,
         units: k.run.units,
     })
 }
@@ -293,6 +335,48 @@ fn kernel_mbvh4_result(
         pass,
         tree,
     }))
+
+/// The point tree the writer made, with its counts.
+fn point_result(w: bvh::PointStream, aabbs: &[Aabb]) -> Result<PointRunReport, MergeTreeError> {
+    let (written, collapsed, stack) = (
+        w.written().len() as u64,
+        w.collapsed(),
+        w.max_stack_depth() as u64,
+    );
+    let tree = w.finish()?;
+    if tree.len() != aabbs.len() {
+        return Err(MergeTreeError::Points(bvh::PointError::Stream(format!(
+            "{} points in the tree for {} inputs",
+            tree.len(),
+            aabbs.len()
+        ))));
+    }
+    Ok(PointRunReport {
+        points: tree.len() as u64,
+        max_leaf: tree.max_leaf(),
+        emitted: aabbs.len().saturating_sub(1) as u64,
+        written,
+        collapsed,
+        tree_nodes: tree.nodes().len() as u64,
+        depth: tree.depth() as u64,
+        writer_max_stack: stack,
+        tree,
+    })
+}
+
+/// True when the point tree the unit wrote (`output = kdtree-points`) equals
+/// `bvh::PointTree::build` of the points (the boxes' minima) node for node: the same point
+/// order, ranges, children, axes, boxes and planes; `None` in the other modes.
+pub fn points_match_software(
+    report: &MergeTreeReport,
+    aabbs: &[Aabb],
+) -> Result<Option<bool>, MergeTreeError> {
+    let Some(p) = &report.points else {
+        return Ok(None);
+    };
+    let pts: Vec<geom::Vec3> = aabbs.iter().map(|a| a.min).collect();
+    let sw = bvh::PointTree::build(&pts, p.max_leaf as usize)?;
+    Ok(Some(sw.same_as(&p.tree)))
 }
 
 /// What the kernel machine's CBVH units left behind.
@@ -317,7 +401,7 @@ fn kernel_cbvh_result(
         k.build_cycles
     };
     let (tree, encode, stream, topdown) = match cfg.output {
-        OutputMode::Bvh | OutputMode::Mbvh4 | OutputMode::Mbvh4Collapse => return Ok(None),
+        OutputMode::Bvh | OutputMode::Mbvh4 | OutputMode::Mbvh4Collapse | OutputMode::KdtreePoints => return Ok(None),
         OutputMode::CbvhStream => match k.stream.take() {
             Some((enc, stats)) if !hl.order.is_empty() => {
                 let ids = k.ids.take().unwrap_or_default();
@@ -391,7 +475,7 @@ pub fn software_cbvh(
     cfg: &MergeTreeConfig,
 ) -> Result<Option<(cbvh::Cbvh, cbvh::EncodeStats)>, MergeTreeError> {
     Ok(match cfg.output {
-        OutputMode::Bvh | OutputMode::Mbvh4 | OutputMode::Mbvh4Collapse => None,
+        OutputMode::Bvh | OutputMode::Mbvh4 | OutputMode::Mbvh4Collapse | OutputMode::KdtreePoints => None,
         OutputMode::CbvhStream => {
             let hl = software_builder(cfg).build_highlevel(aabbs)?;
             Some(cbvh::compress_hlbvh(&hl, &cfg.stream_config(0))?)
@@ -453,6 +537,11 @@ pub fn tree_matches_software(
     aabbs: &[Aabb],
 ) -> Result<bool, MergeTreeError> {
     let cfg = &report.config;
+    if cfg.output == OutputMode::KdtreePoints {
+        // The point mode's keys tie by run index, not as the HLBVH builder's: its tree is
+        // the point k-d tree.
+        return Ok(points_match_software(report, aabbs)?.unwrap_or(false));
+    }
     if cfg.highlevel_threshold.is_some() {
         let hl = software_builder(cfg).build_highlevel(aabbs)?;
         if hl != report.highlevel {
@@ -474,3 +563,4 @@ mod tests_forecast;
 mod tests_kernel;
 #[cfg(test)]
 mod tests_mbvh4;
+mod tests_points;

@@ -86,6 +86,30 @@ pub struct TraceRow {
     pub toplevel_busy: u64,
 }
 
+/// The point k-d tree the unit wrote (`output = kdtree-points`).
+#[derive(Clone, Debug, Serialize)]
+pub struct PointRunReport {
+    /// Points in the tree.
+    pub points: u64,
+    /// Largest leaf (`max_leaf_size`).
+    pub max_leaf: u32,
+    /// Nodes the emitter emitted (points minus one).
+    pub emitted: u64,
+    /// Inner k-d nodes written (64 bytes each).
+    pub written: u64,
+    /// Emitted nodes the writer collapsed into leaves (not written).
+    pub collapsed: u64,
+    /// Nodes of the tree, leaves included (as `bvh::PointTree` counts them).
+    pub tree_nodes: u64,
+    /// Levels of the tree (the root alone is 1).
+    pub depth: u64,
+    /// Deepest stack of the point writer.
+    pub writer_max_stack: u64,
+    /// The tree, in `bvh::PointTree`'s layout.
+    #[serde(skip)]
+    pub tree: bvh::PointTree,
+}
+
 /// The result of [`super::simulate`].
 #[derive(Clone, Debug, Serialize)]
 pub struct MergeTreeReport {
@@ -151,6 +175,8 @@ pub struct MergeTreeReport {
     pub cbvh: Option<CbvhRunReport>,
     /// The MBVH4 output (issue 18 part 2), in the MBVH4 output modes.
     pub mbvh4: Option<super::mbvh4_unit::Mbvh4RunReport>,
+    /// The point k-d tree (`output = kdtree-points`, issue 18 part 3).
+    pub points: Option<PointRunReport>,
     /// Busy / stalled / idle cycles and counters of every unit (the kernel machine).
     #[serde(skip_serializing_if = "Vec::is_empty")]
     pub units: Vec<crate::kernel::UnitReport>,

@@ -134,6 +134,10 @@ impl<'a> Unit<KWorld<'a>> for Emitter {
                     w.out.order = std::mem::take(&mut self.e.order);
                     w.out.max_stack_depth = self.e.max_stack_depth();
                     w.out.cbvh_ids = self.e.cbvh_ids.take();
+                    w.out.points = match self.e.point_fault.take() {
+                        Some(e) => Some(Err(e)),
+                        None => self.e.points.take().map(Ok),
+                    };
                     w.emit_finished.set(now, true);
                     cx.notify(w.ids.stream, now + 1);
                     w.emit_done.push(cx, ()).expect("one done token");

@@ -608,6 +608,7 @@ struct Outputs {
     topdown: Option<TopdownStats>,
     collapse: Option<(bvh::StreamCollapse, CollapseUnitStats)>,
     collapse_fault: Option<bvh::CollapseError>,
+    points: Option<Result<bvh::PointStream, bvh::PointError>>,
 }
 
 /// The world of the kernel-based machine: channels, shared resources, outputs.
@@ -759,6 +760,8 @@ pub(super) struct KRun {
     pub stream: Option<(cbvh::bottomup::StreamEncoder, StreamUnitStats)>,
     pub topdown: Option<TopdownStats>,
     pub collapse: Option<(bvh::StreamCollapse, CollapseUnitStats)>,
+    /// The point writer, or its error (`output = kdtree-points`).
+    pub points: Option<Result<bvh::PointStream, bvh::PointError>>,
     pub build_cycles: u64,
     pub passes_total: u32,
     pub layout: MemoryLayout,
@@ -798,6 +801,7 @@ pub(super) fn run<'a>(
             stream: None,
             topdown: None,
             collapse: None,
+            points: None,
             build_cycles: 0,
             passes_total: 0,
             layout: MemoryLayout::new(0, 0, 1, 0),
@@ -969,6 +973,14 @@ pub(super) fn run<'a>(
             cfg.combine_identical,
             cfg.max_leaf_size,
             streaming,
+            if cfg.output == OutputMode::KdtreePoints {
+                Some(
+                    bvh::PointStream::new(centroid_bounds, cfg.max_leaf_size)
+                        .map_err(|e| MergeTreeError::Input(e.to_string()))?,
+                )
+            } else {
+                None
+            },
         ),
     }));
     s.add(Box::new(MergeUnit {
@@ -1112,6 +1124,7 @@ pub(super) fn run<'a>(
         max_stack_depth: w.out.max_stack_depth,
         top: w.out.top.take(),
         cbvh_ids: w.out.cbvh_ids.take(),
+        points: w.out.points.take(),
         stream: w.out.stream.take().map(|(e, mut st)| {
             let a = &rep.units[w.ids.stream.index()];
             st.busy_cycles = a.activity.busy_cycles;

@@ -1,0 +1,640 @@
+//! Point octrees from the Morton order, with k-nearest-neighbour and radius queries
+//! (issue 18, part 3; thesis lines 482 and 991, Karras 2012 §4).
+//!
+//! The points are sorted once by their 63-bit Morton codes, exactly as for the k-d tree
+//! ([`crate::PointTree`]; the same sort, the same grid). A cell of the Morton grid at depth
+//! `d` is a prefix of `3d` code bits (digit `20 - d` is the next 3 bits, bit 2 of a digit
+//! the x bit); the points of a cell are a contiguous range of the sorted order. The octree
+//! has a node per distinct prefix of `3d` bits, `d = 0..=21`, down to the cells that become
+//! leaves: a cell is a leaf when it holds at most `max_leaf` points, or when all its points
+//! share one code (no grid plane separates them; its chain of single-child cells down to
+//! depth 21 is not stored). Otherwise its children are its non-empty sub-cells, 1 to 8 of
+//! them, in octant order (a cell whose points all lie in one sub-cell keeps that one
+//! child: Karras's octree has a node for every prefix, and so does this one).
+//!
+//! Karras (§4) derives the octree from the binary radix tree by grouping its levels: the
+//! radix nodes whose highest differing bit lies in the same 3-bit digit make one octree
+//! node. Top-down over the sorted codes that is one `partition_point` per octant boundary,
+//! the same search the k-d tree makes for its one split; the test
+//! `octree_groups_the_radix_tree_levels` checks the correspondence node for node.
+//!
+//! Nodes are stored with the root first and each node's children contiguous; every node
+//! stores its point range and the box of its points, which the queries prune by (the same
+//! pruning and tie rule as the k-d tree, so the results equal [`crate::knn_brute`]).
+
+use crate::points::{box_dist2, check_points, dist2, key, sort_points, unkey, PointError, Sorted};
+use geom::{Aabb, MortonGrid, MortonQuantizer, Vec3};
+use std::collections::BinaryHeap;
+
+/// Depth of the finest cells (one full 63-bit code).
+pub const OCTREE_MAX_DEPTH: u8 = 21;
+
+/// A node of an [`Octree`]: one cell of the Morton grid.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OctNode {
+    /// Bounds of the node's points.
+    pub bounds: Aabb,
+    /// First sorted position of the node's points.
+    pub first: u32,
+    /// Number of points.
+    pub count: u32,
+    /// Index of the first child (the children are contiguous), 0 for a leaf.
+    pub child: u32,
+    /// Number of children, 0 for a leaf.
+    pub children: u8,
+    /// The octants (sub-cells) that the children are, one bit each: bit `o` for the sub-cell
+    /// whose next 3 code bits are `o` (x the high bit).
+    pub octants: u8,
+    /// Depth of the cell: its points share their top `3 * depth` code bits.
+    pub depth: u8,
+}
+
+impl OctNode {
+    /// Whether the node is a leaf.
+    pub fn is_leaf(&self) -> bool {
+        self.children == 0
+    }
+}
+
+/// An octree of points built from their Morton order.
+#[derive(Clone, Debug)]
+pub struct Octree {
+    points: Vec<Vec3>,
+    ids: Vec<u32>,
+    nodes: Vec<OctNode>,
+    max_leaf: u32,
+}
+
+/// Digit (3 bits) of `code` below a cell of depth `depth`.
+#[inline]
+fn digit(code: u64, depth: u8) -> u8 {
+    ((code >> (3 * (OCTREE_MAX_DEPTH - 1 - depth) as u32)) & 7) as u8
+}
+
+struct Build<'a> {
+    codes: &'a [u64],
+    points: &'a [Vec3],
+    max_leaf: usize,
+}
+
+impl Build<'_> {
+    /// Fills node `id` (already allocated) over sorted positions `lo..hi` (non-empty), a
+    /// cell of depth `depth`, and its subtree.
+    fn node(&self, id: usize, lo: usize, hi: usize, depth: u8, nodes: &mut Vec<OctNode>) {
+        let n = OctNode {
+            bounds: Aabb::EMPTY,
+            first: lo as u32,
+            count: (hi - lo) as u32,
+            child: 0,
+            children: 0,
+            octants: 0,
+            depth,
+        };
+        if hi - lo <= self.max_leaf || self.codes[lo] == self.codes[hi - 1] {
+            nodes[id] = OctNode {
+                bounds: self.points[lo..hi]
+                    .iter()
+                    .fold(Aabb::EMPTY, |b, &p| b.grow(p)),
+                ..n
+            };
+            return;
+        }
+        // The codes share their top 3 * depth bits and differ below (else a leaf above), so
+        // depth < 21 and the next digit orders the range.
+        let mut ranges = [(0u8, 0usize, 0usize); 8];
+        let mut k = 0;
+        let mut start = lo;
+        while start < hi {
+            let o = digit(self.codes[start], depth);
+            let end = start + self.codes[start..hi].partition_point(|&c| digit(c, depth) == o);
+            ranges[k] = (o, start, end);
+            k += 1;
+            start = end;
+        }
+        let base = nodes.len();
+        nodes.resize(base + k, n);
+        let mut bounds = Aabb::EMPTY;
+        let mut octants = 0u8;
+        for (i, &(o, a, b)) in ranges[..k].iter().enumerate() {
+            self.node(base + i, a, b, depth + 1, nodes);
+            bounds = bounds.union(nodes[base + i].bounds);
+            octants |= 1 << o;
+        }
+        nodes[id] = OctNode {
+            bounds,
+            child: base as u32,
+            children: k as u8,
+            octants,
+            ..n
+        };
+    }
+}
+
+/// Counts of an [`Octree`]'s nodes.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct OctreeStats {
+    /// All nodes.
+    pub nodes: usize,
+    /// Leaves.
+    pub leaves: usize,
+    /// Inner nodes with a single child (a cell whose points lie in one sub-cell).
+    pub single_child: usize,
+    /// Leaves holding more than `max_leaf` points (all with one code).
+    pub over_full_leaves: usize,
+    /// Levels on the longest root-to-leaf path (the root alone is 1; 0 for no points).
+    pub depth: usize,
+}
+
+impl Octree {
+    /// Builds the octree over `points` with leaves of at most `max_leaf` points (except
+    /// cells whose points all share one code, which stay one leaf).
+    ///
+    /// Errors on a non-finite point, on `max_leaf == 0` and on more than `u32::MAX`
+    /// points. No points give an empty tree.
+    pub fn build(points: &[Vec3], max_leaf: usize) -> Result<Self, PointError> {
+        check_points(points)?;
+        if max_leaf == 0 {
+            return Err(PointError::ZeroLeaf);
+        }
+        let Sorted {
+            codes,
+            ids,
+            points: sorted,
+            ..
+        } = sort_points(points);
+        let b = Build {
+            codes: &codes,
+            points: &sorted,
+            max_leaf,
+        };
+        let mut nodes = Vec::with_capacity(2 * points.len() / max_leaf + 1);
+        if !points.is_empty() {
+            nodes.push(OctNode {
+                bounds: Aabb::EMPTY,
+                first: 0,
+                count: 0,
+                child: 0,
+                children: 0,
+                octants: 0,
+                depth: 0,
+            });
+            b.node(0, 0, points.len(), 0, &mut nodes);
+        }
+        Ok(Self {
+            points: sorted,
+            ids,
+            nodes,
+            max_leaf: max_leaf as u32,
+        })
+    }
+
+    /// Number of points.
+    pub fn len(&self) -> usize {
+        self.points.len()
+    }
+
+    /// Whether the tree has no points.
+    pub fn is_empty(&self) -> bool {
+        self.points.is_empty()
+    }
+
+    /// The nodes, root first.
+    pub fn nodes(&self) -> &[OctNode] {
+        &self.nodes
+    }
+
+    /// The points in Morton order.
+    pub fn sorted_points(&self) -> &[Vec3] {
+        &self.points
+    }
+
+    /// Input index of each point in Morton order.
+    pub fn ids(&self) -> &[u32] {
+        &self.ids
+    }
+
+    /// Node counts and depth.
+    pub fn stats(&self) -> OctreeStats {
+        let mut s = OctreeStats {
+            nodes: self.nodes.len(),
+            ..Default::default()
+        };
+        for n in &self.nodes {
+            if n.is_leaf() {
+                s.leaves += 1;
+                s.over_full_leaves += (n.count > self.max_leaf) as usize;
+                s.depth = s.depth.max(n.depth as usize + 1);
+            } else if n.children == 1 {
+                s.single_child += 1;
+            }
+        }
+        s
+    }
+
+    /// The `k` points nearest to `q` into `out` (cleared first): `(squared distance, input
+    /// index)` in increasing order, ties by index, as [`crate::knn_brute`]; all points when
+    /// `k >= len`.
+    pub fn knn(&self, q: Vec3, k: usize, out: &mut Vec<(f32, u32)>) -> Result<(), PointError> {
+        out.clear();
+        if !q.is_finite() {
+            return Err(PointError::NonFiniteQuery(q));
+        }
+        let k = k.min(self.points.len());
+        if k == 0 {
+            return Ok(());
+        }
+        let mut heap: BinaryHeap<u64> = BinaryHeap::with_capacity(k);
+        let mut stack: Vec<(u32, f32)> = Vec::with_capacity(256);
+        stack.push((0, box_dist2(q, &self.nodes[0].bounds)));
+        // Pruned when the bound exceeds the k-th best (equal is kept: a lower index at the
+        // same distance could still enter).
+        let pruned = |heap: &BinaryHeap<u64>, bound: f32| {
+            heap.len() == k && bound.to_bits() > (heap.peek().copied().unwrap_or(0) >> 32) as u32
+        };
+        let mut kids = [(0u32, 0u32); 8];
+        while let Some((n, bound)) = stack.pop() {
+            if pruned(&heap, bound) {
+                continue;
+            }
+            let node = &self.nodes[n as usize];
+            if node.is_leaf() {
+                let (f, c) = (node.first as usize, node.count as usize);
+                for (p, &id) in self.points[f..f + c].iter().zip(&self.ids[f..f + c]) {
+                    let kk = key(dist2(q, *p), id);
+                    if heap.len() < k {
+                        heap.push(kk);
+                    } else if let Some(mut top) = heap.peek_mut() {
+                        if kk < *top {
+                            *top = kk;
+                        }
+                    }
+                }
+                continue;
+            }
+            // Children by bound, farthest pushed first so the nearest is visited next.
+            let m = node.children as usize;
+            for (i, kid) in kids[..m].iter_mut().enumerate() {
+                let c = node.child + i as u32;
+                *kid = (box_dist2(q, &self.nodes[c as usize].bounds).to_bits(), c);
+            }
+            kids[..m].sort_unstable();
+            for &(b, c) in kids[..m].iter().rev() {
+                let b = f32::from_bits(b);
+                if !pruned(&heap, b) {
+                    stack.push((c, b));
+                }
+            }
+        }
+        out.extend(heap.into_sorted_vec().into_iter().map(unkey));
+        Ok(())
+    }
+
+    /// Every point within squared distance `r2` of `q` into `out` (cleared first):
+    /// `(squared distance, input index)` in increasing order.
+    pub fn within(&self, q: Vec3, r2: f32, out: &mut Vec<(f32, u32)>) -> Result<(), PointError> {
+        out.clear();
+        if !q.is_finite() {
+            return Err(PointError::NonFiniteQuery(q));
+        }
+        if self.nodes.is_empty() || r2.is_nan() || r2 < 0.0 {
+            return Ok(());
+        }
+        let mut keys = Vec::new();
+        let mut stack = vec![0u32];
+        while let Some(n) = stack.pop() {
+            let node = &self.nodes[n as usize];
+            if box_dist2(q, &node.bounds) > r2 {
+                continue;
+            }
+            if node.is_leaf() {
+                let (f, c) = (node.first as usize, node.count as usize);
+                for (p, &id) in self.points[f..f + c].iter().zip(&self.ids[f..f + c]) {
+                    let d = dist2(q, *p);
+                    if d <= r2 {
+                        keys.push(key(d, id));
+                    }
+                }
+            } else {
+                stack.extend(node.child..node.child + node.children as u32);
+            }
+        }
+        keys.sort_unstable();
+        out.extend(keys.into_iter().map(unkey));
+        Ok(())
+    }
+
+    /// Checks the tree against the `points` it was built from: the sorted points are the
+    /// input permuted; the root is the depth-0 cell of every point; each inner node's
+    /// children are contiguous, one depth deeper, in increasing octant order, and partition
+    /// its range into the points whose next code digit is their octant; every node's points
+    /// share their top `3 * depth` code bits (recomputed from the points); leaves hold 1 to
+    /// `max_leaf` points or points of one code, inner nodes more than `max_leaf` of several
+    /// codes; every node's bounds are its points' box; every node is reachable once.
+    pub fn validate(&self, points: &[Vec3]) -> Result<(), PointError> {
+        let bad = |s: String| Err(PointError::Invalid(s));
+        crate::points::check_permutation(&self.points, &self.ids, points)?;
+        if points.is_empty() {
+            return if self.nodes.is_empty() {
+                Ok(())
+            } else {
+                bad("nodes without points".into())
+            };
+        }
+        let bounds = points.iter().fold(Aabb::EMPTY, |b, &p| b.grow(p));
+        let q = MortonQuantizer::with_grid(&bounds, MortonGrid::Box);
+        let codes: Vec<u64> = self.points.iter().map(|&p| q.code63(p)).collect();
+        if codes.windows(2).any(|w| w[0] > w[1]) {
+            return bad("points are not in Morton order".into());
+        }
+        // (node, expected first, expected count, expected depth)
+        let mut stack = vec![(0usize, 0u32, points.len() as u32, 0u8)];
+        let mut visited = 0;
+        while let Some((n, first, count, depth)) = stack.pop() {
+            visited += 1;
+            let Some(node) = self.nodes.get(n) else {
+                return bad(format!("node {n} out of range"));
+            };
+            if node.first != first || node.count != count || node.depth != depth {
+                return bad(format!(
+                    "node {n}: range {}+{} depth {}, expected {first}+{count} depth {depth}",
+                    node.first, node.count, node.depth
+                ));
+            }
+            let (lo, hi) = (first as usize, (first + count) as usize);
+            if count == 0 {
+                return bad(format!("node {n} is empty"));
+            }
+            let shift = 3 * (OCTREE_MAX_DEPTH - depth) as u32;
+            let prefix = |c: u64| c.checked_shr(shift).unwrap_or(0);
+            if depth > OCTREE_MAX_DEPTH || prefix(codes[lo]) != prefix(codes[hi - 1]) {
+                return bad(format!("node {n}: points of several depth-{depth} cells"));
+            }
+            let b = self.points[lo..hi]
+                .iter()
+                .fold(Aabb::EMPTY, |b, &p| b.grow(p));
+            if node.bounds != b {
+                return bad(format!("node {n}: bounds are not its points' box"));
+            }
+            let one_code = codes[lo] == codes[hi - 1];
+            if node.is_leaf() {
+                if node.child != 0 || node.octants != 0 {
+                    return bad(format!("leaf {n} has children"));
+                }
+                if count > self.max_leaf && !one_code {
+                    return bad(format!("leaf {n}: {count} points of several codes"));
+                }
+                continue;
+            }
+            if count <= self.max_leaf || one_code {
+                return bad(format!("node {n}: {count} points should be a leaf"));
+            }
+            let (c0, m) = (node.child as usize, node.children as usize);
+            if c0 <= n || c0 + m > self.nodes.len() || node.octants.count_ones() as usize != m {
+                return bad(format!(
+                    "node {n}: children {c0}+{m}, octants {:b}",
+                    node.octants
+                ));
+            }
+            let mut at = first;
+            let mut octs = (0..8u8).filter(|o| node.octants >> o & 1 == 1);
+            for c in c0..c0 + m {
+                let ch = &self.nodes[c];
+                let o = octs.next().expect("as many octants as children");
+                let (a, z) = (at as usize, (at + ch.count) as usize);
+                if ch.count == 0 || z > hi {
+                    return bad(format!("node {n}: children do not split its range"));
+                }
+                if let Some(p) = (a..z).find(|&p| digit(codes[p], depth) != o) {
+                    return bad(format!("node {n}: position {p} is not in octant {o}"));
+                }
+                stack.push((c, at, ch.count, depth + 1));
+                at += ch.count;
+            }
+            if at != first + count {
+                return bad(format!("node {n}: children do not cover its range"));
+            }
+        }
+        if visited != self.nodes.len() {
+            return bad(format!("{} nodes, {visited} reachable", self.nodes.len()));
+        }
+        Ok(())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::points::tests::cloud;
+    use crate::{knn_brute, PointTree};
+    use proptest::prelude::*;
+
+    /// Builds, validates and checks kNN and radius queries against brute force.
+    fn check(points: &[Vec3], queries: &[Vec3], ks: &[usize], max_leaf: usize) {
+        let t = Octree::build(points, max_leaf).unwrap();
+        t.validate(points).unwrap();
+        let mut out = Vec::new();
+        for &q in queries {
+            for &k in ks {
+                t.knn(q, k, &mut out).unwrap();
+                assert_eq!(out, knn_brute(points, q, k).unwrap(), "q {q:?} k {k}");
+            }
+            if let Some(&(r2, _)) = knn_brute(points, q, 5).unwrap().last() {
+                t.within(q, r2, &mut out).unwrap();
+                let mut want: Vec<_> = points
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &p)| (dist2(q, p), i as u32))
+                    .filter(|&(d, _)| d <= r2)
+                    .collect();
+                want.sort_by_key(|&(d, i)| key(d, i));
+                assert_eq!(out, want);
+            }
+        }
+    }
+
+    #[test]
+    fn knn_matches_brute_force_on_random_clouds() {
+        for (n, leaf) in [(1, 1), (2, 1), (17, 4), (1000, 1), (1000, 8), (20_000, 16)] {
+            let pts = cloud(n, n as u64 + 7, 10.0);
+            let mut qs = cloud(20, 98, 12.0);
+            qs.extend_from_slice(&pts[..pts.len().min(5)]);
+            qs.push(Vec3::splat(-50.0));
+            check(&pts, &qs, &[0, 1, 2, 7, 32, n, n + 5], leaf);
+        }
+    }
+
+    #[test]
+    fn duplicates_lattices_and_identical_points() {
+        let mut pts = cloud(300, 5, 4.0);
+        pts.extend_from_within(..);
+        pts.extend_from_within(..150);
+        let lattice: Vec<Vec3> = cloud(2000, 6, 4.0).into_iter().map(|p| p.floor()).collect();
+        let qs = [Vec3::ZERO, Vec3::splat(2.0), Vec3::new(1.5, 0.5, 3.0)];
+        for leaf in [1, 3, 8] {
+            check(&pts, &qs, &[1, 2, 3, 10, 100], leaf);
+            check(&lattice, &qs, &[1, 2, 3, 10, 100, 2000], leaf);
+        }
+        // All points identical: one code, so the root is one leaf of every point.
+        let same = vec![Vec3::new(1.0, 2.0, 3.0); 1000];
+        let t = Octree::build(&same, 4).unwrap();
+        t.validate(&same).unwrap();
+        assert_eq!(t.nodes().len(), 1);
+        assert_eq!(t.stats().over_full_leaves, 1);
+        check(&same, &qs, &[0, 1, 5, 999, 1000, 1001], 4);
+        let line: Vec<Vec3> = (0..500)
+            .map(|i| Vec3::new(0.5, i as f32 * 0.1, -2.0))
+            .collect();
+        check(&line, &qs, &[1, 2, 9, 600], 1);
+        check(&line, &qs, &[1, 2, 9, 600], 4);
+    }
+
+    #[test]
+    fn lattice_gives_the_exact_octree() {
+        // A 4^3 lattice over [0, 3]: the depth-1 cells are its 2x2x2 blocks and the
+        // depth-2 cells single points.
+        let pts: Vec<Vec3> = (0..64)
+            .map(|i| Vec3::new((i % 4) as f32, (i / 4 % 4) as f32, (i / 16) as f32))
+            .collect();
+        let t = Octree::build(&pts, 1).unwrap();
+        t.validate(&pts).unwrap();
+        let s = t.stats();
+        assert_eq!((s.nodes, s.leaves, s.single_child, s.depth), (73, 64, 0, 3));
+        assert_eq!(t.nodes()[0].octants, 0xff);
+        // Octant 0b100 (x high, y and z low) of the root is the block x in 2..=3, y, z in 0..=1.
+        let c = &t.nodes()[t.nodes()[0].child as usize + 4];
+        assert_eq!(
+            c.bounds,
+            Aabb::new(Vec3::new(2.0, 0.0, 0.0), Vec3::new(3.0, 1.0, 1.0))
+        );
+        let t8 = Octree::build(&pts, 8).unwrap();
+        t8.validate(&pts).unwrap();
+        assert_eq!((t8.stats().nodes, t8.stats().depth), (9, 2));
+        // Two points close together and one far: a chain of single-child cells. B's x cell
+        // is floor(0.001 / 8 * 2^21) = 262 = 0b1_0000_0110, so A and B first differ in
+        // digit 8 (x bit 8), below the cell of depth 12. Nodes: the root, leaf C, the
+        // cells of depth 1..=11 holding A and B (single children), the depth-12 cell, and
+        // the two leaves.
+        let chain = [Vec3::ZERO, Vec3::new(0.001, 0.0, 0.0), Vec3::splat(8.0)];
+        let t = Octree::build(&chain, 1).unwrap();
+        t.validate(&chain).unwrap();
+        let s = t.stats();
+        assert_eq!(
+            (s.nodes, s.leaves, s.single_child, s.depth),
+            (16, 3, 11, 14)
+        );
+        assert_eq!(t.nodes()[0].octants, 0b1000_0001);
+    }
+
+    /// Karras §4: with distinct codes and one point per leaf, the octree's nodes with two
+    /// or more children are the radix tree's nodes that are the topmost of their split
+    /// digit (the root, or a node whose parent splits in a higher digit).
+    #[test]
+    fn octree_groups_the_radix_tree_levels() {
+        for (n, seed) in [(50, 1u64), (3000, 2), (20_000, 3)] {
+            let pts = cloud(n, seed, 1.0);
+            let s = sort_points(&pts);
+            assert!(s.codes.windows(2).all(|w| w[0] < w[1]), "distinct codes");
+            let kd = PointTree::build(&pts, 1).unwrap();
+            let digit_of = |k: &crate::PointNode| {
+                let (a, z) = (
+                    s.codes[k.first as usize],
+                    s.codes[(k.first + k.count - 1) as usize],
+                );
+                (63 - (a ^ z).leading_zeros()) / 3
+            };
+            let mut tops = 0;
+            let mut stack = vec![(0usize, u32::MAX)];
+            while let Some((i, parent_digit)) = stack.pop() {
+                let k = &kd.nodes()[i];
+                if k.is_leaf() {
+                    continue;
+                }
+                let d = digit_of(k);
+                tops += (d != parent_digit) as usize;
+                stack.push((k.left as usize, d));
+                stack.push((k.right as usize, d));
+            }
+            let oct = Octree::build(&pts, 1).unwrap();
+            oct.validate(&pts).unwrap();
+            let st = oct.stats();
+            assert_eq!(st.nodes - st.leaves - st.single_child, tops, "n {n}");
+            assert_eq!(st.leaves, n);
+            assert_eq!(oct.ids(), kd.ids());
+        }
+    }
+
+    #[test]
+    fn empty_bad_input_and_broken_trees() {
+        let t = Octree::build(&[], 4).unwrap();
+        t.validate(&[]).unwrap();
+        let mut out = vec![(1.0, 1)];
+        t.knn(Vec3::ZERO, 5, &mut out).unwrap();
+        assert!(out.is_empty());
+        t.within(Vec3::ZERO, 1.0, &mut out).unwrap();
+        assert!(out.is_empty());
+        let pts = cloud(100, 1, 1.0);
+        let mut bad = pts.clone();
+        bad[7].z = f32::INFINITY;
+        assert!(matches!(
+            Octree::build(&bad, 4),
+            Err(PointError::NonFinite { index: 7, .. })
+        ));
+        assert_eq!(Octree::build(&pts, 0).unwrap_err(), PointError::ZeroLeaf);
+        let t = Octree::build(&pts, 4).unwrap();
+        assert!(matches!(
+            t.knn(Vec3::new(0.0, f32::NAN, 0.0), 1, &mut out),
+            Err(PointError::NonFiniteQuery(_))
+        ));
+        let mut b = t.clone();
+        b.ids.swap(0, 1);
+        assert!(b.validate(&pts).is_err());
+        let mut b = t.clone();
+        let leaf = b.nodes.iter().position(|n| n.is_leaf()).unwrap();
+        b.nodes[leaf].count += 1;
+        assert!(b.validate(&pts).is_err());
+        let mut b = t.clone();
+        b.max_leaf = 1;
+        assert!(b.validate(&pts).is_err());
+        let mut b = t.clone();
+        b.nodes[0].octants ^= 0x81;
+        assert!(b.validate(&pts).is_err());
+        let mut b = t.clone();
+        b.nodes[1].bounds.max.x += 1.0;
+        assert!(b.validate(&pts).is_err());
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+        #[test]
+        fn knn_equals_brute_force(
+            raw in prop::collection::vec(prop::array::uniform3(-4i32..4), 0..300),
+            q in prop::array::uniform3(-5i32..5),
+            k in 0usize..40,
+            leaf in 1usize..6,
+        ) {
+            let pts: Vec<Vec3> = raw.iter().map(|a| Vec3::new(a[0] as f32, a[1] as f32, a[2] as f32) * 0.5).collect();
+            let q = Vec3::new(q[0] as f32, q[1] as f32, q[2] as f32) * 0.25;
+            let t = Octree::build(&pts, leaf).unwrap();
+            prop_assert!(t.validate(&pts).is_ok());
+            let mut out = Vec::new();
+            t.knn(q, k, &mut out).unwrap();
+            prop_assert_eq!(out, knn_brute(&pts, q, k).unwrap());
+        }
+
+        #[test]
+        fn knn_equals_brute_force_on_wide_floats(
+            raw in prop::collection::vec(prop::array::uniform3(-1e20f32..1e20), 1..120),
+            scale in prop::sample::select(vec![1e-30f32, 1e-3, 1.0, 1e15, 1e18]),
+            q in prop::array::uniform3(-1e20f32..1e20),
+            k in 0usize..20,
+        ) {
+            let pts: Vec<Vec3> = raw.iter().map(|a| Vec3::from(*a) * scale).collect();
+            let q = Vec3::from(q) * scale;
+            let t = Octree::build(&pts, 2).unwrap();
+            prop_assert!(t.validate(&pts).is_ok());
+            let mut out = Vec::new();
+            t.knn(q, k, &mut out).unwrap();
+            prop_assert_eq!(out, knn_brute(&pts, q, k).unwrap());
+        }
+    }
+}
