@@ -506,6 +506,8 @@ fn print_text(
         println!(
             "MBVH4 matches the software collapse: {}",
             yes_no(mbvh4_matches)
+        );
+    }
     if let Some(p) = &r.points {
         println!(
             "point k-d tree: {} points, leaves of at most {}: {} nodes emitted, {} written \

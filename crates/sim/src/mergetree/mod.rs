@@ -335,6 +335,7 @@ fn kernel_mbvh4_result(
         pass,
         tree,
     }))
+}
 
 /// The point tree the writer made, with its counts.
 fn point_result(w: bvh::PointStream, aabbs: &[Aabb]) -> Result<PointRunReport, MergeTreeError> {
@@ -563,4 +564,5 @@ mod tests_forecast;
 mod tests_kernel;
 #[cfg(test)]
 mod tests_mbvh4;
+#[cfg(test)]
 mod tests_points;
