@@ -15,6 +15,8 @@ mod bvh2;
 mod collapse;
 mod collapse_sah;
 mod error;
+#[cfg(test)]
+mod fingerprints;
 mod frag;
 mod hlbvh;
 pub mod io;
