@@ -736,3 +736,131 @@ const EXPECTED: &[(&str, u64)] = &[
     ("bunny / mbvh4 topdown false", 0x98ddf7606938c718),
     ("bunny / collapse(sweep)", 0x9bc98a251f4f18f1),
 ];
+
+/// Build times of the refactored builders (not a check: run it from two test binaries,
+/// before and after a change, alternately, with `--ignored --nocapture`). The scene is
+/// `$ARBOR_TIME_SCENE` (default `shared/scenes/dragon.ply`); best of `$ARBOR_TIME_REPS`
+/// (default 5), on 1 and 2 threads.
+#[test]
+#[ignore]
+fn time_builders() {
+    let path = std::env::var("ARBOR_TIME_SCENE").unwrap_or_else(|_| {
+        concat!(
+            env!("CARGO_MANIFEST_DIR"),
+            "/../../../shared/scenes/dragon.ply"
+        )
+        .to_string()
+    });
+    let reps: usize = std::env::var("ARBOR_TIME_REPS").map_or(5, |r| r.parse().unwrap());
+    let prims = if let Some(n) = path.strip_prefix("soup:") {
+        soup(n.parse().unwrap(), 2.0, 1)
+    } else {
+        let s = scene::open(&path, &Default::default()).unwrap();
+        let m = s.mesh_at(0.0).unwrap();
+        indexed_triangle_aabbs(&m.positions, &m.triangles).unwrap()
+    };
+    let best = |f: &dyn Fn()| {
+        (0..reps)
+            .map(|_| {
+                let t = std::time::Instant::now();
+                f();
+                t.elapsed().as_secs_f64() * 1e3
+            })
+            .fold(f64::INFINITY, f64::min)
+    };
+    let sweep = SweepSahBuilder::default().build(&prims).unwrap();
+    for th in [1, 2] {
+        let rows: Vec<(&str, f64)> = vec![
+            (
+                "binned 16",
+                best(&|| {
+                    BinnedSahBuilder {
+                        threads: th,
+                        ..Default::default()
+                    }
+                    .build(&prims)
+                    .unwrap();
+                }),
+            ),
+            (
+                "sweep",
+                best(&|| {
+                    SweepSahBuilder {
+                        threads: th,
+                        ..Default::default()
+                    }
+                    .build(&prims)
+                    .unwrap();
+                }),
+            ),
+            (
+                "mbvh4 topdown",
+                best(&|| {
+                    Mbvh4TopDownBuilder {
+                        threads: th,
+                        ..Default::default()
+                    }
+                    .build(&prims)
+                    .unwrap();
+                }),
+            ),
+            (
+                "hlbvh",
+                best(&|| {
+                    HlbvhBuilder {
+                        threads: th,
+                        ..Default::default()
+                    }
+                    .build(&prims)
+                    .unwrap();
+                }),
+            ),
+            (
+                "hlbvh+atrbvh",
+                best(&|| {
+                    HlbvhAtrbvhBuilder {
+                        threads: th,
+                        ..Default::default()
+                    }
+                    .build(&prims)
+                    .unwrap();
+                }),
+            ),
+            (
+                "atrbvh",
+                best(&|| {
+                    let config = AtrbvhConfig {
+                        threads: th,
+                        ..Default::default()
+                    };
+                    AtrbvhBuilder {
+                        bits: Default::default(),
+                        config,
+                    }
+                    .build(&prims)
+                    .unwrap();
+                }),
+            ),
+            (
+                "ploc",
+                best(&|| {
+                    PlocBuilder {
+                        threads: th,
+                        ..Default::default()
+                    }
+                    .build(&prims)
+                    .unwrap();
+                }),
+            ),
+            (
+                "collapse",
+                best(&|| {
+                    collapse(&sweep).unwrap();
+                }),
+            ),
+        ];
+        for (b, ms) in rows {
+            println!("time {th} thread(s) {b:14} {ms:9.2} ms");
+        }
+    }
+}
