@@ -20,6 +20,7 @@ mod fingerprints;
 mod frag;
 mod hlbvh;
 pub mod io;
+mod layout;
 mod lbvh;
 mod mbvh4;
 mod mbvh4_topdown;
