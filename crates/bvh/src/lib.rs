@@ -31,6 +31,7 @@ mod points;
 mod refit;
 mod reinsert;
 mod sah;
+mod split;
 mod sweep_sah;
 #[cfg(test)]
 mod testutil;
