@@ -397,12 +397,7 @@ impl Work {
             }
             ChildRef::leaf(first, prims.len() as u32 - first)
         };
-        let mut stack: Vec<(u32, Option<(usize, usize)>)> = vec![(0, None)];
-        while let Some((i, patch)) = stack.pop() {
-            let at = nodes.len();
-            if let Some((p, s)) = patch {
-                nodes[p].children[s] = ChildRef::inner(at as u32);
-            }
+        crate::layout::preorder(0u32, &mut nodes, |i, nodes, kids| {
             let n = self.nodes[i as usize];
             let mut refs = [ChildRef::EMPTY; 2];
             let mut boxes = [Aabb::EMPTY; 2];
@@ -415,15 +410,12 @@ impl Work {
                 }
                 if c & LEAF_BIT != 0 || collapse[c as usize] {
                     refs[s] = leaf_range(c, &mut prims);
+                } else {
+                    kids.push((s, c));
                 }
             }
             nodes.push(Node::new(&boxes[0], refs[0], &boxes[1], refs[1]));
-            for s in [1, 0] {
-                if refs[s].is_empty() {
-                    stack.push((n.child[s], Some((at, s))));
-                }
-            }
-        }
+        });
         // Inner children are patched before their subtree is laid out, leaves emitted in
         // preorder: the leaf table is depth-first.
         Bvh2 {

@@ -23,6 +23,7 @@ use crate::error::{check_input, in_pool, BuildError};
 use crate::frag::Frag;
 use crate::node::{ChildRef, Node};
 use crate::sah::SahParams;
+use crate::split::{sweep, Counted, SweepBox, Unit};
 use crate::{centroid, index_lane, lane_index, ordered_bits, MAX_SAH_DEPTH, PARALLEL_MIN_PRIMS};
 use geom::{Aabb, Vec3, Vec4};
 use rayon::prelude::*;
@@ -93,6 +94,19 @@ impl Box4 {
     #[inline(always)]
     fn aabb(&self) -> Aabb {
         Aabb::new(self.min.truncate(), self.max.truncate())
+    }
+}
+
+impl SweepBox for Box4 {
+    type Area = f32;
+    const EMPTY: Self = Box4::EMPTY;
+    #[inline(always)]
+    fn union(self, o: Self) -> Self {
+        Box4::union(self, o)
+    }
+    #[inline(always)]
+    fn area(&self) -> f32 {
+        self.half_area()
     }
 }
 
@@ -427,25 +441,15 @@ fn find_split_n<const N: usize>(ctx: &Ctx, t: &Task) -> Option<Split> {
         max: bins.max[axis][k],
     };
     for axis in 0..3 {
-        let mut acc = Box4::EMPTY;
-        let mut count = 0;
-        for k in (1..nb).rev() {
-            acc = acc.union(bin_box(axis, k));
-            count += bins.cnt[axis][k];
-            right_area[k] = acc.half_area();
-            right_count[k] = count;
-        }
-        let mut left = Box4::EMPTY;
-        let mut count = 0;
-        for k in 1..nb {
-            left = left.union(bin_box(axis, k - 1));
-            count += bins.cnt[axis][k - 1];
-            if count == 0 || right_count[k] == 0 {
-                continue;
+        let right = &mut Counted(&mut right_area, &mut right_count);
+        let item = |k: usize| (bin_box(axis, k), bins.cnt[axis][k]);
+        sweep(nb, item, right, |k, left, count, ra, rc| {
+            if count == 0 || rc == 0 {
+                return;
             }
             let cost = base
                 + left.half_area() * (p.c_leaf + p.c_tri * count as f32)
-                + right_area[k] * (p.c_leaf + p.c_tri * right_count[k] as f32);
+                + ra * (p.c_leaf + p.c_tri * rc as f32);
             if cost.is_finite() && best.as_ref().is_none_or(|s| cost < s.cost) {
                 best = Some(Split {
                     cost,
@@ -457,7 +461,7 @@ fn find_split_n<const N: usize>(ctx: &Ctx, t: &Task) -> Option<Split> {
                     right: Aabb::EMPTY,
                 });
             }
-        }
+        });
     }
     let mut s = best?;
     s.right = (s.bin..nb)
@@ -775,30 +779,29 @@ fn sorted_split_n<const N: usize>(ctx: &Ctx, t: &mut Task) -> Option<Split> {
             order[rank as usize & (N - 1)] = i as u8;
         }
         let ord = &order[..n];
-        let mut rbox = Box4::EMPTY;
-        for i in (1..n).rev() {
-            rbox = rbox.union(refs[ord[i] as usize]);
-            right_area[i] = rbox.half_area();
-        }
-        let mut lbox = Box4::EMPTY;
-        for i in 1..n {
-            lbox = lbox.union(refs[ord[i - 1] as usize]);
-            let cost = base
-                + lbox.half_area() * (p.c_leaf + p.c_tri * i as f32)
-                + right_area[i] * (p.c_leaf + p.c_tri * (n - i) as f32);
-            if cost.is_finite() && best.as_ref().is_none_or(|s| cost < s.cost) {
-                best = Some(Split {
-                    cost,
-                    axis,
-                    bin: i,
-                    sorted: true,
-                    plane: None,
-                    left: lbox.aabb(),
-                    right: Aabb::EMPTY,
-                });
-                best_order[..n].copy_from_slice(ord);
-            }
-        }
+        let item = |i: usize| (refs[ord[i] as usize], 1);
+        sweep(
+            n,
+            item,
+            &mut Unit(&mut right_area, n),
+            |i, lbox, _, ra, _| {
+                let cost = base
+                    + lbox.half_area() * (p.c_leaf + p.c_tri * i as f32)
+                    + ra * (p.c_leaf + p.c_tri * (n - i) as f32);
+                if cost.is_finite() && best.as_ref().is_none_or(|s| cost < s.cost) {
+                    best = Some(Split {
+                        cost,
+                        axis,
+                        bin: i,
+                        sorted: true,
+                        plane: None,
+                        left: lbox.aabb(),
+                        right: Aabb::EMPTY,
+                    });
+                    best_order[..n].copy_from_slice(ord);
+                }
+            },
+        );
     }
     let mut s = best?;
     // Apply the permutation in place, cycle by cycle: position j receives the element at

@@ -16,6 +16,7 @@
 //! reached only once, so a corrupt tree gives a [`CollapseError`], never a panic.
 
 use crate::bvh2::Bvh2;
+use crate::layout::try_preorder;
 use crate::mbvh4::{Mbvh4, Node4, MBVH_WIDTH};
 use crate::node::{ChildRef, TreeNode};
 use crate::sah::SahParams;
@@ -210,15 +211,9 @@ impl Collapse {
         let mut out: Vec<WideNode<W>> = Vec::with_capacity(n / (W / 2) + 1);
         let mut table: Vec<u32> = Vec::with_capacity(bvh.prim_indices.len());
         let mut seen = vec![false; n];
-        // (binary node, (4-wide parent, slot) to patch)
-        let mut stack: Vec<(usize, Option<(usize, usize)>)> = vec![(0, None)];
         let mut kids: Vec<Kid> = Vec::with_capacity(W);
-        while let Some((bi, patch)) = stack.pop() {
-            let at = out.len();
+        try_preorder(0usize, &mut out, |bi, out, next| {
             roots.push(bi as u32);
-            if let Some((p, slot)) = patch {
-                out[p].children[slot] = ChildRef::inner(at as u32);
-            }
             visit(&mut seen, bi)?;
             kids.clear();
             push_children(&mut kids, bvh, bi);
@@ -248,7 +243,6 @@ impl Collapse {
                 boxes: [Aabb::EMPTY; W],
                 children: [ChildRef::EMPTY; W],
             };
-            let mut inner = Vec::with_capacity(W);
             for (slot, &(b, c)) in kids.iter().enumerate() {
                 node.boxes[slot] = b;
                 node.children[slot] = if c.is_leaf() {
@@ -261,15 +255,13 @@ impl Collapse {
                     gather(bvh, c.index as usize, &mut table, &mut seen)?;
                     ChildRef::leaf(first as u32, (table.len() - first) as u32)
                 } else {
-                    inner.push((c.index as usize, slot));
+                    next.push((slot, c.index as usize));
                     ChildRef::EMPTY // patched when the child node is emitted
                 };
             }
             out.push(node);
-            for &(ci, slot) in inner.iter().rev() {
-                stack.push((ci, Some((at, slot))));
-            }
-        }
+            Ok::<(), CollapseError>(())
+        })?;
         Ok(WideBvh {
             nodes: out,
             prim_indices: table,

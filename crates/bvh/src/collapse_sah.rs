@@ -20,6 +20,7 @@
 
 use crate::bvh2::Bvh2;
 use crate::collapse::{check_links, CollapseError};
+use crate::layout::try_preorder;
 use crate::mbvh4::{Mbvh4, Node4, MBVH_WIDTH};
 use crate::node::ChildRef;
 use crate::sah::SahParams;
@@ -137,13 +138,8 @@ pub fn collapse_optimal(
     let mut out: Vec<Node4> = Vec::with_capacity(n / 2 + 1);
     let mut table: Vec<u32> = Vec::with_capacity(bvh.prim_indices.len());
     let mut seen = vec![false; n];
-    let mut stack: Vec<(usize, Option<(usize, usize)>)> = vec![(0, None)];
     let mut kids: Vec<(Aabb, ChildRef)> = Vec::with_capacity(W);
-    while let Some((bi, patch)) = stack.pop() {
-        let at = out.len();
-        if let Some((pa, slot)) = patch {
-            out[pa].children[slot] = ChildRef::inner(at as u32);
-        }
+    try_preorder(0usize, &mut out, |bi, out, next| {
         if std::mem::replace(&mut seen[bi], true) {
             return Err(CollapseError::SharedNode { node: bi });
         }
@@ -151,7 +147,6 @@ pub fn collapse_optimal(
         let a = dp[bi].own as usize;
         expand_open(bvh, &dp, bi, a, W, &mut kids, &mut seen)?;
         let mut node = Node4::EMPTY;
-        let mut inner = Vec::with_capacity(W);
         for (slot, &(b, c)) in kids.iter().enumerate() {
             node.set_child_aabb(slot, &b);
             node.children[slot] = if c.is_leaf() {
@@ -160,15 +155,13 @@ pub fn collapse_optimal(
                 table.extend_from_slice(&bvh.prim_indices[s..s + c.count as usize]);
                 ChildRef::leaf(first, c.count)
             } else {
-                inner.push((c.index as usize, slot));
+                next.push((slot, c.index as usize));
                 ChildRef::EMPTY
             };
         }
         out.push(node);
-        for &(ci, slot) in inner.iter().rev() {
-            stack.push((ci, Some((at, slot))));
-        }
-    }
+        Ok::<(), CollapseError>(())
+    })?;
     Ok(Mbvh4 {
         nodes: out,
         prim_indices: table,

@@ -8,13 +8,11 @@
 //! pass, so the result is identical for any thread count. A single-threaded build has no
 //! forks and its only fragment is already the final node array (no copy).
 
+use crate::layout::preorder;
 use crate::node::{ChildRef, Node};
 
 /// Set in an inner child's index when it names a sub-fragment rather than a local node.
 pub(crate) const FORK_BIT: u32 = 1 << 31;
-
-/// A node still to lay out: (fragment, local node, parent (node, slot) to patch).
-type Pending<'a> = (&'a Frag, u32, Option<(usize, usize)>);
 
 /// A depth-first node array plus the sub-fragments its fork children refer to.
 #[derive(Default)]
@@ -49,26 +47,19 @@ impl Frag {
             return self.nodes;
         }
         let mut out: Vec<Node> = Vec::with_capacity(self.total_len());
-        let mut stack: Vec<Pending> = vec![(&self, 0, None)];
-        while let Some((frag, local, patch)) = stack.pop() {
-            let at = out.len();
-            if let Some((p, slot)) = patch {
-                out[p].children[slot] = ChildRef::inner(at as u32);
-            }
+        preorder((&self, 0u32), &mut out, |(frag, local), out, kids| {
             let node = frag.nodes[local as usize];
             out.push(node);
-            for slot in [1, 0] {
-                let c = node.children[slot];
+            for (slot, c) in node.children.iter().enumerate() {
                 if c.is_inner() {
-                    if c.index & FORK_BIT != 0 {
-                        let sub = &frag.subs[(c.index & !FORK_BIT) as usize];
-                        stack.push((sub, 0, Some((at, slot))));
+                    kids.push(if c.index & FORK_BIT != 0 {
+                        (slot, (&frag.subs[(c.index & !FORK_BIT) as usize], 0))
                     } else {
-                        stack.push((frag, c.index, Some((at, slot))));
-                    }
+                        (slot, (frag, c.index))
+                    });
                 }
             }
-        }
+        });
         out
     }
 }

@@ -15,9 +15,12 @@ mod bvh2;
 mod collapse;
 mod collapse_sah;
 mod error;
+#[cfg(test)]
+mod fingerprints;
 mod frag;
 mod hlbvh;
 pub mod io;
+mod layout;
 mod lbvh;
 mod mbvh4;
 mod mbvh4_topdown;
@@ -30,6 +33,7 @@ mod points;
 mod refit;
 mod reinsert;
 mod sah;
+mod split;
 mod stream_collapse;
 mod sweep_sah;
 #[cfg(test)]

@@ -32,6 +32,7 @@ use crate::error::{check_input, in_pool, BuildError};
 use crate::mbvh4::{Mbvh4, Node4, MBVH_WIDTH};
 use crate::node::ChildRef;
 use crate::sah::SahParams;
+use crate::split::{sweep, Counted, SweepBox, Unit};
 use crate::{index_lane, lane_index, ordered_bits, MAX_BINS, MAX_SAH_DEPTH, PARALLEL_MIN_PRIMS};
 use geom::{Aabb, Vec4};
 use rayon::prelude::*;
@@ -119,6 +120,33 @@ fn area4(min: Vec4, max: Vec4) -> f64 {
     let y = max.y as f64 - min.y as f64;
     let z = max.z as f64 - min.z as f64;
     x * y + y * z + z * x
+}
+
+/// A box as the SIMD min and max corners of its references (lane w ignored), priced by
+/// the `f64` half area [`area4`] in the split sweep.
+#[derive(Clone, Copy)]
+struct Box64 {
+    min: Vec4,
+    max: Vec4,
+}
+
+impl SweepBox for Box64 {
+    type Area = f64;
+    const EMPTY: Self = Box64 {
+        min: Vec4::splat(f32::INFINITY),
+        max: Vec4::splat(f32::NEG_INFINITY),
+    };
+    #[inline(always)]
+    fn union(self, o: Self) -> Self {
+        Box64 {
+            min: self.min.min(o.min),
+            max: self.max.max(o.max),
+        }
+    }
+    #[inline(always)]
+    fn area(&self) -> f64 {
+        area4(self.min, self.max)
+    }
 }
 
 /// A chosen split of a candidate.
@@ -316,36 +344,24 @@ impl Ctx<'_> {
         } else {
             fill(refs)
         };
-        let mut right_cost = [0f64; N];
+        let (mut right_area, mut right_count) = ([0f64; N], [0u32; N]);
         for axis in 0..3 {
             if scale[axis] == 0.0 {
                 continue;
             }
-            // Right-to-left: cost of the right side for a plane before bin i.
-            let (mut mn, mut mx, mut k) = (
-                Vec4::splat(f32::INFINITY),
-                Vec4::splat(f32::NEG_INFINITY),
-                0u32,
-            );
-            for i in (1..bins).rev() {
-                mn = mn.min(bmin[axis][i]);
-                mx = mx.max(bmax[axis][i]);
-                k += cnt[axis][i];
-                right_cost[i] = if k > 0 { area4(mn, mx) * k as f64 } else { 0.0 };
-            }
-            let (mut mn, mut mx, mut k) = (
-                Vec4::splat(f32::INFINITY),
-                Vec4::splat(f32::NEG_INFINITY),
-                0u32,
-            );
-            for i in 1..bins {
-                mn = mn.min(bmin[axis][i - 1]);
-                mx = mx.max(bmax[axis][i - 1]);
-                k += cnt[axis][i - 1];
-                if k == 0 || k as usize == n {
-                    continue;
+            let item = |i: usize| {
+                let b = Box64 {
+                    min: bmin[axis][i],
+                    max: bmax[axis][i],
+                };
+                (b, cnt[axis][i])
+            };
+            let right = &mut Counted(&mut right_area, &mut right_count);
+            sweep(bins, item, right, |i, left, k, ra, rk| {
+                if k == 0 || rk == 0 {
+                    return;
                 }
-                let cost = area4(mn, mx) * k as f64 + right_cost[i];
+                let cost = left.area() * k as f64 + ra * rk as f64;
                 if best.is_none_or(|b| cost < b.cost) {
                     best = Some(Split {
                         axis,
@@ -355,7 +371,7 @@ impl Ctx<'_> {
                         sorted: false,
                     });
                 }
-            }
+            });
         }
         best.or_else(median)
     }
@@ -373,18 +389,16 @@ impl Ctx<'_> {
                 ord[k] = (sort_key(r, axis), k as u8);
             }
             ord[..n].sort_unstable();
-            let inf = (Vec4::splat(f32::INFINITY), Vec4::splat(f32::NEG_INFINITY));
-            let (mut mn, mut mx) = inf;
-            for i in (1..n).rev() {
+            let item = |i: usize| {
                 let r = &refs[ord[i].1 as usize];
-                (mn, mx) = (mn.min(r.min), mx.max(r.max));
-                right[i] = area4(mn, mx) * (n - i) as f64;
-            }
-            let (mut mn, mut mx) = inf;
-            for i in 1..n {
-                let r = &refs[ord[i - 1].1 as usize];
-                (mn, mx) = (mn.min(r.min), mx.max(r.max));
-                let cost = area4(mn, mx) * i as f64 + right[i];
+                let b = Box64 {
+                    min: r.min,
+                    max: r.max,
+                };
+                (b, 1)
+            };
+            sweep(n, item, &mut Unit(&mut right, n), |i, left, _, ra, rk| {
+                let cost = left.area() * i as f64 + ra * rk as f64;
                 if best.is_none_or(|b| cost < b.cost) {
                     best = Some(Split {
                         axis,
@@ -394,7 +408,7 @@ impl Ctx<'_> {
                         sorted: true,
                     });
                 }
-            }
+            });
         }
         best.filter(|b| b.cost.is_finite())
     }

@@ -374,12 +374,7 @@ impl Tree {
     fn into_bvh(self, old: &Bvh2) -> Bvh2 {
         let mut nodes: Vec<Node> = Vec::with_capacity(self.inner);
         let mut prims: Vec<u32> = Vec::with_capacity(old.prim_indices.len());
-        let mut stack: Vec<(u32, Option<(usize, usize)>)> = vec![(self.root, None)];
-        while let Some((i, patch)) = stack.pop() {
-            let at = nodes.len();
-            if let Some((pn, s)) = patch {
-                nodes[pn].children[s] = ChildRef::inner(at as u32);
-            }
+        crate::layout::preorder(self.root, &mut nodes, |i, nodes, kids| {
             let k = self.kids[i as usize];
             let mut refs = [ChildRef::EMPTY; 2];
             for s in 0..2 {
@@ -389,6 +384,8 @@ impl Tree {
                     let first = prims.len() as u32;
                     prims.extend_from_slice(&old.prim_indices[f as usize..(f + cnt) as usize]);
                     refs[s] = ChildRef::leaf(first, cnt);
+                } else {
+                    kids.push((s, k[s]));
                 }
             }
             nodes.push(Node::new(
@@ -397,12 +394,7 @@ impl Tree {
                 &self.bbox[k[1] as usize],
                 refs[1],
             ));
-            for s in [1, 0] {
-                if refs[s].is_empty() {
-                    stack.push((k[s], Some((at, s))));
-                }
-            }
-        }
+        });
         Bvh2 {
             nodes,
             prim_indices: prims,

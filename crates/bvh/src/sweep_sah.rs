@@ -16,6 +16,7 @@ use crate::error::{check_input, in_pool, BuildError};
 use crate::frag::Frag;
 use crate::node::{ChildRef, Node};
 use crate::sah::SahParams;
+use crate::split::{left_pass, right_pass, Unit};
 use crate::{centroid, ordered_bits, MAX_SAH_DEPTH, PARALLEL_MIN_PRIMS};
 use geom::{Aabb, Vec3};
 use rayon::prelude::*;
@@ -211,23 +212,20 @@ fn sweep(ctx: &Ctx, w: &mut Work) -> (Option<(f32, Split)>, Aabb) {
     let mut bounds = Aabb::EMPTY;
     let areas = &mut *w.areas;
     for (axis, list) in w.lists.iter().enumerate() {
-        // Right sweep: areas[i] = area of the box of list[i..], for i in 1..n.
-        let mut rbox = Aabb::EMPTY;
-        for i in (1..n).rev() {
-            rbox = rbox.union(ctx.aabbs[list[i] as usize]);
-            areas[i] = rbox.half_area();
-        }
+        // Right pass: areas[i] = area of the box of list[i..], for i in 1..n; the node's
+        // box is needed to price the first split, so the engine's passes run separately.
+        let item = |i: usize| (ctx.aabbs[list[i] as usize], 1);
+        let right = &mut Unit(&mut *areas, n);
+        let rbox = right_pass(n, item, right);
         bounds = rbox.union(ctx.aabbs[list[0] as usize]);
         let base = p.c_inner * bounds.half_area();
-        // Left sweep: evaluate the split before list[i].
-        let mut lbox = Aabb::EMPTY;
-        for i in 1..n {
-            lbox = lbox.union(ctx.aabbs[list[i - 1] as usize]);
+        // Left pass: evaluate the split before list[i].
+        left_pass(n, item, &*right, |i, lbox, _, ra, _| {
             let nl = i as f32;
             let nr = (n - i) as f32;
             let cost = base
                 + lbox.half_area() * (p.c_leaf + p.c_tri * nl)
-                + areas[i] * (p.c_leaf + p.c_tri * nr);
+                + ra * (p.c_leaf + p.c_tri * nr);
             // Strictly smaller wins; an exact tie goes to the more balanced split (coincident
             // primitives), then to the earlier axis and position (determinism).
             let better = |(c, s): &(f32, Split)| {
@@ -236,7 +234,7 @@ fn sweep(ctx: &Ctx, w: &mut Work) -> (Option<(f32, Split)>, Aabb) {
             if cost.is_finite() && best.as_ref().is_none_or(better) {
                 best = Some((cost, Split { axis, pos: i }));
             }
-        }
+        });
     }
     (best, bounds)
 }

@@ -159,8 +159,7 @@ impl Stitcher<'_> {
         let mut out = Vec::with_capacity(self.hl.nodes.len() + self.top.nodes.len());
         // (first emitted node, root emitted node, position in `out`) of each cell subtree.
         let mut cells: Vec<(u32, u32, usize)> = Vec::new();
-        let mut stack: Vec<(Item, Option<(usize, usize)>)> = vec![(root, None)];
-        while let Some((item, patch)) = stack.pop() {
+        crate::layout::preorder(root, &mut out, |item, out, kids| {
             let at = out.len();
             if let Item::Sub(EmitRef::Node(r)) = item {
                 let first = self.hl.subtree_first(r);
@@ -168,22 +167,15 @@ impl Stitcher<'_> {
                 out.resize(at + (r - first) as usize + 1, Node::EMPTY);
             } else {
                 let ch = self.children(item);
-                out.push(Node::new(
-                    &ch[0].1,
-                    Self::child_ref(ch[0].0),
-                    &ch[1].1,
-                    Self::child_ref(ch[1].0),
-                ));
-                for slot in [1, 0] {
-                    if Self::child_ref(ch[slot].0).is_inner() {
-                        stack.push((ch[slot].0, Some((at, slot))));
+                let refs = [Self::child_ref(ch[0].0), Self::child_ref(ch[1].0)];
+                out.push(Node::new(&ch[0].1, refs[0], &ch[1].1, refs[1]));
+                for (slot, (r, c)) in refs.iter().zip(ch).enumerate() {
+                    if r.is_inner() {
+                        kids.push((slot, c.0));
                     }
                 }
             }
-            if let Some((p, slot)) = patch {
-                out[p].children[slot] = ChildRef::inner(at as u32);
-            }
-        }
+        });
         // Disjoint slices of the reserved ranges, in increasing position order.
         let mut slices = Vec::with_capacity(cells.len());
         let mut rest = out.as_mut_slice();
