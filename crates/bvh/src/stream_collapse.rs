@@ -48,6 +48,21 @@
 //! 32-byte slots (a 24-byte box and an 8-byte reference): one 128-byte node of storage per
 //! open subtree, `128 (D + 1)` bytes in all. [`StreamCollapse::max_open`] reports the peak.
 //!
+//! # Windowed rule
+//! [`StreamCollapse::with_window`] decides by cost instead, with a bounded delay. Every
+//! open subtree keeps its top binary levels unresolved (a treelet of at most `levels + 1`
+//! levels, as \[P3\] §4.3 keeps the top of every subtree unwritten) over *items* already
+//! decided: leaves, closed wide nodes, and committed open frontiers (which may still be
+//! closed). For the treelet it runs the program of [`crate::collapse_sah_optimal`]: per
+//! node and budget `j` = 1..4 slots in its parent, the least summed area of the wide nodes
+//! it needs (a node of its own costs its area; an open frontier of `s` slots costs
+//! nothing with `j >= s` and its area as a closed node otherwise). When a node arrives,
+//! the levels that fall out of the window are committed as the optimum of the new treelet
+//! has them with its root a wide node of its own; at the end the root's treelet is
+//! resolved exactly. A window deeper than the tree therefore gives the SAH-optimal
+//! collapse (tested); the buffer is at most `2^(levels + 1)` unresolved nodes per open
+//! subtree ([`StreamCollapse::max_treelet_nodes`] reports the peak).
+//!
 //! # Output order
 //! Wide nodes are written in closing order, every node after the nodes it references
 //! (emission order, like the binary nodes of the plain output); [`StreamCollapse::tree`]
@@ -119,12 +134,44 @@ pub struct StreamCollapse {
     max_open: usize,
     /// Box of the root, once the stream has ended.
     bounds: Option<Aabb>,
+    /// The windowed variant's state ([`StreamCollapse::with_window`]).
+    win: Option<Window>,
+}
+
+/// The state of the windowed variant: the open subtrees' unresolved treelets.
+#[derive(Clone, Debug, Default)]
+struct Window {
+    /// Binary levels kept unresolved below the newest node.
+    levels: u32,
+    /// Open subtrees, the last opened on top.
+    stack: Vec<Treelet>,
+    /// Peak treelet nodes held over all open subtrees.
+    max_nodes: usize,
 }
 
 impl StreamCollapse {
-    /// A collapse before its first node.
+    /// A collapse before its first node, with the greedy rule of the module doc.
     pub fn new() -> Self {
         Self::default()
+    }
+
+    /// A collapse with the windowed rule: every open subtree keeps its top `levels + 1`
+    /// binary levels unresolved and is resolved by the optimal collapse program over
+    /// them (see [`StreamCollapse::max_treelet_nodes`] and the module doc).
+    pub fn with_window(levels: u32) -> Self {
+        Self {
+            win: Some(Window {
+                levels,
+                ..Window::default()
+            }),
+            ..Self::default()
+        }
+    }
+
+    /// Peak unresolved binary nodes held over all open subtrees (windowed rule; 0 with
+    /// the greedy rule).
+    pub fn max_treelet_nodes(&self) -> usize {
+        self.win.as_ref().map_or(0, |w| w.max_nodes)
     }
 
     /// Wide nodes written so far, in write order (inner references are write indices).
@@ -149,6 +196,9 @@ impl StreamCollapse {
         let id = self.consumed as usize;
         if self.bounds.is_some() {
             return Err(CollapseError::StreamOrder { node: id, slot: 0 });
+        }
+        if self.win.is_some() {
+            return self.push_window(e);
         }
         // An inner child 1 is on top of the open stack, an inner child 0 below it.
         let mut kids = [Kid::Slot(Aabb::EMPTY, ChildRef::EMPTY); 2];
@@ -205,9 +255,23 @@ impl StreamCollapse {
                 slot: 0,
             });
         }
+        if let (Some(w), [r]) = (&mut self.win, roots) {
+            if let EmitRef::Node(c) = r.root {
+                let t = match w.stack.pop() {
+                    Some(t) if t.id == c && w.stack.is_empty() => t,
+                    _ => {
+                        return Err(CollapseError::StreamEnd {
+                            open: w.stack.len() + 1,
+                        })
+                    }
+                };
+                return Ok(self.end_window(t, r.aabb));
+            }
+        }
+        let open = self.win.as_ref().map_or(self.open.len(), |w| w.stack.len());
         let root = match roots {
             [] => {
-                if !self.open.is_empty() || self.consumed > 0 {
+                if open > 0 || self.consumed > 0 {
                     return Err(CollapseError::StreamEnd {
                         open: self.open.len(),
                     });
@@ -219,7 +283,7 @@ impl StreamCollapse {
             _ => return Err(CollapseError::ManyRoots { roots: roots.len() }),
         };
         let top = match root.root {
-            EmitRef::Leaf { first, count } if self.open.is_empty() && count > 0 => {
+            EmitRef::Leaf { first, count } if open == 0 && count > 0 => {
                 let mut o = Open {
                     id: 0,
                     len: 0,
@@ -341,10 +405,277 @@ fn decide(kids: &[Kid; 2]) -> [bool; 2] {
     inner
 }
 
+/// A reference inside a treelet: a fixed slot (leaf or closed node), a committed open
+/// frontier (which may still be closed), or an unresolved treelet node.
+#[derive(Clone, Copy, Debug)]
+enum TRef {
+    Slot(Aabb, ChildRef),
+    Open(Aabb, Open),
+    Node(usize),
+}
+
+/// An unresolved binary node: its box, children and depth below the treelet's root.
+#[derive(Clone, Copy, Debug)]
+struct TNode {
+    b: Aabb,
+    kids: [TRef; 2],
+    depth: u32,
+}
+
+/// An open subtree of the windowed rule: its unresolved top levels.
+#[derive(Clone, Debug)]
+struct Treelet {
+    id: u32,
+    nodes: Vec<TNode>,
+}
+
+/// Per treelet node and budget `j` (index 1..=4): least cost, whether it is a wide node of
+/// its own, the split `a` (slots to child 0) and the budget `jj <= j` the split uses.
+#[derive(Clone, Copy, Debug, Default)]
+struct Choice {
+    cost: f64,
+    own: bool,
+    a: usize,
+    jj: usize,
+}
+
+/// The windowed rule (`StreamCollapse::with_window`).
+impl StreamCollapse {
+    /// Consumes the next emitted node with the windowed rule.
+    fn push_window(&mut self, e: &EmittedNode) -> Result<usize, CollapseError> {
+        let id = self.consumed as usize;
+        let before = self.written.len();
+        let w = self.win.as_mut().expect("the windowed rule");
+        let mut nodes: Vec<TNode> = Vec::new();
+        let mut kids = [TRef::Slot(Aabb::EMPTY, ChildRef::EMPTY); 2];
+        let mut parts: [Option<Treelet>; 2] = [None, None];
+        for slot in (0..2).rev() {
+            match e.children[slot] {
+                EmitRef::Leaf { first, count } => {
+                    if count == 0 {
+                        return Err(CollapseError::EmptyLeaf { node: id, slot });
+                    }
+                    kids[slot] = TRef::Slot(e.aabbs[slot], ChildRef::leaf(first, count));
+                }
+                EmitRef::Node(c) => match w.stack.pop() {
+                    Some(t) if t.id == c => parts[slot] = Some(t),
+                    _ => return Err(CollapseError::StreamOrder { node: id, slot }),
+                },
+            }
+        }
+        for slot in 0..2 {
+            if let Some(t) = parts[slot].take() {
+                let base = nodes.len();
+                for mut n in t.nodes {
+                    n.depth += 1;
+                    for k in n.kids.iter_mut() {
+                        if let TRef::Node(i) = k {
+                            *i += base;
+                        }
+                    }
+                    nodes.push(n);
+                }
+                kids[slot] = TRef::Node(nodes.len() - 1);
+            }
+        }
+        nodes.push(TNode {
+            b: e.aabbs[0].union(e.aabbs[1]),
+            kids,
+            depth: 0,
+        });
+        // The levels leaving the window are committed as the optimum of the treelet has
+        // them when its root becomes a wide node of its own.
+        let limit = w.levels + 1;
+        let budgets = resolve(&nodes, 1);
+        let mut t = self.commit(nodes, &budgets, |n| n.depth >= limit);
+        t.id = self.consumed;
+        let w = self.win.as_mut().expect("the windowed rule");
+        w.stack.push(t);
+        let held: usize = w.stack.iter().map(|t| t.nodes.len()).sum();
+        w.max_nodes = w.max_nodes.max(held);
+        self.max_open = self.max_open.max(w.stack.len());
+        self.consumed += 1;
+        Ok(self.written.len() - before)
+    }
+
+    /// Ends the windowed stream at root treelet `t` (box `b`): resolves it exactly, the
+    /// root a wide node; returns the wide nodes written.
+    fn end_window(&mut self, t: Treelet, b: Aabb) -> usize {
+        let before = self.written.len();
+        let budgets = resolve(&t.nodes, 1);
+        let rest = self.commit(t.nodes, &budgets, |_| true);
+        debug_assert!(rest.nodes.is_empty());
+        self.bounds = Some(b);
+        self.written.len() - before
+    }
+
+    /// Commits the nodes `pick` selects (children before parents; a picked node's
+    /// descendants must be picked too) with their budgets, writing what they close, and
+    /// returns the treelet of the others.
+    fn commit(
+        &mut self,
+        nodes: Vec<TNode>,
+        budgets: &[usize],
+        pick: impl Fn(&TNode) -> bool,
+    ) -> Treelet {
+        let mut done: Vec<Option<TRef>> = vec![None; nodes.len()];
+        let mut keep: Vec<usize> = Vec::new();
+        let mut at: Vec<usize> = vec![usize::MAX; nodes.len()];
+        let cost = choices(&nodes);
+        for (i, n) in nodes.iter().enumerate() {
+            let kid = |k: TRef| match k {
+                TRef::Node(c) => done[c].unwrap_or(TRef::Node(c)),
+                other => other,
+            };
+            if pick(n) {
+                let ch = cost[i][budgets[i]];
+                let (jj, own) = if ch.own {
+                    (MBVH_WIDTH, true)
+                } else {
+                    (ch.jj, false)
+                };
+                let a = if own { cost[i][1].a } else { ch.a };
+                let mut o = Open {
+                    id: 0,
+                    len: 0,
+                    slots: [(Aabb::EMPTY, ChildRef::EMPTY); MBVH_WIDTH],
+                };
+                for (k, want) in [(kid(n.kids[0]), a), (kid(n.kids[1]), jj - a)] {
+                    self.place(&mut o, k, want);
+                }
+                done[i] = Some(if own {
+                    let w = self.write(&o);
+                    TRef::Slot(n.b, ChildRef::inner(w))
+                } else {
+                    TRef::Open(n.b, o)
+                });
+            } else {
+                at[i] = keep.len();
+                keep.push(i);
+            }
+        }
+        let nodes_left = keep
+            .iter()
+            .map(|&i| {
+                let mut n = nodes[i];
+                for k in n.kids.iter_mut() {
+                    if let TRef::Node(c) = *k {
+                        *k = match done[c] {
+                            Some(r) => r,
+                            None => TRef::Node(at[c]),
+                        };
+                    }
+                }
+                n
+            })
+            .collect();
+        Treelet {
+            id: 0,
+            nodes: nodes_left,
+        }
+    }
+
+    /// Puts item `k` into `o` with `want` slots: opened if it fits, else closed (written).
+    fn place(&mut self, o: &mut Open, k: TRef, want: usize) {
+        match k {
+            TRef::Slot(b, c) => o.put(b, c),
+            TRef::Open(_, inner) if inner.len <= want => {
+                for &(sb, sc) in &inner.slots[..inner.len] {
+                    o.put(sb, sc);
+                }
+            }
+            TRef::Open(b, inner) => {
+                let w = self.write(&inner);
+                o.put(b, ChildRef::inner(w));
+            }
+            TRef::Node(_) => unreachable!("children are committed before their parents"),
+        }
+    }
+}
+
+/// Cost of treelet reference `k` with `a` slots.
+fn ref_cost(k: TRef, a: usize, cost: &[[Choice; MBVH_WIDTH + 1]]) -> f64 {
+    match k {
+        TRef::Slot(..) => 0.0,
+        TRef::Open(b, o) if a < o.len => b.half_area() as f64,
+        TRef::Open(..) => 0.0,
+        TRef::Node(i) => cost[i][a].cost,
+    }
+}
+
+/// The program over a treelet (children before parents): per node and budget 1..=4.
+fn choices(nodes: &[TNode]) -> Vec<[Choice; MBVH_WIDTH + 1]> {
+    let mut cost: Vec<[Choice; MBVH_WIDTH + 1]> = Vec::with_capacity(nodes.len());
+    for n in nodes {
+        let mut open = [(f64::INFINITY, 0usize); MBVH_WIDTH + 1];
+        for (j, o) in open.iter_mut().enumerate().skip(2) {
+            for a in 1..j {
+                let c = ref_cost(n.kids[0], a, &cost) + ref_cost(n.kids[1], j - a, &cost);
+                if c < o.0 {
+                    *o = (c, a);
+                }
+            }
+        }
+        let mut row = [Choice::default(); MBVH_WIDTH + 1];
+        row[1] = Choice {
+            cost: n.b.half_area() as f64 + open[MBVH_WIDTH].0,
+            own: true,
+            a: open[MBVH_WIDTH].1,
+            jj: MBVH_WIDTH,
+        };
+        for j in 2..=MBVH_WIDTH {
+            row[j] = if open[j].0 < row[j - 1].cost {
+                Choice {
+                    cost: open[j].0,
+                    own: false,
+                    a: open[j].1,
+                    jj: j,
+                }
+            } else {
+                row[j - 1]
+            };
+        }
+        cost.push(row);
+    }
+    cost
+}
+
+/// The budget of every treelet node when its root (the last node) gets `root` slots.
+fn resolve(nodes: &[TNode], root: usize) -> Vec<usize> {
+    let cost = choices(nodes);
+    let mut b = vec![0usize; nodes.len()];
+    let Some(last) = nodes.len().checked_sub(1) else {
+        return b;
+    };
+    b[last] = root;
+    for i in (0..nodes.len()).rev() {
+        let ch = cost[i][b[i].max(1)];
+        let (a, jj) = if ch.own {
+            (cost[i][1].a, MBVH_WIDTH)
+        } else {
+            (ch.a, ch.jj)
+        };
+        for (k, want) in [(nodes[i].kids[0], a), (nodes[i].kids[1], jj - a)] {
+            if let TRef::Node(c) = k {
+                b[c] = want;
+            }
+        }
+    }
+    b
+}
+
 /// The streaming collapse of an emitter's whole output (one root, no high-level
 /// threshold): [`StreamCollapse`] fed `hl`'s nodes in emission order.
 pub fn stream_collapse(hl: &Highlevel) -> Result<(Mbvh4, StreamCollapse), CollapseError> {
-    let mut sc = StreamCollapse::new();
+    stream_collapse_with(hl, StreamCollapse::new())
+}
+
+/// [`stream_collapse`] with the collapse `sc` (for example
+/// [`StreamCollapse::with_window`]).
+pub fn stream_collapse_with(
+    hl: &Highlevel,
+    mut sc: StreamCollapse,
+) -> Result<(Mbvh4, StreamCollapse), CollapseError> {
     for n in &hl.nodes {
         sc.push(n)?;
     }
@@ -528,6 +859,51 @@ mod tests {
         ));
     }
 
+    /// The windowed rule: valid on every input; with a window deeper than the tree it is
+    /// the SAH-optimal collapse; a deeper window does not raise the SAH here.
+    #[test]
+    fn windowed_rule_reaches_the_optimum() {
+        let b = HlbvhBuilder::default();
+        for (name, prims) in adversarial() {
+            let hl = b.build_highlevel(&prims).unwrap();
+            for w in 0..4 {
+                let (m, _) = stream_collapse_with(&hl, StreamCollapse::with_window(w)).unwrap();
+                let max_leaf = m.stats().max_leaf_size.max(1);
+                assert_eq!(validate_mbvh4(&m, &prims, max_leaf), Ok(()), "{name} {w}");
+                assert_eq!(m.prim_indices, hl.order);
+            }
+        }
+        let prims = soup(400, 2.0, 7);
+        let hl = b.build_highlevel(&prims).unwrap();
+        let bvh = hl.to_bvh2();
+        let depth = bvh.stats().max_depth as u32;
+        let (whole, sc) = stream_collapse_with(&hl, StreamCollapse::with_window(depth)).unwrap();
+        assert_eq!(validate_mbvh4(&whole, &prims, 8), Ok(()));
+        let best = collapse_sah_optimal(&bvh, &SahParams::THESIS).unwrap();
+        let (a, o) = (whole.normalized_sah(), best.normalized_sah());
+        assert!((a - o).abs() <= 1e-9 * o, "{a} vs optimum {o}");
+        // Nothing was committed before the end: the whole tree was held.
+        assert_eq!(sc.max_treelet_nodes(), bvh.nodes.len());
+        let sah = |w: u32| {
+            let (m, _) = stream_collapse_with(&hl, StreamCollapse::with_window(w)).unwrap();
+            m.normalized_sah()
+        };
+        assert!(
+            sah(4) <= sah(1) && sah(1) < sah(0) * 1.2,
+            "{} {} {}",
+            sah(4),
+            sah(1),
+            sah(0)
+        );
+        // Out of order is an error here too.
+        let mut sc = StreamCollapse::with_window(2);
+        let last = hl.nodes.len() - 1;
+        assert!(matches!(
+            sc.push(&hl.nodes[last]),
+            Err(CollapseError::StreamOrder { .. })
+        ));
+    }
+
     #[test]
     fn empty_and_single_leaf_scenes() {
         let (m, _) =
@@ -610,6 +986,19 @@ mod tests {
             let (m, bvh, open) = check(&name, &prims, &b);
             let off = collapse(&bvh).unwrap();
             let best = collapse_sah_optimal(&bvh, &SahParams::THESIS).unwrap();
+            let hl = b.build_highlevel(&prims).unwrap();
+            for w in [0, 1, 2, 3, 4] {
+                let (t, wc) = stream_collapse_with(&hl, StreamCollapse::with_window(w)).unwrap();
+                let max_leaf = bvh.stats().max_leaf_size.max(1);
+                assert_eq!(validate_mbvh4(&t, &prims, max_leaf), Ok(()), "{name} {w}");
+                println!(
+                    "  window {w}: nodes {} SAH {:.3} open {} treelet nodes {}",
+                    t.nodes.len(),
+                    t.normalized_sah(),
+                    wc.max_open(),
+                    wc.max_treelet_nodes()
+                );
+            }
             assert!(m.normalized_sah() >= best.normalized_sah() * (1.0 - 1e-9));
             println!(
                 "| {name} | {} | {} | {} | {} | {:.3} | {:.3} | {:.3} | {open} |",

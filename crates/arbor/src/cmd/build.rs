@@ -5,8 +5,9 @@
 //!
 //! Builders are looked up by name in [`BUILDERS`], so adding one is one line. The binary
 //! builders make a `Bvh2`; `mbvh4-collapse` (a binary build, `--collapse-from`, collapsed
-//! by `bvh::collapse`), `mbvh4-stream` (the HLBVH emitter's stream collapsed as it is
-//! emitted, `bvh::stream_collapse`) and `mbvh4-topdown` make the 4-wide `Mbvh4` of \[P4\]. A 4-wide
+//! by `bvh::collapse`), `mbvh4-stream` and `mbvh4-stream-w4` (the HLBVH emitter's stream
+//! collapsed as it is emitted, `bvh::stream_collapse`, by the greedy rule or the windowed
+//! rule with 4 levels) and `mbvh4-topdown` make the 4-wide `Mbvh4` of \[P4\]. A 4-wide
 //! tree's SAH is `Mbvh4::normalized_sah` (each node costs `2 C_i` for its four box tests),
 //! so it divides by the binary sweep SAH like any other.
 
@@ -152,6 +153,13 @@ pub static BUILDERS: &[(&str, BuildFn)] = &[
         let hl = hlbvh(c).build_highlevel(p)?;
         Ok(Tree::Mbvh4(bvh::stream_collapse(&hl)?.0))
     }),
+    ("mbvh4-stream-w4", |p, c| {
+        // The same stream with the windowed rule, 4 levels unresolved: the tree of
+        // `--set output=mbvh4 --set mbvh4_window=4`.
+        let hl = hlbvh(c).build_highlevel(p)?;
+        let sc = bvh::StreamCollapse::with_window(4);
+        Ok(Tree::Mbvh4(bvh::stream_collapse_with(&hl, sc)?.0))
+    }),
     ("mbvh4-topdown", |p, c| {
         Ok(Tree::Mbvh4(
             bvh::Mbvh4TopDownBuilder {
@@ -253,7 +261,7 @@ pub struct BuildArgs {
     scene: SceneArgs,
     /// Builder: lbvh, hlbvh, hlbvh+sah, hlbvh+atrbvh, binned-sah, sweep-sah, atrbvh, ploc,
     /// ploc+reinsert, hlbvh+reinsert (binary trees), mbvh4-collapse, mbvh4-stream,
-    /// mbvh4-topdown (4-wide trees).
+    /// mbvh4-stream-w4, mbvh4-topdown (4-wide trees).
     #[arg(long, value_name = "NAME")]
     builder: String,
     /// mbvh4-collapse: the binary builder whose tree is collapsed (default binned-sah).
@@ -728,6 +736,7 @@ mod tests {
             "hlbvh+reinsert",
             "mbvh4-collapse",
             "mbvh4-stream",
+            "mbvh4-stream-w4",
             "mbvh4-topdown",
         ] {
             assert!(BUILDERS.iter().any(|(b, _)| *b == n), "{n}");

@@ -491,15 +491,19 @@ fn print_text(
         );
         if let Some(c) = &m.stream {
             println!(
-                "  collapse unit: busy {} cycles, starved {}, write buffer full {}; at most {} \
-                 open subtrees ({} B of slots; emitter stack depth {}); emitter waiting for \
-                 the unit {} cycles",
+                "  collapse unit ({}): busy {} cycles, starved {}, write buffer full {}; at \
+                 most {} open subtrees (emitter stack depth {}), {} unresolved nodes; emitter \
+                 waiting for the unit {} cycles",
+                match r.config.mbvh4_window {
+                    None => "greedy rule".to_string(),
+                    Some(w) => format!("window of {w} levels"),
+                },
                 thousands(c.busy_cycles),
                 thousands(c.starved_cycles),
                 thousands(c.write_full_cycles),
                 c.max_open,
-                c.max_open * m.node_bytes,
                 r.max_stack_depth,
+                c.max_treelet_nodes,
                 thousands(s.emitter.encoder_full_cycles)
             );
         }

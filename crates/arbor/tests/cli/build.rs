@@ -5,8 +5,8 @@ use crate::common::arbor;
 use serde_json::Value;
 use std::path::Path;
 
-/// Every builder of `arbor build`: ten binary, then the two 4-wide ones.
-const BUILDERS: [&str; 12] = [
+/// Every builder of `arbor build`: ten binary, then the four 4-wide ones.
+const BUILDERS: [&str; 14] = [
     "lbvh",
     "hlbvh",
     "hlbvh+sah",
@@ -18,6 +18,8 @@ const BUILDERS: [&str; 12] = [
     "ploc+reinsert",
     "hlbvh+reinsert",
     "mbvh4-collapse",
+    "mbvh4-stream",
+    "mbvh4-stream-w4",
     "mbvh4-topdown",
 ];
 
@@ -207,6 +209,17 @@ fn out_file_reads_back_as_the_built_tree() {
                 t.into()
             }
             "mbvh4-collapse" => bvh::collapse(&binned).unwrap().into(),
+            "mbvh4-stream" | "mbvh4-stream-w4" => {
+                let hl = bvh::HlbvhBuilder::default()
+                    .build_highlevel(&aabbs)
+                    .unwrap();
+                let sc = if b == "mbvh4-stream" {
+                    bvh::StreamCollapse::new()
+                } else {
+                    bvh::StreamCollapse::with_window(4)
+                };
+                bvh::stream_collapse_with(&hl, sc).unwrap().0.into()
+            }
             "mbvh4-topdown" => bvh::Mbvh4TopDownBuilder::default()
                 .build(&aabbs)
                 .unwrap()

@@ -119,6 +119,52 @@ fn any_builder_can_make_the_tree() {
     assert!(e.contains("unknown builder 'nope'"), "{e}");
 }
 
+/// MergeTree's MBVH4 (the streaming collapses) against the offline collapse of the same
+/// HLBVH tree (`--collapse-from`), as in `docs/beyond-thesis.md`.
+#[test]
+fn streaming_and_offline_collapses_of_the_hlbvh_tree() {
+    let mut nodes = Vec::new();
+    for b in [
+        &["--builder", "mbvh4-stream"][..],
+        &["--builder", "mbvh4-stream-w4"],
+        &["--builder", "mbvh4-collapse", "--collapse-from", "hlbvh"],
+        &["--builder", "mbvh4-collapse"],
+    ] {
+        let mut a = vec!["--tree", "mbvh4"];
+        a.extend_from_slice(b);
+        let j = rt_json(&a);
+        assert_eq!(j["hits_match_software"], true, "{b:?}");
+        nodes.push(j["tree_nodes"].as_u64().unwrap());
+    }
+    // The collapses of HLBVH differ from the binned SAH tree's, and from one another.
+    assert_ne!(nodes[2], nodes[3]);
+    assert_ne!(nodes[0], nodes[2]);
+    let e = error(&[
+        "sim",
+        "rtunit",
+        "--quiet",
+        CITY,
+        "--tree",
+        "mbvh4",
+        "--collapse-from",
+        "hlbvh",
+    ]);
+    assert!(e.contains("--builder mbvh4-collapse"), "{e}");
+    let e = error(&[
+        "sim",
+        "rtunit",
+        "--quiet",
+        CITY,
+        "--tree",
+        "mbvh4",
+        "--builder",
+        "mbvh4-collapse",
+        "--collapse-from",
+        "nope",
+    ]);
+    assert!(e.contains("nope"), "{e}");
+}
+
 #[test]
 fn set_overrides_reach_the_model() {
     let j = rt_json(&["--set", "l2_bytes=65536", "--set", "trv_units=2"]);

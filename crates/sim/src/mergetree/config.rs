@@ -39,6 +39,10 @@ pub const NODE_BYTES: u64 = 64;
 /// Bytes of one MBVH4 node (\[P4\] §3.1: four child AABBs, four references).
 pub const MBVH4_NODE_BYTES: u64 = std::mem::size_of::<bvh::Node4>() as u64;
 
+/// Deepest window of the MBVH4 collapse's windowed rule (`mbvh4_window`): it holds up to
+/// `2^(window + 1)` unresolved nodes per open subtree.
+pub const MAX_MBVH4_WINDOW: u32 = 8;
+
 /// Bytes of one leaf-table entry (\[P2\] §4.1: a pointer to primitive data).
 pub const LEAF_ENTRY_BYTES: u64 = 4;
 
@@ -228,6 +232,10 @@ pub struct MergeTreeConfig {
     /// first writes them out (coherent, the default); `false` is a timing what-if that reads
     /// DRAM at once (see `cbvh_unit`).
     pub cbvh_flush_before_backtrack: bool,
+    /// With `output = mbvh4`: `None` for the streaming collapse's greedy rule, or the
+    /// binary levels below the newest node that the windowed rule keeps unresolved
+    /// ([`bvh::StreamCollapse::with_window`]; at most [`MAX_MBVH4_WINDOW`]).
+    pub mbvh4_window: Option<u32>,
     /// Bytes of unused space after every M-element run in the run regions (a layout
     /// what-if; the presets: 0, runs back to back). With runs a power-of-two span apart,
     /// refills of runs at equal offsets go to one DRAM bank (`docs/mergetree-vs-thesis.md`,
@@ -271,6 +279,7 @@ pub const KEYS: &[&str] = &[
     "cbvh_min_scale_exp",
     "cbvh_fifo",
     "cbvh_flush_before_backtrack",
+    "mbvh4_window",
     "run_gap_bytes",
     "read_schedule",
     "forecast_spares",
@@ -321,6 +330,7 @@ impl MergeTreeConfig {
             cbvh_min_scale_exp: cbvh::grid::DEFAULT_MIN_SCALE_EXP,
             cbvh_fifo: 16,
             cbvh_flush_before_backtrack: true,
+            mbvh4_window: None,
             run_gap_bytes: 0,
             read_schedule: ReadSchedule::Double,
             forecast_spares: 16,
@@ -470,6 +480,13 @@ impl MergeTreeConfig {
             }
             "cbvh_fifo" => self.cbvh_fifo = num32(1)?,
             "cbvh_flush_before_backtrack" => self.cbvh_flush_before_backtrack = boolean()?,
+            "mbvh4_window" => {
+                self.mbvh4_window = if value == "none" {
+                    None
+                } else {
+                    Some(num32(0)?)
+                }
+            }
             "run_gap_bytes" => self.run_gap_bytes = num32(0)?,
             "read_schedule" => {
                 self.read_schedule = match value {
@@ -625,6 +642,13 @@ impl MergeTreeConfig {
                 self.output.name()
             ));
         }
+        if let Some(w) = self.mbvh4_window {
+            if w > MAX_MBVH4_WINDOW {
+                return err(format!(
+                    "mbvh4_window ({w}) must be none or 0..={MAX_MBVH4_WINDOW}"
+                ));
+            }
+        }
         if (self.output.is_cbvh() || self.output == OutputMode::Mbvh4)
             && self.cbvh_fifo as u64 > 1 << 20
         {
@@ -684,6 +708,15 @@ impl MergeTreeConfig {
 }
 
 impl MergeTreeConfig {
+    /// The streaming MBVH4 collapse of `output = mbvh4`: the greedy rule, or the windowed
+    /// rule with `mbvh4_window` levels.
+    pub fn stream_collapse(&self) -> bvh::StreamCollapse {
+        match self.mbvh4_window {
+            None => bvh::StreamCollapse::new(),
+            Some(w) => bvh::StreamCollapse::with_window(w),
+        }
+    }
+
     /// The CBVH quantization parameters of the CBVH output modes.
     pub fn cbvh_params(&self) -> Params {
         Params {

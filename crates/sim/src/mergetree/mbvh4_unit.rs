@@ -15,7 +15,11 @@
 //! binary nodes are never written: the node traffic is 128 bytes per wide node instead of
 //! 64 bytes per binary node. The unit holds one 128-byte node of slots per open subtree,
 //! at most the emitter's deepest stack + 1 (see [`bvh::StreamCollapse`]; the report gives
-//! the peak). Wide nodes go to the output region (`cbvh` in [`super::MemoryLayout`]) in
+//! the peak). With `mbvh4_window = L` the unit runs the windowed rule
+//! ([`bvh::StreamCollapse::with_window`]) and spends L more cycles per node (and at the
+//! end): a node's arrival changes the least-cost rows (four budgets, three splits each)
+//! of the treelet nodes on its path, at most L + 1 of them, one row per cycle. Wide nodes
+//! go to the output region (`cbvh` in [`super::MemoryLayout`]) in
 //! write order, each after the nodes it references.
 //!
 //! # Collapse pass (`output = mbvh4-collapse`)
@@ -44,8 +48,12 @@ pub struct CollapseUnitStats {
     pub nodes_in: u64,
     /// Wide nodes handed to the write buffer (128 B each).
     pub nodes_written: u64,
-    /// Peak number of open subtrees held (one 128-byte node of slots each).
+    /// Peak number of open subtrees held (one 128-byte node of slots each with the greedy
+    /// rule).
     pub max_open: u64,
+    /// Peak unresolved binary nodes held over all open subtrees (windowed rule; 0 with
+    /// the greedy rule).
+    pub max_treelet_nodes: u64,
     /// Cycles the unit consumed a node, took the root or wrote a wide node.
     pub busy_cycles: u64,
     /// Cycles it had nothing to do and the emitter had not finished.

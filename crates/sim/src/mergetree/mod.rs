@@ -312,7 +312,11 @@ fn kernel_mbvh4_result(
         OutputMode::Mbvh4 => match collapse {
             Some((sc, st)) => (sc.tree(hl.order.clone())?, Some(st), None),
             // An empty scene: the unit did not start.
-            None => (bvh::stream_collapse(hl)?.0, None, None),
+            None => (
+                bvh::stream_collapse_with(hl, cfg.stream_collapse())?.0,
+                None,
+                None,
+            ),
         },
         OutputMode::Mbvh4Collapse => (bvh::collapse(&hl.to_bvh2())?, None, pass),
         _ => return Ok(None),
@@ -502,8 +506,8 @@ pub fn cbvh_matches_software(
     Ok(Some(ours.tree == tree && ours.encode == stats))
 }
 
-/// The MBVH4 software makes for `cfg`'s output mode: [`bvh::stream_collapse`] of the
-/// software emitter's stream (`mbvh4`), or [`bvh::collapse`] of the software tree
+/// The MBVH4 software makes for `cfg`'s output mode: [`bvh::stream_collapse_with`] of
+/// the software emitter's stream (`mbvh4`, with the rule of `mbvh4_window`), or [`bvh::collapse`] of the software tree
 /// (`mbvh4-collapse`); `None` in the other modes.
 pub fn software_mbvh4(
     aabbs: &[Aabb],
@@ -512,7 +516,7 @@ pub fn software_mbvh4(
     Ok(match cfg.output {
         OutputMode::Mbvh4 => {
             let hl = software_builder(cfg).build_highlevel(aabbs)?;
-            Some(bvh::stream_collapse(&hl)?.0)
+            Some(bvh::stream_collapse_with(&hl, cfg.stream_collapse())?.0)
         }
         OutputMode::Mbvh4Collapse => Some(bvh::collapse(&software_tree(aabbs, cfg)?)?),
         _ => None,

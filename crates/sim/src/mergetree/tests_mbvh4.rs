@@ -3,6 +3,7 @@
 //! the collapse pass follows an unchanged build, and the counts of a tiny scene by hand.
 
 use super::*;
+use crate::mergetree::config::MAX_MBVH4_WINDOW;
 use crate::mergetree::mbvh4_unit::{collapse_pass_writes, emission_index};
 use crate::mergetree::tests::{clustered_boxes, port, random_boxes, small};
 
@@ -214,5 +215,39 @@ fn mbvh4_mode_errors() {
     c.highlevel_threshold = None;
     c.output = OutputMode::Mbvh4;
     c.cbvh_fifo = (1 << 20) + 1;
+    assert!(c.validate().is_err());
+}
+
+/// `mbvh4_window = L`: the windowed rule, equal to the software's, L more cycles per node
+/// and at the end, and a lower SAH than the greedy rule here.
+#[test]
+fn windowed_rule_in_the_unit() {
+    let a = random_boxes(4000, 15);
+    let base = with(&small(512, 8, 4), OutputMode::Mbvh4);
+    let greedy = check(&a, &base);
+    let mut c = base.clone();
+    c.set("mbvh4_window", "3").unwrap();
+    assert_eq!(c.mbvh4_window, Some(3));
+    let r = check(&a, &c);
+    let m = r.mbvh4.as_ref().unwrap();
+    let st = m.stream.as_ref().unwrap();
+    assert_eq!(st.busy_cycles, (st.nodes_in + 1) * 4 + st.nodes_written);
+    assert!(st.max_treelet_nodes > 0);
+    assert_eq!(
+        greedy
+            .mbvh4
+            .as_ref()
+            .unwrap()
+            .stream
+            .as_ref()
+            .unwrap()
+            .max_treelet_nodes,
+        0
+    );
+    assert!(m.sah < greedy.mbvh4.as_ref().unwrap().sah);
+    assert_eq!(r.bytes_read, greedy.bytes_read);
+    c.set("mbvh4_window", "none").unwrap();
+    assert_eq!(c.mbvh4_window, None);
+    c.mbvh4_window = Some(MAX_MBVH4_WINDOW + 1);
     assert!(c.validate().is_err());
 }

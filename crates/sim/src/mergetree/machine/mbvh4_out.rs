@@ -7,6 +7,10 @@ pub(super) struct Collapse {
     pub(super) sc: Option<bvh::StreamCollapse>,
     /// Wide nodes closed and not yet handed to the write buffer.
     pub(super) writes: u64,
+    /// Cycles of the windowed rule's cost update still to spend on the last node.
+    pub(super) think: u64,
+    /// Extra cycles per node of the windowed rule (its levels; 0 for the greedy rule).
+    pub(super) levels: u64,
     pub(super) ended: bool,
     pub(super) done: bool,
     pub(super) stats: CollapseUnitStats,
@@ -20,6 +24,11 @@ impl Collapse {
         let now = cx.now();
         if self.done {
             return Ok(Wake::Done);
+        }
+        if self.think > 0 {
+            self.think -= 1;
+            cx.set_state(State::Busy);
+            return Ok(Wake::Next);
         }
         if self.writes > 0 {
             if !w.nodes.has_room(now, MBVH4_NODE_BYTES) {
@@ -35,18 +44,21 @@ impl Collapse {
         let sc = self.sc.as_mut().expect("collapse until done");
         if let Some(n) = w.col_fifo.pop(cx) {
             self.writes = sc.push(&n)? as u64;
+            self.think = self.levels;
             self.stats.nodes_in += 1;
             cx.set_state(State::Busy);
             Ok(Wake::Next)
         } else if w.emit_finished.get(now) && !self.ended {
             // The root's slots are written last, as the root node.
             self.writes = sc.end(&w.out.roots)? as u64;
+            self.think = self.levels;
             self.ended = true;
             cx.set_state(State::Busy);
             Ok(Wake::Next)
         } else if self.ended {
             self.done = true;
             self.stats.max_open = sc.max_open() as u64;
+            self.stats.max_treelet_nodes = sc.max_treelet_nodes() as u64;
             w.out.collapse = Some((self.sc.take().expect("once"), self.stats.clone()));
             w.stream_done.push(cx, ()).expect("one done token");
             cx.set_state(State::Idle);

@@ -1064,8 +1064,10 @@ pub(super) fn run<'a>(
     }
     if cfg.output == OutputMode::Mbvh4 {
         let id = s.add(Box::new(Collapse {
-            sc: Some(bvh::StreamCollapse::new()),
+            sc: Some(cfg.stream_collapse()),
             writes: 0,
+            think: 0,
+            levels: cfg.mbvh4_window.map_or(0, u64::from),
             ended: false,
             done: false,
             stats: CollapseUnitStats::default(),
