@@ -10,6 +10,8 @@
 //! so it divides by the binary sweep SAH like any other.
 
 use super::{ms, open_scene, thousands, SceneArgs};
+
+pub mod points;
 use crate::progress::Ui;
 use anyhow::{bail, Context};
 use bvh::{LbvhBuilder, SweepSahBuilder, Tree};
@@ -246,7 +248,8 @@ pub struct BuildArgs {
     scene: SceneArgs,
     /// Builder: lbvh, hlbvh, hlbvh+sah, hlbvh+atrbvh, binned-sah, sweep-sah, atrbvh, ploc,
     /// ploc+reinsert, hlbvh+reinsert (binary trees), mbvh4-collapse, mbvh4-topdown (4-wide
-    /// trees).
+    /// trees); kdtree-points, octree-points (point trees over the triangles' centroids,
+    /// checked against brute-force kNN).
     #[arg(long, value_name = "NAME")]
     builder: String,
     /// mbvh4-collapse: the binary builder whose tree is collapsed (default binned-sah).
@@ -518,6 +521,9 @@ fn reference_plan(builder: &str, triangles: usize, force: bool) -> Reference {
 
 /// Runs `arbor build`.
 pub fn run(args: &BuildArgs, ui: &Ui) -> anyhow::Result<()> {
+    if points::POINT_BUILDERS.contains(&args.builder.as_str()) {
+        return points::run_points(args, ui);
+    }
     let (build_fn, cfg) = check_args(args)?;
     let pool = {
         let mut b = rayon::ThreadPoolBuilder::new();

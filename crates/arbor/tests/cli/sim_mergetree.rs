@@ -223,3 +223,44 @@ fn cbvh_bad_arguments_are_one_line_errors() {
     );
     assert!(sim_error(&[CLOTH, "--cbvh", "stream", "--set", "cbvh_bits=2"]).contains("bits"));
 }
+
+/// The point mode (issue 18, part 3): the unit's k-d tree over the triangles' centroids
+/// equals `bvh::PointTree`, and `--points uniform:N` builds over N points.
+#[test]
+fn kdtree_points_mode() {
+    let grid = [
+        "--set",
+        "output=kdtree-points",
+        "--set",
+        "morton_bits=63",
+        "--set",
+        "morton_grid=box",
+        "--set",
+        "max_leaf_size=8",
+    ];
+    let mut a = vec![CLOTH];
+    a.extend(grid);
+    let j = sim_json(&a);
+    assert_eq!(j["tree_matches_software"], true);
+    let p = &j["points"];
+    let n = j["triangles"].as_u64().unwrap();
+    assert_eq!(p["points"].as_u64().unwrap(), n);
+    assert_eq!(p["emitted"].as_u64().unwrap(), n - 1);
+    assert_eq!(
+        p["written"].as_u64().unwrap() + p["collapsed"].as_u64().unwrap(),
+        n - 1
+    );
+    assert_eq!(
+        p["tree_nodes"].as_u64().unwrap(),
+        2 * p["written"].as_u64().unwrap() + 1
+    );
+    a.extend(["--points", "uniform:3000"]);
+    let u = sim_json(&a);
+    assert_eq!(u["triangles"], 3000);
+    assert_eq!(u["tree_matches_software"], true);
+    // The presets' grid is refused; so is a bad point set.
+    let err = sim_error(&[CLOTH, "--set", "output=kdtree-points"]);
+    assert!(err.contains("morton_bits = 63"), "{err}");
+    let err = sim_error(&[CLOTH, "--points", "uniform:x"]);
+    assert!(err.contains("--points expects"), "{err}");
+}
