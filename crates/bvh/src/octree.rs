@@ -215,6 +215,11 @@ impl Octree {
         &self.ids
     }
 
+    /// Largest leaf the tree was built with (leaves of one code may exceed it).
+    pub fn max_leaf(&self) -> u32 {
+        self.max_leaf
+    }
+
     /// Node counts and depth.
     pub fn stats(&self) -> OctreeStats {
         let mut s = OctreeStats {
@@ -477,6 +482,10 @@ pub struct OctreeStream {
     ids: Vec<u32>,
     points: Vec<Vec3>,
     nodes: Vec<WrittenOct>,
+    /// Children of the written nodes, in all.
+    children: usize,
+    /// The closed root, once [`OctreeStream::close_root`] ran.
+    root: Option<Closed>,
     max_stack: usize,
 }
 
@@ -496,6 +505,8 @@ impl OctreeStream {
             ids: Vec::new(),
             points: Vec::new(),
             nodes: Vec::new(),
+            children: 0,
+            root: None,
             max_stack: 0,
         })
     }
@@ -553,6 +564,7 @@ impl OctreeStream {
             )));
         }
         let depth = |t: u32| (OCTREE_MAX_DEPTH as u32 - 1 - t) as u8;
+        self.children += children.len();
         self.nodes.push(WrittenOct {
             depth: depth(t),
             children,
@@ -561,6 +573,7 @@ impl OctreeStream {
         // The single-child cells between this node and its parent's child cell.
         for d in t + 1..parent {
             let inner = c;
+            self.children += 1;
             self.nodes.push(WrittenOct {
                 depth: depth(d),
                 children: vec![inner],
@@ -623,6 +636,32 @@ impl OctreeStream {
         self.nodes.len()
     }
 
+    /// Children of the nodes written so far, in all.
+    pub fn written_children(&self) -> usize {
+        self.children
+    }
+
+    /// Ends the stream and closes the root, writing its node (and the single-child cells
+    /// above it) now rather than in [`OctreeStream::finish`]. Errors unless the stream
+    /// ended with one subtree or none.
+    pub fn close_root(&mut self) -> Result<(), PointError> {
+        self.end();
+        if self.root.is_some() {
+            return Ok(());
+        }
+        match self.stack.len() {
+            0 if self.ids.is_empty() => Ok(()),
+            1 => {
+                let s = self.stack.pop().expect("one subtree");
+                self.root = Some(self.close(s, ROOT_PARENT_DIGIT)?);
+                Ok(())
+            }
+            k => Err(PointError::Stream(format!(
+                "{k} subtrees left at the end of the stream"
+            ))),
+        }
+    }
+
     /// Deepest stack so far.
     pub fn max_stack_depth(&self) -> usize {
         self.max_stack
@@ -632,21 +671,11 @@ impl OctreeStream {
     /// (the root's included). Errors unless the stream ended with one subtree (none for no
     /// points).
     pub fn finish(mut self) -> Result<(Octree, usize), PointError> {
-        self.end();
+        self.close_root()?;
         let mut out = Vec::with_capacity(self.nodes.len() * 9 / 8 + 1);
-        match self.stack.len() {
-            0 if self.ids.is_empty() => {}
-            1 => {
-                let s = self.stack.pop().expect("one subtree");
-                let root = self.close(s, ROOT_PARENT_DIGIT)?;
-                out.push(placeholder());
-                self.lay_out(&root, 0, 0, &mut out)?;
-            }
-            k => {
-                return Err(PointError::Stream(format!(
-                    "{k} subtrees left at the end of the stream"
-                )))
-            }
+        if let Some(root) = self.root {
+            out.push(placeholder());
+            self.lay_out(&root, 0, 0, &mut out)?;
         }
         let written = self.nodes.len();
         Ok((

@@ -254,10 +254,21 @@ fn kdtree_points_mode() {
         p["tree_nodes"].as_u64().unwrap(),
         2 * p["written"].as_u64().unwrap() + 1
     );
+    assert_eq!(p["kind"], "kdtree");
+    assert_eq!(
+        p["node_bytes"].as_u64().unwrap(),
+        64 * p["written"].as_u64().unwrap()
+    );
     a.extend(["--points", "uniform:3000"]);
     let u = sim_json(&a);
     assert_eq!(u["triangles"], 3000);
     assert_eq!(u["tree_matches_software"], true);
+    // The octree of the same points.
+    a[2] = "output=octree-points";
+    let o = sim_json(&a);
+    assert_eq!(o["tree_matches_software"], true);
+    assert_eq!(o["points"]["kind"], "octree");
+    assert_eq!(o["points"]["points"], 3000);
     // The presets' grid is refused; so is a bad point set.
     let err = sim_error(&[CLOTH, "--set", "output=kdtree-points"]);
     assert!(err.contains("morton_bits = 63"), "{err}");

@@ -114,7 +114,7 @@ use geom::{Aabb, MortonQuantizer};
 use super::cbvh_unit::{StreamUnitStats, TopdownStats};
 use super::config::{MergeTreeConfig, ELEM_BYTES, HIGHLEVEL_BYTES, LEAF_ENTRY_BYTES, NODE_BYTES};
 use super::config::{OutputMode, ReadSchedule};
-use super::emitter::{EmitPorts, EmitStatus, EmitUnit, EmitterStalls};
+use super::emitter::{EmitPorts, EmitStatus, EmitUnit, EmitterStalls, PointWriter};
 use super::merge::{MergeOut, MergeStalls, MergeState, Merger, Slot};
 use super::presort::{PresortState, Presorter};
 use super::report::{PhaseReport, StallReport, TraceRow};
@@ -407,6 +407,12 @@ impl KBuf {
         self.wb.pending() + freed + bytes <= self.wb.capacity()
     }
 
+    /// Bytes that fit now (what [`Self::has_room`] accepts).
+    fn free(&self, now: Cycle) -> u64 {
+        let freed = if self.freed_at == now { self.freed } else { 0 };
+        self.wb.capacity().saturating_sub(self.wb.pending() + freed)
+    }
+
     #[inline]
     fn add(&mut self, cx: &mut Ctx, bytes: u64) {
         let now = cx.now();
@@ -595,7 +601,7 @@ struct Outputs {
     cbvh_ids: Option<Vec<u32>>,
     stream: Option<(cbvh::bottomup::StreamEncoder, StreamUnitStats)>,
     topdown: Option<TopdownStats>,
-    points: Option<Result<bvh::PointStream, bvh::PointError>>,
+    points: Option<Result<PointWriter, bvh::PointError>>,
 }
 
 /// The world of the kernel-based machine: channels, shared resources, outputs.
@@ -745,7 +751,7 @@ pub(super) struct KRun {
     pub stream: Option<(cbvh::bottomup::StreamEncoder, StreamUnitStats)>,
     pub topdown: Option<TopdownStats>,
     /// The point writer, or its error (`output = kdtree-points`).
-    pub points: Option<Result<bvh::PointStream, bvh::PointError>>,
+    pub points: Option<Result<PointWriter, bvh::PointError>>,
     pub build_cycles: u64,
     pub passes_total: u32,
     pub layout: MemoryLayout,
@@ -942,13 +948,16 @@ pub(super) fn run<'a>(
             cfg.combine_identical,
             cfg.max_leaf_size,
             streaming,
-            if cfg.output == OutputMode::KdtreePoints {
-                Some(
+            match cfg.output {
+                OutputMode::KdtreePoints => Some(PointWriter::Kd(
                     bvh::PointStream::new(centroid_bounds, cfg.max_leaf_size)
                         .map_err(|e| MergeTreeError::Input(e.to_string()))?,
-                )
-            } else {
-                None
+                )),
+                OutputMode::OctreePoints => Some(PointWriter::Oct(
+                    bvh::OctreeStream::new(cfg.max_leaf_size)
+                        .map_err(|e| MergeTreeError::Input(e.to_string()))?,
+                )),
+                _ => None,
             },
         ),
     }));
