@@ -79,6 +79,17 @@ fn run(name: &str, pts: &[Vec3], checks: usize) -> Result<(), Box<dyn std::error
     }
     let (oc_time, oct) = median3(|| Octree::build(pts, leaf))?;
     oct.validate(pts)?;
+    let (os_time, (oct_streamed, oct_written)) = median3(|| Octree::build_streaming(pts, leaf))?;
+    let oct_same = oct_streamed.ids() == oct.ids() && oct_streamed.nodes() == oct.nodes();
+    println!(
+        "  streaming octree (emitter + octree writer): build {:.1} ms, {} nodes written, \
+         equal to the top-down octree: {oct_same}",
+        os_time * 1e3,
+        oct_written
+    );
+    if !oct_same {
+        return Err(format!("{name}: the streaming octree differs").into());
+    }
     let s = oct.stats();
     println!(
         "  octree: build {:.1} ms ({:.1} Mpoints/s), {} nodes ({} leaves, {} single-child, {} over-full leaves), depth {}, valid",

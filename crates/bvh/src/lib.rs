@@ -58,7 +58,7 @@ pub use lbvh::{LbvhBuilder, MortonBits};
 pub use mbvh4::{mbvh4_sah_cost_with, validate_mbvh4, Mbvh4, Mbvh4Stats, Node4, MBVH_WIDTH};
 pub use mbvh4_topdown::Mbvh4TopDownBuilder;
 pub use node::{ChildRef, Node, EMPTY_INDEX};
-pub use octree::{OctNode, Octree, OctreeStats, OCTREE_MAX_DEPTH};
+pub use octree::{OctNode, Octree, OctreeStats, OctreeStream, OCTREE_MAX_DEPTH};
 pub use ploc::{PlocBuilder, MAX_PLOC_RADIUS};
 pub use point_stream::{Joined, PointRef, PointStream, PointStreamStats, WrittenNode};
 pub use points::{knn_brute, PointError, PointNode, PointTree, NO_AXIS};

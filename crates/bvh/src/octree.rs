@@ -22,6 +22,8 @@
 //! stores its point range and the box of its points, which the queries prune by (the same
 //! pruning and tie rule as the k-d tree, so the results equal [`crate::knn_brute`]).
 
+use crate::hlbvh::{EmittedNode, Emitter, Prim, Step};
+use crate::point_stream::run_ties;
 use crate::points::{box_dist2, check_points, dist2, key, sort_points, unkey, PointError, Sorted};
 use geom::{Aabb, MortonGrid, MortonQuantizer, Vec3};
 use std::collections::BinaryHeap;
@@ -211,6 +213,11 @@ impl Octree {
     /// Input index of each point in Morton order.
     pub fn ids(&self) -> &[u32] {
         &self.ids
+    }
+
+    /// Largest leaf the tree was built with (leaves of one code may exceed it).
+    pub fn max_leaf(&self) -> u32 {
+        self.max_leaf
     }
 
     /// Node counts and depth.
@@ -421,6 +428,376 @@ impl Octree {
     }
 }
 
+/// A finished subtree that has become a child of an octree node: a leaf range or a
+/// written node, with what its parent needs (its points' range, box and first code).
+#[derive(Clone, Copy, Debug)]
+struct Closed {
+    /// The written node, or `None` for a leaf.
+    node: Option<u32>,
+    first: u32,
+    count: u32,
+    first_code: u64,
+    bounds: Aabb,
+}
+
+/// A subtree on the octree writer's stack.
+#[derive(Clone, Debug)]
+struct OSub {
+    first: u32,
+    count: u32,
+    first_code: u64,
+    last_code: u64,
+    bounds: Aabb,
+    /// The open octree node this subtree's radix joins make: its split digit and the
+    /// children gathered so far; `None` for one point, or points of one code.
+    group: Option<(u32, Vec<Closed>)>,
+}
+
+/// An octree node as [`OctreeStream`] writes it: its depth and its children (1 to 8).
+#[derive(Clone, Debug)]
+struct WrittenOct {
+    depth: u8,
+    children: Vec<Closed>,
+}
+
+/// The streaming octree writer behind the \[P2\] Algorithm 1 emitter: the octree of
+/// [`Octree::build`] from the radix-tree joins the emitter makes, bottom-up (Karras §4's
+/// grouping of the radix levels, done as the joins stream out).
+///
+/// Its stack mirrors the emitter's as [`crate::PointStream`]'s does. A join whose two
+/// halves differ first in code digit `t` (the left half's last and the right half's first
+/// code) is part of the octree node of digit `t`: it gathers its halves' children, where a
+/// half that is itself an open node of digit `t` gives its gathered children and any
+/// other half is closed into one child. Closing a subtree under a node of digit `t_p`
+/// makes a leaf when it holds at most `max_leaf` points or points of one code; otherwise
+/// it writes its open node (digit `t`, depth `20 - t`) and `t_p - t - 1` single-child
+/// nodes above it, the cells between. The root is closed under a virtual digit 21. A node
+/// is thus written when its parent's digit is known, with at most 8 children held per open
+/// node on the stack.
+#[derive(Clone, Debug)]
+pub struct OctreeStream {
+    max_leaf: u32,
+    stack: Vec<OSub>,
+    pending: Option<OSub>,
+    ids: Vec<u32>,
+    points: Vec<Vec3>,
+    nodes: Vec<WrittenOct>,
+    /// Children of the written nodes, in all.
+    children: usize,
+    /// The closed root, once [`OctreeStream::close_root`] ran.
+    root: Option<Closed>,
+    max_stack: usize,
+}
+
+/// Digit of a cell depth's children (digit `20 - depth`), for the virtual root parent 21.
+const ROOT_PARENT_DIGIT: u32 = OCTREE_MAX_DEPTH as u32;
+
+impl OctreeStream {
+    /// A writer with leaves of at most `max_leaf` points.
+    pub fn new(max_leaf: u32) -> Result<Self, PointError> {
+        if max_leaf == 0 {
+            return Err(PointError::ZeroLeaf);
+        }
+        Ok(Self {
+            max_leaf,
+            stack: Vec::new(),
+            pending: None,
+            ids: Vec::new(),
+            points: Vec::new(),
+            nodes: Vec::new(),
+            children: 0,
+            root: None,
+            max_stack: 0,
+        })
+    }
+
+    /// The emitter read the next sorted point: input index `id`, Morton code `code`.
+    pub fn read(&mut self, code: u64, id: u32, p: Vec3) {
+        let pos = self.ids.len() as u32;
+        self.ids.push(id);
+        self.points.push(p);
+        if let Some(s) = self.pending.take() {
+            self.push(s);
+        }
+        self.pending = Some(OSub {
+            first: pos,
+            count: 1,
+            first_code: code,
+            last_code: code,
+            bounds: Aabb::new(p, p),
+            group: None,
+        });
+    }
+
+    /// The emitter reached the end of the stream.
+    pub fn end(&mut self) {
+        if let Some(s) = self.pending.take() {
+            self.push(s);
+        }
+    }
+
+    fn push(&mut self, s: OSub) {
+        self.stack.push(s);
+        self.max_stack = self.max_stack.max(self.stack.len());
+    }
+
+    /// Closes `s` into one child of a node of digit `parent`.
+    fn close(&mut self, s: OSub, parent: u32) -> Result<Closed, PointError> {
+        let mut c = Closed {
+            node: None,
+            first: s.first,
+            count: s.count,
+            first_code: s.first_code,
+            bounds: s.bounds,
+        };
+        if s.count <= self.max_leaf || s.first_code == s.last_code {
+            return Ok(c);
+        }
+        let Some((t, children)) = s.group else {
+            return Err(PointError::Stream(
+                "a subtree of several codes without a node".into(),
+            ));
+        };
+        if t >= parent {
+            return Err(PointError::Stream(format!(
+                "digit {t} under digit {parent}"
+            )));
+        }
+        let depth = |t: u32| (OCTREE_MAX_DEPTH as u32 - 1 - t) as u8;
+        self.children += children.len();
+        self.nodes.push(WrittenOct {
+            depth: depth(t),
+            children,
+        });
+        c.node = Some(self.nodes.len() as u32 - 1);
+        // The single-child cells between this node and its parent's child cell.
+        for d in t + 1..parent {
+            let inner = c;
+            self.children += 1;
+            self.nodes.push(WrittenOct {
+                depth: depth(d),
+                children: vec![inner],
+            });
+            c.node = Some(self.nodes.len() as u32 - 1);
+        }
+        Ok(c)
+    }
+
+    /// The children that half `s` gives a node of digit `t`.
+    fn expand(&mut self, mut s: OSub, t: u32, into: &mut Vec<Closed>) -> Result<(), PointError> {
+        match s.group.take() {
+            Some((g, kids)) if g == t => into.extend(kids),
+            group => {
+                s.group = group;
+                let c = self.close(s, t)?;
+                into.push(c);
+            }
+        }
+        Ok(())
+    }
+
+    /// The emitter emitted `n`: join the two newest subtrees.
+    pub fn join(&mut self, n: &EmittedNode) -> Result<(), PointError> {
+        let (Some(r), Some(l)) = (self.stack.pop(), self.stack.pop()) else {
+            return Err(PointError::Stream(
+                "a node with fewer than two subtrees".into(),
+            ));
+        };
+        if n.aabbs != [l.bounds, r.bounds] || l.first + l.count != r.first {
+            return Err(PointError::Stream(format!(
+                "node over {}+{} and {}+{} differs from the emitter's",
+                l.first, l.count, r.first, r.count
+            )));
+        }
+        let mut s = OSub {
+            first: l.first,
+            count: l.count + r.count,
+            first_code: l.first_code,
+            last_code: r.last_code,
+            bounds: l.bounds.union(r.bounds),
+            group: None,
+        };
+        if l.last_code != r.first_code {
+            let t = (63 - (l.last_code ^ r.first_code).leading_zeros()) / 3;
+            let mut kids = Vec::with_capacity(8);
+            self.expand(l, t, &mut kids)?;
+            self.expand(r, t, &mut kids)?;
+            if kids.len() > 8 {
+                return Err(PointError::Stream(format!("{} children", kids.len())));
+            }
+            s.group = Some((t, kids));
+        }
+        self.push(s);
+        Ok(())
+    }
+
+    /// Octree nodes written so far (single-child cells included).
+    pub fn written(&self) -> usize {
+        self.nodes.len()
+    }
+
+    /// Children of the nodes written so far, in all.
+    pub fn written_children(&self) -> usize {
+        self.children
+    }
+
+    /// Ends the stream and closes the root, writing its node (and the single-child cells
+    /// above it) now rather than in [`OctreeStream::finish`]. Errors unless the stream
+    /// ended with one subtree or none.
+    pub fn close_root(&mut self) -> Result<(), PointError> {
+        self.end();
+        if self.root.is_some() {
+            return Ok(());
+        }
+        match self.stack.len() {
+            0 if self.ids.is_empty() => Ok(()),
+            1 => {
+                let s = self.stack.pop().expect("one subtree");
+                self.root = Some(self.close(s, ROOT_PARENT_DIGIT)?);
+                Ok(())
+            }
+            k => Err(PointError::Stream(format!(
+                "{k} subtrees left at the end of the stream"
+            ))),
+        }
+    }
+
+    /// Deepest stack so far.
+    pub fn max_stack_depth(&self) -> usize {
+        self.max_stack
+    }
+
+    /// The finished octree in [`Octree`]'s layout, and the number of nodes written in all
+    /// (the root's included). Errors unless the stream ended with one subtree (none for no
+    /// points).
+    pub fn finish(mut self) -> Result<(Octree, usize), PointError> {
+        self.close_root()?;
+        let mut out = Vec::with_capacity(self.nodes.len() * 9 / 8 + 1);
+        if let Some(root) = self.root {
+            out.push(placeholder());
+            self.lay_out(&root, 0, 0, &mut out)?;
+        }
+        let written = self.nodes.len();
+        Ok((
+            Octree {
+                points: self.points,
+                ids: self.ids,
+                nodes: out,
+                max_leaf: self.max_leaf,
+            },
+            written,
+        ))
+    }
+
+    /// Writes `c` as node `id` (allocated) at `depth`, its children contiguous at the end,
+    /// in the allocation order of [`Octree::build`].
+    fn lay_out(
+        &self,
+        c: &Closed,
+        depth: u8,
+        id: usize,
+        out: &mut Vec<OctNode>,
+    ) -> Result<(), PointError> {
+        let mut n = OctNode {
+            bounds: c.bounds,
+            first: c.first,
+            count: c.count,
+            child: 0,
+            children: 0,
+            octants: 0,
+            depth,
+        };
+        if let Some(k) = c.node {
+            let w = &self.nodes[k as usize];
+            if w.depth != depth {
+                return Err(PointError::Stream(format!(
+                    "node written at depth {}, placed at {depth}",
+                    w.depth
+                )));
+            }
+            let base = out.len();
+            out.resize(base + w.children.len(), placeholder());
+            for (i, ch) in w.children.iter().enumerate() {
+                n.octants |= 1 << digit(ch.first_code, depth);
+                self.lay_out(ch, depth + 1, base + i, out)?;
+            }
+            n.child = base as u32;
+            n.children = w.children.len() as u8;
+        }
+        out[id] = n;
+        Ok(())
+    }
+}
+
+fn placeholder() -> OctNode {
+    OctNode {
+        bounds: Aabb::EMPTY,
+        first: 0,
+        count: 0,
+        child: 0,
+        children: 0,
+        octants: 0,
+        depth: 0,
+    }
+}
+
+impl Octree {
+    /// Builds the octree as a MergeTree octree mode would: the sorted points stream
+    /// through the \[P2\] Algorithm 1 emitter (keys (code, index in the code's run)) into an
+    /// [`OctreeStream`]. Equal to [`Octree::build`]; returns the tree and the number of
+    /// nodes written. The same errors.
+    pub fn build_streaming(
+        points: &[Vec3],
+        max_leaf: usize,
+    ) -> Result<(Octree, usize), PointError> {
+        check_points(points)?;
+        if max_leaf == 0 {
+            return Err(PointError::ZeroLeaf);
+        }
+        let Sorted {
+            codes,
+            ids,
+            points: sorted,
+            ..
+        } = sort_points(points);
+        let mut w = OctreeStream::new(max_leaf.min(u32::MAX as usize) as u32)?;
+        let mut em = Emitter::new(None);
+        let mut input = codes
+            .iter()
+            .zip(run_ties(&codes))
+            .zip(ids.iter().zip(&sorted));
+        loop {
+            let prim = if em.needs_input() {
+                match input.next() {
+                    Some(((&code, tie), (&id, &p))) => {
+                        w.read(code, id, p);
+                        Some(Prim {
+                            code,
+                            tie,
+                            aabb: Aabb::new(p, p),
+                        })
+                    }
+                    None => {
+                        w.end();
+                        None
+                    }
+                }
+            } else {
+                None
+            };
+            match em.step(prim) {
+                Step::Emitted(n) => w.join(&n)?,
+                Step::Done => break,
+                Step::Combined => {
+                    return Err(PointError::Stream("equal keys in the point stream".into()))
+                }
+                Step::Loaded | Step::Pushed | Step::Highlevel(_) => {}
+            }
+        }
+        w.finish()
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -601,6 +978,51 @@ mod tests {
         let mut b = t.clone();
         b.nodes[1].bounds.max.x += 1.0;
         assert!(b.validate(&pts).is_err());
+    }
+
+    #[test]
+    fn streaming_octree_equals_top_down_octree() {
+        let mut dup = cloud(300, 5, 4.0);
+        dup.extend_from_within(..);
+        dup.extend_from_within(..150);
+        let lattice: Vec<Vec3> = cloud(3000, 6, 4.0).into_iter().map(|p| p.floor()).collect();
+        let lat4: Vec<Vec3> = (0..64)
+            .map(|i| Vec3::new((i % 4) as f32, (i / 4 % 4) as f32, (i / 16) as f32))
+            .collect();
+        let sets = [
+            vec![],
+            vec![Vec3::ONE],
+            cloud(2, 1, 1.0),
+            cloud(1000, 2, 10.0),
+            cloud(30_000, 3, 1.0),
+            dup,
+            lattice,
+            lat4,
+            vec![Vec3::ZERO, Vec3::new(0.001, 0.0, 0.0), Vec3::splat(8.0)],
+            vec![Vec3::new(1.0, 2.0, 3.0); 1000],
+        ];
+        for pts in &sets {
+            for leaf in [1, 2, 3, 8, 16] {
+                let top = Octree::build(pts, leaf).unwrap();
+                let (st, written) = Octree::build_streaming(pts, leaf).unwrap();
+                st.validate(pts).unwrap();
+                assert_eq!(st.ids, top.ids, "n {} leaf {leaf}", pts.len());
+                assert_eq!(st.nodes, top.nodes, "n {} leaf {leaf}", pts.len());
+                assert_eq!(written, top.stats().nodes - top.stats().leaves);
+            }
+        }
+        // The chain case by hand: 13 inner nodes written (the root, 11 single-child cells
+        // and the depth-12 cell).
+        let chain = [Vec3::ZERO, Vec3::new(0.001, 0.0, 0.0), Vec3::splat(8.0)];
+        assert_eq!(Octree::build_streaming(&chain, 1).unwrap().1, 13);
+        let mut w = OctreeStream::new(1).unwrap();
+        w.read(0, 0, Vec3::ZERO);
+        w.read(7, 1, Vec3::ONE);
+        w.end();
+        w.read(9, 2, Vec3::ONE);
+        w.end();
+        assert!(matches!(w.finish(), Err(PointError::Stream(_))));
+        assert!(OctreeStream::new(0).is_err());
     }
 
     proptest! {

@@ -12,6 +12,8 @@
 //! so it divides by the binary sweep SAH like any other.
 
 use super::{ms, open_scene, thousands, SceneArgs};
+
+pub mod points;
 use crate::progress::Ui;
 use anyhow::{bail, Context};
 use bvh::{LbvhBuilder, SweepSahBuilder, Tree};
@@ -261,7 +263,8 @@ pub struct BuildArgs {
     scene: SceneArgs,
     /// Builder: lbvh, hlbvh, hlbvh+sah, hlbvh+atrbvh, binned-sah, sweep-sah, atrbvh, ploc,
     /// ploc+reinsert, hlbvh+reinsert (binary trees), mbvh4-collapse, mbvh4-stream,
-    /// mbvh4-stream-w4, mbvh4-topdown (4-wide trees).
+    /// mbvh4-stream-w4, mbvh4-topdown (4-wide trees); kdtree-points, octree-points (point
+    /// trees over the triangles' centroids, checked against brute-force kNN).
     #[arg(long, value_name = "NAME")]
     builder: String,
     /// mbvh4-collapse: the binary builder whose tree is collapsed (default binned-sah).
@@ -533,6 +536,9 @@ fn reference_plan(builder: &str, triangles: usize, force: bool) -> Reference {
 
 /// Runs `arbor build`.
 pub fn run(args: &BuildArgs, ui: &Ui) -> anyhow::Result<()> {
+    if points::POINT_BUILDERS.contains(&args.builder.as_str()) {
+        return points::run_points(args, ui);
+    }
     let (build_fn, cfg) = check_args(args)?;
     let pool = {
         let mut b = rayon::ThreadPoolBuilder::new();

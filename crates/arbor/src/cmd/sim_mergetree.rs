@@ -225,7 +225,7 @@ pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
     let mesh = scene
         .mesh_at(t)
         .with_context(|| format!("cannot sample the scene at t = {t} s"))?;
-    let aabbs = match (&uniform, cfg.output == OutputMode::KdtreePoints) {
+    let aabbs = match (&uniform, cfg.output.is_points()) {
         (None, false) => mesh_aabbs(&mesh)?.0,
         (u, _) => mergetree::point_boxes(&scene_points(&mesh, u.flatten()))?,
     };
@@ -514,12 +514,18 @@ fn print_text(
     }
     if let Some(p) = &r.points {
         println!(
-            "point k-d tree: {} points, leaves of at most {}: {} nodes emitted, {} written \
-             (64 B each), {} collapsed into leaves; {} tree nodes, depth {}",
+            "point {}: {} points, leaves of at most {}: {} nodes emitted, {} written \
+             ({:.2} MB), {} wrote nothing; {} tree nodes, depth {}",
+            if p.kind == "octree" {
+                "octree"
+            } else {
+                "k-d tree"
+            },
             thousands(p.points),
             p.max_leaf,
             thousands(p.emitted),
             thousands(p.written),
+            p.node_bytes as f64 / 1e6,
             thousands(p.collapsed),
             thousands(p.tree_nodes),
             p.depth
@@ -527,10 +533,10 @@ fn print_text(
     }
     println!(
         "tree matches software {}: {}; simulated {:.1} M cycles/s",
-        if r.points.is_some() {
-            "bvh::PointTree"
-        } else {
-            "hlbvh"
+        match r.points.as_ref().map(|p| p.kind) {
+            Some("octree") => "bvh::Octree",
+            Some(_) => "bvh::PointTree",
+            None => "hlbvh",
         },
         yes_no(matches),
         r.cycles as f64 / (wall_ms * 1e3).max(1e-9)

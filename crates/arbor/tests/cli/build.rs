@@ -497,3 +497,41 @@ fn refit_from_an_earlier_frame_gives_a_valid_tree_of_the_later_frame() {
         assert!(refit["sah"].as_f64().unwrap() > 1.2 * fresh["sah"].as_f64().unwrap());
     }
 }
+
+/// The point builders (issue 18, part 3): one point per triangle, a valid tree, every
+/// checked kNN query equal to brute force; the k-d tree is binary (nodes = 2 leaves - 1).
+#[test]
+fn point_builders_on_cloth() {
+    let tris = build_json(&[CLOTH, "--builder", "lbvh"])["triangles"]
+        .as_u64()
+        .unwrap();
+    for b in ["kdtree-points", "octree-points"] {
+        let j = build_json(&[CLOTH, "--builder", b, "--max-leaf", "4", "--threads", "1"]);
+        assert_eq!(j["schema"], "arbor.build.points.v1");
+        assert_eq!(j["builder"], b);
+        assert_eq!(j["points"].as_u64().unwrap(), tris);
+        assert_eq!(j["max_leaf"], 4);
+        assert_eq!(j["threads"], 1);
+        assert_eq!(j["knn_checks"], 200);
+        assert_eq!(j["knn_mismatches"], 0);
+        let (nodes, leaves) = (j["nodes"].as_u64().unwrap(), j["leaves"].as_u64().unwrap());
+        assert!(leaves * 4 >= tris, "{b}: {leaves} leaves of at most 4");
+        if b == "kdtree-points" {
+            assert_eq!(nodes, 2 * leaves - 1);
+            assert!(j["single_child"].is_null());
+        } else {
+            assert!(nodes > leaves);
+            assert!(j["index_splits"].is_null());
+        }
+    }
+    for (args, want) in [
+        (vec!["--out", "x.bvh"], "--out does not apply"),
+        (vec!["--bins", "8"], "--bins does not apply"),
+        (vec!["--max-leaf", "0"], "--max-leaf must be between"),
+    ] {
+        let mut a = vec![CLOTH, "--builder", "octree-points"];
+        a.extend(args);
+        let err = build_error(&a);
+        assert!(err.contains(want), "{err}");
+    }
+}

@@ -282,3 +282,55 @@ fn mbvh4_output_modes() {
     .contains("highlevel_threshold"));
     assert!(sim_error(&[CLOTH, "--set", "output=mbvh8"]).contains("mbvh4"));
 }
+
+/// The point mode (issue 18, part 3): the unit's k-d tree over the triangles' centroids
+/// equals `bvh::PointTree`, and `--points uniform:N` builds over N points.
+#[test]
+fn kdtree_points_mode() {
+    let grid = [
+        "--set",
+        "output=kdtree-points",
+        "--set",
+        "morton_bits=63",
+        "--set",
+        "morton_grid=box",
+        "--set",
+        "max_leaf_size=8",
+    ];
+    let mut a = vec![CLOTH];
+    a.extend(grid);
+    let j = sim_json(&a);
+    assert_eq!(j["tree_matches_software"], true);
+    let p = &j["points"];
+    let n = j["triangles"].as_u64().unwrap();
+    assert_eq!(p["points"].as_u64().unwrap(), n);
+    assert_eq!(p["emitted"].as_u64().unwrap(), n - 1);
+    assert_eq!(
+        p["written"].as_u64().unwrap() + p["collapsed"].as_u64().unwrap(),
+        n - 1
+    );
+    assert_eq!(
+        p["tree_nodes"].as_u64().unwrap(),
+        2 * p["written"].as_u64().unwrap() + 1
+    );
+    assert_eq!(p["kind"], "kdtree");
+    assert_eq!(
+        p["node_bytes"].as_u64().unwrap(),
+        64 * p["written"].as_u64().unwrap()
+    );
+    a.extend(["--points", "uniform:3000"]);
+    let u = sim_json(&a);
+    assert_eq!(u["triangles"], 3000);
+    assert_eq!(u["tree_matches_software"], true);
+    // The octree of the same points.
+    a[2] = "output=octree-points";
+    let o = sim_json(&a);
+    assert_eq!(o["tree_matches_software"], true);
+    assert_eq!(o["points"]["kind"], "octree");
+    assert_eq!(o["points"]["points"], 3000);
+    // The presets' grid is refused; so is a bad point set.
+    let err = sim_error(&[CLOTH, "--set", "output=kdtree-points"]);
+    assert!(err.contains("morton_bits = 63"), "{err}");
+    let err = sim_error(&[CLOTH, "--points", "uniform:x"]);
+    assert!(err.contains("--points expects"), "{err}");
+}

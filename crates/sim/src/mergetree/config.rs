@@ -77,7 +77,20 @@ pub enum OutputMode {
     /// as 64-byte k-d nodes (two child boxes, two references, the split plane and axis).
     /// The tree equals `bvh::PointTree::build` of the points.
     KdtreePoints,
+    /// An octree of points: the emitter's joins go to an octree writer
+    /// ([`bvh::OctreeStream`]) that writes a node of k children as
+    /// [`OCT_NODE_HEADER_BYTES`] + k [`OCT_CHILD_BYTES`] bytes (a variable number of bytes
+    /// per join, queued in front of the node write buffer). The tree equals
+    /// `bvh::Octree::build` of the points.
+    OctreePoints,
 }
+
+/// Header bytes of an octree node (`output = octree-points`): octant mask, depth, child
+/// count, point range.
+pub const OCT_NODE_HEADER_BYTES: u64 = 16;
+
+/// Bytes per child of an octree node: its box (24 B), its reference (4 B), 4 spare.
+pub const OCT_CHILD_BYTES: u64 = 32;
 
 impl OutputMode {
     /// The name `--set output=...` takes.
@@ -89,7 +102,13 @@ impl OutputMode {
             OutputMode::Mbvh4 => "mbvh4",
             OutputMode::Mbvh4Collapse => "mbvh4-collapse",
             OutputMode::KdtreePoints => "kdtree-points",
+            OutputMode::OctreePoints => "octree-points",
         }
+    }
+
+    /// True for the two point modes.
+    pub fn is_points(self) -> bool {
+        matches!(self, OutputMode::KdtreePoints | OutputMode::OctreePoints)
     }
 
     /// True for the two CBVH modes.
@@ -457,10 +476,11 @@ impl MergeTreeConfig {
                     "mbvh4" => OutputMode::Mbvh4,
                     "mbvh4-collapse" => OutputMode::Mbvh4Collapse,
                     "kdtree-points" => OutputMode::KdtreePoints,
+                    "octree-points" => OutputMode::OctreePoints,
                     _ => {
                         return Err(bad(
-                            "expected bvh, cbvh-stream, cbvh-topdown, mbvh4, mbvh4-collapse or \
-                             kdtree-points",
+                            "expected bvh, cbvh-stream, cbvh-topdown, mbvh4, mbvh4-collapse, \
+                             kdtree-points or octree-points",
                         ))
                     }
                 }
@@ -672,25 +692,24 @@ impl MergeTreeConfig {
                 return err("treelets apply to output = cbvh-stream only".into());
             }
         }
-        if self.output == OutputMode::KdtreePoints {
+        if self.output.is_points() {
+            let name = self.output.name();
             if self.highlevel_threshold.is_some() || self.toplevel_sah {
-                return err(
-                    "output = kdtree-points builds one tree: it needs highlevel_threshold = \
-                     none and toplevel_sah = false"
-                        .into(),
-                );
+                return err(format!(
+                    "output = {name} builds one tree: it needs highlevel_threshold = none and \
+                     toplevel_sah = false"
+                ));
             }
             if self.morton_bits != 63 || self.morton_grid != MortonGrid::Box {
-                return err(
-                    "output = kdtree-points needs morton_bits = 63 and morton_grid = box (the \
-                     grid of the point tree's planes, bvh::PointTree)"
-                        .into(),
-                );
+                return err(format!(
+                    "output = {name} needs morton_bits = 63 and morton_grid = box (the grid \
+                     of the software point trees, bvh::PointTree and bvh::Octree)"
+                ));
             }
             if !(1..=MAX_POINT_LEAF).contains(&self.max_leaf_size) {
                 return err(format!(
-                    "output = kdtree-points takes its leaf size from max_leaf_size ({}), \
-                     which must be 1..={MAX_POINT_LEAF} (8 is usual)",
+                    "output = {name} takes its leaf size from max_leaf_size ({}), which must \
+                     be 1..={MAX_POINT_LEAF} (8 is usual)",
                     self.max_leaf_size
                 ));
             }

@@ -73,10 +73,45 @@ pub(super) struct EmitUnit {
     pub cbvh_ids: Option<Vec<u32>>,
     /// An error of the encoder-input conversion (cannot happen with a correct emitter).
     pub fault: Option<cbvh::CbvhError>,
-    /// The point writer (`output = kdtree-points`).
-    pub points: Option<bvh::PointStream>,
+    /// The point writer (`output = kdtree-points` or `octree-points`).
+    pub points: Option<PointWriter>,
     /// An error of the point writer (cannot happen with a correct emitter).
     pub point_fault: Option<bvh::PointError>,
+    /// Octree node bytes written by the writer and not yet in the node write buffer.
+    pub backlog: u64,
+    /// Octree node bytes produced so far.
+    oct_bytes: u64,
+}
+
+/// The writer behind the emitter in the point modes.
+#[derive(Clone, Debug)]
+pub enum PointWriter {
+    /// The k-d tree writer (64-byte nodes).
+    Kd(bvh::PointStream),
+    /// The octree writer (variable-size nodes, see [`super::config::OCT_CHILD_BYTES`]).
+    Oct(bvh::OctreeStream),
+}
+
+impl PointWriter {
+    fn read(&mut self, code: u64, id: u32, p: geom::Vec3) {
+        match self {
+            PointWriter::Kd(w) => w.read(code, id, p),
+            PointWriter::Oct(w) => w.read(code, id, p),
+        }
+    }
+
+    fn end(&mut self) {
+        match self {
+            PointWriter::Kd(w) => w.end(),
+            PointWriter::Oct(w) => w.end(),
+        }
+    }
+}
+
+/// Bytes of the octree nodes `w` has written so far.
+fn oct_bytes(w: &bvh::OctreeStream) -> u64 {
+    use super::config::{OCT_CHILD_BYTES, OCT_NODE_HEADER_BYTES};
+    w.written() as u64 * OCT_NODE_HEADER_BYTES + w.written_children() as u64 * OCT_CHILD_BYTES
 }
 
 impl EmitUnit {
@@ -87,7 +122,7 @@ impl EmitUnit {
         combine: bool,
         max_leaf: u32,
         cbvh: bool,
-        points: Option<bvh::PointStream>,
+        points: Option<PointWriter>,
     ) -> Self {
         // Points: ties are run indices (chunks of one point), so no keys are equal.
         let (combine, max_leaf) = if points.is_some() {
@@ -113,6 +148,8 @@ impl EmitUnit {
             fault: None,
             points,
             point_fault: None,
+            backlog: 0,
+            oct_bytes: 0,
         }
     }
 
@@ -127,11 +164,26 @@ impl EmitUnit {
         if self.consumed == self.total {
             io.drop_padding();
         }
-        if self.done {
-            return EmitStatus::Finished;
+        // Octree nodes queued in front of the node buffer go first.
+        let had_backlog = self.backlog > 0;
+        self.drain(io);
+        if self.backlog > 0 {
+            return EmitStatus::WriteFull;
         }
+        if self.done {
+            // The cycle that drained the last bytes counts as activity (the machine then
+            // sees the unit done); nothing else happens.
+            return if had_backlog {
+                EmitStatus::Stepped
+            } else {
+                EmitStatus::Finished
+            };
+        }
+        let octree = matches!(self.points, Some(PointWriter::Oct(_)));
         // Room for whatever this step may write.
-        if io.encoder_attached() || io.collapse_attached() {
+        if octree {
+            // Octree nodes go to the backlog, drained as the buffer has room.
+        } else if io.encoder_attached() || io.collapse_attached() {
             if !io.node_room() {
                 return EmitStatus::EncoderFull;
             }
@@ -189,12 +241,17 @@ impl EmitUnit {
         match self.em.step(prim) {
             Step::Emitted(n) => {
                 self.nodes.push(n);
-                if let Some(w) = &mut self.points {
+                if let Some(PointWriter::Kd(w)) = &mut self.points {
                     match w.join(&n) {
                         Ok(bvh::Joined::Written(_)) => io.add_node(),
                         Ok(bvh::Joined::Collapsed) => {}
                         Err(e) => self.point_fault = Some(e),
                     }
+                } else if let Some(PointWriter::Oct(w)) = &mut self.points {
+                    if let Err(e) = w.join(&n) {
+                        self.point_fault = Some(e);
+                    }
+                    self.queue_oct(io);
                 } else if io.encoder_attached() {
                     let n = input_of_emitted_in(&n, &mut self.cbvh_ids);
                     self.send_to_encoder(io, n)
@@ -217,10 +274,45 @@ impl EmitUnit {
                     }
                 }
             }
-            Step::Done => self.done = true,
+            Step::Done => {
+                self.done = true;
+                if let Some(PointWriter::Oct(w)) = &mut self.points {
+                    // The root's node is written at the end of the stream.
+                    if let Err(e) = w.close_root() {
+                        self.point_fault = Some(e);
+                    }
+                    self.queue_oct(io);
+                }
+            }
             Step::Loaded | Step::Combined | Step::Pushed => {}
         }
         EmitStatus::Stepped
+    }
+
+    /// Queues the octree bytes the writer produced in this step and drains what fits.
+    fn queue_oct(&mut self, io: &mut impl EmitPorts) {
+        if let Some(PointWriter::Oct(w)) = &self.points {
+            let b = oct_bytes(w);
+            self.backlog += b - self.oct_bytes;
+            self.oct_bytes = b;
+        }
+        self.drain(io);
+    }
+
+    /// Moves queued octree bytes into the node write buffer as far as it has room.
+    fn drain(&mut self, io: &mut impl EmitPorts) {
+        if self.backlog > 0 {
+            let k = self.backlog.min(io.node_free());
+            if k > 0 {
+                io.add_node_bytes(k);
+                self.backlog -= k;
+            }
+        }
+    }
+
+    /// True once the step machine is done and every node byte is in the write buffer.
+    pub fn finished(&self) -> bool {
+        self.done && self.backlog == 0
     }
 
     /// Hands one encoder input to the encoder's FIFO (room was checked before the step).
@@ -265,6 +357,10 @@ pub(super) trait EmitPorts {
     fn highlevel_room(&self) -> bool;
     /// Adds a node's bytes to the node write buffer.
     fn add_node(&mut self);
+    /// Free bytes in the node write buffer.
+    fn node_free(&self) -> u64;
+    /// Adds `bytes` (octree node bytes) to the node write buffer (at most its free bytes).
+    fn add_node_bytes(&mut self, bytes: u64);
     /// Pushes an encoder input (room was checked).
     fn push_encoder(&mut self, n: InputNode);
     /// Pushes an emitted node to the collapse unit (room was checked).

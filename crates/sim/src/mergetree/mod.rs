@@ -252,11 +252,17 @@ fn run_machine<'a>(
     let cbvh = kernel_cbvh_result(out, &highlevel, cfg)?;
     let points = match k.points.take() {
         Some(w) => Some(point_result(w?, aabbs)?),
-        None if cfg.output == OutputMode::KdtreePoints => Some(point_result(
-            bvh::PointStream::new(&cb, cfg.max_leaf_size)?,
-            aabbs,
-        )?),
-        None => None,
+        None => match cfg.output {
+            OutputMode::KdtreePoints => Some(point_result(
+                emitter::PointWriter::Kd(bvh::PointStream::new(&cb, cfg.max_leaf_size)?),
+                aabbs,
+            )?),
+            OutputMode::OctreePoints => Some(point_result(
+                emitter::PointWriter::Oct(bvh::OctreeStream::new(cfg.max_leaf_size)?),
+                aabbs,
+            )?),
+            _ => None,
+        },
     };
     let mem = k.mem;
     Ok(MergeTreeReport {
@@ -342,31 +348,65 @@ fn kernel_mbvh4_result(
 }
 
 /// The point tree the writer made, with its counts.
-fn point_result(w: bvh::PointStream, aabbs: &[Aabb]) -> Result<PointRunReport, MergeTreeError> {
-    let (written, collapsed, stack) = (
-        w.written().len() as u64,
-        w.collapsed(),
-        w.max_stack_depth() as u64,
-    );
-    let tree = w.finish()?;
-    if tree.len() != aabbs.len() {
+fn point_result(w: emitter::PointWriter, aabbs: &[Aabb]) -> Result<PointRunReport, MergeTreeError> {
+    let emitted = aabbs.len().saturating_sub(1) as u64;
+    let r = match w {
+        emitter::PointWriter::Kd(w) => {
+            let (written, collapsed, stack) = (
+                w.written().len() as u64,
+                w.collapsed(),
+                w.max_stack_depth() as u64,
+            );
+            let tree = w.finish()?;
+            PointRunReport {
+                kind: "kdtree",
+                points: tree.len() as u64,
+                max_leaf: tree.max_leaf(),
+                emitted,
+                written,
+                node_bytes: written * config::NODE_BYTES,
+                collapsed,
+                tree_nodes: tree.nodes().len() as u64,
+                depth: tree.depth() as u64,
+                writer_max_stack: stack,
+                tree: Some(tree),
+                octree: None,
+            }
+        }
+        emitter::PointWriter::Oct(mut w) => {
+            w.close_root()?;
+            let stack = w.max_stack_depth() as u64;
+            let (nodes, children) = (w.written() as u64, w.written_children() as u64);
+            let (tree, _) = w.finish()?;
+            let s = tree.stats();
+            let single = s.single_child as u64;
+            PointRunReport {
+                kind: "octree",
+                points: tree.len() as u64,
+                max_leaf: tree.max_leaf(),
+                emitted,
+                written: nodes,
+                node_bytes: nodes * config::OCT_NODE_HEADER_BYTES
+                    + children * config::OCT_CHILD_BYTES,
+                // Joins that started no node: the emitted joins less the nodes with two or
+                // more children (single-child cells come with the node below them).
+                collapsed: emitted.saturating_sub(nodes - single),
+                tree_nodes: s.nodes as u64,
+                depth: s.depth as u64,
+                writer_max_stack: stack,
+                tree: None,
+                octree: Some(tree),
+            }
+        }
+    };
+    if r.points != aabbs.len() as u64 {
         return Err(MergeTreeError::Points(bvh::PointError::Stream(format!(
             "{} points in the tree for {} inputs",
-            tree.len(),
+            r.points,
             aabbs.len()
         ))));
     }
-    Ok(PointRunReport {
-        points: tree.len() as u64,
-        max_leaf: tree.max_leaf(),
-        emitted: aabbs.len().saturating_sub(1) as u64,
-        written,
-        collapsed,
-        tree_nodes: tree.nodes().len() as u64,
-        depth: tree.depth() as u64,
-        writer_max_stack: stack,
-        tree,
-    })
+    Ok(r)
 }
 
 /// True when the point tree the unit wrote (`output = kdtree-points`) equals
@@ -380,8 +420,15 @@ pub fn points_match_software(
         return Ok(None);
     };
     let pts: Vec<geom::Vec3> = aabbs.iter().map(|a| a.min).collect();
-    let sw = bvh::PointTree::build(&pts, p.max_leaf as usize)?;
-    Ok(Some(sw.same_as(&p.tree)))
+    let leaf = p.max_leaf as usize;
+    Ok(Some(match (&p.tree, &p.octree) {
+        (Some(t), _) => bvh::PointTree::build(&pts, leaf)?.same_as(t),
+        (_, Some(t)) => {
+            let sw = bvh::Octree::build(&pts, leaf)?;
+            sw.ids() == t.ids() && sw.nodes() == t.nodes()
+        }
+        _ => false,
+    }))
 }
 
 /// What the kernel machine's CBVH units left behind.
@@ -406,7 +453,7 @@ fn kernel_cbvh_result(
         k.build_cycles
     };
     let (tree, encode, stream, topdown) = match cfg.output {
-        OutputMode::Bvh | OutputMode::Mbvh4 | OutputMode::Mbvh4Collapse | OutputMode::KdtreePoints => return Ok(None),
+        OutputMode::Bvh | OutputMode::Mbvh4 | OutputMode::Mbvh4Collapse | OutputMode::KdtreePoints | OutputMode::OctreePoints => return Ok(None),
         OutputMode::CbvhStream => match k.stream.take() {
             Some((enc, stats)) if !hl.order.is_empty() => {
                 let ids = k.ids.take().unwrap_or_default();
@@ -480,7 +527,7 @@ pub fn software_cbvh(
     cfg: &MergeTreeConfig,
 ) -> Result<Option<(cbvh::Cbvh, cbvh::EncodeStats)>, MergeTreeError> {
     Ok(match cfg.output {
-        OutputMode::Bvh | OutputMode::Mbvh4 | OutputMode::Mbvh4Collapse | OutputMode::KdtreePoints => None,
+        OutputMode::Bvh | OutputMode::Mbvh4 | OutputMode::Mbvh4Collapse | OutputMode::KdtreePoints | OutputMode::OctreePoints => None,
         OutputMode::CbvhStream => {
             let hl = software_builder(cfg).build_highlevel(aabbs)?;
             Some(cbvh::compress_hlbvh(&hl, &cfg.stream_config(0))?)
@@ -542,7 +589,7 @@ pub fn tree_matches_software(
     aabbs: &[Aabb],
 ) -> Result<bool, MergeTreeError> {
     let cfg = &report.config;
-    if cfg.output == OutputMode::KdtreePoints {
+    if cfg.output.is_points() {
         // The point mode's keys tie by run index, not as the HLBVH builder's: its tree is
         // the point k-d tree.
         return Ok(points_match_software(report, aabbs)?.unwrap_or(false));

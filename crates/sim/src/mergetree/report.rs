@@ -86,28 +86,37 @@ pub struct TraceRow {
     pub toplevel_busy: u64,
 }
 
-/// The point k-d tree the unit wrote (`output = kdtree-points`).
+/// The point tree the unit wrote (`output = kdtree-points` or `octree-points`).
 #[derive(Clone, Debug, Serialize)]
 pub struct PointRunReport {
+    /// `kdtree` or `octree`.
+    pub kind: &'static str,
     /// Points in the tree.
     pub points: u64,
     /// Largest leaf (`max_leaf_size`).
     pub max_leaf: u32,
     /// Nodes the emitter emitted (points minus one).
     pub emitted: u64,
-    /// Inner k-d nodes written (64 bytes each).
+    /// Inner nodes written (k-d: 64 bytes each; octree: single-child cells included).
     pub written: u64,
-    /// Emitted nodes the writer collapsed into leaves (not written).
+    /// Bytes of the written nodes.
+    pub node_bytes: u64,
+    /// k-d tree: emitted nodes the writer collapsed into leaves (not written); octree:
+    /// emitted nodes that wrote no node.
     pub collapsed: u64,
-    /// Nodes of the tree, leaves included (as `bvh::PointTree` counts them).
+    /// Nodes of the tree, leaves included (as `bvh::PointTree` and `bvh::Octree` count
+    /// them).
     pub tree_nodes: u64,
     /// Levels of the tree (the root alone is 1).
     pub depth: u64,
     /// Deepest stack of the point writer.
     pub writer_max_stack: u64,
-    /// The tree, in `bvh::PointTree`'s layout.
+    /// The k-d tree, in `bvh::PointTree`'s layout.
     #[serde(skip)]
-    pub tree: bvh::PointTree,
+    pub tree: Option<bvh::PointTree>,
+    /// The octree, in `bvh::Octree`'s layout.
+    #[serde(skip)]
+    pub octree: Option<bvh::Octree>,
 }
 
 /// The result of [`super::simulate`].

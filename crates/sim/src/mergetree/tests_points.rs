@@ -34,9 +34,94 @@ fn check_points(pts: &[Vec3], cfg: &MergeTreeConfig) -> MergeTreeReport {
     assert_eq!(points_match_software(&r, &a).unwrap(), Some(true));
     assert!(tree_matches_software(&r, &a).unwrap());
     let p = r.points.as_ref().unwrap();
-    p.tree.validate(pts).unwrap();
-    assert_eq!(p.written + p.collapsed, p.emitted);
+    match (&p.tree, &p.octree) {
+        (Some(t), None) => t.validate(pts).unwrap(),
+        (None, Some(t)) => t.validate(pts).unwrap(),
+        _ => panic!("one tree"),
+    }
+    if p.kind == "kdtree" {
+        assert_eq!(p.written + p.collapsed, p.emitted);
+        assert_eq!(p.node_bytes, 64 * p.written);
+    }
     r
+}
+
+fn octree_mode(cfg: MergeTreeConfig, leaf: u32) -> MergeTreeConfig {
+    MergeTreeConfig {
+        output: OutputMode::OctreePoints,
+        ..points_mode(cfg, leaf)
+    }
+}
+
+#[test]
+fn octree_equals_software_across_merge_passes() {
+    let mut dup = cloud(700, 5, 4.0);
+    dup.extend_from_within(..400);
+    let chain = vec![Vec3::ZERO, Vec3::new(0.001, 0.0, 0.0), Vec3::splat(8.0)];
+    let sets = [
+        cloud(3000, 1, 10.0),
+        dup,
+        chain,
+        vec![],
+        vec![Vec3::ONE; 300],
+    ];
+    for pts in &sets {
+        for leaf in [1, 8] {
+            for cfg in [MergeTreeConfig::p2(), small(1024, 8, 4), small(32, 4, 1)] {
+                let r = check_points(pts, &octree_mode(cfg, leaf));
+                let p = r.points.as_ref().unwrap();
+                let s = p.octree.as_ref().unwrap().stats();
+                assert_eq!(p.written, (s.nodes - s.leaves) as u64);
+                // Every node but the root is one child of a written node.
+                assert_eq!(
+                    p.node_bytes,
+                    16 * p.written + 32 * (s.nodes as u64).saturating_sub(1)
+                );
+            }
+        }
+    }
+}
+
+/// 4 points on the x axis, leaves of 1: the root splits x bit 20 into two cells of 2
+/// points, each split by x bit 19 into 2 leaves: 3 nodes of 2 children written, 3 x (16 +
+/// 2 x 32) = 240 bytes (4 bursts), with the leaf entries and the root record 384 B. The
+/// emitter's 9 steps are unchanged: the bytes fit the write buffer as they come.
+#[test]
+fn octree_hand_derived_counts() {
+    let pts: Vec<Vec3> = (0..4).map(|i| Vec3::new(i as f32, 0.0, 0.0)).collect();
+    let r = check_points(&pts, &octree_mode(MergeTreeConfig::p2(), 1));
+    let p = r.points.as_ref().unwrap();
+    assert_eq!((p.written, p.node_bytes, p.tree_nodes), (3, 240, 7));
+    assert_eq!(r.bytes_written, 256 + 64 + 64);
+    let steps = r
+        .units
+        .iter()
+        .find(|u| u.name == "emitter")
+        .and_then(|u| u.counters.iter().find(|c| c.0 == "steps"))
+        .map(|c| c.1);
+    assert_eq!(steps, Some(9));
+}
+
+#[test]
+fn octree_traffic_is_the_plain_builds_with_its_nodes() {
+    let pts = cloud(6000, 4, 3.0);
+    let a = point_boxes(&pts).unwrap();
+    let bursts = |b: u64| b.div_ceil(64) * 64;
+    for cfg in [MergeTreeConfig::p2(), small(1024, 8, 4)] {
+        let oc = octree_mode(cfg, 8);
+        let plain_cfg = MergeTreeConfig {
+            output: OutputMode::Bvh,
+            ..oc.clone()
+        };
+        let plain = simulate(&a, &plain_cfg, port(13)).unwrap();
+        let r = check_points(&pts, &oc);
+        let p = r.points.as_ref().unwrap();
+        assert_eq!(r.bytes_read, plain.bytes_read);
+        assert_eq!(
+            r.bytes_written,
+            plain.bytes_written - plain.nodes * 64 + bursts(p.node_bytes)
+        );
+    }
 }
 
 #[test]

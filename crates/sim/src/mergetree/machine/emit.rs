@@ -60,6 +60,12 @@ impl EmitPorts for KPorts<'_, '_> {
     fn add_node(&mut self) {
         self.nodes.add(self.cx, NODE_BYTES);
     }
+    fn node_free(&self) -> u64 {
+        self.nodes.free(self.cx.now())
+    }
+    fn add_node_bytes(&mut self, bytes: u64) {
+        self.nodes.add(self.cx, bytes);
+    }
     fn push_encoder(&mut self, n: cbvh::bottomup::InputNode) {
         let f = self.enc.as_mut().expect("an encoder attached");
         if f.push(self.cx, n).is_err() {
@@ -128,7 +134,7 @@ impl<'a> Unit<KWorld<'a>> for Emitter {
                 if self.e.consumed > consumed {
                     w.worked(1);
                 }
-                if self.e.done {
+                if self.e.finished() {
                     w.out.nodes = std::mem::take(&mut self.e.nodes);
                     w.out.roots = std::mem::take(&mut self.e.roots);
                     w.out.order = std::mem::take(&mut self.e.order);

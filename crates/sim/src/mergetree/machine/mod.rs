@@ -122,7 +122,7 @@ use super::config::{
     MergeTreeConfig, ELEM_BYTES, HIGHLEVEL_BYTES, LEAF_ENTRY_BYTES, MBVH4_NODE_BYTES, NODE_BYTES,
 };
 use super::config::{OutputMode, ReadSchedule};
-use super::emitter::{EmitPorts, EmitStatus, EmitUnit, EmitterStalls};
+use super::emitter::{EmitPorts, EmitStatus, EmitUnit, EmitterStalls, PointWriter};
 use super::mbvh4_unit::CollapseUnitStats;
 use super::merge::{MergeOut, MergeStalls, MergeState, Merger, Slot};
 use super::presort::{PresortState, Presorter};
@@ -418,6 +418,12 @@ impl KBuf {
         self.wb.pending() + freed + bytes <= self.wb.capacity()
     }
 
+    /// Bytes that fit now (what [`Self::has_room`] accepts).
+    fn free(&self, now: Cycle) -> u64 {
+        let freed = if self.freed_at == now { self.freed } else { 0 };
+        self.wb.capacity().saturating_sub(self.wb.pending() + freed)
+    }
+
     #[inline]
     fn add(&mut self, cx: &mut Ctx, bytes: u64) {
         let now = cx.now();
@@ -608,7 +614,7 @@ struct Outputs {
     topdown: Option<TopdownStats>,
     collapse: Option<(bvh::StreamCollapse, CollapseUnitStats)>,
     collapse_fault: Option<bvh::CollapseError>,
-    points: Option<Result<bvh::PointStream, bvh::PointError>>,
+    points: Option<Result<PointWriter, bvh::PointError>>,
 }
 
 /// The world of the kernel-based machine: channels, shared resources, outputs.
@@ -761,7 +767,7 @@ pub(super) struct KRun {
     pub topdown: Option<TopdownStats>,
     pub collapse: Option<(bvh::StreamCollapse, CollapseUnitStats)>,
     /// The point writer, or its error (`output = kdtree-points`).
-    pub points: Option<Result<bvh::PointStream, bvh::PointError>>,
+    pub points: Option<Result<PointWriter, bvh::PointError>>,
     pub build_cycles: u64,
     pub passes_total: u32,
     pub layout: MemoryLayout,
@@ -973,13 +979,16 @@ pub(super) fn run<'a>(
             cfg.combine_identical,
             cfg.max_leaf_size,
             streaming,
-            if cfg.output == OutputMode::KdtreePoints {
-                Some(
+            match cfg.output {
+                OutputMode::KdtreePoints => Some(PointWriter::Kd(
                     bvh::PointStream::new(centroid_bounds, cfg.max_leaf_size)
                         .map_err(|e| MergeTreeError::Input(e.to_string()))?,
-                )
-            } else {
-                None
+                )),
+                OutputMode::OctreePoints => Some(PointWriter::Oct(
+                    bvh::OctreeStream::new(cfg.max_leaf_size)
+                        .map_err(|e| MergeTreeError::Input(e.to_string()))?,
+                )),
+                _ => None,
             },
         ),
     }));
