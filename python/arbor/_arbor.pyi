@@ -169,7 +169,12 @@ _BuilderName = Literal[
     "binned-sah",
     "sweep-sah",
     "atrbvh",
+    "ploc",
+    "ploc+reinsert",
+    "hlbvh+reinsert",
     "mbvh4-collapse",
+    "mbvh4-stream",
+    "mbvh4-stream-w4",
     "mbvh4-topdown",
 ]
 
