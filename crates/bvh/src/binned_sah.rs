@@ -23,9 +23,9 @@ use crate::error::{check_input, in_pool, BuildError};
 use crate::frag::Frag;
 use crate::node::{ChildRef, Node};
 use crate::sah::SahParams;
-use crate::split::{sweep, Counted, SweepBox, Unit};
-use crate::{centroid, index_lane, lane_index, ordered_bits, MAX_SAH_DEPTH, PARALLEL_MIN_PRIMS};
-use geom::{Aabb, Vec3, Vec4};
+use crate::split::{sweep, Box4, Counted, PrimRef, Unit};
+use crate::{ordered_bits, MAX_SAH_DEPTH, PARALLEL_MIN_PRIMS};
+use geom::{Aabb, Vec4};
 use rayon::prelude::*;
 
 /// Largest supported bin count.
@@ -63,97 +63,6 @@ struct Ctx<'a> {
     cfg: &'a BinnedSahBuilder,
 }
 
-/// A box in 4-wide SIMD registers; lane `w` is not part of the box (see [`PrimRef`]).
-#[derive(Clone, Copy)]
-struct Box4 {
-    min: Vec4,
-    max: Vec4,
-}
-
-impl Box4 {
-    const EMPTY: Box4 = Box4 {
-        min: Vec4::splat(f32::INFINITY),
-        max: Vec4::splat(f32::NEG_INFINITY),
-    };
-
-    #[inline(always)]
-    fn union(self, o: Box4) -> Box4 {
-        Box4 {
-            min: self.min.min(o.min),
-            max: self.max.max(o.max),
-        }
-    }
-
-    /// Half the surface area; only meaningful for a non-empty box.
-    #[inline(always)]
-    fn half_area(&self) -> f32 {
-        let e = self.max - self.min;
-        e.x * e.y + e.y * e.z + e.z * e.x
-    }
-
-    #[inline(always)]
-    fn aabb(&self) -> Aabb {
-        Aabb::new(self.min.truncate(), self.max.truncate())
-    }
-}
-
-impl SweepBox for Box4 {
-    type Area = f32;
-    const EMPTY: Self = Box4::EMPTY;
-    #[inline(always)]
-    fn union(self, o: Self) -> Self {
-        Box4::union(self, o)
-    }
-    #[inline(always)]
-    fn area(&self) -> f32 {
-        self.half_area()
-    }
-}
-
-/// A primitive reference: its box, with the input index stored in `min.w` by
-/// [`index_lane`] (32 bytes in all; `max.w` is 0). That lane is never subnormal, so the
-/// SIMD box arithmetic, which computes it along with x, y and z, takes no subnormal
-/// assists (issue 17: the raw index bits made this builder 2x slower on Intel). The builder partitions an array of these in place, so every pass over
-/// a node reads memory sequentially (an index array into the input boxes made every pass a
-/// random gather, which dominated the build), and box unions are single SIMD min/max.
-type PrimRef = Box4;
-
-/// A primitive reference for input primitive `index`.
-#[inline]
-fn prim_ref(b: &Aabb, index: u32) -> PrimRef {
-    Box4 {
-        min: b.min.extend(index_lane(index)),
-        max: b.max.extend(0.0),
-    }
-}
-
-impl Box4 {
-    /// The input index of a [`PrimRef`].
-    #[inline(always)]
-    fn index(&self) -> u32 {
-        lane_index(self.min.w)
-    }
-
-    /// Centroid of a [`PrimRef`] as a SIMD vector (lane w meaningless; the same arithmetic
-    /// as [`centroid`] in x, y and z).
-    #[inline(always)]
-    fn centroid4(&self) -> Vec4 {
-        self.min * 0.5 + self.max * 0.5
-    }
-
-    /// Centroid of a [`PrimRef`] (same arithmetic as [`centroid`]).
-    #[inline(always)]
-    fn centroid(&self) -> Vec3 {
-        centroid(&self.aabb())
-    }
-
-    /// Total-order sort key along `axis`: centroid, then input index.
-    #[inline]
-    fn key(&self, axis: usize) -> u64 {
-        ((ordered_bits(self.centroid()[axis]) as u64) << 32) | self.index() as u64
-    }
-}
-
 /// A node to build: its primitives, their box and centroid box.
 struct Task<'a> {
     refs: &'a mut [PrimRef],
@@ -188,7 +97,7 @@ impl BinnedSahBuilder {
         let mut refs: Vec<PrimRef> = aabbs
             .par_iter()
             .enumerate()
-            .map(|(i, b)| prim_ref(b, i as u32))
+            .map(|(i, b)| PrimRef::new(b, i as u32))
             .collect();
         let (bounds, cbounds) = refs
             .par_iter()
@@ -1024,7 +933,7 @@ impl SortedSplitBench {
         assert!((2..=MAX_BINS).contains(&node_size));
         assert!(first_index as usize + aabbs.len() <= 1 << 31);
         let pristine: Vec<PrimRef> = (aabbs.iter().enumerate())
-            .map(|(i, b)| prim_ref(b, first_index + i as u32))
+            .map(|(i, b)| PrimRef::new(b, first_index + i as u32))
             .collect();
         let nodes = pristine
             .chunks(node_size)
@@ -1072,6 +981,7 @@ mod tests {
     use super::*;
     use crate::testutil::*;
     use crate::{validate, SweepSahBuilder};
+    use geom::Vec3;
     use proptest::prelude::*;
 
     fn builder(bins: usize, max_leaf: u32, threads: usize) -> BinnedSahBuilder {
@@ -1158,7 +1068,7 @@ mod tests {
     fn simd_lanes_of_prim_refs_are_never_subnormal() {
         let boxes = soup(4096, 2.0, 5);
         let refs: Vec<PrimRef> = (boxes.iter().enumerate())
-            .map(|(i, b)| prim_ref(b, i as u32))
+            .map(|(i, b)| PrimRef::new(b, i as u32))
             .collect();
         let mut acc = Box4::EMPTY;
         for (i, r) in refs.iter().enumerate() {
@@ -1285,7 +1195,7 @@ mod tests {
                 let mut refs: Vec<PrimRef> = prims
                     .iter()
                     .enumerate()
-                    .map(|(i, b)| prim_ref(b, i as u32))
+                    .map(|(i, b)| PrimRef::new(b, i as u32))
                     .collect();
                 // A random-looking predicate fixed per reference: left iff a hash of the
                 // centroid falls below `frac`.
