@@ -27,7 +27,7 @@
 //! separate node arrays that are appended in child order, so the tree is the same for any
 //! thread count.
 
-use crate::bins::Bins;
+use crate::bins::{Binner, Bins};
 use crate::error::{check_input, in_pool, BuildError};
 use crate::mbvh4::{Mbvh4, Node4, MBVH_WIDTH};
 use crate::node::ChildRef;
@@ -228,49 +228,21 @@ impl Ctx<'_> {
         }
         let bins = self.cfg.bins;
         let mut best: Option<Split> = None;
-        let mut scale = [0f32; 3];
-        for (axis, sc) in scale.iter_mut().enumerate() {
-            let ext = cbounds.max[axis] - cbounds.min[axis];
-            let k = bins as f32 / ext;
-            // Zero, subnormal or overflowing extents give no usable planes on this axis.
-            if ext > 0.0 && k.is_finite() && k > 0.0 {
-                *sc = k;
-            }
-        }
-        if scale == [0.0; 3] {
+        // Zero, subnormal or overflowing extents give no usable planes on an axis (scale 0).
+        let binner = Binner::new(cbounds, bins);
+        let scale = binner.scale;
+        if scale == Vec4::ZERO {
             return median();
         }
-        let lo = cbounds.min;
-        // Fills bins in place: folding a 1.7 KB bin array by value copied it per primitive.
-        let (lo4, k4) = (lo.extend(0.0), Vec4::new(scale[0], scale[1], scale[2], 0.0));
-        let fill = |refs: &[Ref]| {
-            let mut b = Bins::<N>::new();
-            for r in refs {
-                // All three bin indices at once; the same arithmetic as `Ctx::bin`, so the
-                // partition agrees. Unused axes (scale 0) all land in bin 0 and are ignored.
-                let f = (r.centroid4() - lo4) * k4;
-                for axis in 0..3 {
-                    let i = (f[axis] as usize).min(bins - 1);
-                    b.min[axis][i] = b.min[axis][i].min(r.min);
-                    b.max[axis][i] = b.max[axis][i].max(r.max);
-                    b.cnt[axis][i] += 1;
-                }
-            }
-            b
-        };
-        // Min, max and counts are exact and order-independent, so the parallel binning of
-        // large candidates gives the same bins as the sequential one.
+        // The binner's arithmetic equals `Ctx::bin`'s, so the partition agrees; unused axes
+        // (scale 0) all land in bin 0 and are ignored. Min, max and counts are exact and
+        // order-independent, so the parallel binning of large candidates gives the same bins
+        // as the sequential one.
         let Bins {
             min: bmin,
             max: bmax,
             cnt,
-        } = if n >= PAR_BIN_MIN {
-            refs.par_chunks(PAR_BIN_MIN / 4)
-                .map(fill)
-                .reduce(Bins::new, |a, b| a.merge(&b))
-        } else {
-            fill(refs)
-        };
+        } = Bins::<N>::fill(refs, &binner);
         let (mut right_area, mut right_count) = ([0f64; N], [0u32; N]);
         for axis in 0..3 {
             if scale[axis] == 0.0 {
