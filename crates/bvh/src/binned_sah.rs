@@ -230,20 +230,8 @@ fn find_split_n<const N: usize>(ctx: &Ctx, t: &Task) -> Option<Split> {
             if count == 0 || rc == 0 {
                 return;
             }
-            let cost = base
-                + left.half_area() * (p.c_leaf + p.c_tri * count as f32)
-                + ra * (p.c_leaf + p.c_tri * rc as f32);
-            if cost.is_finite() && best.as_ref().is_none_or(|s| cost < s.cost) {
-                best = Some(Split {
-                    cost,
-                    axis,
-                    bin: k,
-                    sorted: false,
-                    plane: None,
-                    left: left.aabb(),
-                    right: Aabb::EMPTY,
-                });
-            }
+            let cost = sah(p, base, left.half_area(), count, ra, rc);
+            offer_boundary(&mut best, cost, axis, k, false, left);
         });
     }
     let mut s = best?;
@@ -356,8 +344,48 @@ const ZOOM_STEPS: usize = 6;
 /// The SAH of two sides under `base` (the node's own cost).
 #[inline(always)]
 fn split_cost(p: &SahParams, base: f32, l: &Side, r: &Side) -> f32 {
-    base + l.bbox.half_area() * (p.c_leaf + p.c_tri * l.count as f32)
-        + r.bbox.half_area() * (p.c_leaf + p.c_tri * r.count as f32)
+    sah(
+        p,
+        base,
+        l.bbox.half_area(),
+        l.count,
+        r.bbox.half_area(),
+        r.count,
+    )
+}
+
+/// The SAH of a split whose sides have areas `la`, `ra` and counts `lc`, `rc`, under `base`
+/// (the node's own cost).
+#[inline(always)]
+fn sah(p: &SahParams, base: f32, la: f32, lc: u32, ra: f32, rc: u32) -> f32 {
+    base + la * (p.c_leaf + p.c_tri * lc as f32) + ra * (p.c_leaf + p.c_tri * rc as f32)
+}
+
+/// Makes the boundary before item `bin` on `axis` (left side `left`; `sorted`: a position in
+/// centroid order, else a bin boundary) the best split if its cost is finite and lower;
+/// returns whether it did.
+#[inline(always)]
+fn offer_boundary(
+    best: &mut Option<Split>,
+    cost: f32,
+    axis: usize,
+    bin: usize,
+    sorted: bool,
+    left: &Box4,
+) -> bool {
+    let better = cost.is_finite() && best.as_ref().is_none_or(|s| cost < s.cost);
+    if better {
+        *best = Some(Split {
+            cost,
+            axis,
+            bin,
+            sorted,
+            plane: None,
+            left: left.aabb(),
+            right: Aabb::EMPTY,
+        });
+    }
+    better
 }
 
 /// Offers `best` the plane `plane` on `axis` between sides `l` and `r` at `cost`.
@@ -567,20 +595,9 @@ fn sorted_split_n<const N: usize>(ctx: &Ctx, t: &mut Task) -> Option<Split> {
             n,
             item,
             &mut Unit(&mut right_area, n),
-            |i, lbox, _, ra, _| {
-                let cost = base
-                    + lbox.half_area() * (p.c_leaf + p.c_tri * i as f32)
-                    + ra * (p.c_leaf + p.c_tri * (n - i) as f32);
-                if cost.is_finite() && best.as_ref().is_none_or(|s| cost < s.cost) {
-                    best = Some(Split {
-                        cost,
-                        axis,
-                        bin: i,
-                        sorted: true,
-                        plane: None,
-                        left: lbox.aabb(),
-                        right: Aabb::EMPTY,
-                    });
+            |i, lbox, lc, ra, rc| {
+                let cost = sah(p, base, lbox.half_area(), lc, ra, rc);
+                if offer_boundary(&mut best, cost, axis, i, true, lbox) {
                     best_order[..n].copy_from_slice(ord);
                 }
             },

@@ -17,6 +17,16 @@ fn fnv(s: &str) -> u64 {
     })
 }
 
+/// The default configuration of builder type `$t` on `$th` worker threads.
+macro_rules! on_threads {
+    ($t:ident, $th:expr) => {
+        $t {
+            threads: $th,
+            ..Default::default()
+        }
+    };
+}
+
 /// Fingerprint of a binary tree: its `Debug` text and its SAH bits.
 fn fp2(t: &Bvh2) -> u64 {
     fnv(&format!("{t:?} {}", sah_cost(t).to_bits()))
@@ -80,17 +90,9 @@ fn fingerprints() -> Vec<(String, u64)> {
             .unwrap();
             add2(&format!("sweep {max_leaf}"), &t);
         }
-        let lbvh = LbvhBuilder {
-            threads: th,
-            ..Default::default()
-        }
-        .build(&prims)
-        .unwrap();
+        let lbvh = on_threads!(LbvhBuilder, th).build(&prims).unwrap();
         add2("lbvh", &lbvh);
-        let hl = HlbvhBuilder {
-            threads: th,
-            ..Default::default()
-        };
+        let hl = on_threads!(HlbvhBuilder, th);
         add2("hlbvh", &hl.build(&prims).unwrap());
         let cut = HlbvhBuilder {
             highlevel_threshold: Some(toplevel::default_threshold(hl.bits)),
@@ -100,47 +102,23 @@ fn fingerprints() -> Vec<(String, u64)> {
             "hlbvh cells",
             &cut.build_highlevel(&prims).unwrap().to_bvh2(),
         );
-        let t = HlbvhSahBuilder {
-            threads: th,
-            ..Default::default()
-        }
-        .build(&prims)
-        .unwrap();
-        add2("hlbvh+sah", &t);
-        let t = HlbvhAtrbvhBuilder {
-            threads: th,
-            ..Default::default()
-        }
-        .build(&prims)
-        .unwrap();
+        add2(
+            "hlbvh+sah",
+            &on_threads!(HlbvhSahBuilder, th).build(&prims).unwrap(),
+        );
+        let t = on_threads!(HlbvhAtrbvhBuilder, th).build(&prims).unwrap();
         add2("hlbvh+atrbvh", &t);
+        let config = on_threads!(AtrbvhConfig, th);
         let t = AtrbvhBuilder {
             bits: Default::default(),
-            config: AtrbvhConfig {
-                threads: th,
-                ..Default::default()
-            },
+            config,
         }
         .build(&prims)
         .unwrap();
         add2("atrbvh", &t);
-        let t = PlocBuilder {
-            threads: th,
-            ..Default::default()
-        }
-        .build(&prims)
-        .unwrap();
-        add2("ploc", &t);
+        add2("ploc", &on_threads!(PlocBuilder, th).build(&prims).unwrap());
         let mut t = lbvh.clone();
-        reinsert(
-            &mut t,
-            &prims,
-            &ReinsertConfig {
-                threads: th,
-                ..Default::default()
-            },
-        )
-        .unwrap();
+        reinsert(&mut t, &prims, &on_threads!(ReinsertConfig, th)).unwrap();
         add2("lbvh+reinsert", &t);
         for wide in [true, false] {
             let t = Mbvh4TopDownBuilder {
@@ -773,91 +751,42 @@ fn time_builders() {
         let rows: Vec<(&str, f64)> = vec![
             (
                 "binned 16",
-                best(&|| {
-                    BinnedSahBuilder {
-                        threads: th,
-                        ..Default::default()
-                    }
-                    .build(&prims)
-                    .unwrap();
-                }),
+                best(&|| drop(on_threads!(BinnedSahBuilder, th).build(&prims))),
             ),
             (
                 "sweep",
-                best(&|| {
-                    SweepSahBuilder {
-                        threads: th,
-                        ..Default::default()
-                    }
-                    .build(&prims)
-                    .unwrap();
-                }),
+                best(&|| drop(on_threads!(SweepSahBuilder, th).build(&prims))),
             ),
             (
                 "mbvh4 topdown",
-                best(&|| {
-                    Mbvh4TopDownBuilder {
-                        threads: th,
-                        ..Default::default()
-                    }
-                    .build(&prims)
-                    .unwrap();
-                }),
+                best(&|| drop(on_threads!(Mbvh4TopDownBuilder, th).build(&prims))),
             ),
             (
                 "hlbvh",
-                best(&|| {
-                    HlbvhBuilder {
-                        threads: th,
-                        ..Default::default()
-                    }
-                    .build(&prims)
-                    .unwrap();
-                }),
+                best(&|| drop(on_threads!(HlbvhBuilder, th).build(&prims))),
             ),
             (
                 "hlbvh+atrbvh",
-                best(&|| {
-                    HlbvhAtrbvhBuilder {
-                        threads: th,
-                        ..Default::default()
-                    }
-                    .build(&prims)
-                    .unwrap();
-                }),
+                best(&|| drop(on_threads!(HlbvhAtrbvhBuilder, th).build(&prims))),
             ),
             (
                 "atrbvh",
                 best(&|| {
-                    let config = AtrbvhConfig {
-                        threads: th,
-                        ..Default::default()
-                    };
-                    AtrbvhBuilder {
-                        bits: Default::default(),
-                        config,
-                    }
-                    .build(&prims)
-                    .unwrap();
+                    let config = on_threads!(AtrbvhConfig, th);
+                    drop(
+                        AtrbvhBuilder {
+                            bits: Default::default(),
+                            config,
+                        }
+                        .build(&prims),
+                    )
                 }),
             ),
             (
                 "ploc",
-                best(&|| {
-                    PlocBuilder {
-                        threads: th,
-                        ..Default::default()
-                    }
-                    .build(&prims)
-                    .unwrap();
-                }),
+                best(&|| drop(on_threads!(PlocBuilder, th).build(&prims))),
             ),
-            (
-                "collapse",
-                best(&|| {
-                    collapse(&sweep).unwrap();
-                }),
-            ),
+            ("collapse", best(&|| drop(collapse(&sweep)))),
         ];
         for (b, ms) in rows {
             println!("time {th} thread(s) {b:14} {ms:9.2} ms");

@@ -26,18 +26,26 @@ pub(crate) trait SweepBox: Copy {
     fn area(&self) -> Self::Area;
 }
 
-impl SweepBox for Aabb {
-    type Area = f32;
-    const EMPTY: Self = Aabb::EMPTY;
-    #[inline(always)]
-    fn union(self, o: Self) -> Self {
-        Aabb::union(self, o)
-    }
-    #[inline(always)]
-    fn area(&self) -> f32 {
-        self.half_area()
-    }
+/// [`SweepBox`] for a box type with an inherent `EMPTY`, `union` and `f32` `half_area`.
+macro_rules! sweep_box_f32 {
+    ($t:ident) => {
+        impl SweepBox for $t {
+            type Area = f32;
+            const EMPTY: Self = $t::EMPTY;
+            #[inline(always)]
+            fn union(self, o: Self) -> Self {
+                $t::union(self, o)
+            }
+            #[inline(always)]
+            fn area(&self) -> f32 {
+                self.half_area()
+            }
+        }
+    };
 }
+
+sweep_box_f32!(Aabb);
+sweep_box_f32!(Box4);
 
 /// Where [`sweep`] keeps the right side of each boundary between its two passes.
 pub(crate) trait RightSides<A> {
@@ -166,19 +174,6 @@ impl Box4 {
     #[inline(always)]
     pub(crate) fn aabb(&self) -> Aabb {
         Aabb::new(self.min.truncate(), self.max.truncate())
-    }
-}
-
-impl SweepBox for Box4 {
-    type Area = f32;
-    const EMPTY: Self = Box4::EMPTY;
-    #[inline(always)]
-    fn union(self, o: Self) -> Self {
-        Box4::union(self, o)
-    }
-    #[inline(always)]
-    fn area(&self) -> f32 {
-        self.half_area()
     }
 }
 
