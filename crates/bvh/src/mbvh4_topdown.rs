@@ -98,6 +98,23 @@ struct Split {
     sorted: bool,
 }
 
+impl Split {
+    /// Makes the boundary before position `pos` on `axis` (`sorted`: a position in centroid
+    /// order, else a bin boundary) at `cost` the best split if it is cheaper.
+    #[inline(always)]
+    fn offer(best: &mut Option<Split>, cost: f64, axis: usize, pos: usize, sorted: bool) {
+        if best.is_none_or(|b| cost < b.cost) {
+            *best = Some(Split {
+                axis,
+                pos,
+                cost,
+                median: false,
+                sorted,
+            });
+        }
+    }
+}
+
 /// Both halves of a split as ((box, centroid box), (box, centroid box), left count).
 type Halves = ((Aabb, Aabb), (Aabb, Aabb), usize);
 
@@ -260,16 +277,13 @@ impl Ctx<'_> {
                 if k == 0 || rk == 0 {
                     return;
                 }
-                let cost = left.area() * k as f64 + ra * rk as f64;
-                if best.is_none_or(|b| cost < b.cost) {
-                    best = Some(Split {
-                        axis,
-                        pos: i,
-                        cost,
-                        median: false,
-                        sorted: false,
-                    });
-                }
+                Split::offer(
+                    &mut best,
+                    left.area() * k as f64 + ra * rk as f64,
+                    axis,
+                    i,
+                    false,
+                );
             });
         }
         best.or_else(median)
@@ -289,17 +303,14 @@ impl Ctx<'_> {
             }
             ord[..n].sort_unstable();
             let item = |i: usize| (Wide(refs[ord[i].1 as usize]), 1);
-            sweep(n, item, &mut Unit(&mut right, n), |i, left, _, ra, rk| {
-                let cost = left.area() * i as f64 + ra * rk as f64;
-                if best.is_none_or(|b| cost < b.cost) {
-                    best = Some(Split {
-                        axis,
-                        pos: i,
-                        cost,
-                        median: false,
-                        sorted: true,
-                    });
-                }
+            sweep(n, item, &mut Unit(&mut right, n), |i, left, k, ra, rk| {
+                Split::offer(
+                    &mut best,
+                    left.area() * k as f64 + ra * rk as f64,
+                    axis,
+                    i,
+                    true,
+                );
             });
         }
         best.filter(|b| b.cost.is_finite())
