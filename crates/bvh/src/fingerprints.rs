@@ -68,27 +68,25 @@ fn fingerprints() -> Vec<(String, u64)> {
         let mut add2 = |b: &str, t: &Bvh2| out.push((format!("{name} / {b}"), fp2(t)));
         let th = 2;
         for bins in [8, 16, 32] {
-            for max_leaf in [1, 4, 8] {
-                let t = BinnedSahBuilder {
+            for max_leaf_size in [1, 4, 8] {
+                let base = on_threads!(BinnedSahBuilder, th);
+                let b = BinnedSahBuilder {
                     bins,
-                    max_leaf_size: max_leaf,
-                    threads: th,
-                    ..Default::default()
-                }
-                .build(&prims)
-                .unwrap();
-                add2(&format!("binned {bins}/{max_leaf}"), &t);
+                    max_leaf_size,
+                    ..base
+                };
+                add2(
+                    &format!("binned {bins}/{max_leaf_size}"),
+                    &b.build(&prims).unwrap(),
+                );
             }
         }
-        for max_leaf in [1, 8] {
-            let t = SweepSahBuilder {
-                max_leaf_size: max_leaf,
-                threads: th,
-                ..Default::default()
-            }
-            .build(&prims)
-            .unwrap();
-            add2(&format!("sweep {max_leaf}"), &t);
+        for max_leaf_size in [1, 8] {
+            let b = SweepSahBuilder {
+                max_leaf_size,
+                ..on_threads!(SweepSahBuilder, th)
+            };
+            add2(&format!("sweep {max_leaf_size}"), &b.build(&prims).unwrap());
         }
         let lbvh = on_threads!(LbvhBuilder, th).build(&prims).unwrap();
         add2("lbvh", &lbvh);
