@@ -17,15 +17,15 @@
 //! [`PARALLEL_MIN_PRIMS`](crate::PARALLEL_MIN_PRIMS) primitives are built with
 //! `rayon::join`; the result does not depend on the thread count.
 
-use crate::bins::Bins;
+use crate::bins::{Binner, Bins};
 use crate::bvh2::Bvh2;
 use crate::error::{check_input, in_pool, BuildError};
 use crate::frag::Frag;
 use crate::node::{ChildRef, Node};
 use crate::sah::SahParams;
-use crate::split::{sweep, Counted, SweepBox, Unit};
-use crate::{centroid, index_lane, lane_index, ordered_bits, MAX_SAH_DEPTH, PARALLEL_MIN_PRIMS};
-use geom::{Aabb, Vec3, Vec4};
+use crate::split::{sweep, Box4, Counted, PrimRef, Unit};
+use crate::{ordered_bits, MAX_SAH_DEPTH, PARALLEL_MIN_PRIMS};
+use geom::{Aabb, Vec4};
 use rayon::prelude::*;
 
 /// Largest supported bin count.
@@ -63,97 +63,6 @@ struct Ctx<'a> {
     cfg: &'a BinnedSahBuilder,
 }
 
-/// A box in 4-wide SIMD registers; lane `w` is not part of the box (see [`PrimRef`]).
-#[derive(Clone, Copy)]
-struct Box4 {
-    min: Vec4,
-    max: Vec4,
-}
-
-impl Box4 {
-    const EMPTY: Box4 = Box4 {
-        min: Vec4::splat(f32::INFINITY),
-        max: Vec4::splat(f32::NEG_INFINITY),
-    };
-
-    #[inline(always)]
-    fn union(self, o: Box4) -> Box4 {
-        Box4 {
-            min: self.min.min(o.min),
-            max: self.max.max(o.max),
-        }
-    }
-
-    /// Half the surface area; only meaningful for a non-empty box.
-    #[inline(always)]
-    fn half_area(&self) -> f32 {
-        let e = self.max - self.min;
-        e.x * e.y + e.y * e.z + e.z * e.x
-    }
-
-    #[inline(always)]
-    fn aabb(&self) -> Aabb {
-        Aabb::new(self.min.truncate(), self.max.truncate())
-    }
-}
-
-impl SweepBox for Box4 {
-    type Area = f32;
-    const EMPTY: Self = Box4::EMPTY;
-    #[inline(always)]
-    fn union(self, o: Self) -> Self {
-        Box4::union(self, o)
-    }
-    #[inline(always)]
-    fn area(&self) -> f32 {
-        self.half_area()
-    }
-}
-
-/// A primitive reference: its box, with the input index stored in `min.w` by
-/// [`index_lane`] (32 bytes in all; `max.w` is 0). That lane is never subnormal, so the
-/// SIMD box arithmetic, which computes it along with x, y and z, takes no subnormal
-/// assists (issue 17: the raw index bits made this builder 2x slower on Intel). The builder partitions an array of these in place, so every pass over
-/// a node reads memory sequentially (an index array into the input boxes made every pass a
-/// random gather, which dominated the build), and box unions are single SIMD min/max.
-type PrimRef = Box4;
-
-/// A primitive reference for input primitive `index`.
-#[inline]
-fn prim_ref(b: &Aabb, index: u32) -> PrimRef {
-    Box4 {
-        min: b.min.extend(index_lane(index)),
-        max: b.max.extend(0.0),
-    }
-}
-
-impl Box4 {
-    /// The input index of a [`PrimRef`].
-    #[inline(always)]
-    fn index(&self) -> u32 {
-        lane_index(self.min.w)
-    }
-
-    /// Centroid of a [`PrimRef`] as a SIMD vector (lane w meaningless; the same arithmetic
-    /// as [`centroid`] in x, y and z).
-    #[inline(always)]
-    fn centroid4(&self) -> Vec4 {
-        self.min * 0.5 + self.max * 0.5
-    }
-
-    /// Centroid of a [`PrimRef`] (same arithmetic as [`centroid`]).
-    #[inline(always)]
-    fn centroid(&self) -> Vec3 {
-        centroid(&self.aabb())
-    }
-
-    /// Total-order sort key along `axis`: centroid, then input index.
-    #[inline]
-    fn key(&self, axis: usize) -> u64 {
-        ((ordered_bits(self.centroid()[axis]) as u64) << 32) | self.index() as u64
-    }
-}
-
 /// A node to build: its primitives, their box and centroid box.
 struct Task<'a> {
     refs: &'a mut [PrimRef],
@@ -188,7 +97,7 @@ impl BinnedSahBuilder {
         let mut refs: Vec<PrimRef> = aabbs
             .par_iter()
             .enumerate()
-            .map(|(i, b)| prim_ref(b, i as u32))
+            .map(|(i, b)| PrimRef::new(b, i as u32))
             .collect();
         let (bounds, cbounds) = refs
             .par_iter()
@@ -287,132 +196,6 @@ struct Split {
     right: Aabb,
 }
 
-/// Maps centroids to bins: `bin = (c - min) * scale`, clamped to `0..=last`.
-#[derive(Clone, Copy)]
-struct Binner {
-    min: Vec4,
-    scale: Vec4,
-    last: usize,
-}
-
-impl Binner {
-    fn new(cbounds: &Aabb, bins: usize) -> Self {
-        let e = cbounds.max - cbounds.min;
-        let s = |x: f32| {
-            let v = bins as f32 / x;
-            // Zero or overflowing extent: every centroid lands in bin 0, so the axis
-            // offers no plane and is skipped by the sweep (both sides must be non-empty).
-            if x > 0.0 && v.is_finite() {
-                v
-            } else {
-                0.0
-            }
-        };
-        Self {
-            min: cbounds.min.extend(0.0),
-            scale: Vec4::new(s(e.x), s(e.y), s(e.z), 0.0),
-            last: bins - 1,
-        }
-    }
-
-    /// The bins of centroid `c` on the three axes (lane w is 0), in one SIMD pass: the
-    /// clamp to `[0, last]` comes first (`max` maps NaN to 0), so truncation is the floor
-    /// of an in-range value and equals the scalar `as usize` then `min(last)`.
-    #[inline(always)]
-    fn bins(&self, c: Vec4) -> [usize; 4] {
-        let f = ((c - self.min) * self.scale)
-            .max(Vec4::ZERO)
-            .min(Vec4::splat(self.last as f32));
-        truncate4(f)
-    }
-
-    /// The clamped bin coordinate of centroid `c` on `axis`, whose integer part is its bin
-    /// (the same arithmetic as [`Binner::bins`]; monotone in the centroid).
-    #[inline(always)]
-    fn coord(&self, c: Vec4, axis: usize) -> f32 {
-        ((c - self.min) * self.scale)
-            .max(Vec4::ZERO)
-            .min(Vec4::splat(self.last as f32))[axis]
-    }
-
-    /// The bin of centroid `c` on `axis` (the same value as [`Binner::bins`]).
-    #[inline(always)]
-    fn bin(&self, c: Vec4, axis: usize) -> usize {
-        self.bins(c)[axis]
-    }
-}
-
-/// The lanes of `f` (each in `0..2^31`) truncated to integers.
-#[inline(always)]
-fn truncate4(f: Vec4) -> [usize; 4] {
-    #[cfg(target_arch = "x86_64")]
-    {
-        use std::arch::x86_64::{__m128i, _mm_cvttps_epi32, _mm_storeu_si128};
-        let mut out = [0u32; 4];
-        // SAFETY: SSE2 is part of the x86_64 baseline; `out` is 16 writable bytes and the
-        // store is unaligned.
-        unsafe {
-            let i = _mm_cvttps_epi32(f.into());
-            _mm_storeu_si128(out.as_mut_ptr() as *mut __m128i, i);
-        }
-        out.map(|x| x as usize)
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        f.to_array().map(|x| x as usize)
-    }
-}
-
-/// The binary builder's binning of [`PrimRef`]s.
-impl<const N: usize> Bins<N> {
-    /// Drops `refs` into the bins.
-    #[inline(always)]
-    fn add(&mut self, refs: &[PrimRef], binner: &Binner) {
-        for r in refs {
-            let idx = binner.bins(r.centroid4());
-            for (axis, &k) in idx.iter().take(3).enumerate() {
-                // `k <= last < N`; the mask (N is a power of two) only drops the check.
-                let i = k & (N - 1);
-                self.min[axis][i] = self.min[axis][i].min(r.min);
-                self.max[axis][i] = self.max[axis][i].max(r.max);
-                self.cnt[axis][i] += 1;
-            }
-        }
-    }
-
-    /// Bins `refs`. Large nodes are binned in parallel chunks, and medium ones into two
-    /// interleaved sets, so that runs of primitives in the same bin (common: meshes are
-    /// spatially coherent) do not chain every update on the previous one's store. The
-    /// result is the same bins either way.
-    fn fill(refs: &[PrimRef], binner: &Binner) -> Self {
-        if refs.len() >= PAR_BIN_MIN && rayon::current_num_threads() > 1 {
-            return refs
-                .par_chunks(PAR_BIN_MIN / 4)
-                .map(|c| Self::fill(c, binner))
-                .reduce(Self::new, |a, b| a.merge(&b));
-        }
-        let mut a = Self::new();
-        if refs.len() < DUAL_BINS_MIN {
-            a.add(refs, binner);
-            return a;
-        }
-        let mut b = Self::new();
-        let mut pairs = refs.chunks_exact(2);
-        for p in &mut pairs {
-            a.add(&p[..1], binner);
-            b.add(&p[1..], binner);
-        }
-        a.add(pairs.remainder(), binner);
-        a.merge(&b)
-    }
-}
-
-/// Nodes of at least this many primitives are binned in parallel chunks.
-const PAR_BIN_MIN: usize = 1 << 15;
-
-/// Nodes of at least this many primitives are binned into two interleaved bin sets.
-const DUAL_BINS_MIN: usize = 256;
-
 /// Bins the node's primitives on all three axes and returns the cheapest plane.
 fn find_split(ctx: &Ctx, t: &Task) -> Option<Split> {
     // The bin arrays live on the stack and are cleared per node; sizing them to the
@@ -447,20 +230,8 @@ fn find_split_n<const N: usize>(ctx: &Ctx, t: &Task) -> Option<Split> {
             if count == 0 || rc == 0 {
                 return;
             }
-            let cost = base
-                + left.half_area() * (p.c_leaf + p.c_tri * count as f32)
-                + ra * (p.c_leaf + p.c_tri * rc as f32);
-            if cost.is_finite() && best.as_ref().is_none_or(|s| cost < s.cost) {
-                best = Some(Split {
-                    cost,
-                    axis,
-                    bin: k,
-                    sorted: false,
-                    plane: None,
-                    left: left.aabb(),
-                    right: Aabb::EMPTY,
-                });
-            }
+            let cost = sah(p, base, left.half_area(), count, ra, rc);
+            offer_boundary(&mut best, cost, axis, k, false, left);
         });
     }
     let mut s = best?;
@@ -573,8 +344,48 @@ const ZOOM_STEPS: usize = 6;
 /// The SAH of two sides under `base` (the node's own cost).
 #[inline(always)]
 fn split_cost(p: &SahParams, base: f32, l: &Side, r: &Side) -> f32 {
-    base + l.bbox.half_area() * (p.c_leaf + p.c_tri * l.count as f32)
-        + r.bbox.half_area() * (p.c_leaf + p.c_tri * r.count as f32)
+    sah(
+        p,
+        base,
+        l.bbox.half_area(),
+        l.count,
+        r.bbox.half_area(),
+        r.count,
+    )
+}
+
+/// The SAH of a split whose sides have areas `la`, `ra` and counts `lc`, `rc`, under `base`
+/// (the node's own cost).
+#[inline(always)]
+fn sah(p: &SahParams, base: f32, la: f32, lc: u32, ra: f32, rc: u32) -> f32 {
+    base + la * (p.c_leaf + p.c_tri * lc as f32) + ra * (p.c_leaf + p.c_tri * rc as f32)
+}
+
+/// Makes the boundary before item `bin` on `axis` (left side `left`; `sorted`: a position in
+/// centroid order, else a bin boundary) the best split if its cost is finite and lower;
+/// returns whether it did.
+#[inline(always)]
+fn offer_boundary(
+    best: &mut Option<Split>,
+    cost: f32,
+    axis: usize,
+    bin: usize,
+    sorted: bool,
+    left: &Box4,
+) -> bool {
+    let better = cost.is_finite() && best.as_ref().is_none_or(|s| cost < s.cost);
+    if better {
+        *best = Some(Split {
+            cost,
+            axis,
+            bin,
+            sorted,
+            plane: None,
+            left: left.aabb(),
+            right: Aabb::EMPTY,
+        });
+    }
+    better
 }
 
 /// Offers `best` the plane `plane` on `axis` between sides `l` and `r` at `cost`.
@@ -784,20 +595,9 @@ fn sorted_split_n<const N: usize>(ctx: &Ctx, t: &mut Task) -> Option<Split> {
             n,
             item,
             &mut Unit(&mut right_area, n),
-            |i, lbox, _, ra, _| {
-                let cost = base
-                    + lbox.half_area() * (p.c_leaf + p.c_tri * i as f32)
-                    + ra * (p.c_leaf + p.c_tri * (n - i) as f32);
-                if cost.is_finite() && best.as_ref().is_none_or(|s| cost < s.cost) {
-                    best = Some(Split {
-                        cost,
-                        axis,
-                        bin: i,
-                        sorted: true,
-                        plane: None,
-                        left: lbox.aabb(),
-                        right: Aabb::EMPTY,
-                    });
+            |i, lbox, lc, ra, rc| {
+                let cost = sah(p, base, lbox.half_area(), lc, ra, rc);
+                if offer_boundary(&mut best, cost, axis, i, true, lbox) {
                     best_order[..n].copy_from_slice(ord);
                 }
             },
@@ -1024,7 +824,7 @@ impl SortedSplitBench {
         assert!((2..=MAX_BINS).contains(&node_size));
         assert!(first_index as usize + aabbs.len() <= 1 << 31);
         let pristine: Vec<PrimRef> = (aabbs.iter().enumerate())
-            .map(|(i, b)| prim_ref(b, first_index + i as u32))
+            .map(|(i, b)| PrimRef::new(b, first_index + i as u32))
             .collect();
         let nodes = pristine
             .chunks(node_size)
@@ -1072,6 +872,7 @@ mod tests {
     use super::*;
     use crate::testutil::*;
     use crate::{validate, SweepSahBuilder};
+    use geom::Vec3;
     use proptest::prelude::*;
 
     fn builder(bins: usize, max_leaf: u32, threads: usize) -> BinnedSahBuilder {
@@ -1158,7 +959,7 @@ mod tests {
     fn simd_lanes_of_prim_refs_are_never_subnormal() {
         let boxes = soup(4096, 2.0, 5);
         let refs: Vec<PrimRef> = (boxes.iter().enumerate())
-            .map(|(i, b)| prim_ref(b, i as u32))
+            .map(|(i, b)| PrimRef::new(b, i as u32))
             .collect();
         let mut acc = Box4::EMPTY;
         for (i, r) in refs.iter().enumerate() {
@@ -1285,7 +1086,7 @@ mod tests {
                 let mut refs: Vec<PrimRef> = prims
                     .iter()
                     .enumerate()
-                    .map(|(i, b)| prim_ref(b, i as u32))
+                    .map(|(i, b)| PrimRef::new(b, i as u32))
                     .collect();
                 // A random-looking predicate fixed per reference: left iff a hash of the
                 // centroid falls below `frac`.

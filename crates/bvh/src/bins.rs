@@ -1,8 +1,11 @@
 //! The per-axis bins of a binned SAH split search, shared by the binary and the 4-wide
 //! top-down builders: for each axis and bin the corners of the primitives' boxes and their
-//! count, as separate arrays (a bin update touches one entry of each).
+//! count, as separate arrays (a bin update touches one entry of each); the [`Binner`]
+//! that maps centroids to bins, and the binning of primitive references.
 
-use geom::Vec4;
+use crate::split::PrimRef;
+use geom::{Aabb, Vec4};
+use rayon::prelude::*;
 
 /// Per-axis bins: box corners and count of the primitives in each of `N` bins per axis.
 #[derive(Clone)]
@@ -34,3 +37,133 @@ impl<const N: usize> Bins<N> {
         self
     }
 }
+
+/// Maps centroids to bins: `bin = (c - min) * scale`, clamped to `0..=last`.
+#[derive(Clone, Copy)]
+pub(crate) struct Binner {
+    /// The centroid box's minimum corner (lane w 0).
+    pub(crate) min: Vec4,
+    /// Bins per unit length on each axis; 0 on an axis that offers no plane (lane w 0).
+    pub(crate) scale: Vec4,
+    /// The last bin.
+    pub(crate) last: usize,
+}
+
+impl Binner {
+    /// The binner of `bins` bins per axis over the centroid box `cbounds`.
+    pub(crate) fn new(cbounds: &Aabb, bins: usize) -> Self {
+        let e = cbounds.max - cbounds.min;
+        let s = |x: f32| {
+            let v = bins as f32 / x;
+            // Zero or overflowing extent: every centroid lands in bin 0, so the axis
+            // offers no plane and is skipped by the sweep (both sides must be non-empty).
+            if x > 0.0 && v.is_finite() {
+                v
+            } else {
+                0.0
+            }
+        };
+        Self {
+            min: cbounds.min.extend(0.0),
+            scale: Vec4::new(s(e.x), s(e.y), s(e.z), 0.0),
+            last: bins - 1,
+        }
+    }
+
+    /// The bins of centroid `c` on the three axes (lane w is 0), in one SIMD pass: the
+    /// clamp to `[0, last]` comes first (`max` maps NaN to 0), so truncation is the floor
+    /// of an in-range value and equals the scalar `as usize` then `min(last)`.
+    #[inline(always)]
+    pub(crate) fn bins(&self, c: Vec4) -> [usize; 4] {
+        let f = ((c - self.min) * self.scale)
+            .max(Vec4::ZERO)
+            .min(Vec4::splat(self.last as f32));
+        truncate4(f)
+    }
+
+    /// The clamped bin coordinate of centroid `c` on `axis`, whose integer part is its bin
+    /// (the same arithmetic as [`Binner::bins`]; monotone in the centroid).
+    #[inline(always)]
+    pub(crate) fn coord(&self, c: Vec4, axis: usize) -> f32 {
+        ((c - self.min) * self.scale)
+            .max(Vec4::ZERO)
+            .min(Vec4::splat(self.last as f32))[axis]
+    }
+
+    /// The bin of centroid `c` on `axis` (the same value as [`Binner::bins`]).
+    #[inline(always)]
+    pub(crate) fn bin(&self, c: Vec4, axis: usize) -> usize {
+        self.bins(c)[axis]
+    }
+}
+
+/// The lanes of `f` (each in `0..2^31`) truncated to integers.
+#[inline(always)]
+fn truncate4(f: Vec4) -> [usize; 4] {
+    #[cfg(target_arch = "x86_64")]
+    {
+        use std::arch::x86_64::{__m128i, _mm_cvttps_epi32, _mm_storeu_si128};
+        let mut out = [0u32; 4];
+        // SAFETY: SSE2 is part of the x86_64 baseline; `out` is 16 writable bytes and the
+        // store is unaligned.
+        unsafe {
+            let i = _mm_cvttps_epi32(f.into());
+            _mm_storeu_si128(out.as_mut_ptr() as *mut __m128i, i);
+        }
+        out.map(|x| x as usize)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        f.to_array().map(|x| x as usize)
+    }
+}
+
+/// Binning of [`PrimRef`]s, shared by the binary and the 4-wide builders.
+impl<const N: usize> Bins<N> {
+    /// Drops `refs` into the bins.
+    #[inline(always)]
+    fn add(&mut self, refs: &[PrimRef], binner: &Binner) {
+        for r in refs {
+            let idx = binner.bins(r.centroid4());
+            for (axis, &k) in idx.iter().take(3).enumerate() {
+                // `k <= last < N`; the mask (N is a power of two) only drops the check.
+                let i = k & (N - 1);
+                self.min[axis][i] = self.min[axis][i].min(r.min);
+                self.max[axis][i] = self.max[axis][i].max(r.max);
+                self.cnt[axis][i] += 1;
+            }
+        }
+    }
+
+    /// Bins `refs`. Large nodes are binned in parallel chunks, and medium ones into two
+    /// interleaved sets, so that runs of primitives in the same bin (common: meshes are
+    /// spatially coherent) do not chain every update on the previous one's store. The
+    /// result is the same bins either way.
+    pub(crate) fn fill(refs: &[PrimRef], binner: &Binner) -> Self {
+        if refs.len() >= PAR_BIN_MIN && rayon::current_num_threads() > 1 {
+            return refs
+                .par_chunks(PAR_BIN_MIN / 4)
+                .map(|c| Self::fill(c, binner))
+                .reduce(Self::new, |a, b| a.merge(&b));
+        }
+        let mut a = Self::new();
+        if refs.len() < DUAL_BINS_MIN {
+            a.add(refs, binner);
+            return a;
+        }
+        let mut b = Self::new();
+        let mut pairs = refs.chunks_exact(2);
+        for p in &mut pairs {
+            a.add(&p[..1], binner);
+            b.add(&p[1..], binner);
+        }
+        a.add(pairs.remainder(), binner);
+        a.merge(&b)
+    }
+}
+
+/// Nodes of at least this many primitives are binned in parallel chunks.
+const PAR_BIN_MIN: usize = 1 << 15;
+
+/// Nodes of at least this many primitives are binned into two interleaved bin sets.
+const DUAL_BINS_MIN: usize = 256;

@@ -17,6 +17,16 @@ fn fnv(s: &str) -> u64 {
     })
 }
 
+/// The default configuration of builder type `$t` on `$th` worker threads.
+macro_rules! on_threads {
+    ($t:ident, $th:expr) => {
+        $t {
+            threads: $th,
+            ..Default::default()
+        }
+    };
+}
+
 /// Fingerprint of a binary tree: its `Debug` text and its SAH bits.
 fn fp2(t: &Bvh2) -> u64 {
     fnv(&format!("{t:?} {}", sah_cost(t).to_bits()))
@@ -58,39 +68,29 @@ fn fingerprints() -> Vec<(String, u64)> {
         let mut add2 = |b: &str, t: &Bvh2| out.push((format!("{name} / {b}"), fp2(t)));
         let th = 2;
         for bins in [8, 16, 32] {
-            for max_leaf in [1, 4, 8] {
-                let t = BinnedSahBuilder {
+            for max_leaf_size in [1, 4, 8] {
+                let base = on_threads!(BinnedSahBuilder, th);
+                let b = BinnedSahBuilder {
                     bins,
-                    max_leaf_size: max_leaf,
-                    threads: th,
-                    ..Default::default()
-                }
-                .build(&prims)
-                .unwrap();
-                add2(&format!("binned {bins}/{max_leaf}"), &t);
+                    max_leaf_size,
+                    ..base
+                };
+                add2(
+                    &format!("binned {bins}/{max_leaf_size}"),
+                    &b.build(&prims).unwrap(),
+                );
             }
         }
-        for max_leaf in [1, 8] {
-            let t = SweepSahBuilder {
-                max_leaf_size: max_leaf,
-                threads: th,
-                ..Default::default()
-            }
-            .build(&prims)
-            .unwrap();
-            add2(&format!("sweep {max_leaf}"), &t);
+        for max_leaf_size in [1, 8] {
+            let b = SweepSahBuilder {
+                max_leaf_size,
+                ..on_threads!(SweepSahBuilder, th)
+            };
+            add2(&format!("sweep {max_leaf_size}"), &b.build(&prims).unwrap());
         }
-        let lbvh = LbvhBuilder {
-            threads: th,
-            ..Default::default()
-        }
-        .build(&prims)
-        .unwrap();
+        let lbvh = on_threads!(LbvhBuilder, th).build(&prims).unwrap();
         add2("lbvh", &lbvh);
-        let hl = HlbvhBuilder {
-            threads: th,
-            ..Default::default()
-        };
+        let hl = on_threads!(HlbvhBuilder, th);
         add2("hlbvh", &hl.build(&prims).unwrap());
         let cut = HlbvhBuilder {
             highlevel_threshold: Some(toplevel::default_threshold(hl.bits)),
@@ -100,47 +100,23 @@ fn fingerprints() -> Vec<(String, u64)> {
             "hlbvh cells",
             &cut.build_highlevel(&prims).unwrap().to_bvh2(),
         );
-        let t = HlbvhSahBuilder {
-            threads: th,
-            ..Default::default()
-        }
-        .build(&prims)
-        .unwrap();
-        add2("hlbvh+sah", &t);
-        let t = HlbvhAtrbvhBuilder {
-            threads: th,
-            ..Default::default()
-        }
-        .build(&prims)
-        .unwrap();
+        add2(
+            "hlbvh+sah",
+            &on_threads!(HlbvhSahBuilder, th).build(&prims).unwrap(),
+        );
+        let t = on_threads!(HlbvhAtrbvhBuilder, th).build(&prims).unwrap();
         add2("hlbvh+atrbvh", &t);
+        let config = on_threads!(AtrbvhConfig, th);
         let t = AtrbvhBuilder {
             bits: Default::default(),
-            config: AtrbvhConfig {
-                threads: th,
-                ..Default::default()
-            },
+            config,
         }
         .build(&prims)
         .unwrap();
         add2("atrbvh", &t);
-        let t = PlocBuilder {
-            threads: th,
-            ..Default::default()
-        }
-        .build(&prims)
-        .unwrap();
-        add2("ploc", &t);
+        add2("ploc", &on_threads!(PlocBuilder, th).build(&prims).unwrap());
         let mut t = lbvh.clone();
-        reinsert(
-            &mut t,
-            &prims,
-            &ReinsertConfig {
-                threads: th,
-                ..Default::default()
-            },
-        )
-        .unwrap();
+        reinsert(&mut t, &prims, &on_threads!(ReinsertConfig, th)).unwrap();
         add2("lbvh+reinsert", &t);
         for wide in [true, false] {
             let t = Mbvh4TopDownBuilder {
@@ -773,91 +749,42 @@ fn time_builders() {
         let rows: Vec<(&str, f64)> = vec![
             (
                 "binned 16",
-                best(&|| {
-                    BinnedSahBuilder {
-                        threads: th,
-                        ..Default::default()
-                    }
-                    .build(&prims)
-                    .unwrap();
-                }),
+                best(&|| drop(on_threads!(BinnedSahBuilder, th).build(&prims))),
             ),
             (
                 "sweep",
-                best(&|| {
-                    SweepSahBuilder {
-                        threads: th,
-                        ..Default::default()
-                    }
-                    .build(&prims)
-                    .unwrap();
-                }),
+                best(&|| drop(on_threads!(SweepSahBuilder, th).build(&prims))),
             ),
             (
                 "mbvh4 topdown",
-                best(&|| {
-                    Mbvh4TopDownBuilder {
-                        threads: th,
-                        ..Default::default()
-                    }
-                    .build(&prims)
-                    .unwrap();
-                }),
+                best(&|| drop(on_threads!(Mbvh4TopDownBuilder, th).build(&prims))),
             ),
             (
                 "hlbvh",
-                best(&|| {
-                    HlbvhBuilder {
-                        threads: th,
-                        ..Default::default()
-                    }
-                    .build(&prims)
-                    .unwrap();
-                }),
+                best(&|| drop(on_threads!(HlbvhBuilder, th).build(&prims))),
             ),
             (
                 "hlbvh+atrbvh",
-                best(&|| {
-                    HlbvhAtrbvhBuilder {
-                        threads: th,
-                        ..Default::default()
-                    }
-                    .build(&prims)
-                    .unwrap();
-                }),
+                best(&|| drop(on_threads!(HlbvhAtrbvhBuilder, th).build(&prims))),
             ),
             (
                 "atrbvh",
                 best(&|| {
-                    let config = AtrbvhConfig {
-                        threads: th,
-                        ..Default::default()
-                    };
-                    AtrbvhBuilder {
-                        bits: Default::default(),
-                        config,
-                    }
-                    .build(&prims)
-                    .unwrap();
+                    let config = on_threads!(AtrbvhConfig, th);
+                    drop(
+                        AtrbvhBuilder {
+                            bits: Default::default(),
+                            config,
+                        }
+                        .build(&prims),
+                    )
                 }),
             ),
             (
                 "ploc",
-                best(&|| {
-                    PlocBuilder {
-                        threads: th,
-                        ..Default::default()
-                    }
-                    .build(&prims)
-                    .unwrap();
-                }),
+                best(&|| drop(on_threads!(PlocBuilder, th).build(&prims))),
             ),
-            (
-                "collapse",
-                best(&|| {
-                    collapse(&sweep).unwrap();
-                }),
-            ),
+            ("collapse", best(&|| drop(collapse(&sweep)))),
         ];
         for (b, ms) in rows {
             println!("time {th} thread(s) {b:14} {ms:9.2} ms");

@@ -5,6 +5,11 @@
 //! entry point (`Mbvh4` for the 4-wide builders; [`Tree`] holds either kind). Builders take primitive AABBs, so any primitive type works (\[P2\] §4.1);
 //! [`triangle_aabbs`] and [`indexed_triangle_aabbs`] make them from triangles. All builders
 //! are deterministic: the same input gives the same tree for any thread count.
+//!
+//! Shared engines (crate-private): `split` evaluates the SAH boundaries of every top-down
+//! builder's split search and holds the SIMD primitive reference, `bins` the binning of the
+//! binned and 4-wide builders, and `layout` the depth-first preorder writer that the tree
+//! writers (build fragments, HLBVH top trees, optimizer write-outs, wide collapses) share.
 
 #![warn(missing_docs)]
 

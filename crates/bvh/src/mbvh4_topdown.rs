@@ -27,13 +27,13 @@
 //! separate node arrays that are appended in child order, so the tree is the same for any
 //! thread count.
 
-use crate::bins::Bins;
+use crate::bins::{Binner, Bins};
 use crate::error::{check_input, in_pool, BuildError};
 use crate::mbvh4::{Mbvh4, Node4, MBVH_WIDTH};
 use crate::node::ChildRef;
 use crate::sah::SahParams;
-use crate::split::{sweep, Counted, SweepBox, Unit};
-use crate::{index_lane, lane_index, ordered_bits, MAX_BINS, MAX_SAH_DEPTH, PARALLEL_MIN_PRIMS};
+use crate::split::{sweep, Box4, Counted, PrimRef as Ref, SweepBox, Unit, Wide};
+use crate::{MAX_BINS, MAX_SAH_DEPTH, PARALLEL_MIN_PRIMS};
 use geom::{Aabb, Vec4};
 use rayon::prelude::*;
 
@@ -71,37 +71,6 @@ impl Default for Mbvh4TopDownBuilder {
     }
 }
 
-/// A primitive reference: its box with the input index in `min.w`, stored by
-/// [`index_lane`] so that the lane, which the SIMD centroid and binning arithmetic compute
-/// along with x, y and z, is never subnormal (issue 17).
-#[derive(Clone, Copy)]
-struct Ref {
-    min: Vec4,
-    max: Vec4,
-}
-
-impl Ref {
-    /// The reference of input primitive `index`.
-    #[inline]
-    fn new(b: &Aabb, index: u32) -> Ref {
-        Ref {
-            min: b.min.extend(index_lane(index)),
-            max: b.max.extend(0.0),
-        }
-    }
-
-    #[inline(always)]
-    fn index(&self) -> u32 {
-        lane_index(self.min.w)
-    }
-
-    /// Centroid (lane w meaningless), computed without overflow.
-    #[inline(always)]
-    fn centroid(&self) -> Vec4 {
-        self.min * 0.5 + self.max * 0.5
-    }
-}
-
 /// Half surface area of a box in `f64`, so huge finite boxes do not overflow.
 #[inline]
 fn area(b: &Aabb) -> f64 {
@@ -111,42 +80,6 @@ fn area(b: &Aabb) -> f64 {
     let e = |i: usize| b.max[i] as f64 - b.min[i] as f64;
     let (x, y, z) = (e(0), e(1), e(2));
     x * y + y * z + z * x
-}
-
-/// Half area of a box held as two `Vec4`s (lane w ignored).
-#[inline(always)]
-fn area4(min: Vec4, max: Vec4) -> f64 {
-    let x = max.x as f64 - min.x as f64;
-    let y = max.y as f64 - min.y as f64;
-    let z = max.z as f64 - min.z as f64;
-    x * y + y * z + z * x
-}
-
-/// A box as the SIMD min and max corners of its references (lane w ignored), priced by
-/// the `f64` half area [`area4`] in the split sweep.
-#[derive(Clone, Copy)]
-struct Box64 {
-    min: Vec4,
-    max: Vec4,
-}
-
-impl SweepBox for Box64 {
-    type Area = f64;
-    const EMPTY: Self = Box64 {
-        min: Vec4::splat(f32::INFINITY),
-        max: Vec4::splat(f32::NEG_INFINITY),
-    };
-    #[inline(always)]
-    fn union(self, o: Self) -> Self {
-        Box64 {
-            min: self.min.min(o.min),
-            max: self.max.max(o.max),
-        }
-    }
-    #[inline(always)]
-    fn area(&self) -> f64 {
-        area4(self.min, self.max)
-    }
 }
 
 /// A chosen split of a candidate.
@@ -163,6 +96,23 @@ struct Split {
     /// Exact split of a small candidate: the first `pos` references in centroid order
     /// along `axis` go left ([`Ctx::sorted_split`]).
     sorted: bool,
+}
+
+impl Split {
+    /// Makes the boundary before position `pos` on `axis` (`sorted`: a position in centroid
+    /// order, else a bin boundary) at `cost` the best split if it is cheaper.
+    #[inline(always)]
+    fn offer(best: &mut Option<Split>, cost: f64, axis: usize, pos: usize, sorted: bool) {
+        if best.is_none_or(|b| cost < b.cost) {
+            *best = Some(Split {
+                axis,
+                pos,
+                cost,
+                median: false,
+                sorted,
+            });
+        }
+    }
 }
 
 /// Both halves of a split as ((box, centroid box), (box, centroid box), left count).
@@ -194,7 +144,7 @@ fn bounds_of(refs: &[Ref]) -> (Aabb, Aabb) {
         [lo, hi, lo, hi]
     };
     let add = |b: B, r: &Ref| {
-        let m = r.centroid();
+        let m = r.centroid4();
         [b[0].min(r.min), b[1].max(r.max), b[2].min(m), b[3].max(m)]
     };
     let b = if refs.len() >= PAR_BIN_MIN {
@@ -219,12 +169,6 @@ fn bounds_of(refs: &[Ref]) -> (Aabb, Aabb) {
 
 /// Candidates of at most this many primitives get an exact sorted split, not bins.
 const SMALL: usize = 16;
-
-/// Total order of references along `axis`: centroid, then input index.
-#[inline]
-fn sort_key(r: &Ref, axis: usize) -> u64 {
-    ((ordered_bits(r.centroid()[axis]) as u64) << 32) | r.index() as u64
-}
 
 /// Candidates of at least this many primitives are binned and bounded in parallel chunks.
 const PAR_BIN_MIN: usize = 1 << 16;
@@ -301,76 +245,45 @@ impl Ctx<'_> {
         }
         let bins = self.cfg.bins;
         let mut best: Option<Split> = None;
-        let mut scale = [0f32; 3];
-        for (axis, sc) in scale.iter_mut().enumerate() {
-            let ext = cbounds.max[axis] - cbounds.min[axis];
-            let k = bins as f32 / ext;
-            // Zero, subnormal or overflowing extents give no usable planes on this axis.
-            if ext > 0.0 && k.is_finite() && k > 0.0 {
-                *sc = k;
-            }
-        }
-        if scale == [0.0; 3] {
+        // Zero, subnormal or overflowing extents give no usable planes on an axis (scale 0).
+        let binner = Binner::new(cbounds, bins);
+        let scale = binner.scale;
+        if scale == Vec4::ZERO {
             return median();
         }
-        let lo = cbounds.min;
-        // Fills bins in place: folding a 1.7 KB bin array by value copied it per primitive.
-        let (lo4, k4) = (lo.extend(0.0), Vec4::new(scale[0], scale[1], scale[2], 0.0));
-        let fill = |refs: &[Ref]| {
-            let mut b = Bins::<N>::new();
-            for r in refs {
-                // All three bin indices at once; the same arithmetic as `Ctx::bin`, so the
-                // partition agrees. Unused axes (scale 0) all land in bin 0 and are ignored.
-                let f = (r.centroid() - lo4) * k4;
-                for axis in 0..3 {
-                    let i = (f[axis] as usize).min(bins - 1);
-                    b.min[axis][i] = b.min[axis][i].min(r.min);
-                    b.max[axis][i] = b.max[axis][i].max(r.max);
-                    b.cnt[axis][i] += 1;
-                }
-            }
-            b
-        };
-        // Min, max and counts are exact and order-independent, so the parallel binning of
-        // large candidates gives the same bins as the sequential one.
+        // The binner's arithmetic equals `Ctx::bin`'s, so the partition agrees; unused axes
+        // (scale 0) all land in bin 0 and are ignored. Min, max and counts are exact and
+        // order-independent, so the parallel binning of large candidates gives the same bins
+        // as the sequential one.
         let Bins {
             min: bmin,
             max: bmax,
             cnt,
-        } = if n >= PAR_BIN_MIN {
-            refs.par_chunks(PAR_BIN_MIN / 4)
-                .map(fill)
-                .reduce(Bins::new, |a, b| a.merge(&b))
-        } else {
-            fill(refs)
-        };
+        } = Bins::<N>::fill(refs, &binner);
         let (mut right_area, mut right_count) = ([0f64; N], [0u32; N]);
         for axis in 0..3 {
             if scale[axis] == 0.0 {
                 continue;
             }
             let item = |i: usize| {
-                let b = Box64 {
+                let b = Box4 {
                     min: bmin[axis][i],
                     max: bmax[axis][i],
                 };
-                (b, cnt[axis][i])
+                (Wide(b), cnt[axis][i])
             };
             let right = &mut Counted(&mut right_area, &mut right_count);
             sweep(bins, item, right, |i, left, k, ra, rk| {
                 if k == 0 || rk == 0 {
                     return;
                 }
-                let cost = left.area() * k as f64 + ra * rk as f64;
-                if best.is_none_or(|b| cost < b.cost) {
-                    best = Some(Split {
-                        axis,
-                        pos: i,
-                        cost,
-                        median: false,
-                        sorted: false,
-                    });
-                }
+                Split::offer(
+                    &mut best,
+                    left.area() * k as f64 + ra * rk as f64,
+                    axis,
+                    i,
+                    false,
+                );
             });
         }
         best.or_else(median)
@@ -386,28 +299,18 @@ impl Ctx<'_> {
         let mut right = [0f64; SMALL];
         for axis in 0..3 {
             for (k, r) in refs.iter().enumerate() {
-                ord[k] = (sort_key(r, axis), k as u8);
+                ord[k] = (r.key(axis), k as u8);
             }
             ord[..n].sort_unstable();
-            let item = |i: usize| {
-                let r = &refs[ord[i].1 as usize];
-                let b = Box64 {
-                    min: r.min,
-                    max: r.max,
-                };
-                (b, 1)
-            };
-            sweep(n, item, &mut Unit(&mut right, n), |i, left, _, ra, rk| {
-                let cost = left.area() * i as f64 + ra * rk as f64;
-                if best.is_none_or(|b| cost < b.cost) {
-                    best = Some(Split {
-                        axis,
-                        pos: i,
-                        cost,
-                        median: false,
-                        sorted: true,
-                    });
-                }
+            let item = |i: usize| (Wide(refs[ord[i].1 as usize]), 1);
+            sweep(n, item, &mut Unit(&mut right, n), |i, left, k, ra, rk| {
+                Split::offer(
+                    &mut best,
+                    left.area() * k as f64 + ra * rk as f64,
+                    axis,
+                    i,
+                    true,
+                );
             });
         }
         best.filter(|b| b.cost.is_finite())
@@ -418,7 +321,7 @@ impl Ctx<'_> {
         let mid = if s.median {
             refs.len() / 2
         } else {
-            refs.sort_unstable_by_key(|r| sort_key(r, s.axis));
+            refs.sort_unstable_by_key(|r| r.key(s.axis));
             s.pos
         };
         (bounds_of(&refs[..mid]), bounds_of(&refs[mid..]), mid)
@@ -434,7 +337,7 @@ impl Ctx<'_> {
         let (mut i, mut j) = (0usize, refs.len());
         while i < j {
             let x = refs[i];
-            let m = x.centroid();
+            let m = x.centroid4();
             if self.bin(m[axis], lo, k) < s.pos {
                 l = (l.0.min(x.min), l.1.max(x.max));
                 lcb = (lcb.0.min(m), lcb.1.max(m));
@@ -682,7 +585,7 @@ mod tests {
             assert_eq!(r.index(), i as u32);
             let bad = subnormal_simd_lane(r.min, r.max);
             assert!(bad.is_none(), "index {i}: {}", bad.unwrap());
-            let f = (r.centroid() - lo4) * k4;
+            let f = (r.centroid4() - lo4) * k4;
             assert!(!f.to_array().iter().any(|x| x.is_subnormal()), "{i}: {f:?}");
         }
     }
