@@ -453,7 +453,11 @@ fn kernel_cbvh_result(
         k.build_cycles
     };
     let (tree, encode, stream, topdown) = match cfg.output {
-        OutputMode::Bvh | OutputMode::Mbvh4 | OutputMode::Mbvh4Collapse | OutputMode::KdtreePoints | OutputMode::OctreePoints => return Ok(None),
+        OutputMode::Bvh
+        | OutputMode::Mbvh4
+        | OutputMode::Mbvh4Collapse
+        | OutputMode::KdtreePoints
+        | OutputMode::OctreePoints => return Ok(None),
         OutputMode::CbvhStream => match k.stream.take() {
             Some((enc, stats)) if !hl.order.is_empty() => {
                 let ids = k.ids.take().unwrap_or_default();
@@ -527,7 +531,11 @@ pub fn software_cbvh(
     cfg: &MergeTreeConfig,
 ) -> Result<Option<(cbvh::Cbvh, cbvh::EncodeStats)>, MergeTreeError> {
     Ok(match cfg.output {
-        OutputMode::Bvh | OutputMode::Mbvh4 | OutputMode::Mbvh4Collapse | OutputMode::KdtreePoints | OutputMode::OctreePoints => None,
+        OutputMode::Bvh
+        | OutputMode::Mbvh4
+        | OutputMode::Mbvh4Collapse
+        | OutputMode::KdtreePoints
+        | OutputMode::OctreePoints => None,
         OutputMode::CbvhStream => {
             let hl = software_builder(cfg).build_highlevel(aabbs)?;
             Some(cbvh::compress_hlbvh(&hl, &cfg.stream_config(0))?)
