@@ -22,8 +22,8 @@
 //! stores its point range and the box of its points, which the queries prune by (the same
 //! pruning and tie rule as the k-d tree, so the results equal [`crate::knn_brute`]).
 
-use crate::hlbvh::{EmittedNode, Emitter, Prim, Step};
-use crate::point_stream::run_ties;
+use crate::hlbvh::EmittedNode;
+use crate::point_stream::{emit_points, PointSink};
 use crate::points::{box_dist2, check_points, dist2, key, sort_points, unkey, PointError, Sorted};
 use geom::{Aabb, MortonGrid, MortonQuantizer, Vec3};
 use std::collections::BinaryHeap;
@@ -741,6 +741,20 @@ fn placeholder() -> OctNode {
     }
 }
 
+impl PointSink for OctreeStream {
+    fn read_point(&mut self, code: u64, id: u32, p: Vec3) {
+        self.read(code, id, p);
+    }
+    fn end_of_stream(&mut self) {
+        self.end();
+    }
+    /// Every emitted node joins a group; when the octree writes a node is decided later,
+    /// so none counts as written here (`finish` reports the nodes written).
+    fn join_node(&mut self, n: &EmittedNode) -> Result<bool, PointError> {
+        self.join(n).map(|()| false)
+    }
+}
+
 impl Octree {
     /// Builds the octree as a MergeTree octree mode would: the sorted points stream
     /// through the \[P2\] Algorithm 1 emitter (keys (code, index in the code's run)) into an
@@ -761,39 +775,7 @@ impl Octree {
             ..
         } = sort_points(points);
         let mut w = OctreeStream::new(max_leaf.min(u32::MAX as usize) as u32)?;
-        let mut em = Emitter::new(None);
-        let mut input = codes
-            .iter()
-            .zip(run_ties(&codes))
-            .zip(ids.iter().zip(&sorted));
-        loop {
-            let prim = if em.needs_input() {
-                match input.next() {
-                    Some(((&code, tie), (&id, &p))) => {
-                        w.read(code, id, p);
-                        Some(Prim {
-                            code,
-                            tie,
-                            aabb: Aabb::new(p, p),
-                        })
-                    }
-                    None => {
-                        w.end();
-                        None
-                    }
-                }
-            } else {
-                None
-            };
-            match em.step(prim) {
-                Step::Emitted(n) => w.join(&n)?,
-                Step::Done => break,
-                Step::Combined => {
-                    return Err(PointError::Stream("equal keys in the point stream".into()))
-                }
-                Step::Loaded | Step::Pushed | Step::Highlevel(_) => {}
-            }
-        }
+        emit_points(&codes, &ids, &sorted, &mut w)?;
         w.finish()
     }
 }

@@ -311,6 +311,84 @@ pub(crate) fn run_ties(codes: &[u64]) -> impl Iterator<Item = u32> + '_ {
     })
 }
 
+/// A writer behind the emitter of the point modes ([`PointStream`], the octree's
+/// `OctreeStream`): it sees every point read, the end of the stream and every emitted node.
+pub(crate) trait PointSink {
+    /// A point read from the sorted stream.
+    fn read_point(&mut self, code: u64, id: u32, p: Vec3);
+    /// The end of the stream.
+    fn end_of_stream(&mut self);
+    /// An emitted node; true when the writer writes it as a node of its own.
+    fn join_node(&mut self, n: &EmittedNode) -> Result<bool, PointError>;
+}
+
+impl PointSink for PointStream {
+    fn read_point(&mut self, code: u64, id: u32, p: Vec3) {
+        self.read(code, id, p);
+    }
+    fn end_of_stream(&mut self) {
+        self.end();
+    }
+    fn join_node(&mut self, n: &EmittedNode) -> Result<bool, PointError> {
+        Ok(matches!(self.join(n)?, Joined::Written(_)))
+    }
+}
+
+/// Streams sorted points (`codes`, their input `ids`, the `sorted` points) through the
+/// \[P2\] Algorithm 1 emitter ([`Emitter`], keys (code, index in the code's run)), one
+/// step at a time, into `w`: the software model of the MergeTree point modes. Counts the
+/// steps, the emitted and written nodes and the deepest stack (`collapsed` is left 0: the
+/// writer knows it).
+pub(crate) fn emit_points(
+    codes: &[u64],
+    ids: &[u32],
+    sorted: &[Vec3],
+    w: &mut impl PointSink,
+) -> Result<PointStreamStats, PointError> {
+    let mut em = Emitter::new(None);
+    let mut input = codes
+        .iter()
+        .zip(run_ties(codes))
+        .zip(ids.iter().zip(sorted));
+    let mut st = PointStreamStats::default();
+    loop {
+        let prim = if em.needs_input() {
+            match input.next() {
+                Some(((&code, tie), (&id, &p))) => {
+                    w.read_point(code, id, p);
+                    Some(Prim {
+                        code,
+                        tie,
+                        aabb: Aabb::new(p, p),
+                    })
+                }
+                None => {
+                    w.end_of_stream();
+                    None
+                }
+            }
+        } else {
+            None
+        };
+        st.steps += 1;
+        match em.step(prim) {
+            Step::Emitted(n) => {
+                st.emitted += 1;
+                if w.join_node(&n)? {
+                    st.written += 1;
+                }
+            }
+            Step::Done => break,
+            Step::Combined => {
+                return Err(PointError::Stream("equal keys in the point stream".into()))
+            }
+            Step::Loaded | Step::Pushed | Step::Highlevel(_) => {}
+        }
+    }
+    st.max_stack_depth = em.max_stack_depth();
+    Ok(st)
+}
+
 impl PointTree {
     /// Builds the tree as the MergeTree point mode does: the sorted points stream through
     /// the \[P2\] Algorithm 1 emitter ([`Emitter`], keys (code, index in the code's run)),
@@ -332,48 +410,8 @@ impl PointTree {
         } = sort_points(points);
         let bounds = points.iter().fold(Aabb::EMPTY, |b, &p| b.grow(p));
         let mut w = PointStream::new(&bounds, max_leaf.min(u32::MAX as usize) as u32)?;
-        let mut em = Emitter::new(None);
-        let mut input = codes
-            .iter()
-            .zip(run_ties(&codes))
-            .zip(ids.iter().zip(&sorted));
-        let mut st = PointStreamStats::default();
-        loop {
-            let prim = if em.needs_input() {
-                match input.next() {
-                    Some(((&code, tie), (&id, &p))) => {
-                        w.read(code, id, p);
-                        Some(Prim {
-                            code,
-                            tie,
-                            aabb: Aabb::new(p, p),
-                        })
-                    }
-                    None => {
-                        w.end();
-                        None
-                    }
-                }
-            } else {
-                None
-            };
-            st.steps += 1;
-            match em.step(prim) {
-                Step::Emitted(n) => {
-                    st.emitted += 1;
-                    if let Joined::Written(_) = w.join(&n)? {
-                        st.written += 1;
-                    }
-                }
-                Step::Done => break,
-                Step::Combined => {
-                    return Err(PointError::Stream("equal keys in the point stream".into()))
-                }
-                Step::Loaded | Step::Pushed | Step::Highlevel(_) => {}
-            }
-        }
+        let mut st = emit_points(&codes, &ids, &sorted, &mut w)?;
         st.collapsed = w.collapsed();
-        st.max_stack_depth = em.max_stack_depth();
         Ok((w.finish()?, st))
     }
 }
