@@ -23,7 +23,7 @@
 //! pruning and tie rule as the k-d tree, so the results equal [`crate::knn_brute`]).
 
 use crate::hlbvh::EmittedNode;
-use crate::point_stream::{emit_points, PointSink};
+use crate::point_stream::{emit_points, OpenStack, PointSink};
 use crate::points::{box_dist2, check_points, dist2, key, sort_points, unkey, PointError, Sorted};
 use geom::{Aabb, MortonGrid, MortonQuantizer, Vec3};
 use std::collections::BinaryHeap;
@@ -477,16 +477,13 @@ struct WrittenOct {
 #[derive(Clone, Debug)]
 pub struct OctreeStream {
     max_leaf: u32,
-    stack: Vec<OSub>,
-    pending: Option<OSub>,
-    ids: Vec<u32>,
-    points: Vec<Vec3>,
+    /// The points read and the open subtrees.
+    open: OpenStack<OSub>,
     nodes: Vec<WrittenOct>,
     /// Children of the written nodes, in all.
     children: usize,
     /// The closed root, once [`OctreeStream::close_root`] ran.
     root: Option<Closed>,
-    max_stack: usize,
 }
 
 /// Digit of a cell depth's children (digit `20 - depth`), for the virtual root parent 21.
@@ -500,27 +497,17 @@ impl OctreeStream {
         }
         Ok(Self {
             max_leaf,
-            stack: Vec::new(),
-            pending: None,
-            ids: Vec::new(),
-            points: Vec::new(),
+            open: OpenStack::default(),
             nodes: Vec::new(),
             children: 0,
             root: None,
-            max_stack: 0,
         })
     }
 
     /// The emitter read the next sorted point: input index `id`, Morton code `code`.
     pub fn read(&mut self, code: u64, id: u32, p: Vec3) {
-        let pos = self.ids.len() as u32;
-        self.ids.push(id);
-        self.points.push(p);
-        if let Some(s) = self.pending.take() {
-            self.push(s);
-        }
-        self.pending = Some(OSub {
-            first: pos,
+        self.open.read(id, p, |first| OSub {
+            first,
             count: 1,
             first_code: code,
             last_code: code,
@@ -531,14 +518,7 @@ impl OctreeStream {
 
     /// The emitter reached the end of the stream.
     pub fn end(&mut self) {
-        if let Some(s) = self.pending.take() {
-            self.push(s);
-        }
-    }
-
-    fn push(&mut self, s: OSub) {
-        self.stack.push(s);
-        self.max_stack = self.max_stack.max(self.stack.len());
+        self.open.end();
     }
 
     /// Closes `s` into one child of a node of digit `parent`.
@@ -598,7 +578,7 @@ impl OctreeStream {
 
     /// The emitter emitted `n`: join the two newest subtrees.
     pub fn join(&mut self, n: &EmittedNode) -> Result<(), PointError> {
-        let (Some(r), Some(l)) = (self.stack.pop(), self.stack.pop()) else {
+        let (Some(r), Some(l)) = (self.open.stack.pop(), self.open.stack.pop()) else {
             return Err(PointError::Stream(
                 "a node with fewer than two subtrees".into(),
             ));
@@ -627,7 +607,7 @@ impl OctreeStream {
             }
             s.group = Some((t, kids));
         }
-        self.push(s);
+        self.open.push(s);
         Ok(())
     }
 
@@ -649,10 +629,10 @@ impl OctreeStream {
         if self.root.is_some() {
             return Ok(());
         }
-        match self.stack.len() {
-            0 if self.ids.is_empty() => Ok(()),
+        match self.open.stack.len() {
+            0 if self.open.ids.is_empty() => Ok(()),
             1 => {
-                let s = self.stack.pop().expect("one subtree");
+                let s = self.open.stack.pop().expect("one subtree");
                 self.root = Some(self.close(s, ROOT_PARENT_DIGIT)?);
                 Ok(())
             }
@@ -664,7 +644,7 @@ impl OctreeStream {
 
     /// Deepest stack so far.
     pub fn max_stack_depth(&self) -> usize {
-        self.max_stack
+        self.open.max_stack
     }
 
     /// The finished octree in [`Octree`]'s layout, and the number of nodes written in all
@@ -680,8 +660,8 @@ impl OctreeStream {
         let written = self.nodes.len();
         Ok((
             Octree {
-                points: self.points,
-                ids: self.ids,
+                points: self.open.points,
+                ids: self.open.ids,
                 nodes: out,
                 max_leaf: self.max_leaf,
             },

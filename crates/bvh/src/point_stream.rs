@@ -94,19 +94,72 @@ pub enum Joined {
     Collapsed,
 }
 
+/// What a point writer keeps of the stream (the k-d writer [`PointStream`] and the
+/// octree's `OctreeStream` alike): the sorted points read so far (input indices and
+/// coordinates), the stack of open subtrees the emitter's joins have not consumed yet, and
+/// the newest point's subtree, held until the next read or the end of the stream (the
+/// emitter pushes a point only then). `S` is the writer's subtree record.
+#[derive(Clone, Debug)]
+pub(crate) struct OpenStack<S> {
+    /// Input index of each point read, in sorted order.
+    pub(crate) ids: Vec<u32>,
+    /// The points read, in sorted order.
+    pub(crate) points: Vec<Vec3>,
+    /// Open subtrees, oldest first.
+    pub(crate) stack: Vec<S>,
+    pending: Option<S>,
+    /// Deepest stack seen.
+    pub(crate) max_stack: usize,
+}
+
+impl<S> Default for OpenStack<S> {
+    fn default() -> Self {
+        Self {
+            ids: Vec::new(),
+            points: Vec::new(),
+            stack: Vec::new(),
+            pending: None,
+            max_stack: 0,
+        }
+    }
+}
+
+impl<S> OpenStack<S> {
+    /// The emitter read point `p` of input index `id`: the previous point's subtree goes
+    /// onto the stack and `make(position)` (the point's sorted position) is held.
+    pub(crate) fn read(&mut self, id: u32, p: Vec3, make: impl FnOnce(u32) -> S) {
+        let pos = self.ids.len() as u32;
+        self.ids.push(id);
+        self.points.push(p);
+        if let Some(s) = self.pending.take() {
+            self.push(s);
+        }
+        self.pending = Some(make(pos));
+    }
+
+    /// The end of the stream: the last point's subtree goes onto the stack.
+    pub(crate) fn end(&mut self) {
+        if let Some(s) = self.pending.take() {
+            self.push(s);
+        }
+    }
+
+    /// Pushes an open subtree.
+    pub(crate) fn push(&mut self, s: S) {
+        self.stack.push(s);
+        self.max_stack = self.max_stack.max(self.stack.len());
+    }
+}
+
 /// The streaming writer of the point k-d tree behind the emitter (see the module docs).
 #[derive(Clone, Debug)]
 pub struct PointStream {
     grid: Grid,
     max_leaf: u32,
-    stack: Vec<Sub>,
-    pending: Option<Sub>,
-    /// Points read: their sorted positions' input indices and coordinates.
-    ids: Vec<u32>,
-    points: Vec<Vec3>,
+    /// The points read and the open subtrees.
+    open: OpenStack<Sub>,
     nodes: Vec<WrittenNode>,
     collapsed: u64,
-    max_stack: usize,
 }
 
 impl PointStream {
@@ -119,26 +172,16 @@ impl PointStream {
         Ok(Self {
             grid: Grid::new(bounds),
             max_leaf,
-            stack: Vec::new(),
-            pending: None,
-            ids: Vec::new(),
-            points: Vec::new(),
+            open: OpenStack::default(),
             nodes: Vec::new(),
             collapsed: 0,
-            max_stack: 0,
         })
     }
 
     /// The emitter read the next sorted point: input index `id`, Morton code `code`.
     pub fn read(&mut self, code: u64, id: u32, p: Vec3) {
-        let pos = self.ids.len() as u32;
-        self.ids.push(id);
-        self.points.push(p);
-        if let Some(s) = self.pending.take() {
-            self.push(s);
-        }
-        self.pending = Some(Sub {
-            first: pos,
+        self.open.read(id, p, |first| Sub {
+            first,
             count: 1,
             first_code: code,
             last_code: code,
@@ -149,19 +192,12 @@ impl PointStream {
 
     /// The emitter reached the end of the stream (it read no more points).
     pub fn end(&mut self) {
-        if let Some(s) = self.pending.take() {
-            self.push(s);
-        }
-    }
-
-    fn push(&mut self, s: Sub) {
-        self.stack.push(s);
-        self.max_stack = self.max_stack.max(self.stack.len());
+        self.open.end();
     }
 
     /// The emitter emitted `n`: join the two newest subtrees.
     pub fn join(&mut self, n: &EmittedNode) -> Result<Joined, PointError> {
-        let (Some(r), Some(l)) = (self.stack.pop(), self.stack.pop()) else {
+        let (Some(r), Some(l)) = (self.open.stack.pop(), self.open.stack.pop()) else {
             return Err(PointError::Stream(
                 "a node with fewer than two subtrees".into(),
             ));
@@ -193,7 +229,7 @@ impl PointStream {
             });
             (Some(id), Joined::Written(id))
         };
-        self.push(Sub {
+        self.open.push(Sub {
             first: l.first,
             count,
             first_code: l.first_code,
@@ -216,7 +252,7 @@ impl PointStream {
 
     /// Deepest stack so far.
     pub fn max_stack_depth(&self) -> usize {
-        self.max_stack
+        self.open.max_stack
     }
 
     /// The finished tree in [`PointTree`]'s layout (depth-first, leaves as nodes). Errors
@@ -224,8 +260,8 @@ impl PointStream {
     pub fn finish(mut self) -> Result<PointTree, PointError> {
         self.end();
         let mut nodes = Vec::with_capacity(2 * self.nodes.len() + 1);
-        match self.stack.as_slice() {
-            [] if self.ids.is_empty() => {}
+        match self.open.stack.as_slice() {
+            [] if self.open.ids.is_empty() => {}
             [root] => {
                 let root = *root;
                 self.lay_out(root.as_ref(), root.bounds, &mut nodes);
@@ -238,8 +274,8 @@ impl PointStream {
             }
         }
         Ok(PointTree {
-            points: self.points,
-            ids: self.ids,
+            points: self.open.points,
+            ids: self.open.ids,
             nodes,
             max_leaf: self.max_leaf,
         })
