@@ -24,7 +24,7 @@
 
 use crate::hlbvh::EmittedNode;
 use crate::point_stream::{emit_points, OpenStack, PointSink};
-use crate::points::{box_dist2, check_points, dist2, key, sort_points, unkey, PointError, Sorted};
+use crate::points::{box_dist2, checked_sort, dist2, key, unkey, PointError, Sorted};
 use geom::{Aabb, MortonGrid, MortonQuantizer, Vec3};
 use std::collections::BinaryHeap;
 
@@ -154,16 +154,12 @@ impl Octree {
     /// Errors on a non-finite point, on `max_leaf == 0` and on more than `u32::MAX`
     /// points. No points give an empty tree.
     pub fn build(points: &[Vec3], max_leaf: usize) -> Result<Self, PointError> {
-        check_points(points)?;
-        if max_leaf == 0 {
-            return Err(PointError::ZeroLeaf);
-        }
         let Sorted {
             codes,
             ids,
             points: sorted,
             ..
-        } = sort_points(points);
+        } = checked_sort(points, max_leaf)?;
         let b = Build {
             codes: &codes,
             points: &sorted,
@@ -744,16 +740,12 @@ impl Octree {
         points: &[Vec3],
         max_leaf: usize,
     ) -> Result<(Octree, usize), PointError> {
-        check_points(points)?;
-        if max_leaf == 0 {
-            return Err(PointError::ZeroLeaf);
-        }
         let Sorted {
             codes,
             ids,
             points: sorted,
             ..
-        } = sort_points(points);
+        } = checked_sort(points, max_leaf)?;
         let mut w = OctreeStream::new(max_leaf.min(u32::MAX as usize) as u32)?;
         emit_points(&codes, &ids, &sorted, &mut w)?;
         w.finish()
@@ -763,7 +755,7 @@ impl Octree {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::points::tests::cloud;
+    use crate::points::{sort_points, tests::cloud};
     use crate::{knn_brute, PointTree};
     use proptest::prelude::*;
 

@@ -31,7 +31,7 @@
 
 use crate::hlbvh::{EmittedNode, Emitter, Prim, Step};
 use crate::points::{
-    check_points, clamp_plane, sort_points, Grid, PointError, PointNode, PointTree, Sorted, NO_AXIS,
+    checked_sort, clamp_plane, Grid, PointError, PointNode, PointTree, Sorted, NO_AXIS,
 };
 use geom::{Aabb, Vec3};
 
@@ -434,16 +434,12 @@ impl PointTree {
         points: &[Vec3],
         max_leaf: usize,
     ) -> Result<(PointTree, PointStreamStats), PointError> {
-        check_points(points)?;
-        if max_leaf == 0 {
-            return Err(PointError::ZeroLeaf);
-        }
         let Sorted {
             codes,
             ids,
             points: sorted,
             ..
-        } = sort_points(points);
+        } = checked_sort(points, max_leaf)?;
         let bounds = points.iter().fold(Aabb::EMPTY, |b, &p| b.grow(p));
         let mut w = PointStream::new(&bounds, max_leaf.min(u32::MAX as usize) as u32)?;
         let mut st = emit_points(&codes, &ids, &sorted, &mut w)?;

@@ -254,6 +254,16 @@ impl Grid {
 }
 
 /// Sorts `points` (checked finite) by their 63-bit Morton codes over their bounds.
+/// The checks every point-tree builder makes ([`check_points`], `max_leaf > 0`), then
+/// [`sort_points`].
+pub(crate) fn checked_sort(points: &[Vec3], max_leaf: usize) -> Result<Sorted, PointError> {
+    check_points(points)?;
+    if max_leaf == 0 {
+        return Err(PointError::ZeroLeaf);
+    }
+    Ok(sort_points(points))
+}
+
 pub(crate) fn sort_points(points: &[Vec3]) -> Sorted {
     let (codes, ids, bounds) = sorted_codes_of(
         points.len(),
@@ -388,16 +398,12 @@ impl PointTree {
     /// Errors on a non-finite point (the Morton grid and distances need finite points), on
     /// `max_leaf == 0` and on more than `u32::MAX` points. No points give an empty tree.
     pub fn build(points: &[Vec3], max_leaf: usize) -> Result<Self, PointError> {
-        check_points(points)?;
-        if max_leaf == 0 {
-            return Err(PointError::ZeroLeaf);
-        }
         let Sorted {
             codes,
             ids,
             points: sorted,
             grid,
-        } = sort_points(points);
+        } = checked_sort(points, max_leaf)?;
         let b = Build {
             codes: &codes,
             points: &sorted,
