@@ -50,6 +50,8 @@ pub struct RunInfo {
     pub load_average_end: Option<[f64; 3]>,
     /// Hardware threads available to the process.
     pub cpus: usize,
+    /// `/proc/cpuinfo`'s first model name (`unknown` without it).
+    pub cpu_model: String,
     /// The command line.
     pub command: String,
 }
@@ -62,6 +64,7 @@ impl RunInfo {
             load_average_start: load_average(),
             load_average_end: None,
             cpus: std::thread::available_parallelism().map_or(1, |n| n.get()),
+            cpu_model: super::bench_record::cpu_model(),
             command: std::env::args().collect::<Vec<_>>().join(" "),
         }
     }
@@ -84,9 +87,11 @@ impl RunInfo {
         [
             format!("command: {}", self.command),
             format!(
-                "started {} on {} hardware threads; load average {} at the start, {} at the end",
+                "started {} on {} hardware threads ({}); load average {} at the start, {} at \
+                 the end",
                 self.started_utc,
                 self.cpus,
+                self.cpu_model,
                 la(self.load_average_start),
                 la(self.load_average_end)
             ),

@@ -1118,6 +1118,7 @@ mod tests {
                 load_average_start: Some([1.0, 2.0, 3.0]),
                 load_average_end: None,
                 cpus: 2,
+                cpu_model: "AMD EPYC".into(),
                 command: "arbor bench build".into(),
             },
             runs: 3,

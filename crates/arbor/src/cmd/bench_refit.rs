@@ -101,8 +101,6 @@ pub struct BenchRefitJson {
     /// When, where and how it ran (flattened into the document).
     #[serde(flatten)]
     pub run: RunInfo,
-    /// `/proc/cpuinfo`'s model name.
-    pub cpu_model: String,
     /// Rounds per measurement.
     pub rounds: usize,
     /// Whether the Embree row could run.
@@ -378,7 +376,6 @@ pub fn run(a: &BenchRefitArgs, ui: &Ui) -> anyhow::Result<()> {
     let doc = BenchRefitJson {
         schema: "arbor.bench.refit.v1",
         run: run_info.finish(),
-        cpu_model: super::bench_record::cpu_model(),
         rounds: a.rounds,
         embree: EMBREE,
         notes,
@@ -397,7 +394,6 @@ pub fn run(a: &BenchRefitArgs, ui: &Ui) -> anyhow::Result<()> {
 
 fn preamble(d: &BenchRefitJson) -> Vec<String> {
     let mut v = d.run.lines().to_vec();
-    v.push(format!("CPU: {}", d.cpu_model));
     v.push(format!(
         "per-frame update of an animated mesh from its vertex positions, one thread; best of \
          {} rounds; ratio: Embree's REFIT commit time over the row's (above 1: faster); \
