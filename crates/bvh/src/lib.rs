@@ -38,6 +38,7 @@ mod points;
 mod refit;
 mod reinsert;
 mod sah;
+mod sbvh;
 mod split;
 mod stream_collapse;
 mod sweep_sah;
@@ -70,11 +71,12 @@ pub use points::{knn_brute, PointError, PointNode, PointTree, NO_AXIS};
 pub use refit::{refit_bvh2, refit_mbvh4, RefitError, RefitFrame, RefitTracker};
 pub use reinsert::{reinsert, ReinsertConfig, ReinsertWork};
 pub use sah::{sah_cost, sah_cost_with, sah_ratio, SahParams};
+pub use sbvh::SbvhBuilder;
 pub use stream_collapse::{stream_collapse, stream_collapse_with, StreamCollapse};
 pub use sweep_sah::SweepSahBuilder;
 pub use toplevel::{HlbvhAtrbvhBuilder, HlbvhSahBuilder};
 pub use tree::{Tree, TreeKind};
-pub use validate::{validate, validate_wide, ValidationError};
+pub use validate::{validate, validate_spatial, validate_wide, ValidationError};
 
 use geom::{Aabb, Triangle, Vec3};
 

@@ -167,6 +167,38 @@ pub enum ValidationError {
 /// Checks every invariant of `bvh` built over `prims` with leaves of at most
 /// `max_leaf_size` primitives; returns the first violation.
 pub fn validate(bvh: &Bvh2, prims: &[Aabb], max_leaf_size: u32) -> Result<(), ValidationError> {
+    validate_bvh2(bvh, prims, max_leaf_size, References::Once)
+}
+
+/// [`validate`] for a tree with spatial splits ([`crate::SbvhBuilder`]), whose leaf table
+/// may name a primitive more than once, each time for a part of it: every primitive is
+/// named at least once (the leaf table may be longer than `prims`), and each leaf's box
+/// meets the box of every primitive it names (a part lies inside the primitive's box).
+/// That the parts cover their primitive is not checked here; the SBVH tests check it by
+/// tracing against brute force. The other checks are [`validate`]'s.
+pub fn validate_spatial(
+    bvh: &Bvh2,
+    prims: &[Aabb],
+    max_leaf_size: u32,
+) -> Result<(), ValidationError> {
+    validate_bvh2(bvh, prims, max_leaf_size, References::Parts)
+}
+
+/// How a tree's leaves name its primitives.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) enum References {
+    /// Each primitive exactly once, inside its leaf's box.
+    Once,
+    /// Each primitive at least once, its box meeting each leaf box that names it.
+    Parts,
+}
+
+fn validate_bvh2(
+    bvh: &Bvh2,
+    prims: &[Aabb],
+    max_leaf_size: u32,
+    refs: References,
+) -> Result<(), ValidationError> {
     use ValidationError as E;
     let Some(root) = bvh.nodes.first() else {
         return Err(E::NoRoot);
@@ -178,6 +210,7 @@ pub fn validate(bvh: &Bvh2, prims: &[Aabb], max_leaf_size: u32) -> Result<(), Va
         max_leaf_size,
         root.aabb(),
         bvh.bounds,
+        refs,
     )?;
     if root.children[0].is_empty() && !root.children[1].is_empty() {
         return Err(E::RootChildOrder);
@@ -236,6 +269,7 @@ pub(crate) fn validate_wide_nodes<N: TreeNode>(
         max_leaf_size,
         root.own_box(),
         bounds,
+        References::Once,
     )?;
     while let Some((i, parent_box)) = walk.next_node()? {
         let node = &nodes[i];
@@ -269,6 +303,7 @@ pub(crate) struct Walk<'a> {
     prim_indices: &'a [u32],
     prims: &'a [Aabb],
     max_leaf_size: u32,
+    refs: References,
     node_seen: Vec<bool>,
     prim_seen: Vec<bool>,
     /// (node, its box as stored in the parent)
@@ -286,12 +321,17 @@ impl<'a> Walk<'a> {
         max_leaf_size: u32,
         root_union: Aabb,
         bounds: Aabb,
+        refs: References,
     ) -> Result<Self, ValidationError> {
         use ValidationError as E;
         if n_nodes == 0 {
             return Err(E::NoRoot);
         }
-        if prim_indices.len() != prims.len() {
+        let table_ok = match refs {
+            References::Once => prim_indices.len() == prims.len(),
+            References::Parts => prim_indices.len() >= prims.len(),
+        };
+        if !table_ok {
             return Err(E::LeafTableLength {
                 table: prim_indices.len(),
                 prims: prims.len(),
@@ -307,6 +347,7 @@ impl<'a> Walk<'a> {
             prim_indices,
             prims,
             max_leaf_size,
+            refs,
             node_seen,
             prim_seen: vec![false; prims.len()],
             stack: vec![(0, bounds)],
@@ -396,11 +437,17 @@ impl<'a> Walk<'a> {
                     prims: self.prims.len(),
                 });
             };
-            if self.prim_seen[p as usize] {
+            let once = self.refs == References::Once;
+            if once && self.prim_seen[p as usize] {
                 return Err(E::PrimReferencedTwice { prim: p, entry });
             }
             self.prim_seen[p as usize] = true;
-            if !b.contains(pb) {
+            let inside = if once {
+                b.contains(pb)
+            } else {
+                !b.intersection(*pb).is_empty()
+            };
+            if !inside {
                 return Err(E::PrimOutsideLeaf {
                     prim: p,
                     node: i,

@@ -222,7 +222,7 @@ pub struct TraceRow {
 }
 
 /// Arbor tracer configurations of the benchmark: (name, builder, format, distance stack).
-pub const ARBOR_KERNELS: [(&str, &str, bool, bool); 5] = [
+pub const ARBOR_KERNELS: [(&str, &str, bool, bool); 6] = [
     ("arbor bvh2 binned-sah", "binned-sah", false, false),
     ("arbor bvh2 binned-sah +dist", "binned-sah", false, true),
     ("arbor mbvh4 collapse(binned-sah)", "binned-sah", true, true),
@@ -233,6 +233,9 @@ pub const ARBOR_KERNELS: [(&str, &str, bool, bool); 5] = [
         true,
         true,
     ),
+    // Spatial splits (`bvh::SbvhBuilder`, default configuration) under the same 8-wide
+    // collapse and kernel: what tree quality alone buys (issue 33).
+    ("arbor mbvh8 collapse(sbvh)", "sbvh-8", true, true),
 ];
 
 /// Runs the whole comparison on `scene`: builds every tracer, records the two ray sets
@@ -282,6 +285,12 @@ pub fn run(
                 Accel::Mbvh4(Mbvh4Accel::new(collapsed.clone(), &tris, o)?),
                 collapse_ms,
             ),
+            ("sbvh-8", _) => {
+                let t0 = Instant::now();
+                let t = bvh::SbvhBuilder::default().build(&tris)?;
+                let a = trace::Mbvh8Accel::from_bvh2(&t, &tris, o)?;
+                (Accel::Mbvh8(a), t0.elapsed().as_secs_f64() * 1e3)
+            }
             ("binned-sah-8", _) => {
                 let t0 = Instant::now();
                 let a = trace::Mbvh8Accel::from_bvh2(&binned, &tris, o)?;

@@ -154,7 +154,7 @@ pub fn random_rays(n: usize, center: Vec3, radius: f32, seed: u64) -> Vec<Ray> {
         .collect()
 }
 
-/// Every Bvh2 builder of the bvh crate over `tris`, by name.
+/// Every Bvh2 builder of the bvh crate over `tris`, by name (the spatial-split one too).
 pub fn all_bvh2(tris: &[Triangle]) -> Vec<(&'static str, bvh::Bvh2)> {
     let prims = bvh::triangle_aabbs(tris);
     vec![
@@ -179,6 +179,17 @@ pub fn all_bvh2(tris: &[Triangle]) -> Vec<(&'static str, bvh::Bvh2)> {
         (
             "atrbvh",
             bvh::AtrbvhBuilder::default().build(&prims).unwrap(),
+        ),
+        // Spatial splits everywhere they lower the SAH (alpha 0): leaves name parts of
+        // triangles, and the kernels must still find every hit.
+        (
+            "sbvh",
+            bvh::SbvhBuilder {
+                alpha: 0.0,
+                ..Default::default()
+            }
+            .build(tris)
+            .unwrap(),
         ),
     ]
 }
