@@ -52,10 +52,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         let ms = s.elapsed().as_secs_f64() * 1e3;
         validate(&binned, &prims, 8)?;
         row("binned-sah", &binned, ms);
-        for (label, growth) in [("sbvh", 1.0f32), ("sbvh growth 0.25", 0.25)] {
+        // alpha >= 1: no spatial split, so the object splits alone (as a check).
+        for (label, growth, alpha) in [
+            ("sbvh", 1.0f32, 1e-5f32),
+            ("sbvh growth 0.25", 0.25, 1e-5),
+            ("sbvh object splits only", 0.0, 1.0),
+        ] {
             let s = Instant::now();
             let t = SbvhBuilder {
                 max_growth: growth,
+                alpha,
                 ..Default::default()
             }
             .build(&tris)?;

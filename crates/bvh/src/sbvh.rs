@@ -14,8 +14,9 @@
 //! of a triangle lies in the box of at least one leaf that names it.
 //!
 //! Per node, as in the paper:
-//! 1. the best binned object split over the centroids (`bins` bins per axis, the binned
-//!    builder's SAH and sweep);
+//! 1. the best object split: binned over the centroids (`bins` bins per axis), or in
+//!    nodes of at most `bins` references exact over their sorted centroids (as the
+//!    binned builder does; the SAH and the sweep are `split`'s);
 //! 2. if the two sides of that split overlap by more than `alpha` times the scene box's
 //!    area (the paper's λ / SA(root) test), the best spatial split: `spatial_bins` equal
 //!    slabs of the node box per axis (at most one per reference, at least 4: in small
@@ -49,9 +50,10 @@ use crate::error::{in_pool, BuildError};
 use crate::layout::preorder;
 use crate::node::{ChildRef, Node};
 use crate::sah::SahParams;
-use crate::split::{left_pass, right_pass, sweep, Counted};
+use crate::split::{left_pass, right_pass, sweep, Counted, Unit};
 use crate::{binned_sah::MAX_BINS, MAX_SAH_DEPTH, PARALLEL_MIN_PRIMS};
 use geom::{Aabb, Triangle, Vec3};
+use rayon::prelude::*;
 
 /// Configuration of the spatial-split builder.
 #[derive(Clone, Debug, PartialEq)]
@@ -121,6 +123,9 @@ struct Ctx<'a> {
 enum Kind {
     /// Centroids in bins `< bin` (of `scale` and `min` on the axis) go left.
     Object { bin: usize, min: f32, scale: f32 },
+    /// The first `bin` references in centroid order on the axis (ties by triangle) go
+    /// left ([`sorted_split`]).
+    Sorted { bin: usize },
     /// References wholly below `plane` go left, wholly above it right; the others are cut
     /// or moved (unsplitting). `bin`: the first slab on the right.
     Spatial { plane: f32, bin: usize },
@@ -235,7 +240,11 @@ fn build_rec(ctx: &Ctx, refs: Vec<Ref>, bounds: Aabb, depth: u32, budget: usize)
     let best = if depth >= MAX_SAH_DEPTH {
         None
     } else {
-        let object = object_split(ctx, &refs, &bounds);
+        let object = if n <= cfg.bins {
+            sorted_split(ctx, &refs, &bounds)
+        } else {
+            object_split(ctx, &refs, &bounds)
+        };
         let try_spatial = budget > n
             && match &object {
                 Some(o) => overlap_area(&o.left, &o.right) > ctx.overlap_limit,
@@ -311,47 +320,88 @@ fn offer(best: &mut Option<Split>, cand: Split) {
     }
 }
 
-/// The best binned object split over the centroids, or `None` when all centroids
-/// coincide.
-fn object_split(ctx: &Ctx, refs: &[Ref], bounds: &Aabb) -> Option<Split> {
-    let nb = ctx.cfg.bins;
-    let cb = refs.iter().fold(Aabb::EMPTY, |b, r| b.grow(r.centroid()));
-    let p = &ctx.cfg.sah;
-    let base = p.c_inner * bounds.half_area();
-    let mut best = None;
-    let mut boxes = [Aabb::EMPTY; MAX_BINS];
-    let mut counts = [0u32; MAX_BINS];
-    let mut right_area = [0f32; MAX_BINS];
-    let mut right_count = [0u32; MAX_BINS];
-    for axis in 0..3 {
-        let (min, extent) = (cb.min[axis], cb.max[axis] - cb.min[axis]);
-        if extent <= 0.0 {
-            continue;
+/// Per-axis bins of a split search: a box and two counts per bin (an object split counts
+/// its primitives in `a`; a spatial split its entries in `a` and exits in `b`).
+#[derive(Clone)]
+struct AxisBins {
+    boxes: [[Aabb; MAX_BINS]; 3],
+    a: [[u32; MAX_BINS]; 3],
+    b: [[u32; MAX_BINS]; 3],
+}
+
+impl AxisBins {
+    fn new() -> Self {
+        Self {
+            boxes: [[Aabb::EMPTY; MAX_BINS]; 3],
+            a: [[0; MAX_BINS]; 3],
+            b: [[0; MAX_BINS]; 3],
         }
-        let scale = nb as f32 / extent;
-        boxes[..nb].fill(Aabb::EMPTY);
-        counts[..nb].fill(0);
-        for r in refs {
-            let b = bin_of(r.centroid()[axis], min, scale, nb);
-            boxes[b] = boxes[b].union(r.bbox);
-            counts[b] += 1;
+    }
+
+    /// The union of two bin sets (exact, so the order of merging does not matter).
+    fn merge(mut self, o: Self) -> Self {
+        for axis in 0..3 {
+            for k in 0..MAX_BINS {
+                self.boxes[axis][k] = self.boxes[axis][k].union(o.boxes[axis][k]);
+                self.a[axis][k] += o.a[axis][k];
+                self.b[axis][k] += o.b[axis][k];
+            }
         }
+        self
+    }
+
+    /// The bins of `refs`, each added by `add`: in parallel chunks in large nodes (the
+    /// top of the tree, which would otherwise run on one thread).
+    fn fill(refs: &[Ref], add: impl Fn(&mut AxisBins, &Ref) + Sync) -> Box<AxisBins> {
+        let chunk = |c: &[Ref]| {
+            let mut bins = Box::new(AxisBins::new());
+            for r in c {
+                add(&mut bins, r);
+            }
+            bins
+        };
+        if refs.len() >= PARALLEL_MIN_PRIMS && rayon::current_num_threads() > 1 {
+            refs.par_chunks(PARALLEL_MIN_PRIMS / 2)
+                .map(chunk)
+                .reduce(|| Box::new(AxisBins::new()), |x, y| Box::new(x.merge(*y)))
+        } else {
+            chunk(refs)
+        }
+    }
+
+    /// Sweeps the `nb` bins of `axis` (left side counted by `a`, right side by `b`) and
+    /// offers each boundary that leaves references on both sides to `best`, as `kind(k)`.
+    #[allow(clippy::too_many_arguments)]
+    fn sweep_axis(
+        &self,
+        axis: usize,
+        nb: usize,
+        p: &SahParams,
+        base: f32,
+        kind: impl Fn(usize) -> Kind,
+        best: &mut Option<Split>,
+    ) {
+        let mut right_area = [0f32; MAX_BINS];
+        let mut right_count = [0u32; MAX_BINS];
         let right = &mut Counted(&mut right_area, &mut right_count);
-        sweep(
+        let boxes = &self.boxes[axis];
+        right_pass(nb, |k| (boxes[k], self.b[axis][k]), right);
+        let before = best.as_ref().map(|s| s.cost);
+        left_pass(
             nb,
-            |k| (boxes[k], counts[k]),
-            right,
+            |k| (boxes[k], self.a[axis][k]),
+            &*right,
             |k, left, lc, ra, rc| {
                 if lc == 0 || rc == 0 {
                     return;
                 }
                 let cost = sah(p, base, left.half_area(), lc, ra, rc);
                 offer(
-                    &mut best,
+                    best,
                     Split {
                         cost,
                         axis,
-                        kind: Kind::Object { bin: k, min, scale },
+                        kind: kind(k),
                         left: *left,
                         right: Aabb::EMPTY,
                         left_count: lc,
@@ -360,9 +410,108 @@ fn object_split(ctx: &Ctx, refs: &[Ref], bounds: &Aabb) -> Option<Split> {
                 );
             },
         );
-        if let Some(s) = best.as_mut().filter(|s| s.axis == axis) {
-            if let Kind::Object { bin, .. } = s.kind {
-                s.right = boxes[bin..nb].iter().fold(Aabb::EMPTY, |a, b| a.union(*b));
+        // The right box of a boundary of this axis that became the best.
+        if let Some(s) = best
+            .as_mut()
+            .filter(|s| s.axis == axis && Some(s.cost) != before)
+        {
+            let k = match s.kind {
+                Kind::Object { bin, .. } | Kind::Sorted { bin } | Kind::Spatial { bin, .. } => bin,
+            };
+            s.right = boxes[k..nb].iter().fold(Aabb::EMPTY, |a, b| a.union(*b));
+        }
+    }
+}
+
+/// The best binned object split over the centroids, or `None` when all centroids
+/// coincide.
+fn object_split(ctx: &Ctx, refs: &[Ref], bounds: &Aabb) -> Option<Split> {
+    let nb = ctx.cfg.bins;
+    let cb = refs.iter().fold(Aabb::EMPTY, |b, r| b.grow(r.centroid()));
+    let extent = cb.max - cb.min;
+    // Bins per unit length; 0 on an axis where all centroids coincide (no plane there).
+    let scale: [f32; 3] = std::array::from_fn(|a| {
+        if extent[a] > 0.0 {
+            nb as f32 / extent[a]
+        } else {
+            0.0
+        }
+    });
+    let bins = AxisBins::fill(refs, |bins, r| {
+        let c = r.centroid();
+        for axis in 0..3 {
+            let k = bin_of(c[axis], cb.min[axis], scale[axis], nb);
+            bins.boxes[axis][k] = bins.boxes[axis][k].union(r.bbox);
+            bins.a[axis][k] += 1;
+            bins.b[axis][k] += 1;
+        }
+    });
+    let p = &ctx.cfg.sah;
+    let base = p.c_inner * bounds.half_area();
+    let mut best = None;
+    for axis in (0..3).filter(|&a| scale[a] > 0.0) {
+        let (min, scale) = (cb.min[axis], scale[axis]);
+        let kind = |bin| Kind::Object { bin, min, scale };
+        bins.sweep_axis(axis, nb, p, base, kind, &mut best);
+    }
+    best
+}
+
+/// The order of references by centroid on `axis`, ties by triangle then box (a total
+/// order, so the sorted split is the same whatever the input order).
+fn centroid_order(a: &Ref, b: &Ref, axis: usize) -> std::cmp::Ordering {
+    a.centroid()[axis]
+        .total_cmp(&b.centroid()[axis])
+        .then(a.prim.cmp(&b.prim))
+        .then(a.bbox.min[axis].total_cmp(&b.bbox.min[axis]))
+}
+
+/// The exact object split of a node of at most `bins` references (as the binned
+/// builder's small nodes): every boundary between consecutive centroids on each axis,
+/// cheaper than clearing the bins and never worse in SAH.
+fn sorted_split(ctx: &Ctx, refs: &[Ref], bounds: &Aabb) -> Option<Split> {
+    let n = refs.len();
+    let p = &ctx.cfg.sah;
+    let base = p.c_inner * bounds.half_area();
+    let mut best = None;
+    let mut sorted: Vec<Ref> = refs.to_vec();
+    let mut right_area = [0f32; MAX_BINS];
+    for axis in 0..3 {
+        sorted.sort_unstable_by(|a, b| centroid_order(a, b, axis));
+        let before = best.as_ref().map(|s: &Split| s.cost);
+        let right = &mut Unit(&mut right_area, n);
+        sweep(
+            n,
+            |i| (sorted[i].bbox, 1),
+            right,
+            |k, left, lc, ra, rc| {
+                // A plane between equal centroids cannot be drawn: skip it.
+                if sorted[k - 1].centroid()[axis] == sorted[k].centroid()[axis] {
+                    return;
+                }
+                let cost = sah(p, base, left.half_area(), lc, ra, rc);
+                offer(
+                    &mut best,
+                    Split {
+                        cost,
+                        axis,
+                        kind: Kind::Sorted { bin: k },
+                        left: *left,
+                        right: Aabb::EMPTY,
+                        left_count: lc,
+                        right_count: rc,
+                    },
+                );
+            },
+        );
+        if let Some(s) = best
+            .as_mut()
+            .filter(|s| s.axis == axis && Some(s.cost) != before)
+        {
+            if let Kind::Sorted { bin } = s.kind {
+                s.right = sorted[bin..]
+                    .iter()
+                    .fold(Aabb::EMPTY, |b, r| b.union(r.bbox));
             }
         }
     }
@@ -382,75 +531,45 @@ fn spatial_split(ctx: &Ctx, refs: &[Ref], bounds: &Aabb) -> Option<Split> {
     // would be cut into every slab (most of the build's time), for no SAH gain measured
     // on the shared scenes (module notes).
     let nb = ctx.cfg.spatial_bins.min(refs.len().max(4));
-    let p = &ctx.cfg.sah;
-    let base = p.c_inner * bounds.half_area();
-    let mut best = None;
-    let mut boxes = [Aabb::EMPTY; MAX_BINS];
-    let mut entries = [0u32; MAX_BINS];
-    let mut exits = [0u32; MAX_BINS];
-    let mut right_area = [0f32; MAX_BINS];
-    let mut right_count = [0u32; MAX_BINS];
-    for axis in 0..3 {
-        let (min, max) = (bounds.min[axis], bounds.max[axis]);
-        let extent = max - min;
-        if extent <= 0.0 {
-            continue;
+    let extent = bounds.max - bounds.min;
+    let scale: [f32; 3] = std::array::from_fn(|a| {
+        if extent[a] > 0.0 {
+            nb as f32 / extent[a]
+        } else {
+            0.0
         }
-        let scale = nb as f32 / extent;
-        let plane = |i: usize| plane_at(min, max, i, nb);
-        boxes[..nb].fill(Aabb::EMPTY);
-        entries[..nb].fill(0);
-        exits[..nb].fill(0);
-        for r in refs {
-            let lo = bin_of(r.bbox.min[axis], min, scale, nb);
-            let hi = bin_of(r.bbox.max[axis], min, scale, nb).max(lo);
-            entries[lo] += 1;
-            exits[hi] += 1;
-            let tri = &ctx.tris[r.prim as usize];
+    });
+    let plane = |axis: usize, i: usize| plane_at(bounds.min[axis], bounds.max[axis], i, nb);
+    let bins = AxisBins::fill(refs, |bins, r| {
+        let tri = &ctx.tris[r.prim as usize];
+        for axis in (0..3).filter(|&a| scale[a] > 0.0) {
+            let (min, sc) = (bounds.min[axis], scale[axis]);
+            let lo = bin_of(r.bbox.min[axis], min, sc, nb);
+            let hi = bin_of(r.bbox.max[axis], min, sc, nb).max(lo);
+            bins.a[axis][lo] += 1;
+            bins.b[axis][hi] += 1;
+            let boxes = &mut bins.boxes[axis];
             let mut rest = r.bbox;
             for (k, bin_box) in boxes.iter_mut().enumerate().take(hi).skip(lo) {
-                let (l, rr) = cut(tri, &rest, axis, plane(k + 1));
-                *bin_box = bin_box.union(l);
-                rest = rr;
+                let (part, above) = cut(tri, &rest, axis, plane(axis, k + 1));
+                *bin_box = bin_box.union(part);
+                rest = above;
                 if rest.is_empty() {
                     break;
                 }
             }
             boxes[hi] = boxes[hi].union(rest);
         }
-        let right = &mut Counted(&mut right_area, &mut right_count);
-        right_pass(nb, |k| (boxes[k], exits[k]), right);
-        left_pass(
-            nb,
-            |k| (boxes[k], entries[k]),
-            &*right,
-            |k, left, lc, ra, rc| {
-                if lc == 0 || rc == 0 {
-                    return;
-                }
-                let cost = sah(p, base, left.half_area(), lc, ra, rc);
-                offer(
-                    &mut best,
-                    Split {
-                        cost,
-                        axis,
-                        kind: Kind::Spatial {
-                            plane: plane(k),
-                            bin: k,
-                        },
-                        left: *left,
-                        right: Aabb::EMPTY,
-                        left_count: lc,
-                        right_count: rc,
-                    },
-                );
-            },
-        );
-        if let Some(s) = best.as_mut().filter(|s| s.axis == axis) {
-            if let Kind::Spatial { bin, .. } = s.kind {
-                s.right = boxes[bin..nb].iter().fold(Aabb::EMPTY, |a, b| a.union(*b));
-            }
-        }
+    });
+    let p = &ctx.cfg.sah;
+    let base = p.c_inner * bounds.half_area();
+    let mut best = None;
+    for axis in (0..3).filter(|&a| scale[a] > 0.0) {
+        let kind = |bin| Kind::Spatial {
+            plane: plane(axis, bin),
+            bin,
+        };
+        bins.sweep_axis(axis, nb, p, base, kind, &mut best);
     }
     best
 }
@@ -479,6 +598,12 @@ fn partition(ctx: &Ctx, refs: &[Ref], s: &Split) -> Option<(Vec<Ref>, Vec<Ref>)>
                     r.push(*x);
                 }
             }
+        }
+        Kind::Sorted { bin } => {
+            let mut v = refs.to_vec();
+            v.sort_unstable_by(|a, b| centroid_order(a, b, axis));
+            r = v.split_off(bin);
+            l = v;
         }
         Kind::Spatial { plane, .. } => {
             let p = &ctx.cfg.sah;

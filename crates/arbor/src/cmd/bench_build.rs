@@ -403,10 +403,17 @@ impl Workers {
 fn build_once(
     e: Entry,
     aabbs: &[Aabb],
+    tris: &Option<std::sync::Arc<[geom::Triangle]>>,
     threads: usize,
     w: &Workers,
 ) -> anyhow::Result<(Tree, Duration, usize)> {
-    let cfg = BuildConfig::default();
+    let cfg = BuildConfig {
+        triangles: match e {
+            Entry::Arbor(name) if super::build::cuts_triangles(name) => tris.clone(),
+            _ => None,
+        },
+        ..BuildConfig::default()
+    };
     let probe = AllocProbe::default();
     let peer = |r: Result<peers::PeerBuild, peers::PeerError>| -> anyhow::Result<_> {
         let b = r?;
@@ -510,6 +517,7 @@ struct Measured {
 fn measure_all(
     entries: &[Entry],
     aabbs: &[Aabb],
+    tris: &Option<std::sync::Arc<[geom::Triangle]>>,
     threads: usize,
     runs: usize,
     w: &Workers,
@@ -518,7 +526,7 @@ fn measure_all(
     let mut out: Vec<Option<Measured>> = entries.iter().map(|_| None).collect();
     for _ in 0..runs {
         for (e, m) in entries.iter().zip(out.iter_mut()) {
-            let (t, d, p) = build_once(*e, aabbs, threads, w)
+            let (t, d, p) = build_once(*e, aabbs, tris, threads, w)
                 .with_context(|| format!("{} failed", e.label()))?;
             let ms = d.as_secs_f64() * 1e3;
             match m {
@@ -527,8 +535,13 @@ fn measure_all(
                     m.peak = m.peak.max(p);
                 }
                 None => {
-                    t.validate(aabbs, max_leaf(*e))
-                        .with_context(|| format!("{} built an invalid tree", e.label()))?;
+                    let valid = match e {
+                        Entry::Arbor(name) => {
+                            super::build::validate_built(&t, name, aabbs, max_leaf(*e))
+                        }
+                        Entry::Peer(_) => t.validate(aabbs, max_leaf(*e)),
+                    };
+                    valid.with_context(|| format!("{} built an invalid tree", e.label()))?;
                     *m = Some(Measured {
                         times: vec![ms],
                         peak: p,
@@ -600,6 +613,11 @@ pub fn run(args: &BenchBuildArgs, ui: &Ui) -> anyhow::Result<()> {
             .mesh_at(0.0)
             .with_context(|| format!("cannot sample {spec} at t = 0"))?;
         let (aabbs, _) = mesh_aabbs(&mesh)?;
+        // The triangles themselves, for the builders that cut them (sbvh).
+        let tris = entries.iter().find_map(|e| match e {
+            Entry::Arbor(name) => super::build::triangles_for(name, &mesh),
+            Entry::Peer(_) => None,
+        });
         drop(mesh);
         drop(scene);
         let n = aabbs.len();
@@ -628,7 +646,8 @@ pub fn run(args: &BenchBuildArgs, ui: &Ui) -> anyhow::Result<()> {
         let mut scene_rows = Vec::new();
         for &threads in &args.threads {
             let workers = Workers::new(threads, &run)?;
-            let measured = measure_all(&run, &aabbs, threads, args.runs, &workers, &mut tick)?;
+            let measured =
+                measure_all(&run, &aabbs, &tris, threads, args.runs, &workers, &mut tick)?;
             for (&e, mut m) in run.iter().zip(measured) {
                 let (best_ms, median_ms) = best_and_median(&mut m.times);
                 let input_bytes = n * INPUT_BYTES_PER_PRIM;

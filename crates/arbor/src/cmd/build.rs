@@ -36,9 +36,9 @@ pub const MAX_LEAF_LIMIT: u32 = 1024;
 pub const DEFAULT_MAX_LEAF: u32 = 8;
 /// Bin counts `--bins` accepts (\[P2\] §6.2 compares binned SAH with 8, 16 and 32 bins).
 pub const BIN_CHOICES: [usize; 3] = [8, 16, 32];
-/// Builders that take `--bins` (binned SAH over primitives, over HLBVH cells, or the
-/// 4-wide top-down split search).
-const BINNED: [&str; 3] = ["binned-sah", "hlbvh+sah", "mbvh4-topdown"];
+/// Builders that take `--bins` (binned SAH over primitives, over HLBVH cells, the 4-wide
+/// top-down split search, or the object splits of `sbvh`).
+const BINNED: [&str; 4] = ["binned-sah", "hlbvh+sah", "mbvh4-topdown", "sbvh"];
 /// The builder that collapses a binary tree into a 4-wide one.
 pub const COLLAPSE: &str = "mbvh4-collapse";
 /// Binary builder whose tree `mbvh4-collapse` collapses when `--collapse-from` is not
@@ -57,6 +57,9 @@ pub struct BuildConfig {
     pub bins: usize,
     /// The binary builder whose tree `mbvh4-collapse` collapses.
     pub collapse_from: &'static str,
+    /// The triangles themselves, for a builder that cuts them ([`cuts_triangles`]);
+    /// the others see only the boxes. Commands that have a mesh set it for those builders.
+    pub triangles: Option<std::sync::Arc<[geom::Triangle]>>,
 }
 
 impl Default for BuildConfig {
@@ -65,6 +68,7 @@ impl Default for BuildConfig {
             max_leaf: DEFAULT_MAX_LEAF,
             bins: DEFAULT_BINS,
             collapse_from: DEFAULT_COLLAPSE_FROM,
+            triangles: None,
         }
     }
 }
@@ -162,6 +166,28 @@ pub static BUILDERS: &[(&str, BuildFn)] = &[
         let sc = bvh::StreamCollapse::with_window(4);
         Ok(Tree::Mbvh4(bvh::stream_collapse_with(&hl, sc)?.0))
     }),
+    ("sbvh", |p, c| {
+        // Spatial splits (Stich et al. 2009; issues 33 and 34): leaves name parts of
+        // triangles, so the builder needs the triangles, not only their boxes.
+        let Some(tris) = c.triangles.as_deref() else {
+            bail!("the sbvh builder cuts triangles and needs them; this command gives builders only the triangles' boxes")
+        };
+        anyhow::ensure!(
+            tris.len() == p.len(),
+            "sbvh got {} triangles for {} boxes",
+            tris.len(),
+            p.len()
+        );
+        binary(
+            bvh::SbvhBuilder {
+                bins: c.bins,
+                max_leaf_size: c.max_leaf,
+                threads: 0,
+                ..Default::default()
+            }
+            .build(tris),
+        )
+    }),
     ("mbvh4-topdown", |p, c| {
         Ok(Tree::Mbvh4(
             bvh::Mbvh4TopDownBuilder {
@@ -174,6 +200,40 @@ pub static BUILDERS: &[(&str, BuildFn)] = &[
         ))
     }),
 ];
+
+/// Whether builder `name` cuts triangles (spatial splits): it needs
+/// [`BuildConfig::triangles`], and its leaves may name a triangle more than once, each time
+/// for a part of it ([`validate_built`] checks that with `bvh::validate_spatial`).
+pub fn cuts_triangles(name: &str) -> bool {
+    name == "sbvh"
+}
+
+/// The triangles of `mesh` for a builder that cuts them ([`cuts_triangles`]), else `None`.
+pub fn triangles_for(name: &str, mesh: &scene::Mesh) -> Option<std::sync::Arc<[geom::Triangle]>> {
+    cuts_triangles(name).then(|| {
+        mesh.triangles
+            .iter()
+            .map(|t| {
+                let v = |i: u32| mesh.positions[i as usize];
+                geom::Triangle::new(v(t[0]), v(t[1]), v(t[2]))
+            })
+            .collect()
+    })
+}
+
+/// Validates the tree builder `name` made over `prims` (`bvh::validate_spatial` for a
+/// builder that cuts triangles, the tree's own validator otherwise).
+pub fn validate_built(
+    tree: &Tree,
+    name: &str,
+    prims: &[Aabb],
+    max_leaf: u32,
+) -> Result<(), bvh::ValidationError> {
+    match tree {
+        Tree::Bvh2(t) if cuts_triangles(name) => bvh::validate_spatial(t, prims, max_leaf),
+        t => t.validate(prims, max_leaf),
+    }
+}
 
 /// Whether builder `name` makes a 4-wide tree.
 pub fn is_wide(name: &str) -> bool {
@@ -244,12 +304,15 @@ pub fn builder(name: &str) -> anyhow::Result<BuildFn> {
 /// is how messages spell that option).
 fn binary_builder_name(name: &str, option: &str) -> anyhow::Result<&'static str> {
     builder(name)?;
-    match available_builders().find(|n| *n == name && !is_wide(n)) {
+    // A tree with cut triangles cannot be collapsed yet: the 4-wide formats and their
+    // validator hold each triangle once.
+    let binary = |n: &&str| !is_wide(n) && !cuts_triangles(n);
+    match available_builders().find(|n| *n == name && binary(n)) {
         Some(n) => Ok(n),
         None => bail!(
-            "{option} needs a binary builder, not {name}; valid names: {}",
+            "{option} needs a binary builder whose leaves hold each triangle once, not {name}; valid names: {}",
             available_builders()
-                .filter(|n| !is_wide(n))
+                .filter(binary)
                 .collect::<Vec<_>>()
                 .join(", ")
         ),
@@ -262,7 +325,8 @@ pub struct BuildArgs {
     #[command(flatten)]
     scene: SceneArgs,
     /// Builder: lbvh, hlbvh, hlbvh+sah, hlbvh+atrbvh, binned-sah, sweep-sah, atrbvh, ploc,
-    /// ploc+reinsert, hlbvh+reinsert (binary trees), mbvh4-collapse, mbvh4-stream,
+    /// ploc+reinsert, hlbvh+reinsert (binary trees), sbvh (binary, with spatial splits:
+    /// leaves name parts of triangles; no --out yet), mbvh4-collapse, mbvh4-stream,
     /// mbvh4-stream-w4, mbvh4-topdown (4-wide trees); kdtree-points, octree-points (point
     /// trees over the triangles' centroids, checked against brute-force kNN).
     #[arg(long, value_name = "NAME")]
@@ -484,6 +548,11 @@ fn check_args(a: &BuildArgs) -> anyhow::Result<(BuildFn, BuildConfig)> {
     )?;
     super::check_seconds("--refit-from", a.refit_from)?;
     if let Some(out) = &a.out {
+        anyhow::ensure!(
+            !cuts_triangles(&a.builder),
+            "--out: a {} tree cannot be written to a tree file yet (the format stores each triangle exactly once; its leaves name parts of triangles)",
+            a.builder
+        );
         check_out_path(out)?;
     }
     Ok(checked)
@@ -539,7 +608,7 @@ pub fn run(args: &BuildArgs, ui: &Ui) -> anyhow::Result<()> {
     if points::POINT_BUILDERS.contains(&args.builder.as_str()) {
         return points::run_points(args, ui);
     }
-    let (build_fn, cfg) = check_args(args)?;
+    let (build_fn, mut cfg) = check_args(args)?;
     let pool = {
         let mut b = rayon::ThreadPoolBuilder::new();
         if let Some(t) = args.threads {
@@ -559,6 +628,7 @@ pub fn run(args: &BuildArgs, ui: &Ui) -> anyhow::Result<()> {
     };
     let sample_ms = ms(s.elapsed());
     let (aabbs, aabb_ms) = mesh_aabbs(&mesh)?;
+    cfg.triangles = triangles_for(&args.builder, &mesh);
     drop(mesh);
 
     // With --refit-from, build over the boxes at T0, then refit to the boxes at time_s.
@@ -579,9 +649,13 @@ pub fn run(args: &BuildArgs, ui: &Ui) -> anyhow::Result<()> {
                 .mesh_at(t0)
                 .with_context(|| format!("cannot sample the scene at t = {t0} s"))?;
             let (aabbs0, _) = mesh_aabbs(&mesh0)?;
+            let cfg0 = BuildConfig {
+                triangles: triangles_for(&args.builder, &mesh0),
+                ..cfg.clone()
+            };
             drop(mesh0);
             let (mut tree, build_ms) =
-                pool.install(|| timed_build(ui, &args.builder, build_fn, &cfg, &aabbs0))?;
+                pool.install(|| timed_build(ui, &args.builder, build_fn, &cfg0, &aabbs0))?;
             let sah_at_build = tree.normalized_sah();
             let s = Instant::now();
             pool.install(|| tree.refit(&aabbs))
@@ -589,7 +663,7 @@ pub fn run(args: &BuildArgs, ui: &Ui) -> anyhow::Result<()> {
             (tree, build_ms, Some((t0, sah_at_build, ms(s.elapsed()))))
         }
     };
-    tree.validate(&aabbs, cfg.max_leaf)
+    validate_built(&tree, &args.builder, &aabbs, cfg.max_leaf)
         .with_context(|| format!("builder {} produced an invalid tree", args.builder))?;
 
     // The normalization reference: the tree itself for sweep-sah, else a sweep build.
@@ -743,6 +817,7 @@ mod tests {
             "mbvh4-collapse",
             "mbvh4-stream",
             "mbvh4-stream-w4",
+            "sbvh",
             "mbvh4-topdown",
         ] {
             assert!(BUILDERS.iter().any(|(b, _)| *b == n), "{n}");
@@ -782,19 +857,24 @@ mod tests {
 
     #[test]
     fn available_builders_give_valid_trees() {
-        let aabbs: Vec<Aabb> = (0..300)
+        let tris: Vec<geom::Triangle> = (0..300)
             .map(|i| {
                 let p = geom::Vec3::new((i % 7) as f32, (i % 11) as f32, (i % 13) as f32);
-                Aabb::new(p, p + 0.5)
+                geom::Triangle::new(p, p + geom::Vec3::X * 0.5, p + 0.5)
             })
             .collect();
+        let aabbs = bvh::triangle_aabbs(&tris);
         for name in available_builders() {
             let cfg = BuildConfig {
                 max_leaf: 4,
+                triangles: cuts_triangles(name).then(|| tris.clone().into()),
                 ..Default::default()
             };
             let t = builder(name).unwrap()(&aabbs, &cfg).unwrap();
-            assert_eq!(t.validate(&aabbs, 4), Ok(()), "{name}");
+            assert_eq!(validate_built(&t, name, &aabbs, 4), Ok(()), "{name}");
+            if !cuts_triangles(name) {
+                assert_eq!(t.validate(&aabbs, 4), Ok(()), "{name}");
+            }
             assert_eq!(
                 t.kind().width(),
                 if is_wide(name) { 4 } else { 2 },
@@ -814,5 +894,10 @@ mod tests {
             ..Default::default()
         };
         assert!(builder(COLLAPSE).unwrap()(&aabbs, &cfg).is_err());
+        // Without the triangles, sbvh says what it needs; it is no collapse source.
+        let e = builder("sbvh").unwrap()(&aabbs, &BuildConfig::default()).unwrap_err();
+        assert!(e.to_string().contains("needs them"), "{e}");
+        let e = binary_builder_name("sbvh", CLI_NAMES.collapse_from).unwrap_err();
+        assert!(e.to_string().contains("each triangle once"), "{e}");
     }
 }

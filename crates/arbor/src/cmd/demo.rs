@@ -375,7 +375,10 @@ pub fn run(args: &DemoArgs, ui: &Ui) -> anyhow::Result<()> {
 /// prints a table, and returns its rows. A tree that fails validation is recorded as
 /// invalid (the caller reports it after writing the outputs).
 fn build_step(ui: &Ui, scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<BuildRow>> {
-    use super::build::{available_builders, builder, mesh_aabbs, timed_build, BuildConfig};
+    use super::build::{
+        available_builders, builder, mesh_aabbs, timed_build, triangles_for, validate_built,
+        BuildConfig,
+    };
     let timeline = scene.info().timeline;
     let mut frames: Vec<u32> = (0..=BUILD_STEP_EXTRA_FRAMES)
         .map(|k| (n - 1) * k / BUILD_STEP_EXTRA_FRAMES)
@@ -391,11 +394,14 @@ fn build_step(ui: &Ui, scene: &dyn scene::Scene, n: u32) -> anyhow::Result<Vec<B
         let t = timeline.time_of_frame(f);
         let mesh = scene.mesh_at(t).with_context(|| format!("frame {f}"))?;
         let (aabbs, _) = mesh_aabbs(&mesh)?;
-        drop(mesh);
         let mut built = Vec::new();
         for name in available_builders() {
+            let cfg = BuildConfig {
+                triangles: triangles_for(name, &mesh),
+                ..cfg.clone()
+            };
             let (tree, build_ms) = timed_build(ui, name, builder(name)?, &cfg, &aabbs)?;
-            let valid = tree.validate(&aabbs, cfg.max_leaf).is_ok();
+            let valid = validate_built(&tree, name, &aabbs, cfg.max_leaf).is_ok();
             built.push((name, tree.normalized_sah(), build_ms, valid));
         }
         // The sweep SAH build is one of the builders: it normalizes the others.

@@ -402,7 +402,15 @@ pub fn build_accel_with(
     triangles: &[Triangle],
     options: KernelOptions,
 ) -> anyhow::Result<(Accel, f64, Option<RenderCbvhJson>)> {
-    let cfg = BuildConfig::default();
+    let spatial = super::build::cuts_triangles(builder_name);
+    anyhow::ensure!(
+        !(spatial && format == Format::Cbvh),
+        "builder {builder_name} cuts triangles, which the compressed formats cannot hold yet; use --format bvh2, mbvh4 or mbvh8"
+    );
+    let cfg = BuildConfig {
+        triangles: spatial.then(|| triangles.into()),
+        ..Default::default()
+    };
     if builder_name == "mbvh4-topdown" {
         anyhow::ensure!(
             format == Format::Mbvh4,
@@ -431,8 +439,12 @@ pub fn build_accel_with(
     let bvh::Tree::Bvh2(tree) = tree else {
         bail!("builder {builder_name} makes a 4-wide tree; use a binary builder (--format mbvh4 collapses its tree)")
     };
-    bvh::validate(&tree, aabbs, cfg.max_leaf)
-        .with_context(|| format!("builder {builder_name} produced an invalid tree"))?;
+    let valid = if spatial {
+        bvh::validate_spatial(&tree, aabbs, cfg.max_leaf)
+    } else {
+        bvh::validate(&tree, aabbs, cfg.max_leaf)
+    };
+    valid.with_context(|| format!("builder {builder_name} produced an invalid tree"))?;
     Ok(match format {
         Format::Bvh2 => (
             Accel::Bvh2(trace::Bvh2Accel::new(tree, triangles, options)?),
