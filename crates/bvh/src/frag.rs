@@ -47,6 +47,14 @@ impl Blocks {
         self.len += 1;
     }
 
+    /// Frees the spare room of the last block (the first block of a small fragment grows by
+    /// doubling, so up to half of it can be spare).
+    pub fn shrink_to_fit(&mut self) {
+        if let Some(b) = self.blocks.last_mut() {
+            b.shrink_to_fit();
+        }
+    }
+
     /// The nodes as one vector of exactly their number, freeing each block once copied.
     pub fn into_vec(mut self) -> Vec<Node> {
         if self.blocks.len() <= 1 {
@@ -94,8 +102,10 @@ impl Frag {
 
     /// Appends a child fragment built in parallel and returns the child reference to store
     /// in the parent: a leaf stays a leaf, an inner root becomes a fork reference.
-    pub fn adopt(&mut self, child: ChildRef, sub: Frag) -> ChildRef {
+    pub fn adopt(&mut self, child: ChildRef, mut sub: Frag) -> ChildRef {
         if child.is_inner() {
+            // Complete now: its spare room would only add to the peak of the flatten.
+            sub.nodes.shrink_to_fit();
             debug_assert_eq!(child.index, 0, "a fragment's root is its node 0");
             self.subs.push(sub);
             ChildRef::inner(FORK_BIT | (self.subs.len() as u32 - 1))
@@ -138,9 +148,9 @@ mod tests {
         Node::new(&b, ChildRef::leaf(i as u32, 1), &b, ChildRef::EMPTY)
     }
 
-    /// Pushes, reads and overwrites across block boundaries agree with a vector, and the
-    /// store comes out as that vector, with no spare capacity, for sizes up to and past one
-    /// and several blocks.
+    /// Pushes, reads and overwrites across block boundaries agree with a vector, also after
+    /// trimming, and the store comes out as that vector, with no spare capacity, for sizes
+    /// up to and past one and several blocks.
     #[test]
     fn blocks_behave_as_a_vector() {
         for n in [
@@ -165,9 +175,14 @@ mod tests {
                 assert_eq!(b[i], v[i]);
             }
             assert_eq!(b.len(), n);
+            // Trimming keeps the nodes, and the store still grows after it.
+            b.shrink_to_fit();
+            assert!((0..n).all(|i| b[i] == v[i]), "n = {n}");
+            b.push(node(n));
+            v.push(node(n));
             let out = b.into_vec();
             assert_eq!(out, v, "n = {n}");
-            assert_eq!(out.capacity(), n, "n = {n}");
+            assert_eq!(out.capacity(), n + 1, "n = {n}");
         }
     }
 }
