@@ -119,6 +119,10 @@ impl BinnedSahBuilder {
         let mut frag = Frag::default();
         let root = build_rec(&ctx, task, 0, &mut frag);
         let prim_indices = refs.par_iter().map(|r| r.index()).collect();
+        // The references (32 bytes a primitive) are freed before the fragments of a parallel
+        // build are flattened into the final node array, so they never meet its two copies
+        // of the nodes (issue 34: that moment was the peak of a 2-thread build).
+        drop(refs);
         Bvh2::from_root(root, bounds, frag.flatten(), prim_indices)
     }
 }

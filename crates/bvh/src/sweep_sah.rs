@@ -138,7 +138,9 @@ impl SweepSahBuilder {
         };
         let mut frag = Frag::default();
         let (root, bounds) = build_rec(&ctx, work, 0, &mut frag);
-        let [prim_indices, _, _] = lists;
+        let [prim_indices, y, z] = lists;
+        // The scratch arrays go before the fragments are copied into the final node array.
+        drop((y, z, cent, areas, tmp, goes_left));
         Bvh2::from_root(root, bounds, frag.flatten(), prim_indices)
     }
 }
