@@ -70,7 +70,9 @@ pub use points::{knn_brute, PointError, PointNode, PointTree, NO_AXIS};
 pub use refit::{refit_bvh2, refit_mbvh4, RefitError, RefitFrame, RefitTracker};
 pub use reinsert::{reinsert, ReinsertConfig, ReinsertWork};
 pub use sah::{sah_cost, sah_cost_with, sah_ratio, SahParams};
-pub use stream_collapse::{stream_collapse, stream_collapse_with, StreamCollapse};
+pub use stream_collapse::{
+    stream_collapse, stream_collapse_with, StreamCollapse, COLLAPSE_SLOT_BYTES, TREELET_NODE_BYTES,
+};
 pub use sweep_sah::SweepSahBuilder;
 pub use toplevel::{HlbvhAtrbvhBuilder, HlbvhSahBuilder};
 pub use tree::{Tree, TreeKind};

@@ -271,6 +271,25 @@ fn mbvh4_output_modes() {
     assert_eq!(mp["pass"]["node_reads"], plain["nodes"]);
     assert_eq!(u(&p, "bytes_read"), u(&plain, "bytes_read") + 64 * binary);
     assert!(u(&s, "cycles") < u(&p, "cycles"));
+    // The collapse unit's row in the energy object: only with `output = mbvh4`, before
+    // the DRAM, its storage the peak open subtrees' slots.
+    let names = |j: &Value| -> Vec<String> {
+        j["energy"]["units"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x["unit"].as_str().unwrap().to_string())
+            .collect()
+    };
+    assert_eq!(names(&s)[4..], ["MBVH4 collapse unit", "DRAM"]);
+    for j in [&plain, &p] {
+        assert!(!names(j).contains(&"MBVH4 collapse unit".to_string()));
+        assert!(j["energy"]["collapse_unit"].is_null());
+    }
+    let cu = &s["energy"]["collapse_unit"];
+    assert_eq!(u(cu, "storage_bytes"), 128 * u(&m["stream"], "max_open"));
+    assert_eq!(u(cu, "fifo_bytes"), 16 * 64);
+    assert!(cu["window"].is_null());
     // One tree only.
     assert!(sim_error(&[
         CLOTH,
