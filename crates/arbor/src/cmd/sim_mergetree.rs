@@ -380,6 +380,15 @@ fn print_text(
             thousands(r.config.single_pass_limit())
         );
     }
+    if r.config.output.is_points() {
+        println!(
+            "sort element {} B: {} per run, {} per buffer, one pass up to {} points",
+            r.config.elem_bytes(),
+            thousands(r.config.m_elems()),
+            r.config.b_elems(),
+            thousands(r.config.single_pass_limit())
+        );
+    }
     println!(
         "scene {}: {} {}, {} partial-sort blocks, {} merge pass(es)",
         a.scene.scene,

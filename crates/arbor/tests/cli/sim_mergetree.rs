@@ -341,6 +341,16 @@ fn kdtree_points_mode() {
     let u = sim_json(&a);
     assert_eq!(u["triangles"], 3000);
     assert_eq!(u["tree_matches_software"], true);
+    // 16-byte elements by default in the point modes; 32 on request: one block of 3000
+    // points, so the sort reads the input once.
+    assert_eq!(u["config"]["point_element"], 16);
+    assert_eq!(u["bytes_read"], 3000 * 16);
+    let mut b32 = a.clone();
+    b32.extend(["--set", "point_element=32"]);
+    let u32 = sim_json(&b32);
+    assert_eq!(u32["bytes_read"], 3000 * 32);
+    assert_eq!(u32["bytes_written"], u["bytes_written"]);
+    assert!(sim_error(&[CLOTH, "--set", "point_element=8"]).contains("16 or 32"));
     // The octree of the same points.
     a[2] = "output=octree-points";
     let o = sim_json(&a);

@@ -5,7 +5,8 @@
 //! \[P2\]'s figures come from post-synthesis power analysis of the RTL; Arbor has no RTL,
 //! so the logic is counted from its memory blocks and operations (issue 13: "the
 //! comparison is to the same order of magnitude"):
-//! - **insertion sorters**: per presorter an SRAM of `presort_slots` 32-byte elements;
+//! - **insertion sorters**: per presorter an SRAM of `presort_slots` elements (32 bytes, or
+//!   `point_element` in the point modes);
 //!   each busy presorter cycle compares its new element with every slot (32-bit integer
 //!   compares of Morton codes) and writes one slot;
 //! - **multi-merge unit**: the scratchpad (M elements of 32 bytes: 256 KB for `p2`), each
@@ -14,7 +15,7 @@
 //!   one entry per level (log2 fan-in levels, \[P2\] §5.2);
 //! - **hierarchy emitter**: per step a node's box union (6 floating-point compares) and
 //!   per node one 64-byte write into the node buffer (`node_buffer_bytes`);
-//! - **FIFOs**: every FIFO of the model an SRAM of its capacity in 32-byte elements, each
+//! - **FIFOs**: every FIFO of the model an SRAM of its capacity in elements, each
 //!   push a write and a read;
 //! - **MBVH4 collapse unit** (only with `output = mbvh4`, issue 18 part 2; see
 //!   [`collapse_unit`]): the streaming collapse behind the emitter, its storage sized
@@ -24,7 +25,7 @@
 
 use serde::Serialize;
 
-use super::config::{OutputMode, ELEM_BYTES, MBVH4_NODE_BYTES, NODE_BYTES};
+use super::config::{OutputMode, MBVH4_NODE_BYTES, NODE_BYTES};
 use super::MergeTreeReport;
 use crate::energy::{int_add_pj, ram, Conventions, EnergyError, Flops, Fpu, Node, UnitEnergy};
 
@@ -197,7 +198,8 @@ pub fn mergetree_energy(
     let c = &r.config;
     let seconds = r.ms * 1e-3;
     let leak = |mw: f64| mw * seconds;
-    let elem = ELEM_BYTES as f64;
+    // The sort element: 32 bytes, or `point_element` in the point modes.
+    let elem = c.elem_bytes() as f64;
     let share = |bytes: f64| bytes / 64.0;
     // Insertion sorters.
     let slots = ram(c.presort_slots as f64 * elem, node, conv)?;
@@ -206,7 +208,7 @@ pub fn mergetree_energy(
     let sort_dyn =
         busy * (c.presort_slots as f64 * int_add_pj(node) + slots.access_pj * share(elem));
     // Multi-merge: scratchpad and heap.
-    let pad = ram(c.m as f64 * elem, node, conv)?;
+    let pad = ram(c.m_elems() as f64 * elem, node, conv)?;
     let fan_in = c.fan_in().max(2) as f64;
     let heap = ram(fan_in * HEAP_ENTRY_BYTES, node, conv)?;
     let merged = r.stalls.merge_outputs as f64;

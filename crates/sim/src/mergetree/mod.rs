@@ -6,7 +6,8 @@
 //! - [`config`]: parameters and the presets `p1` and `p2`;
 //! - [`machine`]: the units on the simulation kernel ([`crate::kernel`]): the control FSM,
 //!   the reader (32-byte AABBs read in bursts of B, Morton codes computed as they stream in,
-//!   \[P2\] §5.1; refills of the merge queues), the run writer, the write buffers and the
+//!   \[P2\] §5.1, or in the point modes 16-byte points and references,
+//!   [`MergeTreeConfig::elem_bytes`]; refills of the merge queues), the run writer, the write buffers and the
 //!   round-robin memory arbiter, each a kernel unit or channel, plus the DRAM layout;
 //! - [`presort`]: the insertion presorters of the partial-sort mode (\[P2\] §5.5);
 //! - [`heap`]: the pipelined merge heap (\[P2\] §5.2);
@@ -275,7 +276,7 @@ fn run_machine<'a>(
         bytes_written: mem.bytes_written,
         bus_utilization: (mem.bytes_read + mem.bytes_written) as f64 / (k.peak * cycles as f64),
         peak_bytes_per_cycle: k.peak,
-        partial_sort_blocks: (aabbs.len() as u64).div_ceil(cfg.m as u64),
+        partial_sort_blocks: (aabbs.len() as u64).div_ceil(cfg.m_elems()),
         merge_passes: k.passes_total,
         phases: k.phases,
         presort_busy_fraction: if partial_cycles == 0 {
