@@ -351,6 +351,17 @@ fn kdtree_points_mode() {
     assert_eq!(u32["bytes_read"], 3000 * 32);
     assert_eq!(u32["bytes_written"], u["bytes_written"]);
     assert!(sim_error(&[CLOTH, "--set", "point_element=8"]).contains("16 or 32"));
+    // Plane-only k-d nodes: the same tree, 16 bytes per written node.
+    let mut pl = a.clone();
+    pl.extend(["--set", "point_node=plane"]);
+    let up = sim_json(&pl);
+    assert_eq!(up["tree_matches_software"], true);
+    assert_eq!(up["config"]["point_node"], "plane");
+    assert_eq!(up["points"]["written"], u["points"]["written"]);
+    assert_eq!(
+        up["points"]["node_bytes"].as_u64().unwrap(),
+        16 * u["points"]["written"].as_u64().unwrap()
+    );
     // The octree of the same points.
     a[2] = "output=octree-points";
     let o = sim_json(&a);

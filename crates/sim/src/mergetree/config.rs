@@ -129,6 +129,18 @@ impl OutputMode {
     }
 }
 
+/// The k-d node the point writer writes (`output = kdtree-points`, `point_node`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum KdNode {
+    /// The \[P2\] §4.1 BVH node with the plane and axis: two child boxes, two references,
+    /// 64 bytes ([`NODE_BYTES`]); queries prune by box ([`bvh::PointTree::knn`]).
+    Box,
+    /// Plane, axis and two references in one 16-byte slot ([`bvh::PlaneNode`]); queries
+    /// prune by plane distance ([`bvh::PlaneKdTree`]).
+    Plane,
+}
+
 /// How the multi-merge unit schedules the reads that refill its scratchpad buffers.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "kebab-case")]
@@ -280,6 +292,9 @@ pub struct MergeTreeConfig {
     /// so they hold 32 / `point_element` times as many elements. Ignored by the other
     /// modes, which sort boxes.
     pub point_element: u32,
+    /// The k-d node of `output = kdtree-points`: `box` (64 bytes with the child boxes, the
+    /// default) or `plane` (16 bytes, plane-only).
+    pub point_node: KdNode,
 }
 
 /// Names of the parameters [`MergeTreeConfig::set`] accepts.
@@ -316,6 +331,7 @@ pub const KEYS: &[&str] = &[
     "read_schedule",
     "forecast_spares",
     "point_element",
+    "point_node",
 ];
 
 impl MergeTreeConfig {
@@ -368,6 +384,7 @@ impl MergeTreeConfig {
             read_schedule: ReadSchedule::Double,
             forecast_spares: 16,
             point_element: POINT_ELEM_BYTES as u32,
+            point_node: KdNode::Box,
         }
     }
 
@@ -400,6 +417,15 @@ impl MergeTreeConfig {
             self.point_element as u64
         } else {
             ELEM_BYTES
+        }
+    }
+
+    /// Bytes of one written k-d node (`output = kdtree-points`): [`NODE_BYTES`] for
+    /// `point_node = box`, [`bvh::PLANE_NODE_BYTES`] for `plane`.
+    pub fn kd_node_bytes(&self) -> u64 {
+        match self.point_node {
+            KdNode::Box => NODE_BYTES,
+            KdNode::Plane => bvh::PLANE_NODE_BYTES as u64,
         }
     }
 
@@ -563,6 +589,13 @@ impl MergeTreeConfig {
                     16 => 16,
                     32 => 32,
                     _ => return Err(bad("must be 16 or 32")),
+                }
+            }
+            "point_node" => {
+                self.point_node = match value {
+                    "box" => KdNode::Box,
+                    "plane" => KdNode::Plane,
+                    _ => return Err(bad("expected box or plane")),
                 }
             }
             _ => {
@@ -763,6 +796,9 @@ impl MergeTreeConfig {
                     self.max_leaf_size
                 ));
             }
+        }
+        if self.point_node == KdNode::Plane && self.output != OutputMode::KdtreePoints {
+            return err("point_node = plane applies to output = kdtree-points".into());
         }
         if let Some(t) = self.highlevel_threshold {
             if t > self.morton_bits {

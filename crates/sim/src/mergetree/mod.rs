@@ -42,7 +42,7 @@ pub mod presort;
 pub mod report;
 pub mod toplevel;
 
-pub use config::{ConfigError, MergeTreeConfig, OutputMode, ReadSchedule};
+pub use config::{ConfigError, KdNode, MergeTreeConfig, OutputMode, ReadSchedule};
 pub use machine::MemoryLayout;
 pub use mbvh4_unit::{CollapseUnitStats, Mbvh4RunReport};
 pub use report::{
@@ -252,15 +252,17 @@ fn run_machine<'a>(
     )?;
     let cbvh = kernel_cbvh_result(out, &highlevel, cfg)?;
     let points = match k.points.take() {
-        Some(w) => Some(point_result(w?, aabbs)?),
+        Some(w) => Some(point_result(w?, aabbs, cfg)?),
         None => match cfg.output {
             OutputMode::KdtreePoints => Some(point_result(
                 emitter::PointWriter::Kd(bvh::PointStream::new(&cb, cfg.max_leaf_size)?),
                 aabbs,
+                cfg,
             )?),
             OutputMode::OctreePoints => Some(point_result(
                 emitter::PointWriter::Oct(bvh::OctreeStream::new(cfg.max_leaf_size)?),
                 aabbs,
+                cfg,
             )?),
             _ => None,
         },
@@ -349,7 +351,11 @@ fn kernel_mbvh4_result(
 }
 
 /// The point tree the writer made, with its counts.
-fn point_result(w: emitter::PointWriter, aabbs: &[Aabb]) -> Result<PointRunReport, MergeTreeError> {
+fn point_result(
+    w: emitter::PointWriter,
+    aabbs: &[Aabb],
+    cfg: &MergeTreeConfig,
+) -> Result<PointRunReport, MergeTreeError> {
     let emitted = aabbs.len().saturating_sub(1) as u64;
     let r = match w {
         emitter::PointWriter::Kd(w) => {
@@ -365,7 +371,7 @@ fn point_result(w: emitter::PointWriter, aabbs: &[Aabb]) -> Result<PointRunRepor
                 max_leaf: tree.max_leaf(),
                 emitted,
                 written,
-                node_bytes: written * config::NODE_BYTES,
+                node_bytes: written * cfg.kd_node_bytes(),
                 collapsed,
                 tree_nodes: tree.nodes().len() as u64,
                 depth: tree.depth() as u64,

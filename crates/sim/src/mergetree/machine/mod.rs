@@ -973,26 +973,26 @@ pub(super) fn run<'a>(
         phase_start: 0,
         snap: [0; 4],
     }));
-    s.add(Box::new(Emitter {
-        e: EmitUnit::new(
-            n,
-            cfg.highlevel_threshold,
-            cfg.combine_identical,
-            cfg.max_leaf_size,
-            streaming,
-            match cfg.output {
-                OutputMode::KdtreePoints => Some(PointWriter::Kd(
-                    bvh::PointStream::new(centroid_bounds, cfg.max_leaf_size)
-                        .map_err(|e| MergeTreeError::Input(e.to_string()))?,
-                )),
-                OutputMode::OctreePoints => Some(PointWriter::Oct(
-                    bvh::OctreeStream::new(cfg.max_leaf_size)
-                        .map_err(|e| MergeTreeError::Input(e.to_string()))?,
-                )),
-                _ => None,
-            },
-        ),
-    }));
+    let mut e = EmitUnit::new(
+        n,
+        cfg.highlevel_threshold,
+        cfg.combine_identical,
+        cfg.max_leaf_size,
+        streaming,
+        match cfg.output {
+            OutputMode::KdtreePoints => Some(PointWriter::Kd(
+                bvh::PointStream::new(centroid_bounds, cfg.max_leaf_size)
+                    .map_err(|e| MergeTreeError::Input(e.to_string()))?,
+            )),
+            OutputMode::OctreePoints => Some(PointWriter::Oct(
+                bvh::OctreeStream::new(cfg.max_leaf_size)
+                    .map_err(|e| MergeTreeError::Input(e.to_string()))?,
+            )),
+            _ => None,
+        },
+    );
+    e.kd_node_bytes = cfg.kd_node_bytes();
+    s.add(Box::new(Emitter { e }));
     s.add(Box::new(MergeUnit {
         m: match cfg.read_schedule {
             ReadSchedule::Double => Merger::new(m as u32, b as u32),
