@@ -312,6 +312,7 @@ mod tests {
     use super::*;
     use crate::points::knn_brute;
     use crate::points::tests::cloud;
+    use proptest::prelude::*;
 
     /// Plane-pruned kNN and radius queries equal brute force (ties by index) and the
     /// box-pruned tree's, reading at least as many nodes.
@@ -462,5 +463,46 @@ mod tests {
         assert!(out.is_empty());
         pe.within(Vec3::ZERO, 1.0, &mut out).unwrap();
         assert!(out.is_empty());
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(64))]
+        /// Half-integer lattices (many duplicates and equal distances) and finite
+        /// coordinates over many magnitudes, up to distances that overflow: plane-pruned
+        /// kNN and radius queries equal brute force.
+        #[test]
+        fn plane_queries_equal_brute_force_on_lattices_and_wide_floats(
+            raw in prop::collection::vec(prop::array::uniform3(-4i32..4), 1..200),
+            wide in prop::collection::vec(prop::array::uniform3(-1e20f32..1e20), 1..100),
+            scale in prop::sample::select(vec![1e-30f32, 1e-3, 1.0, 1e15, 1e18]),
+            q in prop::array::uniform3(-1e20f32..1e20),
+            k in 0usize..30,
+            leaf in 1usize..6,
+        ) {
+            let lattice: Vec<Vec3> = raw
+                .iter()
+                .map(|a| Vec3::new(a[0] as f32, a[1] as f32, a[2] as f32) * 0.5)
+                .collect();
+            let wide: Vec<Vec3> = wide.iter().map(|a| Vec3::from(*a) * scale).collect();
+            let ql = Vec3::new(q[0].signum(), q[1].signum(), q[2].signum()) * 1.25;
+            for (pts, q) in [(&lattice, ql), (&wide, Vec3::from(q) * scale)] {
+                let t = PointTree::build(pts, leaf).unwrap();
+                let p = PlaneKdTree::new(&t).unwrap();
+                let mut out = Vec::new();
+                p.knn(q, k, &mut out).unwrap();
+                let want = knn_brute(pts, q, k).unwrap();
+                prop_assert_eq!(&out, &want);
+                if let Some(&(r2, _)) = want.last() {
+                    p.within(q, r2, &mut out).unwrap();
+                    let n = knn_brute(pts, q, pts.len())
+                        .unwrap()
+                        .into_iter()
+                        .filter(|o| o.0 <= r2)
+                        .count();
+                    prop_assert_eq!(out.len(), n);
+                    prop_assert_eq!(&out[..want.len()], &want[..]);
+                }
+            }
+        }
     }
 }
