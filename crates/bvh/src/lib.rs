@@ -32,6 +32,7 @@ mod mbvh4_topdown;
 mod morton_sort;
 mod node;
 mod octree;
+mod plane_kd;
 mod ploc;
 mod point_stream;
 mod points;
@@ -65,14 +66,17 @@ pub use mbvh4::{mbvh4_sah_cost_with, validate_mbvh4, Mbvh4, Mbvh4Stats, Node4, M
 pub use mbvh4_topdown::Mbvh4TopDownBuilder;
 pub use node::{ChildRef, Node, EMPTY_INDEX};
 pub use octree::{OctNode, Octree, OctreeStats, OctreeStream, OCTREE_MAX_DEPTH};
+pub use plane_kd::{PlaneKdTree, PlaneNode, MAX_PLANE_LEAF, PLANE_NODE_BYTES};
 pub use ploc::{PlocBuilder, MAX_PLOC_RADIUS};
 pub use point_stream::{Joined, PointRef, PointStream, PointStreamStats, WrittenNode};
-pub use points::{knn_brute, PointError, PointNode, PointTree, NO_AXIS};
+pub use points::{knn_brute, PointError, PointNode, PointTree, QueryStats, NO_AXIS};
 pub use refit::{refit_bvh2, refit_mbvh4, RefitError, RefitFrame, RefitTracker};
 pub use reinsert::{reinsert, ReinsertConfig, ReinsertWork};
 pub use sah::{sah_cost, sah_cost_with, sah_ratio, SahParams};
 pub use sbvh::SbvhBuilder;
-pub use stream_collapse::{stream_collapse, stream_collapse_with, StreamCollapse};
+pub use stream_collapse::{
+    stream_collapse, stream_collapse_with, StreamCollapse, COLLAPSE_SLOT_BYTES, TREELET_NODE_BYTES,
+};
 pub use sweep_sah::SweepSahBuilder;
 pub use toplevel::{HlbvhAtrbvhBuilder, HlbvhSahBuilder};
 pub use tree::{Tree, TreeKind};

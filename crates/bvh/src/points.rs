@@ -68,6 +68,16 @@ pub enum PointError {
     Invalid(String),
 }
 
+/// Work of one query: inner node records read and points tested
+/// ([`PointTree::knn_counted`], [`crate::PlaneKdTree::knn_counted`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct QueryStats {
+    /// Inner nodes read (popped and not pruned).
+    pub nodes: u64,
+    /// Points whose distance was computed (the leaves reached).
+    pub points: u64,
+}
+
 /// A node of a [`PointTree`].
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct PointNode {
@@ -502,13 +512,25 @@ impl PointTree {
     /// The `k` points nearest to `q` into `out` (cleared first): `(squared distance, input
     /// index)` in increasing order, ties by index; all points when `k >= len`.
     pub fn knn(&self, q: Vec3, k: usize, out: &mut Vec<(f32, u32)>) -> Result<(), PointError> {
+        self.knn_counted(q, k, out).map(|_| ())
+    }
+
+    /// [`PointTree::knn`], counting the inner nodes it reads (popped and not pruned: the
+    /// records whose child boxes it compares) and the points it tests.
+    pub fn knn_counted(
+        &self,
+        q: Vec3,
+        k: usize,
+        out: &mut Vec<(f32, u32)>,
+    ) -> Result<QueryStats, PointError> {
+        let mut st = QueryStats::default();
         out.clear();
         if !q.is_finite() {
             return Err(PointError::NonFiniteQuery(q));
         }
         let k = k.min(self.points.len());
         if k == 0 {
-            return Ok(());
+            return Ok(st);
         }
         // Max-heap of the best k keys; its top is the k-th best.
         let mut heap: BinaryHeap<u64> = BinaryHeap::with_capacity(k);
@@ -527,6 +549,7 @@ impl PointTree {
             let node = &self.nodes[n as usize];
             if node.is_leaf() {
                 let (f, c) = (node.first as usize, node.count as usize);
+                st.points += c as u64;
                 for (p, &id) in self.points[f..f + c].iter().zip(&self.ids[f..f + c]) {
                     let kk = key(dist2(q, *p), id);
                     if heap.len() < k {
@@ -539,6 +562,7 @@ impl PointTree {
                 }
                 continue;
             }
+            st.nodes += 1;
             let (l, r) = (node.left, node.right);
             let lb = box_dist2(q, &self.nodes[l as usize].bounds);
             let rb = box_dist2(q, &self.nodes[r as usize].bounds);
@@ -561,18 +585,30 @@ impl PointTree {
             }
         }
         out.extend(heap.into_sorted_vec().into_iter().map(unkey));
-        Ok(())
+        Ok(st)
     }
 
     /// Every point within squared distance `r2` of `q` into `out` (cleared first):
     /// `(squared distance, input index)` in increasing order.
     pub fn within(&self, q: Vec3, r2: f32, out: &mut Vec<(f32, u32)>) -> Result<(), PointError> {
+        self.within_counted(q, r2, out).map(|_| ())
+    }
+
+    /// [`PointTree::within`], counting the inner nodes it reads and the points it tests
+    /// (as [`PointTree::knn_counted`]).
+    pub fn within_counted(
+        &self,
+        q: Vec3,
+        r2: f32,
+        out: &mut Vec<(f32, u32)>,
+    ) -> Result<QueryStats, PointError> {
+        let mut st = QueryStats::default();
         out.clear();
         if !q.is_finite() {
             return Err(PointError::NonFiniteQuery(q));
         }
         if self.nodes.is_empty() || r2.is_nan() || r2 < 0.0 {
-            return Ok(());
+            return Ok(st);
         }
         let mut keys = Vec::new();
         let mut stack = vec![0u32];
@@ -583,6 +619,7 @@ impl PointTree {
             }
             if node.is_leaf() {
                 let (f, c) = (node.first as usize, node.count as usize);
+                st.points += c as u64;
                 for (p, &id) in self.points[f..f + c].iter().zip(&self.ids[f..f + c]) {
                     let d = dist2(q, *p);
                     if d <= r2 {
@@ -590,13 +627,14 @@ impl PointTree {
                     }
                 }
             } else {
+                st.nodes += 1;
                 stack.push(node.right);
                 stack.push(node.left);
             }
         }
         keys.sort_unstable();
         out.extend(keys.into_iter().map(unkey));
-        Ok(())
+        Ok(st)
     }
 
     /// Checks the tree against the `points` it was built from: the sorted points are the

@@ -63,6 +63,13 @@
 //! collapse (tested); the buffer is at most `2^(levels + 1)` unresolved nodes per open
 //! subtree ([`StreamCollapse::max_treelet_nodes`] reports the peak).
 //!
+//! Its storage is the treelets: a row of [`TREELET_NODE_BYTES`] per unresolved node (its
+//! box, 24 B; the four least costs, 16 B; the four choices, 4 B; two child references and
+//! the depth, 5 B: 49 B, rounded up to 64) and the items below them, a fixed slot of
+//! [`COLLAPSE_SLOT_BYTES`] (a leaf or a closed wide node) or a committed open frontier of
+//! [`COLLAPSE_SLOT_BYTES`] (its box and slot count) plus its slots. [`StreamCollapse::max_window_bytes`]
+//! reports the peak of their sum over all open subtrees.
+//!
 //! # Output order
 //! Wide nodes are written in closing order, every node after the nodes it references
 //! (emission order, like the binary nodes of the plain output); [`StreamCollapse::tree`]
@@ -75,6 +82,14 @@ use crate::hlbvh::{EmitRef, EmittedNode, Highlevel, HighlevelRoot};
 use crate::mbvh4::{Mbvh4, Node4, MBVH_WIDTH};
 use crate::node::ChildRef;
 use geom::Aabb;
+
+/// Bytes of one slot: a 24-byte box and an 8-byte reference (a wide node's child).
+pub const COLLAPSE_SLOT_BYTES: usize = 32;
+
+/// Bytes of one unresolved treelet node of the windowed rule: box (24 B), four least
+/// costs (16 B), four choices (4 B), two child references and the depth (5 B), rounded up
+/// to a 64-byte row.
+pub const TREELET_NODE_BYTES: usize = 64;
 
 /// An open subtree: the emission index of its binary root and the slots it would give.
 #[derive(Clone, Copy, Debug)]
@@ -147,6 +162,10 @@ struct Window {
     stack: Vec<Treelet>,
     /// Peak treelet nodes held over all open subtrees.
     max_nodes: usize,
+    /// Bytes the open subtrees' treelets hold now (see [`Treelet::bytes`]).
+    bytes: usize,
+    /// Peak of `bytes`.
+    max_bytes: usize,
 }
 
 impl StreamCollapse {
@@ -172,6 +191,15 @@ impl StreamCollapse {
     /// the greedy rule).
     pub fn max_treelet_nodes(&self) -> usize {
         self.win.as_ref().map_or(0, |w| w.max_nodes)
+    }
+
+    /// Peak bytes of the windowed rule's storage over all open subtrees: a
+    /// [`TREELET_NODE_BYTES`] row per unresolved node, and per item below them a
+    /// [`COLLAPSE_SLOT_BYTES`] slot (a leaf or a closed node) or a committed open frontier of
+    /// [`COLLAPSE_SLOT_BYTES`] plus [`COLLAPSE_SLOT_BYTES`] per slot (module doc); 0 with the greedy rule,
+    /// whose storage is [`StreamCollapse::max_open`] x 128 bytes.
+    pub fn max_window_bytes(&self) -> usize {
+        self.win.as_ref().map_or(0, |w| w.max_bytes)
     }
 
     /// Wide nodes written so far, in write order (inner references are write indices).
@@ -429,6 +457,21 @@ struct Treelet {
     nodes: Vec<TNode>,
 }
 
+impl Treelet {
+    /// Bytes of its storage: a row per node and the items below them (module doc).
+    fn bytes(&self) -> usize {
+        let item = |k: &TRef| match k {
+            TRef::Slot(..) => COLLAPSE_SLOT_BYTES,
+            TRef::Open(_, o) => COLLAPSE_SLOT_BYTES * (1 + o.len),
+            TRef::Node(_) => 0,
+        };
+        self.nodes
+            .iter()
+            .map(|n| TREELET_NODE_BYTES + n.kids.iter().map(item).sum::<usize>())
+            .sum()
+    }
+}
+
 /// Per treelet node and budget `j` (index 1..=4): least cost, whether it is a wide node of
 /// its own, the split `a` (slots to child 0) and the budget `jj <= j` the split uses.
 #[derive(Clone, Copy, Debug, Default)]
@@ -458,7 +501,10 @@ impl StreamCollapse {
                     kids[slot] = TRef::Slot(e.aabbs[slot], ChildRef::leaf(first, count));
                 }
                 EmitRef::Node(c) => match w.stack.pop() {
-                    Some(t) if t.id == c => parts[slot] = Some(t),
+                    Some(t) if t.id == c => {
+                        w.bytes -= t.bytes();
+                        parts[slot] = Some(t)
+                    }
                     _ => return Err(CollapseError::StreamOrder { node: id, slot }),
                 },
             }
@@ -490,6 +536,8 @@ impl StreamCollapse {
         let mut t = self.commit(nodes, &budgets, |n| n.depth >= limit);
         t.id = self.consumed;
         let w = self.win.as_mut().expect("the windowed rule");
+        w.bytes += t.bytes();
+        w.max_bytes = w.max_bytes.max(w.bytes);
         w.stack.push(t);
         let held: usize = w.stack.iter().map(|t| t.nodes.len()).sum();
         w.max_nodes = w.max_nodes.max(held);
@@ -902,6 +950,46 @@ mod tests {
             sc.push(&hl.nodes[last]),
             Err(CollapseError::StreamOrder { .. })
         ));
+    }
+
+    /// The windowed rule's storage by hand, on a perfect tree of 4 leaves (emission order
+    /// n0 = (l0, l1), n1 = (l2, l3), n2 = (n0, n1)). After n0: one row and two leaf slots,
+    /// 64 + 2 x 32 = 128 B; after n1: two such treelets, 256 B. At n2 a window of 1 level or
+    /// more keeps all three rows over four leaf slots, 3 x 64 + 4 x 32 = 320 B; a window of
+    /// 0 commits n0 and n1 (depth 1) as open frontiers of two slots each (the root, a wide
+    /// node of its own, gives each two slots) and keeps one row over two frontiers of
+    /// 32 + 2 x 32 B: 64 + 2 x 96 = 256 B. The greedy rule holds no treelets.
+    #[test]
+    fn window_storage_by_hand() {
+        let prims = cubes_at(&[0.0, 3.0, 6.0, 9.0]);
+        let hl = HlbvhBuilder::default().build_highlevel(&prims).unwrap();
+        assert_eq!(hl.nodes.len(), 3);
+        let bytes = |sc: StreamCollapse| {
+            let (m, sc) = stream_collapse_with(&hl, sc).unwrap();
+            assert_eq!(m.nodes.len(), 1, "one root of four leaves");
+            sc.max_window_bytes()
+        };
+        assert_eq!(TREELET_NODE_BYTES, 64);
+        assert_eq!(COLLAPSE_SLOT_BYTES, 32);
+        assert_eq!(bytes(StreamCollapse::new()), 0);
+        assert_eq!(bytes(StreamCollapse::with_window(0)), 256);
+        for w in 1..4 {
+            assert_eq!(bytes(StreamCollapse::with_window(w)), 320, "window {w}");
+        }
+        // A larger scene: the storage grows with the window and covers the rows.
+        let prims = soup(3000, 2.0, 3);
+        let hl = HlbvhBuilder::default().build_highlevel(&prims).unwrap();
+        let mut last = 0;
+        for w in 0..5 {
+            let (_, sc) = stream_collapse_with(&hl, StreamCollapse::with_window(w)).unwrap();
+            let b = sc.max_window_bytes();
+            assert!(
+                b >= sc.max_treelet_nodes() * TREELET_NODE_BYTES,
+                "window {w}"
+            );
+            assert!(b > last, "window {w}: {b} B after {last} B");
+            last = b;
+        }
     }
 
     #[test]

@@ -281,10 +281,16 @@ pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
                 "power at 28 nm: logic {:.1} mW, DRAM {:.1} mW ({:.1} mW above idle); on-chip area {:.2} mm^2",
                 e.logic_mw, e.dram_mw, e.dram_above_idle_mw, e.area_mm2
             );
-            for u in &e.units[..4] {
+            for u in e.on_chip() {
                 println!(
-                    "  {:<18} {:>6.3} mm^2 {:>8.2} mW",
+                    "  {:<19} {:>6.3} mm^2 {:>8.2} mW",
                     u.unit, u.area_mm2, u.power_mw
+                );
+            }
+            if let Some(c) = &e.collapse_unit {
+                println!(
+                    "  (collapse unit: storage {} B {:.4} mm^2, FIFO {} B {:.4} mm^2, datapath {:.4} mm^2)",
+                    c.size.storage_bytes, c.storage_mm2, c.size.fifo_bytes, c.fifo_mm2, c.datapath_mm2
                 );
             }
         }
@@ -371,6 +377,15 @@ fn print_text(
             "read schedule forecast: fan-in {} = M/B - {} spares, one pass up to {} elements",
             r.config.fan_in(),
             r.config.forecast_spares,
+            thousands(r.config.single_pass_limit())
+        );
+    }
+    if r.config.output.is_points() {
+        println!(
+            "sort element {} B: {} per run, {} per buffer, one pass up to {} points",
+            r.config.elem_bytes(),
+            thousands(r.config.m_elems()),
+            r.config.b_elems(),
             thousands(r.config.single_pass_limit())
         );
     }

@@ -271,6 +271,25 @@ fn mbvh4_output_modes() {
     assert_eq!(mp["pass"]["node_reads"], plain["nodes"]);
     assert_eq!(u(&p, "bytes_read"), u(&plain, "bytes_read") + 64 * binary);
     assert!(u(&s, "cycles") < u(&p, "cycles"));
+    // The collapse unit's row in the energy object: only with `output = mbvh4`, before
+    // the DRAM, its storage the peak open subtrees' slots.
+    let names = |j: &Value| -> Vec<String> {
+        j["energy"]["units"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|x| x["unit"].as_str().unwrap().to_string())
+            .collect()
+    };
+    assert_eq!(names(&s)[4..], ["MBVH4 collapse unit", "DRAM"]);
+    for j in [&plain, &p] {
+        assert!(!names(j).contains(&"MBVH4 collapse unit".to_string()));
+        assert!(j["energy"]["collapse_unit"].is_null());
+    }
+    let cu = &s["energy"]["collapse_unit"];
+    assert_eq!(u(cu, "storage_bytes"), 128 * u(&m["stream"], "max_open"));
+    assert_eq!(u(cu, "fifo_bytes"), 16 * 64);
+    assert!(cu["window"].is_null());
     // One tree only.
     assert!(sim_error(&[
         CLOTH,
@@ -322,6 +341,27 @@ fn kdtree_points_mode() {
     let u = sim_json(&a);
     assert_eq!(u["triangles"], 3000);
     assert_eq!(u["tree_matches_software"], true);
+    // 16-byte elements by default in the point modes; 32 on request: one block of 3000
+    // points, so the sort reads the input once.
+    assert_eq!(u["config"]["point_element"], 16);
+    assert_eq!(u["bytes_read"], 3000 * 16);
+    let mut b32 = a.clone();
+    b32.extend(["--set", "point_element=32"]);
+    let u32 = sim_json(&b32);
+    assert_eq!(u32["bytes_read"], 3000 * 32);
+    assert_eq!(u32["bytes_written"], u["bytes_written"]);
+    assert!(sim_error(&[CLOTH, "--set", "point_element=8"]).contains("16 or 32"));
+    // Plane-only k-d nodes: the same tree, 16 bytes per written node.
+    let mut pl = a.clone();
+    pl.extend(["--set", "point_node=plane"]);
+    let up = sim_json(&pl);
+    assert_eq!(up["tree_matches_software"], true);
+    assert_eq!(up["config"]["point_node"], "plane");
+    assert_eq!(up["points"]["written"], u["points"]["written"]);
+    assert_eq!(
+        up["points"]["node_bytes"].as_u64().unwrap(),
+        16 * u["points"]["written"].as_u64().unwrap()
+    );
     // The octree of the same points.
     a[2] = "output=octree-points";
     let o = sim_json(&a);

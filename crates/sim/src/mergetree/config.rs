@@ -33,6 +33,13 @@ use serde::Serialize;
 /// is padding (\[P1\] §4.1: codes are omitted when writing out).
 pub const ELEM_BYTES: u64 = 32;
 
+/// Bytes of one sort element of the point modes (`point_element = 16`, the default there):
+/// the 12-byte point and the 4-byte reference. The Morton code is not stored: the reader
+/// computes it from the point as the element streams in, as it does for the 32-byte
+/// element (whose code slot is padding in DRAM), and it travels beside the element on
+/// chip (heap keys, FIFOs); see [`MergeTreeConfig::elem_bytes`].
+pub const POINT_ELEM_BYTES: u64 = 16;
+
 /// Bytes of one BVH node (\[P2\] §4.1: two child AABBs, two references).
 pub const NODE_BYTES: u64 = 64;
 
@@ -120,6 +127,18 @@ impl OutputMode {
     pub fn is_mbvh4(self) -> bool {
         matches!(self, OutputMode::Mbvh4 | OutputMode::Mbvh4Collapse)
     }
+}
+
+/// The k-d node the point writer writes (`output = kdtree-points`, `point_node`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum KdNode {
+    /// The \[P2\] §4.1 BVH node with the plane and axis: two child boxes, two references,
+    /// 64 bytes ([`NODE_BYTES`]); queries prune by box ([`bvh::PointTree::knn`]).
+    Box,
+    /// Plane, axis and two references in one 16-byte slot ([`bvh::PlaneNode`]); queries
+    /// prune by plane distance ([`bvh::PlaneKdTree`]).
+    Plane,
 }
 
 /// How the multi-merge unit schedules the reads that refill its scratchpad buffers.
@@ -267,6 +286,15 @@ pub struct MergeTreeConfig {
     /// Spare scratchpad buffers of B elements with `read_schedule = forecast` (the reads
     /// ahead that hide the memory latency); ignored with `double`.
     pub forecast_spares: u32,
+    /// Bytes of the sort element in the point modes: 16 ([`POINT_ELEM_BYTES`], a point and
+    /// a reference) or 32 (the \[P2\] §5.1 element, the earlier model and the baseline).
+    /// The scratchpad (`m` x 32 bytes) and its buffers (`b` x 32 bytes) keep their bytes,
+    /// so they hold 32 / `point_element` times as many elements. Ignored by the other
+    /// modes, which sort boxes.
+    pub point_element: u32,
+    /// The k-d node of `output = kdtree-points`: `box` (64 bytes with the child boxes, the
+    /// default) or `plane` (16 bytes, plane-only).
+    pub point_node: KdNode,
 }
 
 /// Names of the parameters [`MergeTreeConfig::set`] accepts.
@@ -302,6 +330,8 @@ pub const KEYS: &[&str] = &[
     "run_gap_bytes",
     "read_schedule",
     "forecast_spares",
+    "point_element",
+    "point_node",
 ];
 
 impl MergeTreeConfig {
@@ -353,6 +383,8 @@ impl MergeTreeConfig {
             run_gap_bytes: 0,
             read_schedule: ReadSchedule::Double,
             forecast_spares: 16,
+            point_element: POINT_ELEM_BYTES as u32,
+            point_node: KdNode::Box,
         }
     }
 
@@ -378,8 +410,44 @@ impl MergeTreeConfig {
         }
     }
 
+    /// Bytes of one sort element in DRAM and in the scratchpad: [`ELEM_BYTES`] (32, the
+    /// \[P2\] §5.1 element), or `point_element` in the point modes.
+    pub fn elem_bytes(&self) -> u64 {
+        if self.output.is_points() {
+            self.point_element as u64
+        } else {
+            ELEM_BYTES
+        }
+    }
+
+    /// Bytes of one written k-d node (`output = kdtree-points`): [`NODE_BYTES`] for
+    /// `point_node = box`, [`bvh::PLANE_NODE_BYTES`] for `plane`.
+    pub fn kd_node_bytes(&self) -> u64 {
+        match self.point_node {
+            KdNode::Box => NODE_BYTES,
+            KdNode::Plane => bvh::PLANE_NODE_BYTES as u64,
+        }
+    }
+
+    /// Sort elements per 32-byte slot of the scratchpad: 1, or 2 with 16-byte elements.
+    fn per_slot(&self) -> u64 {
+        ELEM_BYTES / self.elem_bytes()
+    }
+
+    /// Elements the scratchpad holds, the run length of the partial sorts: M x 32 bytes
+    /// over the element size (M for 32-byte elements).
+    pub fn m_elems(&self) -> u64 {
+        self.m as u64 * self.per_slot()
+    }
+
+    /// Elements one scratchpad buffer (a DRAM read of B x 32 bytes) holds.
+    pub fn b_elems(&self) -> u64 {
+        self.b as u64 * self.per_slot()
+    }
+
     /// Merge width of one multi-merge pass: M / (2B) double-buffered queues, or with
-    /// forecasting one buffer per run after the spares, M / B - `forecast_spares`.
+    /// forecasting one buffer per run after the spares, M / B - `forecast_spares` (the
+    /// same for any element size: the buffers keep their bytes).
     pub fn fan_in(&self) -> u64 {
         match self.read_schedule {
             ReadSchedule::Double => self.m as u64 / (2 * self.b as u64),
@@ -393,9 +461,9 @@ impl MergeTreeConfig {
     }
 
     /// Largest scene sorted with one multi-merge pass: M x fan-in, M^2 / (2B) with double
-    /// buffering (\[P1\] §6).
+    /// buffering (\[P1\] §6), in elements ([`MergeTreeConfig::m_elems`]).
     pub fn single_pass_limit(&self) -> u64 {
-        self.m as u64 * self.fan_in()
+        self.m_elems() * self.fan_in()
     }
 
     /// Clock period in femtoseconds.
@@ -516,6 +584,20 @@ impl MergeTreeConfig {
                 }
             }
             "forecast_spares" => self.forecast_spares = num32(1)?,
+            "point_element" => {
+                self.point_element = match num(0)? {
+                    16 => 16,
+                    32 => 32,
+                    _ => return Err(bad("must be 16 or 32")),
+                }
+            }
+            "point_node" => {
+                self.point_node = match value {
+                    "box" => KdNode::Box,
+                    "plane" => KdNode::Plane,
+                    _ => return Err(bad("expected box or plane")),
+                }
+            }
             _ => {
                 return Err(ConfigError::UnknownKey {
                     key: key.to_string(),
@@ -614,7 +696,7 @@ impl MergeTreeConfig {
                 ));
             }
         }
-        let ring = self.presorters as u64 * self.presort_slots as u64 * self.b as u64;
+        let ring = self.presorters as u64 * self.presort_slots as u64 * self.b_elems();
         if ring > 1 << 24 {
             return err(format!(
                 "presorters x presort_slots x B ({ring}) exceeds the model's limit of {}",
@@ -639,10 +721,11 @@ impl MergeTreeConfig {
                 self.forecast_spares
             ));
         }
-        if self.run_write_fifo < self.b {
+        if (self.run_write_fifo as u64) < self.b_elems() {
             return err(format!(
-                "run_write_fifo ({}) must hold at least B ({}) elements",
-                self.run_write_fifo, self.b
+                "run_write_fifo ({}) must hold at least a buffer's {} elements",
+                self.run_write_fifo,
+                self.b_elems()
             ));
         }
         if self.node_buffer_bytes < self.write_chunk_bytes
@@ -713,6 +796,9 @@ impl MergeTreeConfig {
                     self.max_leaf_size
                 ));
             }
+        }
+        if self.point_node == KdNode::Plane && self.output != OutputMode::KdtreePoints {
+            return err("point_node = plane applies to output = kdtree-points".into());
         }
         if let Some(t) = self.highlevel_threshold {
             if t > self.morton_bits {

@@ -77,6 +77,9 @@ pub(super) struct EmitUnit {
     pub points: Option<PointWriter>,
     /// An error of the point writer (cannot happen with a correct emitter).
     pub point_fault: Option<bvh::PointError>,
+    /// Bytes of a written k-d node (`output = kdtree-points`): 64 with child boxes, 16
+    /// plane-only ([`super::config::KdNode`]).
+    pub kd_node_bytes: u64,
     /// Octree node bytes written by the writer and not yet in the node write buffer.
     pub backlog: u64,
     /// Octree node bytes produced so far.
@@ -148,6 +151,7 @@ impl EmitUnit {
             fault: None,
             points,
             point_fault: None,
+            kd_node_bytes: super::config::NODE_BYTES,
             backlog: 0,
             oct_bytes: 0,
         }
@@ -243,7 +247,7 @@ impl EmitUnit {
                 self.nodes.push(n);
                 if let Some(PointWriter::Kd(w)) = &mut self.points {
                     match w.join(&n) {
-                        Ok(bvh::Joined::Written(_)) => io.add_node(),
+                        Ok(bvh::Joined::Written(_)) => io.add_node_bytes(self.kd_node_bytes),
                         Ok(bvh::Joined::Collapsed) => {}
                         Err(e) => self.point_fault = Some(e),
                     }

@@ -54,6 +54,9 @@ pub struct CollapseUnitStats {
     /// Peak unresolved binary nodes held over all open subtrees (windowed rule; 0 with
     /// the greedy rule).
     pub max_treelet_nodes: u64,
+    /// Peak bytes of the windowed rule's treelets, rows and items
+    /// ([`bvh::StreamCollapse::max_window_bytes`]; 0 with the greedy rule).
+    pub max_window_bytes: u64,
     /// Cycles the unit consumed a node, took the root or wrote a wide node.
     pub busy_cycles: u64,
     /// Cycles it had nothing to do and the emitter had not finished.

@@ -6,7 +6,8 @@
 //! - [`config`]: parameters and the presets `p1` and `p2`;
 //! - [`machine`]: the units on the simulation kernel ([`crate::kernel`]): the control FSM,
 //!   the reader (32-byte AABBs read in bursts of B, Morton codes computed as they stream in,
-//!   \[P2\] §5.1; refills of the merge queues), the run writer, the write buffers and the
+//!   \[P2\] §5.1, or in the point modes 16-byte points and references,
+//!   [`MergeTreeConfig::elem_bytes`]; refills of the merge queues), the run writer, the write buffers and the
 //!   round-robin memory arbiter, each a kernel unit or channel, plus the DRAM layout;
 //! - [`presort`]: the insertion presorters of the partial-sort mode (\[P2\] §5.5);
 //! - [`heap`]: the pipelined merge heap (\[P2\] §5.2);
@@ -41,7 +42,7 @@ pub mod presort;
 pub mod report;
 pub mod toplevel;
 
-pub use config::{ConfigError, MergeTreeConfig, OutputMode, ReadSchedule};
+pub use config::{ConfigError, KdNode, MergeTreeConfig, OutputMode, ReadSchedule};
 pub use machine::MemoryLayout;
 pub use mbvh4_unit::{CollapseUnitStats, Mbvh4RunReport};
 pub use report::{
@@ -251,15 +252,17 @@ fn run_machine<'a>(
     )?;
     let cbvh = kernel_cbvh_result(out, &highlevel, cfg)?;
     let points = match k.points.take() {
-        Some(w) => Some(point_result(w?, aabbs)?),
+        Some(w) => Some(point_result(w?, aabbs, cfg)?),
         None => match cfg.output {
             OutputMode::KdtreePoints => Some(point_result(
                 emitter::PointWriter::Kd(bvh::PointStream::new(&cb, cfg.max_leaf_size)?),
                 aabbs,
+                cfg,
             )?),
             OutputMode::OctreePoints => Some(point_result(
                 emitter::PointWriter::Oct(bvh::OctreeStream::new(cfg.max_leaf_size)?),
                 aabbs,
+                cfg,
             )?),
             _ => None,
         },
@@ -275,7 +278,7 @@ fn run_machine<'a>(
         bytes_written: mem.bytes_written,
         bus_utilization: (mem.bytes_read + mem.bytes_written) as f64 / (k.peak * cycles as f64),
         peak_bytes_per_cycle: k.peak,
-        partial_sort_blocks: (aabbs.len() as u64).div_ceil(cfg.m as u64),
+        partial_sort_blocks: (aabbs.len() as u64).div_ceil(cfg.m_elems()),
         merge_passes: k.passes_total,
         phases: k.phases,
         presort_busy_fraction: if partial_cycles == 0 {
@@ -348,7 +351,11 @@ fn kernel_mbvh4_result(
 }
 
 /// The point tree the writer made, with its counts.
-fn point_result(w: emitter::PointWriter, aabbs: &[Aabb]) -> Result<PointRunReport, MergeTreeError> {
+fn point_result(
+    w: emitter::PointWriter,
+    aabbs: &[Aabb],
+    cfg: &MergeTreeConfig,
+) -> Result<PointRunReport, MergeTreeError> {
     let emitted = aabbs.len().saturating_sub(1) as u64;
     let r = match w {
         emitter::PointWriter::Kd(w) => {
@@ -364,7 +371,7 @@ fn point_result(w: emitter::PointWriter, aabbs: &[Aabb]) -> Result<PointRunRepor
                 max_leaf: tree.max_leaf(),
                 emitted,
                 written,
-                node_bytes: written * config::NODE_BYTES,
+                node_bytes: written * cfg.kd_node_bytes(),
                 collapsed,
                 tree_nodes: tree.nodes().len() as u64,
                 depth: tree.depth() as u64,

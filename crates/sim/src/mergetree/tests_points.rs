@@ -41,7 +41,7 @@ fn check_points(pts: &[Vec3], cfg: &MergeTreeConfig) -> MergeTreeReport {
     }
     if p.kind == "kdtree" {
         assert_eq!(p.written + p.collapsed, p.emitted);
-        assert_eq!(p.node_bytes, 64 * p.written);
+        assert_eq!(p.node_bytes, cfg.kd_node_bytes() * p.written);
     }
     r
 }
@@ -67,8 +67,17 @@ fn octree_equals_software_across_merge_passes() {
     ];
     for pts in &sets {
         for leaf in [1, 8] {
-            for cfg in [MergeTreeConfig::p2(), small(1024, 8, 4), small(32, 4, 1)] {
-                let r = check_points(pts, &octree_mode(cfg, leaf));
+            for (cfg, element) in [
+                (MergeTreeConfig::p2(), 16),
+                (small(1024, 8, 4), 16),
+                (small(32, 4, 1), 16),
+                (small(32, 4, 1), 32),
+            ] {
+                let c = MergeTreeConfig {
+                    point_element: element,
+                    ..octree_mode(cfg, leaf)
+                };
+                let r = check_points(pts, &c);
                 let p = r.points.as_ref().unwrap();
                 let s = p.octree.as_ref().unwrap().stats();
                 assert_eq!(p.written, (s.nodes - s.leaves) as u64);
@@ -108,7 +117,11 @@ fn octree_traffic_is_the_plain_builds_with_its_nodes() {
     let a = point_boxes(&pts).unwrap();
     let bursts = |b: u64| b.div_ceil(64) * 64;
     for cfg in [MergeTreeConfig::p2(), small(1024, 8, 4)] {
-        let oc = octree_mode(cfg, 8);
+        // The plain build sorts 32-byte elements: compare with the 32-byte point element.
+        let oc = MergeTreeConfig {
+            point_element: 32,
+            ..octree_mode(cfg, 8)
+        };
         let plain_cfg = MergeTreeConfig {
             output: OutputMode::Bvh,
             ..oc.clone()
@@ -139,7 +152,13 @@ fn point_tree_equals_software_across_merge_passes() {
         for leaf in [1, 8] {
             // One block; one merge pass (fan-in 64); several passes (fan-in 4).
             for cfg in [MergeTreeConfig::p2(), small(1024, 8, 4), small(32, 4, 1)] {
-                check_points(pts, &points_mode(cfg, leaf));
+                for element in [16, 32] {
+                    let c = MergeTreeConfig {
+                        point_element: element,
+                        ..points_mode(cfg.clone(), leaf)
+                    };
+                    check_points(pts, &c);
+                }
             }
         }
     }
@@ -198,6 +217,8 @@ fn hand_derived_counts_on_four_points() {
     // Writes: one 64-byte node, the 4-byte leaf entries (one 64-byte burst) and the
     // 32-byte root record (one burst).
     assert_eq!(r.bytes_written, 64 + 64 + 64);
+    // Reads: the 4 points once, 16 bytes each (one block, no runs).
+    assert_eq!(r.bytes_read, 4 * 16);
 }
 
 #[test]
@@ -205,7 +226,11 @@ fn traffic_is_the_plain_builds_without_the_collapsed_nodes() {
     let pts = cloud(6000, 4, 3.0);
     let a = point_boxes(&pts).unwrap();
     for cfg in [MergeTreeConfig::p2(), small(1024, 8, 4)] {
-        let pc = points_mode(cfg, 8);
+        // The plain build sorts 32-byte elements: compare with the 32-byte point element.
+        let pc = MergeTreeConfig {
+            point_element: 32,
+            ..points_mode(cfg, 8)
+        };
         // The plain BVH build of the same boxes on the same grid (distinct codes: n - 1
         // nodes).
         let plain_cfg = MergeTreeConfig {
@@ -228,5 +253,132 @@ fn traffic_is_the_plain_builds_without_the_collapsed_nodes() {
             plain.bytes_written - (plain.nodes - p.written) * 64
         );
         assert!(r.cycles <= plain.cycles, "{} > {}", r.cycles, plain.cycles);
+        // 16-byte elements: the same tree from half the sort traffic (6000 points are a
+        // multiple of both buffers, and take the same passes here).
+        let r16 = check_points(
+            &pts,
+            &MergeTreeConfig {
+                point_element: 16,
+                ..pc.clone()
+            },
+        );
+        assert_eq!(r16.merge_passes, r.merge_passes);
+        assert_eq!(r16.bytes_read * 2, r.bytes_read);
+        let runs = r.merge_passes as u64 * 6000 * 32;
+        assert_eq!(r16.bytes_written, r.bytes_written - runs / 2);
+        // With runs in DRAM the halved traffic shortens the build; one block (`p2`) sorts
+        // on chip, where the element size changes only the presorters' sub-blocks.
+        if r.partial_sort_blocks > 1 {
+            assert!(r16.cycles < r.cycles, "{} vs {}", r16.cycles, r.cycles);
+        }
     }
+}
+
+/// The 16-byte point element by hand: 6000 points, M = 256 (8 KB of scratchpad), B = 8
+/// (256-byte buffers), fan-in 16. With 32-byte elements the scratchpad holds 256: 24
+/// partial-sort runs, two merge passes (24 > 16); the sort reads the input and the runs
+/// twice, 3 x 6000 x 32 = 576,000 bytes, and writes the runs twice, 384,000 bytes. With
+/// 16-byte elements it holds 512 and a buffer 16: 12 runs, one pass (the largest
+/// one-pass scene 8192 points, not 4096); it reads 2 x 6000 x 16 = 192,000 bytes and writes
+/// 96,000. The tree, its nodes and leaf table (the other writes) and the emitter's
+/// 2n + 1 steps are the same.
+#[test]
+fn point_element_by_hand() {
+    let pts = cloud(6000, 8, 5.0);
+    let c32 = MergeTreeConfig {
+        point_element: 32,
+        ..points_mode(small(256, 8, 4), 8)
+    };
+    let c16 = MergeTreeConfig {
+        point_element: 16,
+        ..c32.clone()
+    };
+    assert_eq!((c32.fan_in(), c32.single_pass_limit()), (16, 4096));
+    assert_eq!(
+        (
+            c16.fan_in(),
+            c16.m_elems(),
+            c16.b_elems(),
+            c16.single_pass_limit()
+        ),
+        (16, 512, 16, 8192)
+    );
+    let (a, b) = (check_points(&pts, &c32), check_points(&pts, &c16));
+    assert_eq!((a.partial_sort_blocks, a.merge_passes), (24, 2));
+    assert_eq!((b.partial_sort_blocks, b.merge_passes), (12, 1));
+    assert_eq!((a.bytes_read, b.bytes_read), (576_000, 192_000));
+    let tree = a.bytes_written - 384_000;
+    assert_eq!(b.bytes_written, tree + 96_000);
+    let steps = |r: &MergeTreeReport| {
+        r.units
+            .iter()
+            .find(|u| u.name == "emitter")
+            .and_then(|u| u.counters.iter().find(|c| c.0 == "steps"))
+            .map(|c| c.1)
+    };
+    assert_eq!(steps(&a), Some(2 * 6000 + 1));
+    assert_eq!(steps(&b), steps(&a));
+    assert!(b.cycles < a.cycles);
+    // The key and its check.
+    let mut c = c16.clone();
+    c.set("point_element", "32").unwrap();
+    assert_eq!(c, c32);
+    assert!(c.set("point_element", "24").is_err());
+    // Box modes ignore it.
+    let plain = MergeTreeConfig {
+        output: OutputMode::Bvh,
+        ..c16
+    };
+    assert_eq!((plain.elem_bytes(), plain.m_elems()), (32, 256));
+}
+
+/// Plane-only k-d nodes (`point_node = plane`): the same tree, 16 bytes per written node
+/// instead of 64, the same reads and emitter steps. By hand on the 4 points of the x axis
+/// with leaves of 1: 3 nodes, 192 bytes with boxes (3 bursts) and 48 with planes (one
+/// 64-byte burst), so 320 and 192 bytes written with the leaf entries and the root record.
+#[test]
+fn plane_nodes_write_a_quarter_of_the_node_bytes() {
+    let pts: Vec<Vec3> = (0..4).map(|i| Vec3::new(i as f32, 0.0, 0.0)).collect();
+    let boxed = points_mode(MergeTreeConfig::p2(), 1);
+    let plane = MergeTreeConfig {
+        point_node: KdNode::Plane,
+        ..boxed.clone()
+    };
+    let (b, p) = (check_points(&pts, &boxed), check_points(&pts, &plane));
+    let (pb, pp) = (b.points.as_ref().unwrap(), p.points.as_ref().unwrap());
+    assert_eq!((pb.written, pb.node_bytes), (3, 192));
+    assert_eq!((pp.written, pp.node_bytes), (3, 48));
+    assert_eq!((b.bytes_written, p.bytes_written), (320, 192));
+    assert_eq!(b.bytes_read, p.bytes_read);
+    // A larger set across merge passes: the same tree and reads; the node bytes a
+    // quarter, in whole bursts.
+    let pts = cloud(6000, 4, 3.0);
+    for cfg in [MergeTreeConfig::p2(), small(1024, 8, 4)] {
+        let boxed = points_mode(cfg, 8);
+        let plane = MergeTreeConfig {
+            point_node: KdNode::Plane,
+            ..boxed.clone()
+        };
+        let (b, p) = (check_points(&pts, &boxed), check_points(&pts, &plane));
+        let (pb, pp) = (b.points.as_ref().unwrap(), p.points.as_ref().unwrap());
+        assert_eq!(pb.written, pp.written);
+        assert_eq!(pb.node_bytes, 4 * pp.node_bytes);
+        assert_eq!(b.bytes_read, p.bytes_read);
+        assert_eq!(
+            p.bytes_written,
+            b.bytes_written - pb.node_bytes + pp.node_bytes.div_ceil(64) * 64
+        );
+        assert!(p.cycles <= b.cycles);
+    }
+    // The key, and only in the k-d mode.
+    let mut c = points_mode(MergeTreeConfig::p2(), 8);
+    c.set("point_node", "plane").unwrap();
+    c.validate().unwrap();
+    assert!(c.set("point_node", "sphere").is_err());
+    c.output = OutputMode::OctreePoints;
+    assert!(c
+        .validate()
+        .unwrap_err()
+        .to_string()
+        .contains("kdtree-points"));
 }

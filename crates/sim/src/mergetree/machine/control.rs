@@ -80,7 +80,7 @@ impl Control {
 
     pub(super) fn start_pass(&mut self, w: &mut KWorld, cx: &mut Ctx, p: u32) {
         let fan = w.cfg.fan_in();
-        self.pass_run_len = w.cfg.m as u64 * fan.pow(p);
+        self.pass_run_len = w.cfg.m_elems() * fan.pow(p);
         self.pass_runs = w.npad.div_ceil(self.pass_run_len);
         self.group = 0;
         let to_emitter = p + 1 == w.passes_total;
@@ -160,7 +160,7 @@ impl<'a> Unit<KWorld<'a>> for Control {
                     return Wake::OnEvent;
                 }
                 self.subs_in -= nsub;
-                let first = self.fill_block * w.cfg.m as u64 / (2 * w.cfg.b as u64);
+                let first = self.fill_block * w.cfg.m_elems() / (2 * w.cfg.b_elems());
                 let c = MergeCmd::Partial {
                     first,
                     count: nsub,

@@ -59,6 +59,7 @@ impl Collapse {
             self.done = true;
             self.stats.max_open = sc.max_open() as u64;
             self.stats.max_treelet_nodes = sc.max_treelet_nodes() as u64;
+            self.stats.max_window_bytes = sc.max_window_bytes() as u64;
             w.out.collapse = Some((self.sc.take().expect("once"), self.stats.clone()));
             w.stream_done.push(cx, ()).expect("one done token");
             cx.set_state(State::Idle);

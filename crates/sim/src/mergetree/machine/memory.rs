@@ -45,15 +45,15 @@ impl<'a> Unit<KWorld<'a>> for Reader {
             return Wake::OnEvent;
         }
         let req = if input {
-            let b = w.cfg.b as u64;
+            let b = w.cfg.b_elems();
             let p = self.in_p as usize;
             let slot = self.tail[p];
             self.tail[p] = if slot + 1 == self.slots { 0 } else { slot + 1 };
             self.alloc[p] += 1;
             let real = w.n.min(self.in_next + b) - self.in_next;
             let r = Req {
-                addr: w.layout.input + self.in_next * ELEM_BYTES,
-                bytes: (real * ELEM_BYTES) as u32,
+                addr: w.layout.input + self.in_next * w.cfg.elem_bytes(),
+                bytes: (real * w.cfg.elem_bytes()) as u32,
                 kind: AccessKind::Read,
                 dest: Dest::Presort {
                     p: self.in_p,
@@ -78,8 +78,13 @@ impl<'a> Unit<KWorld<'a>> for Reader {
             let f = w.refill.pop(cx).expect("peeked");
             Req {
                 addr: w.layout.runs[f.region as usize]
-                    + run_offset(f.pos, w.cfg.m as u64, w.cfg.run_gap_bytes as u64),
-                bytes: f.count * ELEM_BYTES as u32,
+                    + run_offset(
+                        f.pos,
+                        w.cfg.m_elems(),
+                        w.cfg.run_gap_bytes as u64,
+                        w.cfg.elem_bytes(),
+                    ),
+                bytes: f.count * w.cfg.elem_bytes() as u32,
                 kind: AccessKind::Read,
                 dest: Dest::Merge(f),
             }
@@ -134,13 +139,14 @@ impl<'a> Unit<KWorld<'a>> for RunWriter {
         }
         let start = self.written - self.b as u64;
         let region = ((start / self.npad) % 2) as usize;
-        let bytes = self.b * ELEM_BYTES as u32;
+        let bytes = self.b * w.cfg.elem_bytes() as u32;
         let req = Req {
             addr: w.layout.runs[region]
                 + run_offset(
                     start % self.npad,
-                    w.cfg.m as u64,
+                    w.cfg.m_elems(),
                     w.cfg.run_gap_bytes as u64,
+                    w.cfg.elem_bytes(),
                 ),
             bytes,
             kind: AccessKind::Write,

@@ -119,7 +119,7 @@ use geom::{Aabb, MortonQuantizer};
 
 use super::cbvh_unit::{StreamUnitStats, TopdownStats};
 use super::config::{
-    MergeTreeConfig, ELEM_BYTES, HIGHLEVEL_BYTES, LEAF_ENTRY_BYTES, MBVH4_NODE_BYTES, NODE_BYTES,
+    MergeTreeConfig, HIGHLEVEL_BYTES, LEAF_ENTRY_BYTES, MBVH4_NODE_BYTES, NODE_BYTES,
 };
 use super::config::{OutputMode, ReadSchedule};
 use super::emitter::{EmitPorts, EmitStatus, EmitUnit, EmitterStalls, PointWriter};
@@ -159,13 +159,13 @@ pub struct MemoryLayout {
 }
 
 impl MemoryLayout {
-    /// The layout for `n` primitives padded to `npad` elements, with `run_gap` bytes after
-    /// every run of `m` elements in the run regions ([`run_offset`]).
-    pub fn new(n: u64, npad: u64, m: u64, run_gap: u64) -> Self {
+    /// The layout for `n` primitives padded to `npad` elements of `elem` bytes, with
+    /// `run_gap` bytes after every run of `m` elements in the run regions ([`run_offset`]).
+    pub fn new(n: u64, npad: u64, m: u64, run_gap: u64, elem: u64) -> Self {
         let up = |x: u64| x.div_ceil(REGION_ALIGN) * REGION_ALIGN;
         let input = 0;
-        let run0 = up(input + n * ELEM_BYTES);
-        let run_bytes = run_offset(npad, m.max(1), run_gap);
+        let run0 = up(input + n * elem);
+        let run_bytes = run_offset(npad, m.max(1), run_gap, elem);
         let run1 = up(run0 + run_bytes);
         let nodes = up(run1 + run_bytes);
         let leaves = up(nodes + n.saturating_sub(1) * super::config::NODE_BYTES);
@@ -187,11 +187,12 @@ impl MemoryLayout {
     }
 }
 
-/// Byte offset of element `at` in a run region: runs of `m` elements, each followed by
-/// `run_gap` unused bytes (the `run_gap_bytes` layout what-if; 0 by default).
+/// Byte offset of element `at` in a run region: runs of `m` elements of `elem` bytes,
+/// each followed by `run_gap` unused bytes (the `run_gap_bytes` layout what-if; 0 by
+/// default).
 #[inline]
-pub fn run_offset(at: u64, m: u64, run_gap: u64) -> u64 {
-    at * ELEM_BYTES + at / m * run_gap
+pub fn run_offset(at: u64, m: u64, run_gap: u64, elem: u64) -> u64 {
+    at * elem + at / m * run_gap
 }
 
 /// The sort element of primitive `i` of `aabbs` (padding past the end): its box,
@@ -732,14 +733,14 @@ impl World for KWorld<'_> {
 
 impl KWorld<'_> {
     fn sub_len(&self, sub: u64) -> u32 {
-        let b = self.cfg.b as u64;
+        let b = self.cfg.b_elems();
         (self.npad - sub * 2 * b).min(2 * b) as u32
     }
 
     fn subs_of_block(&self, k: u64) -> u64 {
-        let m = self.cfg.m as u64;
+        let m = self.cfg.m_elems();
         let len = (self.npad - k * m).min(m);
-        len.div_ceil(2 * self.cfg.b as u64)
+        len.div_ceil(2 * self.cfg.b_elems())
     }
 }
 
@@ -810,14 +811,14 @@ pub(super) fn run<'a>(
             points: None,
             build_cycles: 0,
             passes_total: 0,
-            layout: MemoryLayout::new(0, 0, 1, 0),
+            layout: MemoryLayout::new(0, 0, 1, 0, cfg.elem_bytes()),
             mem: port.stats(),
             dram: port.name(),
             peak: port.peak_bytes_per_unit_cycle(),
         });
     }
-    let b = cfg.b as u64;
-    let m = cfg.m as u64;
+    let b = cfg.b_elems();
+    let m = cfg.m_elems();
     let npad = n.div_ceil(b) * b;
     let blocks = npad.div_ceil(m).max(1);
     let fan = cfg.fan_in();
@@ -829,7 +830,7 @@ pub(super) fn run<'a>(
         runs = runs.div_ceil(fan);
         passes_total += 1;
     }
-    let layout = MemoryLayout::new(n, npad, m, cfg.run_gap_bytes as u64);
+    let layout = MemoryLayout::new(n, npad, m, cfg.run_gap_bytes as u64, cfg.elem_bytes());
     let subs = npad.div_ceil(2 * b);
     let np = cfg.presorters as usize;
     let slots = cfg.presort_slots as usize;
@@ -936,7 +937,7 @@ pub(super) fn run<'a>(
         ids,
         scratch_open: Reg::new(0),
         emit_active: Reg::new(blocks == 1),
-        scratch: vec![Elem::PAD; cfg.m as usize],
+        scratch: vec![Elem::PAD; cfg.m_elems() as usize],
         scratch_port: Cycle::MAX,
         region: [
             vec![0; region_len(passes_total > 0)],
@@ -972,30 +973,30 @@ pub(super) fn run<'a>(
         phase_start: 0,
         snap: [0; 4],
     }));
-    s.add(Box::new(Emitter {
-        e: EmitUnit::new(
-            n,
-            cfg.highlevel_threshold,
-            cfg.combine_identical,
-            cfg.max_leaf_size,
-            streaming,
-            match cfg.output {
-                OutputMode::KdtreePoints => Some(PointWriter::Kd(
-                    bvh::PointStream::new(centroid_bounds, cfg.max_leaf_size)
-                        .map_err(|e| MergeTreeError::Input(e.to_string()))?,
-                )),
-                OutputMode::OctreePoints => Some(PointWriter::Oct(
-                    bvh::OctreeStream::new(cfg.max_leaf_size)
-                        .map_err(|e| MergeTreeError::Input(e.to_string()))?,
-                )),
-                _ => None,
-            },
-        ),
-    }));
+    let mut e = EmitUnit::new(
+        n,
+        cfg.highlevel_threshold,
+        cfg.combine_identical,
+        cfg.max_leaf_size,
+        streaming,
+        match cfg.output {
+            OutputMode::KdtreePoints => Some(PointWriter::Kd(
+                bvh::PointStream::new(centroid_bounds, cfg.max_leaf_size)
+                    .map_err(|e| MergeTreeError::Input(e.to_string()))?,
+            )),
+            OutputMode::OctreePoints => Some(PointWriter::Oct(
+                bvh::OctreeStream::new(cfg.max_leaf_size)
+                    .map_err(|e| MergeTreeError::Input(e.to_string()))?,
+            )),
+            _ => None,
+        },
+    );
+    e.kd_node_bytes = cfg.kd_node_bytes();
+    s.add(Box::new(Emitter { e }));
     s.add(Box::new(MergeUnit {
         m: match cfg.read_schedule {
-            ReadSchedule::Double => Merger::new(cfg.m, cfg.b),
-            ReadSchedule::Forecast => Merger::with_forecast(cfg.m, cfg.b, fan as u32),
+            ReadSchedule::Double => Merger::new(m as u32, b as u32),
+            ReadSchedule::Forecast => Merger::with_forecast(m as u32, b as u32, fan as u32),
         },
         active: false,
         to_emitter: false,
@@ -1013,7 +1014,7 @@ pub(super) fn run<'a>(
     s.add(Box::new(RunWriter {
         staged: 0,
         written: 0,
-        b: cfg.b,
+        b: b as u32,
         npad,
     }));
     s.add(Box::new(Arbiter {
@@ -1026,7 +1027,7 @@ pub(super) fn run<'a>(
     }));
     let mut bank = Vec::with_capacity(np);
     for p in 0..cfg.presorters {
-        let mut ps = Presorter::new(cfg.presort_slots, cfg.b, p as u64);
+        let mut ps = Presorter::new(cfg.presort_slots, b as u32, p as u64);
         if (p as u64) < subs {
             let len = w.sub_len(p as u64);
             ps.start(p as u64, len, p as u64 * 2 * b / m);
@@ -1037,7 +1038,7 @@ pub(super) fn run<'a>(
             p,
             ps,
             acct: Acct::new(),
-            b: cfg.b,
+            b: b as u32,
             subs_per_block: m / (2 * b),
             total_subs: subs,
             count: cfg.presorters as u64,
