@@ -8,7 +8,9 @@
 //! `--set output=mbvh4` the unit writes 128-byte MBVH4 nodes through the streaming collapse
 //! behind the emitter, and with `--set output=mbvh4-collapse` through a collapse pass after
 //! the build (issue 18 part 2); the MBVH4 is then checked node for node against the
-//! software collapse. The JSON
+//! software collapse. With `--set output=cbvh4` the collapse unit's wide nodes go through
+//! the streaming CBVH encoder carried over to 4-wide nodes (32-byte compressed nodes),
+//! checked bit for bit against `cbvh::compress_stream_collapse`. The JSON
 //! form (`arbor.sim.mergetree.v1`) is documented in `docs/cli-json.md`.
 //! `--set output=kdtree-points` (issue 18, part 3) the unit builds a point k-d tree over the
 //! triangles' centroids (or `--points uniform:N`, random points in the scene's box), checked

@@ -22,6 +22,16 @@
 //! go to the output region (`cbvh` in [`super::MemoryLayout`]) in
 //! write order, each after the nodes it references.
 //!
+//! # Compressed wide nodes (`output = cbvh4`)
+//! The collapse unit above hands each wide node it closes to a FIFO (`cbvh_fifo` entries,
+//! stalling while it is full) instead of writing it, and behind it the streaming CBVH unit
+//! of [`super::cbvh_unit`] drives [`cbvh::WideStreamEncoder`] (\[P3\] Algorithm 1 over
+//! 4-wide nodes): one cycle per wide node taken, one per compressed node (32 bytes at 6
+//! bits) handed to the write buffer, and per backtracking step a read and a write of the
+//! 64-byte lines holding the node, one step at a time. The tree equals
+//! [`cbvh::compress_stream_collapse`] of the same stream bit for bit
+//! ([`super::cbvh4_matches_software`]); [`Cbvh4RunReport`] has the counts.
+//!
 //! # Collapse pass (`output = mbvh4-collapse`)
 //! The baseline builds as `output = bvh` (64-byte nodes in emission order), then a pass
 //! reads the nodes back and writes the offline greedy collapse ([`bvh::collapse`] of the

@@ -37,6 +37,7 @@
 //! | then | toplevel SAH unit (with `toplevel_sah`) | `TopUnit` | `top_start`, the published cell roots | high-level write buffer, `top_done` |
 //! | then | streaming CBVH encoder (`cbvh-stream`) | the encoder, its queued accesses | `enc_fifo`, `bt_data`, `emit_finished` | node-pair write buffer, `req_cbvh`, `stream_done` |
 //! | then | streaming MBVH4 collapse (`mbvh4`, in the encoder's place) | the collapse, its open subtrees | `col_fifo`, `emit_finished` | wide-node write buffer, `stream_done` |
+//! | then | wide CBVH encoder behind the collapse (`cbvh4`: the streaming encoder unit driving `cbvh::WideStreamEncoder`) | the encoder, its queued accesses | `wide_fifo`, `bt_data`, `collapse_finished` | compressed-node write buffer, `req_cbvh`, `stream_done` |
 //! | then | top-down CBVH pass (`cbvh-topdown`), or the MBVH4 collapse pass (`mbvh4-collapse`) | read / encode positions | `td_start`, `td_data` | node-pair (wide-node) write buffer, `req_cbvh`, `td_done` |
 //!
 //! The units live in files of their own: `control` (the FSM), `emit` (hierarchy emitter
@@ -82,6 +83,7 @@
 //! | `cmd` | 1 | control -> merger |
 //! | `enc_fifo` | `cbvh_fifo` | emitter -> streaming encoder |
 //! | `col_fifo` | `cbvh_fifo` | emitter -> streaming MBVH4 collapse |
+//! | `wide_fifo` | `cbvh_fifo` | streaming MBVH4 collapse -> wide encoder (`cbvh4`) |
 //! | `req_cbvh` | 2 | CBVH unit -> arbiter |
 //! | `bt_data` | 1 | arbiter -> streaming encoder (backtracking read done) |
 //! | `td_data` | nodes | arbiter -> top-down pass (node reads done) |
