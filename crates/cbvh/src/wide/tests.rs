@@ -424,7 +424,9 @@ proptest! {
             }
         }
         let hl = crate::study::paper_lbvh().build_highlevel(&prims).unwrap();
-        let (t, _, exact) = compress_stream_collapse(&hl, StreamCollapse::new(), &cfg(Coords::Modulo, bits, 1)).unwrap();
-        check_decodes(&t, &exact, &prims);
+        for sc in [StreamCollapse::new(), StreamCollapse::with_window(1)] {
+            let (t, _, exact) = compress_stream_collapse(&hl, sc, &cfg(Coords::Modulo, bits, 1)).unwrap();
+            check_decodes(&t, &exact, &prims);
+        }
     }
 }
