@@ -655,7 +655,10 @@ fn ref_cost(k: TRef, a: usize, cost: &[[Choice; MBVH_WIDTH + 1]]) -> f64 {
 fn choices(nodes: &[TNode]) -> Vec<[Choice; MBVH_WIDTH + 1]> {
     let mut cost: Vec<[Choice; MBVH_WIDTH + 1]> = Vec::with_capacity(nodes.len());
     for n in nodes {
-        let mut open = [(f64::INFINITY, 0usize); MBVH_WIDTH + 1];
+        // A split of one slot to child 0 until a finite cost is found: with boxes whose
+        // areas overflow `f32` (coordinates near the format's limits) every cost is
+        // infinite, and the split must still be a valid one (1..j slots to child 0).
+        let mut open = [(f64::INFINITY, 1usize); MBVH_WIDTH + 1];
         for (j, o) in open.iter_mut().enumerate().skip(2) {
             for a in 1..j {
                 let c = ref_cost(n.kids[0], a, &cost) + ref_cost(n.kids[1], j - a, &cost);
@@ -989,6 +992,51 @@ mod tests {
             );
             assert!(b > last, "window {w}: {b} B after {last} B");
             last = b;
+        }
+    }
+
+    /// Boxes whose areas overflow `f32` (found by `cbvh`'s property test): every cost of
+    /// the windowed rule's program is infinite, and it must still choose valid splits.
+    #[test]
+    fn windowed_rule_survives_infinite_areas() {
+        let b = |a: [f32; 3], c: [f32; 3]| Aabb::new(geom::Vec3::from(a), geom::Vec3::from(c));
+        let prims = vec![
+            b([0.0, 1.329228e36, 0.0], [0.0, 1.329228e36, 0.0]),
+            b(
+                [4.1951594e-7, 2.663469e-39, 1.329228e36],
+                [4.1951594e-7, 2.66347e-39, 1.329228e36],
+            ),
+            b(
+                [-3.1843913e-7, -1.329228e36, 5.344632e29],
+                [-3.1843913e-7, -1.3292279e36, 5.344634e29],
+            ),
+            b(
+                [1.035599e-39, 7.356348e-7, -2.238046e29],
+                [1.035599e-39, 7.356348e-7, -2.2380458e29],
+            ),
+            b(
+                [0.0, 1.329228e36, 1.329228e36],
+                [4.867152e-7, 1.329228e36, 1.329228e36],
+            ),
+            b(
+                [-1.329228e36, 1.329228e36, -4.9372773],
+                [-1.3292267e36, 1.329228e36, -4.937277],
+            ),
+        ];
+        let hl = HlbvhBuilder {
+            max_leaf_size: u32::MAX,
+            grid: crate::MortonGrid::Cube,
+            ..Default::default()
+        }
+        .build_highlevel(&prims)
+        .unwrap();
+        assert!(hl
+            .nodes
+            .iter()
+            .any(|n| n.aabbs.iter().any(|a| a.half_area().is_infinite())));
+        for w in 0..4 {
+            let (m, _) = stream_collapse_with(&hl, StreamCollapse::with_window(w)).unwrap();
+            assert_eq!(validate_mbvh4(&m, &prims, 6), Ok(()), "window {w}");
         }
     }
 

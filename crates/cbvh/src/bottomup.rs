@@ -34,11 +34,9 @@
 //! node-pair writes, and per backtracking step one 64-byte read and one 64-byte write of
 //! the line holding the pair), to be drained with [`StreamEncoder::drain_ops`].
 
-use crate::codec::{
-    check_box, decode_pair, encode_pair, encode_pair_with, slot_ptr, ChildPtr, Ctx,
-};
+use crate::codec::{check_box, decode_slots, encode_slots, slot_ptr, ChildPtr, Ctx};
 use crate::error::CbvhError;
-use crate::format::{pair_bytes, NodePair, LEAF_END, MAX_PTR};
+use crate::format::{node_bytes, NodePair, Slot, LEAF_END, MAX_PTR};
 use crate::grid::Params;
 use crate::tree::{prim_ids_of, Cbvh};
 use crate::EncodeStats;
@@ -133,13 +131,14 @@ pub enum MemOp {
     },
 }
 
-/// A subtree as the encoder holds it.
+/// A subtree as the encoder holds it (`K` children per node: node pairs, or the 4-wide
+/// nodes of [`crate::wide`]).
 #[derive(Debug)]
-enum PRef {
+pub(crate) enum PRef<const K: usize> {
     Leaf(u32),
     Empty,
     /// Not yet written (part of an on-chip treelet).
-    Pending(Box<Pending>),
+    Pending(Box<Pending<K>>),
     /// Written at `addr`, encoded in context `ctx`.
     Written {
         addr: u32,
@@ -148,29 +147,42 @@ enum PRef {
 }
 
 #[derive(Debug)]
-struct Pending {
-    boxes: [Aabb; 2],
-    children: [PRef; 2],
-    addr: Option<u32>,
+pub(crate) struct Pending<const K: usize> {
+    pub(crate) boxes: [Aabb; K],
+    pub(crate) children: [PRef<K>; K],
+    pub(crate) addr: Option<u32>,
 }
 
-/// The streaming bottom-up encoder (see the module doc).
+impl<const K: usize> PRef<K> {
+    /// A leaf child whose primitive ids start at `first`.
+    pub(crate) fn leaf(first: u32) -> Result<Self, CbvhError> {
+        if first > MAX_PTR {
+            return Err(CbvhError::TooLarge {
+                what: "primitive-id index",
+                count: first as usize,
+            });
+        }
+        Ok(PRef::Leaf(first))
+    }
+}
+
+/// The part of the streaming encoder that does not depend on how the input names a
+/// node's children: \[P3\] Algorithm 1's encode, write and backtracking (with treelets)
+/// over nodes of `K` child slots. [`StreamEncoder`] drives it with node pairs (children
+/// from the context stack), [`crate::wide::WideStreamEncoder`] with 4-wide nodes (children
+/// by reference).
 #[derive(Debug)]
-pub struct StreamEncoder {
-    cfg: StreamConfig,
-    pairs: Vec<NodePair>,
-    next_addr: u32,
-    stack: Vec<(PRef, Aabb)>,
-    stats: EncodeStats,
-    ops: Vec<MemOp>,
-    pushed: u64,
-    /// The root's address and context once the stream has ended.
-    root: Option<(u32, Ctx)>,
+pub(crate) struct Engine<const K: usize> {
+    pub(crate) cfg: StreamConfig,
+    pub(crate) nodes: Vec<[Slot; K]>,
+    pub(crate) next_addr: u32,
+    pub(crate) stats: EncodeStats,
+    pub(crate) ops: Vec<MemOp>,
 }
 
-impl StreamEncoder {
-    /// An encoder that appends node pairs (construction).
-    pub fn new(cfg: StreamConfig) -> Result<Self, CbvhError> {
+impl<const K: usize> Engine<K> {
+    /// An engine that appends nodes; checks the configuration.
+    pub(crate) fn new(cfg: StreamConfig) -> Result<Self, CbvhError> {
         cfg.params.check()?;
         if !(1..=MAX_TREELET_DEPTH).contains(&cfg.treelet_depth) {
             return Err(CbvhError::InvalidParams(format!(
@@ -180,11 +192,223 @@ impl StreamEncoder {
         }
         Ok(Self {
             cfg,
-            pairs: Vec::new(),
+            nodes: Vec::new(),
             next_addr: 0,
-            stack: Vec::new(),
             stats: EncodeStats::default(),
             ops: Vec::new(),
+        })
+    }
+
+    /// Bytes of one packed node.
+    pub(crate) fn node_bytes(&self) -> u64 {
+        node_bytes(K as u32, self.cfg.params.bits) as u64
+    }
+
+    /// Encodes a new node `r` (original box `bx`) from its estimated context
+    /// (`EstimateContext`) and writes the treelet level `treelet_depth` below it.
+    pub(crate) fn push(&mut self, r: &mut PRef<K>, bx: &Aabb) -> Result<(), CbvhError> {
+        let ctx = Ctx::estimate(bx, &self.cfg.params);
+        self.visit(r, &ctx, 1, self.cfg.treelet_depth)
+    }
+
+    /// Ends the stream at the root `root` (original box `bx`): writes what is left of its
+    /// treelet top-down from its estimated context; returns its address and context.
+    pub(crate) fn end(&mut self, mut root: PRef<K>, bx: &Aabb) -> Result<(u32, Ctx), CbvhError> {
+        let root_ctx = Ctx::estimate(bx, &self.cfg.params);
+        self.visit(&mut root, &root_ctx, 1, 1)?;
+        let PRef::Written { addr, .. } = root else {
+            return Err(CbvhError::BadOrder(
+                "the root of the stream is a leaf".into(),
+            ));
+        };
+        Ok((addr, root_ctx))
+    }
+
+    /// Checks that the written addresses cover the node array and hands it over.
+    pub(crate) fn take_nodes(&mut self) -> Result<Vec<[Slot; K]>, CbvhError> {
+        if self.next_addr as usize != self.nodes.len() {
+            return Err(CbvhError::Corrupt(
+                "node addresses do not cover the node array".into(),
+            ));
+        }
+        Ok(std::mem::take(&mut self.nodes))
+    }
+
+    /// The DRAM line (address, bytes) a backtracking step reads and writes for the node at
+    /// `addr`. A node pair: the 64-byte line holding its first byte (\[P3\] §5.2, one
+    /// minimum-size access; at 6 bits a pair never straddles lines). A wider node: every
+    /// line it touches (at 6 bits a 32-byte 4-wide node sits in one line).
+    fn line_of(&self, addr: u32) -> (u64, u32) {
+        let start = self.cfg.base_addr_bytes + addr as u64 * self.node_bytes();
+        let first = start & !(DRAM_LINE_BYTES - 1);
+        if K == 2 {
+            return (first, DRAM_LINE_BYTES as u32);
+        }
+        let last = (start + self.node_bytes() - 1) & !(DRAM_LINE_BYTES - 1);
+        (first, (last - first + DRAM_LINE_BYTES) as u32)
+    }
+
+    /// Writes a fresh node at `addr` (or the next free address) and returns the address.
+    fn write(&mut self, addr: Option<u32>, node: [Slot; K]) -> Result<u32, CbvhError> {
+        let a = match addr {
+            Some(a) => {
+                if a as usize >= self.nodes.len() {
+                    return Err(CbvhError::Corrupt(format!("node address {a} out of range")));
+                }
+                a
+            }
+            None => {
+                if self.next_addr > MAX_PTR {
+                    return Err(CbvhError::TooLarge {
+                        what: if K == 2 { "node pair" } else { "wide node" },
+                        count: self.next_addr as usize,
+                    });
+                }
+                self.nodes.push([Slot::default(); K]);
+                self.next_addr += 1;
+                self.next_addr - 1
+            }
+        };
+        self.nodes[a as usize] = node;
+        self.stats.nodes_written += 1;
+        if self.cfg.record_ops {
+            let bytes = self.node_bytes();
+            self.ops.push(MemOp::WritePair {
+                pair: a,
+                addr_bytes: self.cfg.base_addr_bytes + a as u64 * bytes,
+                bytes: bytes as u32,
+            });
+        }
+        Ok(a)
+    }
+
+    /// Encodes subtree `r` in context `ctx` at treelet depth `depth`; writes it when
+    /// `depth >= limit`, and checks (backtracks) written nodes below written ones.
+    // The loops walk the child slots of parallel arrays (children, contexts, pointers).
+    #[allow(clippy::needless_range_loop)]
+    fn visit(
+        &mut self,
+        r: &mut PRef<K>,
+        ctx: &Ctx,
+        depth: u32,
+        limit: u32,
+    ) -> Result<(), CbvhError> {
+        let written = match r {
+            PRef::Leaf(_) | PRef::Empty => return Ok(()),
+            PRef::Written { addr, ctx: stored } => {
+                if stored.invalidates(ctx, &self.cfg.params) {
+                    self.backtrack(*addr, *stored, *ctx, 1)?;
+                }
+                *stored = *ctx;
+                return Ok(());
+            }
+            PRef::Pending(p) => {
+                let ptrs = p.children.each_ref().map(|c| match c {
+                    PRef::Leaf(f) => ChildPtr::Leaf(*f),
+                    PRef::Empty => ChildPtr::Empty,
+                    PRef::Written { addr, .. } => ChildPtr::Inner(*addr),
+                    PRef::Pending(_) => ChildPtr::Inner(0),
+                });
+                let (mut node, kids) = encode_slots(&p.boxes, ptrs, ctx, &self.cfg.params, false);
+                if depth < limit {
+                    // Still on chip: place the treelet's lower levels.
+                    for c in 0..K {
+                        if matches!(p.children[c], PRef::Pending(_)) {
+                            self.visit(&mut p.children[c], &kids[c], depth + 1, limit)?;
+                        }
+                    }
+                    return Ok(());
+                }
+                // Write this node: unwritten children first (only at the end of the
+                // stream), so that every pointer is known.
+                let was_written = p
+                    .children
+                    .each_ref()
+                    .map(|c| matches!(c, PRef::Written { .. }));
+                for c in 0..K {
+                    if matches!(p.children[c], PRef::Pending(_)) {
+                        self.visit(&mut p.children[c], &kids[c], depth + 1, limit)?;
+                        if let PRef::Written { addr, .. } = p.children[c] {
+                            node[c].ptr = addr;
+                        }
+                    }
+                }
+                let addr = self.write(p.addr, node)?;
+                // Children written earlier: did this encoding invalidate them?
+                for c in 0..K {
+                    if was_written[c] {
+                        self.visit(&mut p.children[c], &kids[c], depth + 1, limit)?;
+                    }
+                }
+                addr
+            }
+        };
+        *r = PRef::Written {
+            addr: written,
+            ctx: *ctx,
+        };
+        Ok(())
+    }
+
+    /// `Backtrack` of Algorithm 1: re-encodes the written node `addr` from context `old`
+    /// to context `new`, recursing into children whose contexts change.
+    fn backtrack(&mut self, addr: u32, old: Ctx, new: Ctx, depth: usize) -> Result<(), CbvhError> {
+        self.stats.record_backtrack(depth);
+        if self.cfg.record_ops {
+            let (addr_bytes, bytes) = self.line_of(addr);
+            let pair = addr;
+            self.ops.push(MemOp::BacktrackRead {
+                pair,
+                addr_bytes,
+                bytes,
+            });
+            self.ops.push(MemOp::BacktrackWrite {
+                pair,
+                addr_bytes,
+                bytes,
+            });
+        }
+        let p = self.cfg.params;
+        let p = &p;
+        let node = *self
+            .nodes
+            .get(addr as usize)
+            .ok_or_else(|| CbvhError::Corrupt(format!("pointer {addr} outside the tree")))?;
+        let olds = decode_slots(&node, &old, p);
+        let boxes = olds.map(|o| o.map_or(Aabb::EMPTY, |c| c.aabb()));
+        let ptrs = node.map(|s| slot_ptr(&s));
+        let (fresh, kids) = encode_slots(&boxes, ptrs, &new, p, true);
+        if fresh == node {
+            self.stats.backtrack_unchanged += 1;
+        }
+        self.nodes[addr as usize] = fresh;
+        for c in 0..K {
+            if let (ChildPtr::Inner(k), Some(o)) = (ptrs[c], olds[c]) {
+                if o.invalidates(&kids[c], p) {
+                    self.backtrack(k, o, kids[c], depth + 1)?;
+                }
+            }
+        }
+        Ok(())
+    }
+}
+
+/// The streaming bottom-up encoder of node pairs (see the module doc).
+#[derive(Debug)]
+pub struct StreamEncoder {
+    eng: Engine<2>,
+    stack: Vec<(PRef<2>, Aabb)>,
+    pushed: u64,
+    /// The root's address and context once the stream has ended.
+    root: Option<(u32, Ctx)>,
+}
+
+impl StreamEncoder {
+    /// An encoder that appends node pairs (construction).
+    pub fn new(cfg: StreamConfig) -> Result<Self, CbvhError> {
+        Ok(Self {
+            eng: Engine::new(cfg)?,
+            stack: Vec::new(),
             pushed: 0,
             root: None,
         })
@@ -194,24 +418,19 @@ impl StreamEncoder {
     /// (refit: every input node names its address).
     pub fn in_place(cfg: StreamConfig, pairs: usize) -> Result<Self, CbvhError> {
         let mut e = Self::new(cfg)?;
-        e.pairs = vec![NodePair::default(); pairs];
-        e.next_addr = pairs as u32;
+        e.eng.nodes = vec![[Slot::default(); 2]; pairs];
+        e.eng.next_addr = pairs as u32;
         Ok(e)
     }
 
     /// Counts so far.
     pub fn stats(&self) -> &EncodeStats {
-        &self.stats
+        &self.eng.stats
     }
 
     /// The DRAM accesses recorded since the last call (empty unless `record_ops`).
     pub fn drain_ops(&mut self) -> Vec<MemOp> {
-        std::mem::take(&mut self.ops)
-    }
-
-    /// Bytes of one packed node pair.
-    fn pair_bytes(&self) -> u64 {
-        pair_bytes(self.cfg.params.bits) as u64
+        std::mem::take(&mut self.eng.ops)
     }
 
     /// `BUCompressNode` of Algorithm 1 (with treelets): consumes the next node.
@@ -229,15 +448,7 @@ impl StreamEncoder {
         let mut children = [PRef::Empty, PRef::Empty];
         for c in (0..2).rev() {
             children[c] = match node.children[c] {
-                InChild::Leaf { first } => {
-                    if first > MAX_PTR {
-                        return Err(CbvhError::TooLarge {
-                            what: "primitive-id index",
-                            count: first as usize,
-                        });
-                    }
-                    PRef::Leaf(first)
-                }
+                InChild::Leaf { first } => PRef::leaf(first)?,
                 InChild::Empty => PRef::Empty,
                 InChild::Node => {
                     self.stack
@@ -257,10 +468,9 @@ impl StreamEncoder {
             children,
             addr: node.addr,
         }));
-        let ctx = Ctx::estimate(&bx, &self.cfg.params);
-        self.visit(&mut r, &ctx, 1, self.cfg.treelet_depth)?;
+        self.eng.push(&mut r, &bx)?;
         self.stack.push((r, bx));
-        self.stats.max_stack = self.stats.max_stack.max(self.stack.len());
+        self.eng.stats.max_stack = self.eng.stats.max_stack.max(self.stack.len());
         Ok(())
     }
 
@@ -277,13 +487,8 @@ impl StreamEncoder {
                 self.stack.len()
             )));
         }
-        let (mut root, bx) = self.stack.pop().expect("one entry");
-        let root_ctx = Ctx::estimate(&bx, &self.cfg.params);
-        self.visit(&mut root, &root_ctx, 1, 1)?;
-        let PRef::Written { addr, .. } = root else {
-            unreachable!("the final visit writes the root")
-        };
-        self.root = Some((addr, root_ctx));
+        let (root, bx) = self.stack.pop().expect("one entry");
+        self.root = Some(self.eng.end(root, &bx)?);
         Ok(())
     }
 
@@ -292,167 +497,22 @@ impl StreamEncoder {
     pub fn finish(mut self, prim_ids: Vec<u32>) -> Result<(Cbvh, EncodeStats), CbvhError> {
         self.end_stream()?;
         let (addr, root_ctx) = self.root.expect("end_stream sets the root");
-        if self.next_addr as usize != self.pairs.len() {
-            return Err(CbvhError::Corrupt(
-                "node addresses do not cover the node-pair array".into(),
-            ));
-        }
+        let pairs = self
+            .eng
+            .take_nodes()?
+            .into_iter()
+            .map(|slots| NodePair { slots })
+            .collect();
         Ok((
             Cbvh {
-                params: self.cfg.params,
-                pairs: self.pairs,
+                params: self.eng.cfg.params,
+                pairs,
                 root: addr,
                 root_ctx,
                 prim_ids,
             },
-            self.stats,
+            self.eng.stats,
         ))
-    }
-
-    /// Writes a fresh pair at `addr` (or the next free address) and returns the address.
-    fn write(&mut self, addr: Option<u32>, pair: NodePair) -> Result<u32, CbvhError> {
-        let a = match addr {
-            Some(a) => {
-                if a as usize >= self.pairs.len() {
-                    return Err(CbvhError::Corrupt(format!("node address {a} out of range")));
-                }
-                a
-            }
-            None => {
-                if self.next_addr > MAX_PTR {
-                    return Err(CbvhError::TooLarge {
-                        what: "node pair",
-                        count: self.next_addr as usize,
-                    });
-                }
-                self.pairs.push(NodePair::default());
-                self.next_addr += 1;
-                self.next_addr - 1
-            }
-        };
-        self.pairs[a as usize] = pair;
-        self.stats.nodes_written += 1;
-        if self.cfg.record_ops {
-            let bytes = self.pair_bytes();
-            self.ops.push(MemOp::WritePair {
-                pair: a,
-                addr_bytes: self.cfg.base_addr_bytes + a as u64 * bytes,
-                bytes: bytes as u32,
-            });
-        }
-        Ok(a)
-    }
-
-    /// Encodes subtree `r` in context `ctx` at treelet depth `depth`; writes it when
-    /// `depth >= limit`, and checks (backtracks) written nodes below written ones.
-    // The loops walk the two child slots of parallel arrays (children, contexts, pointers).
-    #[allow(clippy::needless_range_loop)]
-    fn visit(&mut self, r: &mut PRef, ctx: &Ctx, depth: u32, limit: u32) -> Result<(), CbvhError> {
-        let written = match r {
-            PRef::Leaf(_) | PRef::Empty => return Ok(()),
-            PRef::Written { addr, ctx: stored } => {
-                if stored.invalidates(ctx, &self.cfg.params) {
-                    self.backtrack(*addr, *stored, *ctx, 1)?;
-                }
-                *stored = *ctx;
-                return Ok(());
-            }
-            PRef::Pending(p) => {
-                let ptrs = p.children.each_ref().map(|c| match c {
-                    PRef::Leaf(f) => ChildPtr::Leaf(*f),
-                    PRef::Empty => ChildPtr::Empty,
-                    PRef::Written { addr, .. } => ChildPtr::Inner(*addr),
-                    PRef::Pending(_) => ChildPtr::Inner(0),
-                });
-                let (mut pair, kids) = encode_pair(&p.boxes, ptrs, ctx, &self.cfg.params);
-                if depth < limit {
-                    // Still on chip: place the treelet's lower levels.
-                    for c in 0..2 {
-                        if matches!(p.children[c], PRef::Pending(_)) {
-                            self.visit(&mut p.children[c], &kids[c], depth + 1, limit)?;
-                        }
-                    }
-                    return Ok(());
-                }
-                // Write this node: unwritten children first (only at the end of the
-                // stream), so that every pointer is known.
-                let was_written = p
-                    .children
-                    .each_ref()
-                    .map(|c| matches!(c, PRef::Written { .. }));
-                for c in 0..2 {
-                    if matches!(p.children[c], PRef::Pending(_)) {
-                        self.visit(&mut p.children[c], &kids[c], depth + 1, limit)?;
-                        if let PRef::Written { addr, .. } = p.children[c] {
-                            pair.slots[c].ptr = addr;
-                        }
-                    }
-                }
-                let addr = self.write(p.addr, pair)?;
-                // Children written earlier: did this encoding invalidate them?
-                for c in 0..2 {
-                    if was_written[c] {
-                        self.visit(&mut p.children[c], &kids[c], depth + 1, limit)?;
-                    }
-                }
-                addr
-            }
-        };
-        *r = PRef::Written {
-            addr: written,
-            ctx: *ctx,
-        };
-        Ok(())
-    }
-
-    /// `Backtrack` of Algorithm 1: re-encodes the written pair `addr` from context `old`
-    /// to context `new`, recursing into children whose contexts change.
-    fn backtrack(&mut self, addr: u32, old: Ctx, new: Ctx, depth: usize) -> Result<(), CbvhError> {
-        self.stats.record_backtrack(depth);
-        if self.cfg.record_ops {
-            let line = (self.cfg.base_addr_bytes + addr as u64 * self.pair_bytes())
-                & !(DRAM_LINE_BYTES - 1);
-            let op = |read: bool| {
-                let (pair, addr_bytes, bytes) = (addr, line, DRAM_LINE_BYTES as u32);
-                if read {
-                    MemOp::BacktrackRead {
-                        pair,
-                        addr_bytes,
-                        bytes,
-                    }
-                } else {
-                    MemOp::BacktrackWrite {
-                        pair,
-                        addr_bytes,
-                        bytes,
-                    }
-                }
-            };
-            self.ops.push(op(true));
-            self.ops.push(op(false));
-        }
-        let p = self.cfg.params;
-        let p = &p;
-        let pair = *self
-            .pairs
-            .get(addr as usize)
-            .ok_or_else(|| CbvhError::Corrupt(format!("pointer {addr} outside the tree")))?;
-        let olds = decode_pair(&pair, &old, p);
-        let boxes = olds.map(|o| o.map_or(Aabb::EMPTY, |c| c.aabb()));
-        let ptrs = [0, 1].map(|c| slot_ptr(&pair.slots[c]));
-        let (fresh, kids) = encode_pair_with(&boxes, ptrs, &new, p, true);
-        if fresh == pair {
-            self.stats.backtrack_unchanged += 1;
-        }
-        self.pairs[addr as usize] = fresh;
-        for c in 0..2 {
-            if let (ChildPtr::Inner(k), Some(o)) = (ptrs[c], olds[c]) {
-                if o.invalidates(&kids[c], p) {
-                    self.backtrack(k, o, kids[c], depth + 1)?;
-                }
-            }
-        }
-        Ok(())
     }
 }
 

@@ -159,13 +159,30 @@ pub fn encode_pair_with(
     p: &Params,
     decoded: bool,
 ) -> (NodePair, [Ctx; 2]) {
-    let mut pair = NodePair::default();
-    let mut out = [*ctx; 2];
-    let mut decoded_boxes = [None; 2];
-    for c in 0..2 {
+    let (slots, out) = encode_slots(boxes, ptrs, ctx, p, decoded);
+    (NodePair { slots }, out)
+}
+
+/// `Encode` of Algorithm 1 for a node of `K` children (a node pair, `K = 2`, or a
+/// compressed 4-wide node, `K = 4`, [`crate::wide`]): quantizes the original child boxes
+/// `boxes` in context `ctx` (each slot as [`encode_pair`] does) and returns the slots and
+/// each child's decoded context (an empty child gets a copy of `ctx`). `decoded`: the
+/// boxes are decoded boxes (a backtracking step's re-encoding).
+#[inline]
+pub fn encode_slots<const K: usize>(
+    boxes: &[Aabb; K],
+    ptrs: [ChildPtr; K],
+    ctx: &Ctx,
+    p: &Params,
+    decoded: bool,
+) -> ([Slot; K], [Ctx; K]) {
+    let mut slots = [Slot::default(); K];
+    let mut out = [*ctx; K];
+    let mut decoded_boxes = [None; K];
+    for c in 0..K {
         let (leaf, ptr) = match ptrs[c] {
             ChildPtr::Empty => {
-                pair.slots[c] = Slot::EMPTY;
+                slots[c] = Slot::EMPTY;
                 continue;
             }
             ChildPtr::Inner(i) => (false, i),
@@ -184,17 +201,45 @@ pub fn encode_pair_with(
             (lo[i], hi[i]) = a.child_bounds(r, s);
         }
         decoded_boxes[c] = Some(Aabb::new(Vec3::from(lo), Vec3::from(hi)));
-        pair.slots[c] = slot;
+        slots[c] = slot;
     }
     if p.coords.shares_planes() {
-        share_planes(&mut decoded_boxes, ctx);
+        share_planes_of(&mut decoded_boxes, ctx);
     }
-    for c in 0..2 {
+    for c in 0..K {
         if let Some(b) = decoded_boxes[c] {
             out[c] = Ctx::from_decoded(&b, p);
         }
     }
-    (pair, out)
+    (slots, out)
+}
+
+/// [`share_planes`] for any number of children: per axis and side, the first child whose
+/// decoded bound is the outermost takes the node's decoded plane. For two children it is
+/// [`share_planes`] (tested); a compressed 4-wide node ([`crate::wide`]) shares the same
+/// way, one child per axis and side.
+#[inline]
+pub fn share_planes_of(boxes: &mut [Option<Aabb>], ctx: &Ctx) {
+    for i in 0..3 {
+        let (lo, hi) = (ctx.axes[i].lo, ctx.axes[i].hi);
+        let mut low: Option<usize> = None;
+        let mut high: Option<usize> = None;
+        for (c, b) in boxes.iter().enumerate() {
+            let Some(b) = b else { continue };
+            if low.is_none_or(|k| b.min[i] < boxes[k].expect("set").min[i]) {
+                low = Some(c);
+            }
+            if high.is_none_or(|k| b.max[i] > boxes[k].expect("set").max[i]) {
+                high = Some(c);
+            }
+        }
+        if let Some(k) = low {
+            boxes[k].as_mut().expect("set").min[i] = lo;
+        }
+        if let Some(k) = high {
+            boxes[k].as_mut().expect("set").max[i] = hi;
+        }
+    }
 }
 
 /// Plane sharing (\[P3\] §4.5; Fabianowski and Dingliana 2009): per axis and side, the
@@ -256,6 +301,30 @@ pub fn decode_boxes(pair: &NodePair, ctx: &Ctx, p: &Params) -> [Option<Aabb>; 2]
         share_planes(&mut boxes, ctx);
     }
     boxes
+}
+
+/// The decoded boxes of the `K` children `slots` of a node in context `ctx` (`None` for an
+/// absent child): [`decode_boxes`] for any node width (a compressed 4-wide node,
+/// [`crate::wide`]).
+#[inline]
+pub fn decode_slot_boxes<const K: usize>(
+    slots: &[Slot; K],
+    ctx: &Ctx,
+    p: &Params,
+) -> [Option<Aabb>; K] {
+    let m = lo_mods(ctx, p);
+    let mut boxes = slots.map(|s| slot_box(&s, ctx, &m, p));
+    if p.coords.shares_planes() {
+        share_planes_of(&mut boxes, ctx);
+    }
+    boxes
+}
+
+/// `Decode` of Algorithm 1 for the `K` children `slots` of a node: their decoded contexts
+/// ([`decode_pair`] for any node width).
+#[inline]
+pub fn decode_slots<const K: usize>(slots: &[Slot; K], ctx: &Ctx, p: &Params) -> [Option<Ctx>; K] {
+    decode_slot_boxes(slots, ctx, p).map(|b| b.map(|b| Ctx::from_decoded(&b, p)))
 }
 
 /// Per axis the node's lower-bound modulo coordinate (0 for relative coordinates).
@@ -347,6 +416,27 @@ pub(crate) mod tests {
             x
         } else {
             crate::grid::next_up(x)
+        }
+    }
+
+    proptest! {
+        /// The plane sharing of any width is the pair's for two children (so the engine's
+        /// generic encode and decode are the pair functions).
+        #[test]
+        fn share_planes_of_two_is_the_pairs(a in any_box(), b in any_box(), n in any_box(), some in 0u8..4) {
+            let p = Params { coords: Coords::PlaneSharing, ..Params::default() };
+            let ctx = Ctx::from_decoded(&n, &p);
+            let mut x = [(some & 1 != 0).then_some(a), (some & 2 != 0).then_some(b)];
+            let mut y = x;
+            share_planes(&mut x, &ctx);
+            share_planes_of(&mut y, &ctx);
+            prop_assert_eq!(x, y);
+            let kids = [a, b];
+            let ptrs = [ChildPtr::Inner(3), ChildPtr::Leaf(1)];
+            let (pair, out) = encode_pair(&kids, ptrs, &ctx, &p);
+            prop_assert_eq!(decode_slots(&pair.slots, &ctx, &p), decode_pair(&pair, &ctx, &p));
+            prop_assert_eq!(decode_slot_boxes(&pair.slots, &ctx, &p), decode_boxes(&pair, &ctx, &p));
+            prop_assert_eq!(decode_pair(&pair, &ctx, &p), out.map(Some));
         }
     }
 

@@ -111,40 +111,77 @@ fn window(src: &[u8], at: u32) -> u128 {
     v >> (at % 8)
 }
 
+/// Bytes of a packed node of `k` child slots at `bits` per coordinate: a node pair
+/// (`k = 2`, [`pair_bytes`]) or a compressed 4-wide node (`k = 4`, [`crate::wide`]: 32 bytes
+/// at 6 bits).
+#[inline]
+pub const fn node_bytes(k: u32, bits: u32) -> usize {
+    (k * slot_bits(bits)).div_ceil(8) as usize
+}
+
+/// Packs child slots one after another (slot `c` from bit `c * W`, `W` = [`slot_bits`])
+/// into `node_bytes(slots.len(), bits)` bytes appended to `out`: the layout of a node pair
+/// and of a compressed 4-wide node.
+pub fn pack_slots(slots: &[Slot], bits: u32, out: &mut Vec<u8>) -> Result<(), CbvhError> {
+    let base = out.len();
+    out.resize(base + node_bytes(slots.len() as u32, bits), 0);
+    let dst = &mut out[base..];
+    let w = slot_bits(bits);
+    let limit = 1u32 << bits;
+    for (c, s) in slots.iter().enumerate() {
+        let mut v = 0u128;
+        for (i, &f) in s.lo.iter().chain(s.hi.iter()).enumerate() {
+            if u32::from(f) >= limit {
+                return Err(CbvhError::Corrupt(format!(
+                    "coordinate {f} does not fit {bits} bits"
+                )));
+            }
+            v |= u128::from(f) << (i as u32 * bits);
+        }
+        if s.ptr > EMPTY_PTR {
+            return Err(CbvhError::TooLarge {
+                what: "pointer",
+                count: s.ptr as usize,
+            });
+        }
+        v |= u128::from(s.leaf) << (6 * bits);
+        v |= u128::from(s.ptr) << (6 * bits + 1);
+        // The slot's bits from its first byte on (it starts at most 7 bits in).
+        let at = c as u32 * w;
+        let v = v << (at % 8);
+        for (k, byte) in dst[(at / 8) as usize..].iter_mut().take(16).enumerate() {
+            *byte |= (v >> (8 * k)) as u8;
+        }
+    }
+    Ok(())
+}
+
+/// Unpacks `K` child slots from the first `node_bytes(K, bits)` bytes of `src` (two
+/// 128-bit windows and shifts per pair, no per-bit loop).
+#[inline(always)]
+pub fn unpack_slots<const K: usize>(bits: u32, src: &[u8]) -> Result<[Slot; K], CbvhError> {
+    if src.len() < node_bytes(K as u32, bits) {
+        return Err(CbvhError::Corrupt("truncated node".into()));
+    }
+    let w = slot_bits(bits);
+    let field = (1u128 << bits) - 1;
+    let mut slots = [Slot::default(); K];
+    for (c, s) in slots.iter_mut().enumerate() {
+        let v = window(src, c as u32 * w);
+        for i in 0..3 {
+            s.lo[i] = ((v >> (i as u32 * bits)) & field) as u8;
+            s.hi[i] = ((v >> ((3 + i as u32) * bits)) & field) as u8;
+        }
+        s.leaf = (v >> (6 * bits)) & 1 == 1;
+        s.ptr = ((v >> (6 * bits + 1)) & ((1u128 << PTR_BITS) - 1)) as u32;
+    }
+    Ok(slots)
+}
+
 impl NodePair {
     /// Packs the pair into `pair_bytes(bits)` bytes appended to `out`.
     pub fn pack_into(&self, bits: u32, out: &mut Vec<u8>) -> Result<(), CbvhError> {
-        let base = out.len();
-        out.resize(base + pair_bytes(bits), 0);
-        let dst = &mut out[base..];
-        let w = slot_bits(bits);
-        let limit = 1u32 << bits;
-        for (c, s) in self.slots.iter().enumerate() {
-            let mut v = 0u128;
-            for (i, &f) in s.lo.iter().chain(s.hi.iter()).enumerate() {
-                if u32::from(f) >= limit {
-                    return Err(CbvhError::Corrupt(format!(
-                        "coordinate {f} does not fit {bits} bits"
-                    )));
-                }
-                v |= u128::from(f) << (i as u32 * bits);
-            }
-            if s.ptr > EMPTY_PTR {
-                return Err(CbvhError::TooLarge {
-                    what: "pointer",
-                    count: s.ptr as usize,
-                });
-            }
-            v |= u128::from(s.leaf) << (6 * bits);
-            v |= u128::from(s.ptr) << (6 * bits + 1);
-            // The slot's bits from its first byte on (it starts at most 7 bits in).
-            let at = c as u32 * w;
-            let v = v << (at % 8);
-            for (k, byte) in dst[(at / 8) as usize..].iter_mut().take(16).enumerate() {
-                *byte |= (v >> (8 * k)) as u8;
-            }
-        }
-        Ok(())
+        pack_slots(&self.slots, bits, out)
     }
 
     /// Unpacks a pair from the first `pair_bytes(bits)` bytes of `src` (a traversal kernel
@@ -154,19 +191,9 @@ impl NodePair {
         if src.len() < pair_bytes(bits) {
             return Err(CbvhError::Corrupt("truncated node pair".into()));
         }
-        let w = slot_bits(bits);
-        let field = (1u128 << bits) - 1;
-        let mut p = NodePair::default();
-        for (c, s) in p.slots.iter_mut().enumerate() {
-            let v = window(src, c as u32 * w);
-            for i in 0..3 {
-                s.lo[i] = ((v >> (i as u32 * bits)) & field) as u8;
-                s.hi[i] = ((v >> ((3 + i as u32) * bits)) & field) as u8;
-            }
-            s.leaf = (v >> (6 * bits)) & 1 == 1;
-            s.ptr = ((v >> (6 * bits + 1)) & ((1u128 << PTR_BITS) - 1)) as u32;
-        }
-        Ok(p)
+        Ok(NodePair {
+            slots: unpack_slots::<2>(bits, src)?,
+        })
     }
 }
 

@@ -15,6 +15,9 @@
 //! - [`refit`]: streaming CBVH refit (Wald et al. 2007 order) with the same machinery.
 //! - [`traffic`]: the memory-traffic model of §5.2.
 //! - [`tree`]: the compressed tree, its decode to a [`bvh::Bvh2`] and enclosure checks.
+//! - [`wide`]: compressed 4-wide nodes (four child slots in the node's grid, 32 bytes at
+//!   `N = 6`), their top-down encoder and the streaming encoder behind
+//!   [`bvh::StreamCollapse`] (issue 18 part 2).
 
 #![warn(missing_docs)]
 
@@ -30,6 +33,7 @@ pub mod topdown;
 pub mod traffic;
 pub mod tree;
 pub mod treelet;
+pub mod wide;
 
 pub use bottomup::{compress_bottomup, compress_hlbvh, MemOp, StreamConfig, StreamEncoder};
 pub use codec::Ctx;
@@ -39,6 +43,10 @@ pub use grid::{Coords, Params};
 pub use refit::refit_streaming;
 pub use topdown::compress_topdown;
 pub use tree::{enclosure_violations, interval_encloses, node_intervals_enclose, Cbvh};
+pub use wide::{
+    compress4_bottomup, compress4_topdown, compress_stream_collapse, Cbvh4, QuadNode,
+    WideStreamEncoder,
+};
 
 use serde::Serialize;
 

@@ -49,6 +49,21 @@ pub(crate) fn prim_ids_of(bvh: &Bvh2) -> Result<Vec<u32>, CbvhError> {
     Ok(ids)
 }
 
+/// The leaf starting at index `first` of the primitive-id array `ids` (it ends at the first
+/// id flagged [`LEAF_END`]): `(first, count)`.
+pub(crate) fn leaf_range_in(ids: &[u32], first: u32) -> Result<(u32, u32), CbvhError> {
+    let mut i = first as usize;
+    loop {
+        let id = *ids
+            .get(i)
+            .ok_or_else(|| CbvhError::Corrupt(format!("leaf at {first} has no end")))?;
+        if id & LEAF_END != 0 {
+            return Ok((first, (i - first as usize + 1) as u32));
+        }
+        i += 1;
+    }
+}
+
 /// Where a decoded node's parent links to it: (parent node, child slot).
 type Link = (usize, usize);
 
@@ -69,17 +84,7 @@ impl Cbvh {
 
     /// The leaf starting at primitive-id index `first`: `(first, count)`.
     pub fn leaf_range(&self, first: u32) -> Result<(u32, u32), CbvhError> {
-        let mut i = first as usize;
-        loop {
-            let id = *self
-                .prim_ids
-                .get(i)
-                .ok_or_else(|| CbvhError::Corrupt(format!("leaf at {first} has no end")))?;
-            if id & LEAF_END != 0 {
-                return Ok((first, (i - first as usize + 1) as u32));
-            }
-            i += 1;
-        }
+        leaf_range_in(&self.prim_ids, first)
     }
 
     /// The decoded contexts of the children of pair `idx` decoded in context `ctx`.

@@ -276,3 +276,90 @@ fn tiny_and_malformed_cbvhs() {
     )
     .is_err());
 }
+
+/// Compressed 4-wide trees on the shared scenes (issue 18 part 2, `docs/beyond-thesis.md`):
+/// per ray, the node visits, box tests and triangle tests of the binary LBVH of MergeTree's
+/// `p2` options, its CBVH (modulo coordinates, treelets of 4), the streaming collapse's
+/// MBVH4 (greedy and window 4) and the compressed 4-wide trees of those (modulo, treelets
+/// of 4) decoded, primary and diffuse rays (4 bounces) from the scene camera at 320 x 180.
+/// The compressed trees' images equal the uncompressed ones (the kernels are exact).
+/// `cargo test --profile test -p trace cbvh4_traversal -- --ignored --nocapture`.
+#[test]
+#[ignore = "reads the shared scenes; prints a table"]
+fn cbvh4_traversal_on_shared_scenes() {
+    let dir = std::env::var("ARBOR_SCENES").unwrap_or_else(|_| "/work/shared/scenes".into());
+    for name in ["bunny", "crytek-sponza", "conference", "dragon"] {
+        let Ok(s) = scene::open(&format!("{dir}/{name}.ply"), &Default::default()) else {
+            continue;
+        };
+        let mesh = s.mesh_at(0.0).unwrap();
+        let tris: Vec<Triangle> = mesh.triangles_iter().collect();
+        let shading = Shading {
+            triangles: &tris,
+            material_ids: &mesh.material_ids,
+        };
+        let prims = bvh::triangle_aabbs(&tris);
+        let hl = bvh::HlbvhBuilder {
+            max_leaf_size: u32::MAX,
+            grid: geom::MortonGrid::Cube,
+            ..Default::default()
+        }
+        .build_highlevel(&prims)
+        .unwrap();
+        let m4 = StreamConfig {
+            params: Params {
+                coords: Coords::Modulo,
+                ..Params::default()
+            },
+            treelet_depth: 4,
+            ..StreamConfig::default()
+        };
+        let pairs = compress_hlbvh(&hl, &m4).unwrap().0;
+        let (greedy, _, greedy_exact) =
+            cbvh::compress_stream_collapse(&hl, bvh::StreamCollapse::new(), &m4).unwrap();
+        let (w4, _, w4_exact) =
+            cbvh::compress_stream_collapse(&hl, bvh::StreamCollapse::with_window(4), &m4).unwrap();
+        let o = KernelOptions::default();
+        for rays in [RayKind::Primary, RayKind::Diffuse] {
+            let mut st = RenderSettings::new(s.info().camera);
+            (st.width, st.height, st.rays) = (320, 180, rays);
+            let row = |label: &str, r: &Render| {
+                let t = &r.stats.total;
+                let n = t.rays as f64;
+                println!(
+                    "| {name} | {rays:?} | {label} | {:.2} | {:.2} | {:.2} |",
+                    t.node_visits as f64 / n,
+                    t.box_tests as f64 / n,
+                    t.tri_tests as f64 / n
+                );
+            };
+            let bin = {
+                let a = Bvh2Accel::new(hl.to_bvh2(), &tris, o).unwrap();
+                render(&a, shading, &st, None, None).unwrap()
+            };
+            row("binary LBVH", &bin);
+            let cb = {
+                let a = CbvhAccel::new(&pairs, &tris, o).unwrap();
+                render(&a, shading, &st, None, None).unwrap()
+            };
+            row("binary CBVH M4", &cb);
+            assert!(same_pixels(&cb, &bin));
+            for (label, exact, c) in [
+                ("greedy", &greedy_exact, &greedy),
+                ("window 4", &w4_exact, &w4),
+            ] {
+                let e = {
+                    let a = crate::Mbvh4Accel::new(exact.clone(), &tris, o).unwrap();
+                    render(&a, shading, &st, None, None).unwrap()
+                };
+                row(&format!("MBVH4 {label}"), &e);
+                let d = {
+                    let a = crate::Mbvh4Accel::new(c.decode_to_mbvh4().unwrap(), &tris, o).unwrap();
+                    render(&a, shading, &st, None, None).unwrap()
+                };
+                row(&format!("CBVH4 M4 {label}"), &d);
+                assert!(same_pixels(&d, &e), "{name} {label}");
+            }
+        }
+    }
+}

@@ -8,7 +8,9 @@
 //! `--set output=mbvh4` the unit writes 128-byte MBVH4 nodes through the streaming collapse
 //! behind the emitter, and with `--set output=mbvh4-collapse` through a collapse pass after
 //! the build (issue 18 part 2); the MBVH4 is then checked node for node against the
-//! software collapse. The JSON
+//! software collapse. With `--set output=cbvh4` the collapse unit's wide nodes go through
+//! the streaming CBVH encoder carried over to 4-wide nodes (32-byte compressed nodes),
+//! checked bit for bit against `cbvh::compress_stream_collapse`. The JSON
 //! form (`arbor.sim.mergetree.v1`) is documented in `docs/cli-json.md`.
 //! `--set output=kdtree-points` (issue 18, part 3) the unit builds a point k-d tree over the
 //! triangles' centroids (or `--points uniform:N`, random points in the scene's box), checked
@@ -112,6 +114,8 @@ struct Output<'a> {
     tree_matches_software: Option<bool>,
     cbvh_matches_software: Option<bool>,
     mbvh4_matches_software: Option<bool>,
+    /// `output = cbvh4`: the compressed 4-wide tree equals the software encoder's.
+    cbvh4_matches_software: Option<bool>,
     trace: Option<String>,
     svg: Option<String>,
     sim_wall_ms: f64,
@@ -231,14 +235,15 @@ pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
     };
     drop(mesh);
     let (report, wall_ms) = simulate(ui, &aabbs, &cfg, dram)?;
-    let (matches, cbvh_matches, mbvh4_matches) = if a.no_check {
-        (None, None, None)
+    let (matches, cbvh_matches, mbvh4_matches, cbvh4_matches) = if a.no_check {
+        (None, None, None, None)
     } else {
         let _s = ui.spinner("building the software HLBVH tree to compare");
         (
             Some(mergetree::tree_matches_software(&report, &aabbs)?),
             mergetree::cbvh_matches_software(&report, &aabbs)?,
             mergetree::mbvh4_matches_software(&report, &aabbs)?,
+            mergetree::cbvh4_matches_software(&report, &aabbs)?,
         )
     };
     if let Some(p) = &a.trace {
@@ -261,6 +266,7 @@ pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
             tree_matches_software: matches,
             cbvh_matches_software: cbvh_matches,
             mbvh4_matches_software: mbvh4_matches,
+            cbvh4_matches_software: cbvh4_matches,
             trace: a.trace.as_ref().map(|p| p.display().to_string()),
             svg: a.svg.as_ref().map(|p| p.display().to_string()),
             sim_wall_ms: wall_ms,
@@ -273,7 +279,7 @@ pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
             a,
             dram,
             &report,
-            [matches, cbvh_matches, mbvh4_matches],
+            [matches, cbvh_matches, mbvh4_matches, cbvh4_matches],
             wall_ms,
         );
         if let Some(e) = &energy {
@@ -303,6 +309,9 @@ pub fn run_mergetree(a: &MergetreeArgs, ui: &Ui) -> anyhow::Result<()> {
     }
     if mbvh4_matches == Some(false) {
         anyhow::bail!("the simulated MBVH4 differs from the software collapse's");
+    }
+    if cbvh4_matches == Some(false) {
+        anyhow::bail!("the simulated compressed 4-wide tree differs from the software encoder's");
     }
     Ok(())
 }
@@ -359,7 +368,7 @@ fn print_text(
     a: &MergetreeArgs,
     dram: &str,
     r: &MergeTreeReport,
-    [matches, cbvh_matches, mbvh4_matches]: [Option<bool>; 3],
+    [matches, cbvh_matches, mbvh4_matches, cbvh4_matches]: [Option<bool>; 4],
     wall_ms: f64,
 ) {
     println!(
@@ -525,6 +534,46 @@ fn print_text(
         println!(
             "MBVH4 matches the software collapse: {}",
             yes_no(mbvh4_matches)
+        );
+    }
+    if let Some(w) = &r.cbvh4 {
+        println!(
+            "compressed 4-wide ({}, {} bits, treelets {}, {}): {} wide nodes of {} B ({:.2} \
+             children each) from {} binary nodes; {} backtracking steps; SAH {:.3} exact, {:.3} \
+             decoded; build {:.3} ms",
+            w.params.coords.name(),
+            w.params.bits,
+            w.treelet_depth,
+            match w.mbvh4_window {
+                None => "greedy collapse".to_string(),
+                Some(l) => format!("collapse window {l}"),
+            },
+            thousands(w.wide_nodes),
+            w.node_bytes,
+            w.mean_children,
+            thousands(w.binary_nodes),
+            thousands(w.backtrack_steps),
+            w.sah,
+            w.sah_decoded,
+            w.build_ms
+        );
+        if let (Some(c), Some(e)) = (&w.collapse, &w.stream) {
+            println!(
+                "  collapse unit: busy {} cycles, waiting for the encoder {}; wide encoder: \
+                 busy {}, starved {}, backtracking read wait {}, write buffer full {}; at most \
+                 {} subtrees held",
+                thousands(c.busy_cycles),
+                thousands(c.encoder_full_cycles),
+                thousands(e.busy_cycles),
+                thousands(e.starved_cycles),
+                thousands(e.read_wait_cycles),
+                thousands(e.write_full_cycles),
+                w.max_held
+            );
+        }
+        println!(
+            "compressed 4-wide tree matches the software encoder: {}",
+            yes_no(cbvh4_matches)
         );
     }
     if let Some(p) = &r.points {

@@ -302,6 +302,55 @@ fn mbvh4_output_modes() {
     assert!(sim_error(&[CLOTH, "--set", "output=mbvh8"]).contains("mbvh4"));
 }
 
+/// `output = cbvh4`: the collapse's wide nodes through the wide CBVH encoder, 32 bytes
+/// each, equal to the software encoder; modulo coordinates with treelets backtrack less
+/// and write fewer bytes than relative ones.
+#[test]
+fn cbvh4_output_mode() {
+    const SOUP: &str = "proc:soup?n=6000";
+    let run = |extra: &[&str]| {
+        let mut a = vec![SOUP, "--dram", "simple:lpddr3-1600-1x64"];
+        a.extend_from_slice(extra);
+        sim_json(&a)
+    };
+    let u = |j: &Value, k: &str| j[k].as_u64().unwrap();
+    let m = run(&["--set", "output=mbvh4"]);
+    let r = run(&["--set", "output=cbvh4"]);
+    assert_eq!(r["config"]["output"], "cbvh4");
+    assert_eq!(r["tree_matches_software"], true);
+    assert_eq!(r["cbvh4_matches_software"], true);
+    assert!(r["mbvh4"].is_null() && r["cbvh"].is_null() && m["cbvh4"].is_null());
+    let w = &r["cbvh4"];
+    assert_eq!(w["node_bytes"], 32);
+    assert_eq!(w["wide_nodes"], m["mbvh4"]["wide_nodes"]);
+    assert_eq!(w["stream"]["pairs_written"], w["wide_nodes"]);
+    assert_eq!(w["collapse"]["nodes_written"], w["wide_nodes"]);
+    assert_eq!(u(w, "backtrack_steps"), u(&w["stream"], "backtrack_reads"));
+    assert_eq!(
+        u(&r, "bytes_read"),
+        u(&m, "bytes_read") + 64 * u(w, "backtrack_steps")
+    );
+    let m4 = run(&[
+        "--set",
+        "output=cbvh4",
+        "--set",
+        "cbvh_coords=modulo",
+        "--set",
+        "cbvh_treelet_depth=4",
+    ]);
+    assert_eq!(m4["cbvh4_matches_software"], true);
+    assert!(u(&m4["cbvh4"], "backtrack_steps") < u(w, "backtrack_steps"));
+    assert!(u(&m4, "bytes_written") < u(&m, "bytes_written"));
+    assert!(sim_error(&[
+        CLOTH,
+        "--set",
+        "output=cbvh4",
+        "--set",
+        "highlevel_threshold=18"
+    ])
+    .contains("highlevel_threshold"));
+}
+
 /// The point mode (issue 18, part 3): the unit's k-d tree over the triangles' centroids
 /// equals `bvh::PointTree`, and `--points uniform:N` builds over N points.
 #[test]

@@ -78,6 +78,14 @@ pub enum OutputMode {
     /// greedy collapse ([`bvh::collapse`]) as 128-byte MBVH4 nodes: the baseline of
     /// `mbvh4`.
     Mbvh4Collapse,
+    /// Compressed 4-wide nodes (issue 18 part 2): the streaming collapse unit of `mbvh4`
+    /// and behind it, in the place of its node writes, the streaming CBVH encoder of
+    /// `cbvh-stream` carried over to 4-wide nodes ([`cbvh::WideStreamEncoder`]: \[P3\]
+    /// Algorithm 1, its backtracking steps as DRAM reads and writes), which writes
+    /// `cbvh::wide::QuadNode`s (32 bytes at 6 bits). The collapse rule is `mbvh4_window`'s,
+    /// the quantization `cbvh_coords`, `cbvh_bits`, `cbvh_min_scale_exp` and
+    /// `cbvh_treelet_depth`.
+    Cbvh4,
     /// A k-d tree of points (issue 18, part 3): the primitives are points (degenerate
     /// boxes), and a point writer ([`bvh::PointStream`]) behind the emitter collapses
     /// subtrees of at most `max_leaf_size` points into leaves and writes the other nodes
@@ -108,6 +116,7 @@ impl OutputMode {
             OutputMode::CbvhTopdown => "cbvh-topdown",
             OutputMode::Mbvh4 => "mbvh4",
             OutputMode::Mbvh4Collapse => "mbvh4-collapse",
+            OutputMode::Cbvh4 => "cbvh4",
             OutputMode::KdtreePoints => "kdtree-points",
             OutputMode::OctreePoints => "octree-points",
         }
@@ -126,6 +135,12 @@ impl OutputMode {
     /// True for the two MBVH4 modes.
     pub fn is_mbvh4(self) -> bool {
         matches!(self, OutputMode::Mbvh4 | OutputMode::Mbvh4Collapse)
+    }
+
+    /// True for the modes with the streaming MBVH4 collapse unit behind the emitter
+    /// (`mbvh4`, and `cbvh4` with the wide encoder behind it).
+    pub fn collapses_stream(self) -> bool {
+        matches!(self, OutputMode::Mbvh4 | OutputMode::Cbvh4)
     }
 }
 
@@ -543,14 +558,13 @@ impl MergeTreeConfig {
                     "cbvh-topdown" => OutputMode::CbvhTopdown,
                     "mbvh4" => OutputMode::Mbvh4,
                     "mbvh4-collapse" => OutputMode::Mbvh4Collapse,
+                    "cbvh4" => OutputMode::Cbvh4,
                     "kdtree-points" => OutputMode::KdtreePoints,
                     "octree-points" => OutputMode::OctreePoints,
-                    _ => {
-                        return Err(bad(
-                            "expected bvh, cbvh-stream, cbvh-topdown, mbvh4, mbvh4-collapse, \
+                    _ => return Err(bad(
+                        "expected bvh, cbvh-stream, cbvh-topdown, mbvh4, mbvh4-collapse, cbvh4, \
                              kdtree-points or octree-points",
-                        ))
-                    }
+                    )),
                 }
             }
             "cbvh_coords" => {
@@ -736,7 +750,7 @@ impl MergeTreeConfig {
         if self.toplevel_sah && self.highlevel_threshold.is_none() {
             return err("toplevel_sah needs a highlevel_threshold".into());
         }
-        if (self.output.is_cbvh() || self.output.is_mbvh4())
+        if (self.output.is_cbvh() || self.output.is_mbvh4() || self.output == OutputMode::Cbvh4)
             && (self.highlevel_threshold.is_some() || self.toplevel_sah)
         {
             return err(format!(
@@ -752,7 +766,7 @@ impl MergeTreeConfig {
                 ));
             }
         }
-        if (self.output.is_cbvh() || self.output == OutputMode::Mbvh4)
+        if (self.output.is_cbvh() || self.output.collapses_stream())
             && self.cbvh_fifo as u64 > 1 << 20
         {
             return err(format!(
@@ -761,7 +775,7 @@ impl MergeTreeConfig {
                 1 << 20
             ));
         }
-        if self.output.is_cbvh() {
+        if self.output.is_cbvh() || self.output == OutputMode::Cbvh4 {
             self.cbvh_params()
                 .check()
                 .map_err(|e| ConfigError::Inconsistent(e.to_string()))?;

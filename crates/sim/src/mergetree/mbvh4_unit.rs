@@ -22,6 +22,16 @@
 //! go to the output region (`cbvh` in [`super::MemoryLayout`]) in
 //! write order, each after the nodes it references.
 //!
+//! # Compressed wide nodes (`output = cbvh4`)
+//! The collapse unit above hands each wide node it closes to a FIFO (`cbvh_fifo` entries,
+//! stalling while it is full) instead of writing it, and behind it the streaming CBVH unit
+//! of [`super::cbvh_unit`] drives [`cbvh::WideStreamEncoder`] (\[P3\] Algorithm 1 over
+//! 4-wide nodes): one cycle per wide node taken, one per compressed node (32 bytes at 6
+//! bits) handed to the write buffer, and per backtracking step a read and a write of the
+//! 64-byte lines holding the node, one step at a time. The tree equals
+//! [`cbvh::compress_stream_collapse`] of the same stream bit for bit
+//! ([`super::cbvh4_matches_software`]); [`Cbvh4RunReport`] has the counts.
+//!
 //! # Collapse pass (`output = mbvh4-collapse`)
 //! The baseline builds as `output = bvh` (64-byte nodes in emission order), then a pass
 //! reads the nodes back and writes the offline greedy collapse ([`bvh::collapse`] of the
@@ -63,6 +73,8 @@ pub struct CollapseUnitStats {
     pub starved_cycles: u64,
     /// Cycles the write buffer had no room for a wide node.
     pub write_full_cycles: u64,
+    /// Cycles the FIFO to the wide encoder was full (`cbvh4`).
+    pub encoder_full_cycles: u64,
 }
 
 /// What the MBVH4 output of a run did.
@@ -95,6 +107,53 @@ pub struct Mbvh4RunReport {
     /// The MBVH4 written (depth-first preorder).
     #[serde(skip)]
     pub tree: bvh::Mbvh4,
+}
+
+/// What the compressed 4-wide output of a run did (`output = cbvh4`): the collapse unit's
+/// and the wide encoder's counts, and the trees.
+#[derive(Clone, Debug, Serialize)]
+pub struct Cbvh4RunReport {
+    /// Quantization parameters.
+    pub params: cbvh::Params,
+    /// Treelet depth of the wide encoder (1 = none).
+    pub treelet_depth: u32,
+    /// The collapse's window (`None`: the greedy rule).
+    pub mbvh4_window: Option<u32>,
+    /// Compressed wide nodes written.
+    pub wide_nodes: u64,
+    /// Bytes of one compressed wide node (32 at 6 bits).
+    pub node_bytes: u64,
+    /// Binary nodes the emitter produced (never written).
+    pub binary_nodes: u64,
+    /// Backtracking steps of the wide encoder.
+    pub backtrack_steps: u64,
+    /// Backtracking steps by depth.
+    pub backtrack_depth_hist: Vec<u64>,
+    /// Peak subtrees the wide encoder held (waiting for their parent).
+    pub max_held: u64,
+    /// SAH of the exact (uncompressed) 4-wide tree ([`bvh::Mbvh4::normalized_sah`]).
+    pub sah: f64,
+    /// SAH of the tree the compressed nodes decode to.
+    pub sah_decoded: f64,
+    /// Mean used slots per wide node.
+    pub mean_children: f64,
+    /// Cycles of the whole run (the output is complete in DRAM at its end).
+    pub build_cycles: u64,
+    /// `build_cycles` in milliseconds.
+    pub build_ms: f64,
+    /// Collapse unit counters (`nodes_written`: wide nodes handed to the encoder).
+    pub collapse: Option<CollapseUnitStats>,
+    /// Wide encoder unit counters (`pairs_written`: compressed wide nodes written).
+    pub stream: Option<super::cbvh_unit::StreamUnitStats>,
+    /// The encoder's own counts.
+    #[serde(skip)]
+    pub encode: cbvh::EncodeStats,
+    /// The compressed tree written.
+    #[serde(skip)]
+    pub tree: cbvh::Cbvh4,
+    /// The exact 4-wide tree the collapse made (depth-first preorder).
+    #[serde(skip)]
+    pub exact: bvh::Mbvh4,
 }
 
 /// The emission (postorder) index of every node of a tree in the preorder that

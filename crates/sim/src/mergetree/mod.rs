@@ -44,7 +44,7 @@ pub mod toplevel;
 
 pub use config::{ConfigError, KdNode, MergeTreeConfig, OutputMode, ReadSchedule};
 pub use machine::MemoryLayout;
-pub use mbvh4_unit::{CollapseUnitStats, Mbvh4RunReport};
+pub use mbvh4_unit::{Cbvh4RunReport, CollapseUnitStats, Mbvh4RunReport};
 pub use report::{
     CbvhRunReport, MergeTreeReport, PhaseReport, PointRunReport, StallReport, TraceRow,
 };
@@ -211,7 +211,8 @@ fn run_machine<'a>(
         cbvh::bottomup::check_stream(1, aabbs.len())?;
     }
     let mut k = machine::run(aabbs, &cb, cfg, port, progress)?;
-    let collapse = k.collapse.take();
+    let mut collapse = k.collapse.take();
+    let wide = k.wide.take();
     let out = KernelCbvh {
         stream: k.stream.take(),
         ids: k.cbvh_ids.take(),
@@ -242,6 +243,17 @@ fn run_machine<'a>(
         nodes: std::mem::take(&mut k.nodes),
         roots: std::mem::take(&mut k.roots),
         order: std::mem::take(&mut k.order),
+    };
+    let cbvh4 = if cfg.output == OutputMode::Cbvh4 {
+        Some(kernel_cbvh4_result(
+            collapse.take(),
+            wide,
+            &highlevel,
+            cfg,
+            k.cycles,
+        )?)
+    } else {
+        None
     };
     let mbvh4 = kernel_mbvh4_result(
         collapse,
@@ -302,6 +314,7 @@ fn run_machine<'a>(
         top_tree,
         cbvh,
         mbvh4,
+        cbvh4,
         points,
         units: k.run.units,
     })
@@ -348,6 +361,105 @@ fn kernel_mbvh4_result(
         pass,
         tree,
     }))
+}
+
+/// The compressed 4-wide tree the machine wrote (`output = cbvh4`), with its counts: the
+/// wide encoder's tree over the collapse's leaves.
+fn kernel_cbvh4_result(
+    collapse: Option<(bvh::StreamCollapse, CollapseUnitStats)>,
+    wide: Option<(cbvh::WideStreamEncoder, cbvh_unit::StreamUnitStats)>,
+    hl: &bvh::Highlevel,
+    cfg: &MergeTreeConfig,
+    cycles: u64,
+) -> Result<Cbvh4RunReport, MergeTreeError> {
+    let (tree, encode, exact, col, stream) = match (collapse, wide) {
+        (Some((sc, cst)), Some((enc, est))) => {
+            let ids = cbvh::wide::prim_ids_of_nodes(hl.order.clone(), sc.written())?;
+            let (tree, encode) = enc.finish(ids)?;
+            (
+                tree,
+                encode,
+                sc.tree(hl.order.clone())?,
+                Some(cst),
+                Some(est),
+            )
+        }
+        // An empty scene: the units did not start.
+        _ => {
+            let (tree, encode, exact) = software_cbvh4_of(hl, cfg)?;
+            (tree, encode, exact, None, None)
+        }
+    };
+    let decoded = tree.decode_to_mbvh4()?;
+    let cycles = if hl.order.is_empty() { 0 } else { cycles };
+    Ok(Cbvh4RunReport {
+        params: cfg.cbvh_params(),
+        treelet_depth: cfg.cbvh_treelet_depth,
+        mbvh4_window: cfg.mbvh4_window,
+        wide_nodes: tree.nodes.len() as u64,
+        node_bytes: cbvh::wide::quad_bytes(cfg.cbvh_bits) as u64,
+        binary_nodes: hl.nodes.len() as u64,
+        backtrack_steps: encode.backtrack_steps,
+        backtrack_depth_hist: encode.backtrack_depth_hist.clone(),
+        max_held: encode.max_stack as u64,
+        sah: exact.normalized_sah(),
+        sah_decoded: decoded.normalized_sah(),
+        mean_children: exact.stats().mean_children,
+        build_cycles: cycles,
+        build_ms: cycles as f64 / (cfg.clock_mhz as f64 * 1e3),
+        collapse: col,
+        stream,
+        encode,
+        tree,
+        exact,
+    })
+}
+
+/// The software reference of `output = cbvh4` for the emitter's stream `hl`:
+/// [`cbvh::compress_stream_collapse`] with `cfg`'s collapse rule and quantization.
+fn software_cbvh4_of(
+    hl: &bvh::Highlevel,
+    cfg: &MergeTreeConfig,
+) -> Result<(cbvh::Cbvh4, cbvh::EncodeStats, bvh::Mbvh4), MergeTreeError> {
+    let sc = cbvh::bottomup::StreamConfig {
+        record_ops: false,
+        ..cfg.stream_config(0)
+    };
+    Ok(cbvh::compress_stream_collapse(
+        hl,
+        cfg.stream_collapse(),
+        &sc,
+    )?)
+}
+
+/// The compressed 4-wide tree software makes for `cfg` (`output = cbvh4`): the software
+/// emitter's stream through [`cbvh::compress_stream_collapse`]; `None` in the other modes.
+pub fn software_cbvh4(
+    aabbs: &[Aabb],
+    cfg: &MergeTreeConfig,
+) -> Result<Option<(cbvh::Cbvh4, cbvh::EncodeStats, bvh::Mbvh4)>, MergeTreeError> {
+    if cfg.output != OutputMode::Cbvh4 {
+        return Ok(None);
+    }
+    let hl = software_builder(cfg).build_highlevel(aabbs)?;
+    Ok(Some(software_cbvh4_of(&hl, cfg)?))
+}
+
+/// With `output = cbvh4`, true when the compressed tree the unit wrote equals the software
+/// encoder's bit for bit (nodes, root, root context, primitive ids) with the same counts,
+/// over the same exact tree; `None` in the other modes.
+pub fn cbvh4_matches_software(
+    report: &MergeTreeReport,
+    aabbs: &[Aabb],
+) -> Result<Option<bool>, MergeTreeError> {
+    let (Some(ours), Some((tree, stats, exact))) =
+        (&report.cbvh4, software_cbvh4(aabbs, &report.config)?)
+    else {
+        return Ok(None);
+    };
+    Ok(Some(
+        ours.tree == tree && ours.encode == stats && ours.exact == exact,
+    ))
 }
 
 /// The point tree the writer made, with its counts.
@@ -463,6 +575,7 @@ fn kernel_cbvh_result(
         OutputMode::Bvh
         | OutputMode::Mbvh4
         | OutputMode::Mbvh4Collapse
+        | OutputMode::Cbvh4
         | OutputMode::KdtreePoints
         | OutputMode::OctreePoints => return Ok(None),
         OutputMode::CbvhStream => match k.stream.take() {
@@ -541,6 +654,7 @@ pub fn software_cbvh(
         OutputMode::Bvh
         | OutputMode::Mbvh4
         | OutputMode::Mbvh4Collapse
+        | OutputMode::Cbvh4
         | OutputMode::KdtreePoints
         | OutputMode::OctreePoints => None,
         OutputMode::CbvhStream => {
@@ -622,6 +736,8 @@ pub fn tree_matches_software(
 mod tests;
 #[cfg(test)]
 mod tests_cbvh;
+#[cfg(test)]
+mod tests_cbvh4;
 #[cfg(test)]
 mod tests_exact;
 #[cfg(test)]

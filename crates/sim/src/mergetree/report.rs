@@ -184,6 +184,8 @@ pub struct MergeTreeReport {
     pub cbvh: Option<CbvhRunReport>,
     /// The MBVH4 output (issue 18 part 2), in the MBVH4 output modes.
     pub mbvh4: Option<super::mbvh4_unit::Mbvh4RunReport>,
+    /// The compressed 4-wide output (`output = cbvh4`, issue 18 part 2).
+    pub cbvh4: Option<super::mbvh4_unit::Cbvh4RunReport>,
     /// The point k-d tree (`output = kdtree-points`, issue 18 part 3).
     pub points: Option<PointRunReport>,
     /// Busy / stalled / idle cycles and counters of every unit (the kernel machine).

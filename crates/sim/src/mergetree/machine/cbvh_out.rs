@@ -3,8 +3,31 @@
 
 use super::*;
 
+/// The encoder a streaming CBVH unit drives: node pairs behind the emitter
+/// (`cbvh-stream`), or 4-wide nodes behind the collapse unit (`cbvh4`).
+pub(super) enum Encoder {
+    Pair(cbvh::bottomup::StreamEncoder),
+    Wide(cbvh::WideStreamEncoder),
+}
+
+impl Encoder {
+    fn drain_ops(&mut self) -> Vec<cbvh::bottomup::MemOp> {
+        match self {
+            Encoder::Pair(e) => e.drain_ops(),
+            Encoder::Wide(e) => e.drain_ops(),
+        }
+    }
+
+    fn end_stream(&mut self) -> Result<(), cbvh::CbvhError> {
+        match self {
+            Encoder::Pair(e) => e.end_stream(),
+            Encoder::Wide(e) => e.end_stream(),
+        }
+    }
+}
+
 pub(super) struct Stream {
-    pub(super) enc: Option<cbvh::bottomup::StreamEncoder>,
+    pub(super) enc: Option<Encoder>,
     pub(super) ops: VecDeque<cbvh::bottomup::MemOp>,
     pub(super) awaiting_read: bool,
     pub(super) flushing: bool,
@@ -114,13 +137,22 @@ impl Stream {
                 Ok(Wake::Next)
             }
             None => {
-                if let Some(n) = w.enc_fifo.pop(cx) {
-                    enc.push(n)?;
+                let took = match enc {
+                    Encoder::Pair(e) => w.enc_fifo.pop(cx).map(|n| e.push(n)),
+                    Encoder::Wide(e) => w.wide_fifo.pop(cx).map(|n| e.push(n)),
+                };
+                // The emitter's, or behind the collapse unit the collapse's, last node.
+                let upstream_finished = match enc {
+                    Encoder::Pair(_) => w.emit_finished.get(now),
+                    Encoder::Wide(_) => w.collapse_finished.get(now),
+                };
+                if let Some(r) = took {
+                    r?;
                     self.ops.extend(enc.drain_ops());
                     self.stats.nodes_in += 1;
                     cx.set_state(State::Busy);
                     Ok(Wake::Next)
-                } else if w.emit_finished.get(now) && !self.ended {
+                } else if upstream_finished && !self.ended {
                     // The root's treelet (or the root itself) is written last.
                     enc.end_stream()?;
                     self.ops.extend(enc.drain_ops());
@@ -129,7 +161,10 @@ impl Stream {
                     Ok(Wake::Next)
                 } else if self.ended {
                     self.done = true;
-                    w.out.stream = Some((self.enc.take().expect("once"), self.stats.clone()));
+                    match self.enc.take().expect("once") {
+                        Encoder::Pair(e) => w.out.stream = Some((e, self.stats.clone())),
+                        Encoder::Wide(e) => w.out.wide = Some((e, self.stats.clone())),
+                    }
                     w.stream_done.push(cx, ()).expect("one done token");
                     cx.set_state(State::Idle);
                     Ok(Wake::Done)

@@ -197,7 +197,8 @@ impl<'a> Unit<KWorld<'a>> for Control {
                 // The final merge's done token is not needed: the emitter ends the phase.
                 let _ = w.merge_done.pop(cx);
                 // A streaming encoder or collapse writes nodes until it is done.
-                let streaming = matches!(w.cfg.output, OutputMode::CbvhStream | OutputMode::Mbvh4);
+                let streaming =
+                    w.cfg.output == OutputMode::CbvhStream || w.cfg.output.collapses_stream();
                 if !self.draining {
                     if w.emit_done.pop(cx).is_none() {
                         return Wake::OnEvent;

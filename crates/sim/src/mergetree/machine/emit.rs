@@ -103,7 +103,7 @@ impl<'a> Unit<KWorld<'a>> for Emitter {
             return Wake::Done;
         }
         let streaming = w.cfg.output == OutputMode::CbvhStream;
-        let collapsing = w.cfg.output == OutputMode::Mbvh4;
+        let collapsing = w.cfg.output.collapses_stream();
         let KWorld {
             emit_fifo,
             enc_fifo,

@@ -5,8 +5,11 @@ use super::*;
 
 pub(super) struct Collapse {
     pub(super) sc: Option<bvh::StreamCollapse>,
-    /// Wide nodes closed and not yet handed to the write buffer.
-    pub(super) writes: u64,
+    /// The first wide node closed and not yet handed on (to the write buffer, or to the
+    /// wide encoder).
+    pub(super) out_next: usize,
+    /// `cbvh4`: the wide nodes go to the wide encoder instead of the write buffer.
+    pub(super) encode: bool,
     /// Cycles of the windowed rule's cost update still to spend on the last node.
     pub(super) think: u64,
     /// Extra cycles per node of the windowed rule (its levels; 0 for the greedy rule).
@@ -18,6 +21,7 @@ pub(super) struct Collapse {
 
 pub(super) const CO_STARVED: u8 = 0;
 pub(super) const CO_WRITE_FULL: u8 = 1;
+pub(super) const CO_ENCODER_FULL: u8 = 2;
 
 impl Collapse {
     fn step_inner(&mut self, w: &mut KWorld, cx: &mut Ctx) -> Result<Wake, bvh::CollapseError> {
@@ -30,27 +34,39 @@ impl Collapse {
             cx.set_state(State::Busy);
             return Ok(Wake::Next);
         }
-        if self.writes > 0 {
-            if !w.nodes.has_room(now, MBVH4_NODE_BYTES) {
-                cx.set_state(State::Stalled(CO_WRITE_FULL));
-                return Ok(Wake::OnEvent);
+        let sc = self.sc.as_ref().expect("collapse until done");
+        if let Some(n) = sc.written().get(self.out_next) {
+            if self.encode {
+                // `cbvh4`: the wide node goes to the encoder behind the unit.
+                if w.wide_fifo.is_full(cx) {
+                    cx.set_state(State::Stalled(CO_ENCODER_FULL));
+                    return Ok(Wake::OnEvent);
+                }
+                if w.wide_fifo.push(cx, cbvh::wide::input_of_node4(n)).is_err() {
+                    unreachable!("checked");
+                }
+            } else {
+                if !w.nodes.has_room(now, MBVH4_NODE_BYTES) {
+                    cx.set_state(State::Stalled(CO_WRITE_FULL));
+                    return Ok(Wake::OnEvent);
+                }
+                w.nodes.add(cx, MBVH4_NODE_BYTES);
             }
-            w.nodes.add(cx, MBVH4_NODE_BYTES);
-            self.writes -= 1;
+            self.out_next += 1;
             self.stats.nodes_written += 1;
             cx.set_state(State::Busy);
             return Ok(Wake::Next);
         }
         let sc = self.sc.as_mut().expect("collapse until done");
         if let Some(n) = w.col_fifo.pop(cx) {
-            self.writes = sc.push(&n)? as u64;
+            sc.push(&n)?;
             self.think = self.levels;
             self.stats.nodes_in += 1;
             cx.set_state(State::Busy);
             Ok(Wake::Next)
         } else if w.emit_finished.get(now) && !self.ended {
             // The root's slots are written last, as the root node.
-            self.writes = sc.end(&w.out.roots)? as u64;
+            sc.end(&w.out.roots)?;
             self.think = self.levels;
             self.ended = true;
             cx.set_state(State::Busy);
@@ -61,7 +77,13 @@ impl Collapse {
             self.stats.max_treelet_nodes = sc.max_treelet_nodes() as u64;
             self.stats.max_window_bytes = sc.max_window_bytes() as u64;
             w.out.collapse = Some((self.sc.take().expect("once"), self.stats.clone()));
-            w.stream_done.push(cx, ()).expect("one done token");
+            if self.encode {
+                // The wide encoder ends the stream (and signals the control).
+                w.collapse_finished.set(now, true);
+                cx.notify(w.ids.wide_enc, now + 1);
+            } else {
+                w.stream_done.push(cx, ()).expect("one done token");
+            }
             cx.set_state(State::Idle);
             Ok(Wake::Done)
         } else {
@@ -77,7 +99,7 @@ impl<'a> Unit<KWorld<'a>> for Collapse {
     }
 
     fn stall_reasons(&self) -> &'static [&'static str] {
-        &["input empty", "write buffer full"]
+        &["input empty", "write buffer full", "encoder full"]
     }
 
     fn step(&mut self, w: &mut KWorld<'a>, cx: &mut Ctx) -> Wake {
@@ -86,7 +108,12 @@ impl<'a> Unit<KWorld<'a>> for Collapse {
             Err(e) => {
                 w.out.collapse_fault = Some(e);
                 self.done = true;
-                w.stream_done.push(cx, ()).expect("one done token");
+                if self.encode {
+                    w.collapse_finished.set(cx.now(), true);
+                    cx.notify(w.ids.wide_enc, cx.now() + 1);
+                } else {
+                    w.stream_done.push(cx, ()).expect("one done token");
+                }
                 Wake::Done
             }
         }
@@ -94,8 +121,8 @@ impl<'a> Unit<KWorld<'a>> for Collapse {
 
     fn describe(&self, _w: &KWorld<'a>) -> String {
         format!(
-            "{} nodes in, {} written, {} writes queued, ended {}, done {}",
-            self.stats.nodes_in, self.stats.nodes_written, self.writes, self.ended, self.done
+            "{} nodes in, {} written, next out {}, ended {}, done {}",
+            self.stats.nodes_in, self.stats.nodes_written, self.out_next, self.ended, self.done
         )
     }
 }

@@ -37,6 +37,7 @@
 //! | then | toplevel SAH unit (with `toplevel_sah`) | `TopUnit` | `top_start`, the published cell roots | high-level write buffer, `top_done` |
 //! | then | streaming CBVH encoder (`cbvh-stream`) | the encoder, its queued accesses | `enc_fifo`, `bt_data`, `emit_finished` | node-pair write buffer, `req_cbvh`, `stream_done` |
 //! | then | streaming MBVH4 collapse (`mbvh4`, in the encoder's place) | the collapse, its open subtrees | `col_fifo`, `emit_finished` | wide-node write buffer, `stream_done` |
+//! | then | wide CBVH encoder behind the collapse (`cbvh4`: the streaming encoder unit driving `cbvh::WideStreamEncoder`) | the encoder, its queued accesses | `wide_fifo`, `bt_data`, `collapse_finished` | compressed-node write buffer, `req_cbvh`, `stream_done` |
 //! | then | top-down CBVH pass (`cbvh-topdown`), or the MBVH4 collapse pass (`mbvh4-collapse`) | read / encode positions | `td_start`, `td_data` | node-pair (wide-node) write buffer, `req_cbvh`, `td_done` |
 //!
 //! The units live in files of their own: `control` (the FSM), `emit` (hierarchy emitter
@@ -82,6 +83,7 @@
 //! | `cmd` | 1 | control -> merger |
 //! | `enc_fifo` | `cbvh_fifo` | emitter -> streaming encoder |
 //! | `col_fifo` | `cbvh_fifo` | emitter -> streaming MBVH4 collapse |
+//! | `wide_fifo` | `cbvh_fifo` | streaming MBVH4 collapse -> wide encoder (`cbvh4`) |
 //! | `req_cbvh` | 2 | CBVH unit -> arbiter |
 //! | `bt_data` | 1 | arbiter -> streaming encoder (backtracking read done) |
 //! | `td_data` | nodes | arbiter -> top-down pass (node reads done) |
@@ -320,6 +322,8 @@ struct Optional {
     toplevel: UnitId,
     stream: UnitId,
     topdown: UnitId,
+    /// The wide encoder behind the collapse unit (`cbvh4`).
+    wide_enc: UnitId,
 }
 
 /// Scratchpad closed to the presorters (no block may be copied in).
@@ -612,6 +616,7 @@ struct Outputs {
     fault: Option<cbvh::CbvhError>,
     cbvh_ids: Option<Vec<u32>>,
     stream: Option<(cbvh::bottomup::StreamEncoder, StreamUnitStats)>,
+    wide: Option<(cbvh::WideStreamEncoder, StreamUnitStats)>,
     topdown: Option<TopdownStats>,
     collapse: Option<(bvh::StreamCollapse, CollapseUnitStats)>,
     collapse_fault: Option<bvh::CollapseError>,
@@ -650,6 +655,8 @@ pub(super) struct KWorld<'a> {
     enc_fifo: LatencyFifo<cbvh::bottomup::InputNode>,
     /// Emitter -> streaming MBVH4 collapse.
     col_fifo: LatencyFifo<bvh::EmittedNode>,
+    /// Streaming MBVH4 collapse -> wide encoder (`cbvh4`): the wide nodes it closes.
+    wide_fifo: LatencyFifo<cbvh::wide::WideInput>,
     /// Streaming encoder's and top-down pass's requests to the arbiter.
     req_cbvh: LatencyFifo<Req>,
     /// Arbiter -> streaming encoder: a backtracking read's latency.
@@ -661,6 +668,8 @@ pub(super) struct KWorld<'a> {
     td_done: LatencyFifo<()>,
     /// The emitter has output its last node (for the streaming encoder).
     emit_finished: Reg<bool>,
+    /// The collapse unit has handed over its last wide node (for the wide encoder).
+    collapse_finished: Reg<bool>,
     ids: Optional,
     /// Partial-sort block whose sub-blocks the presorters may copy into the scratchpad.
     scratch_open: Reg<u64>,
@@ -765,6 +774,7 @@ pub(super) struct KRun {
     pub top: Option<TopUnit>,
     pub cbvh_ids: Option<Vec<u32>>,
     pub stream: Option<(cbvh::bottomup::StreamEncoder, StreamUnitStats)>,
+    pub wide: Option<(cbvh::WideStreamEncoder, StreamUnitStats)>,
     pub topdown: Option<TopdownStats>,
     pub collapse: Option<(bvh::StreamCollapse, CollapseUnitStats)>,
     /// The point writer, or its error (`output = kdtree-points`).
@@ -806,6 +816,7 @@ pub(super) fn run<'a>(
             top: None,
             cbvh_ids: None,
             stream: None,
+            wide: None,
             topdown: None,
             collapse: None,
             points: None,
@@ -848,19 +859,21 @@ pub(super) fn run<'a>(
     let ids = Optional {
         toplevel: take(cfg.toplevel_sah),
         // The streaming encoder or collapse behind the emitter; the pass after the build.
-        stream: take(matches!(
-            cfg.output,
-            OutputMode::CbvhStream | OutputMode::Mbvh4
-        )),
+        stream: take(cfg.output == OutputMode::CbvhStream || cfg.output.collapses_stream()),
         topdown: take(matches!(
             cfg.output,
             OutputMode::CbvhTopdown | OutputMode::Mbvh4Collapse
         )),
+        wide_enc: take(cfg.output == OutputMode::Cbvh4),
     };
     let (toplevel, stream, topdown) = (ids.toplevel, ids.stream, ids.topdown);
     let region_len = |needed: bool| if needed { npad as usize } else { 0 };
     let streaming = cfg.output == OutputMode::CbvhStream;
-    let behind = streaming || cfg.output == OutputMode::Mbvh4;
+    let behind = streaming || cfg.output.collapses_stream();
+    let wide = cfg.output == OutputMode::Cbvh4;
+    // The unit that writes the output nodes and makes the CBVH unit's requests: the
+    // streaming encoder, the collapse unit, the wide encoder behind it, or the pass.
+    let writer = if wide { ids.wide_enc } else { stream };
     let wb = |base: u64, cap: u32| WriteBuffer::new(base, cap as u64, cfg.write_chunk_bytes as u64);
     let mut w = KWorld {
         cfg: cfg.clone(),
@@ -901,7 +914,7 @@ pub(super) fn run<'a>(
         req_read: fifo("reader->arbiter", 2, READER, ARBITER),
         req_run: fifo("run writer->arbiter", 2, RUN_WRITER, ARBITER),
         nodes: if behind {
-            KBuf::new(wb(layout.cbvh, cfg.node_buffer_bytes), [stream, stream])
+            KBuf::new(wb(layout.cbvh, cfg.node_buffer_bytes), [writer, writer])
         } else {
             KBuf::new(wb(layout.nodes, cfg.node_buffer_bytes), [EMITTER, EMITTER])
         },
@@ -922,18 +935,25 @@ pub(super) fn run<'a>(
             EMITTER,
             stream,
         ),
+        wide_fifo: fifo(
+            "mbvh4 collapse->wide encoder",
+            cfg.cbvh_fifo as usize,
+            stream,
+            ids.wide_enc,
+        ),
         req_cbvh: fifo(
             "cbvh->arbiter",
             2,
-            if streaming { stream } else { topdown },
+            if streaming || wide { writer } else { topdown },
             ARBITER,
         ),
-        bt_data: fifo("arbiter->cbvh encoder", 1, ARBITER, stream),
+        bt_data: fifo("arbiter->cbvh encoder", 1, ARBITER, writer),
         td_data: fifo("arbiter->topdown", 1, ARBITER, topdown),
-        stream_done: fifo("cbvh encoder->control", 1, stream, CONTROL),
+        stream_done: fifo("cbvh encoder->control", 1, writer, CONTROL),
         td_start: fifo("control->topdown", 1, CONTROL, topdown),
         td_done: fifo("topdown->control", 1, topdown, CONTROL),
         emit_finished: Reg::new(false),
+        collapse_finished: Reg::new(false),
         ids,
         scratch_open: Reg::new(0),
         emit_active: Reg::new(blocks == 1),
@@ -1061,7 +1081,7 @@ pub(super) fn run<'a>(
     };
     if let Some(enc) = enc {
         let id = s.add(Box::new(Stream {
-            enc: Some(enc),
+            enc: Some(Encoder::Pair(enc)),
             ops: VecDeque::new(),
             awaiting_read: false,
             flushing: false,
@@ -1072,10 +1092,11 @@ pub(super) fn run<'a>(
         }));
         debug_assert_eq!(id, stream);
     }
-    if cfg.output == OutputMode::Mbvh4 {
+    if cfg.output.collapses_stream() {
         let id = s.add(Box::new(Collapse {
             sc: Some(cfg.stream_collapse()),
-            writes: 0,
+            out_next: 0,
+            encode: wide,
             think: 0,
             levels: cfg.mbvh4_window.map_or(0, u64::from),
             ended: false,
@@ -1083,6 +1104,21 @@ pub(super) fn run<'a>(
             stats: CollapseUnitStats::default(),
         }));
         debug_assert_eq!(id, stream);
+    }
+    if wide {
+        let id = s.add(Box::new(Stream {
+            enc: Some(Encoder::Wide(cbvh::WideStreamEncoder::new(
+                cfg.stream_config(layout.cbvh),
+            )?)),
+            ops: VecDeque::new(),
+            awaiting_read: false,
+            flushing: false,
+            ended: false,
+            done: false,
+            stats: StreamUnitStats::default(),
+            flush_before_read: cfg.cbvh_flush_before_backtrack,
+        }));
+        debug_assert_eq!(id, ids.wide_enc);
     }
     if matches!(
         cfg.output,
@@ -1146,11 +1182,21 @@ pub(super) fn run<'a>(
             st.write_full_cycles = stalled(a, ST_WRITE_FULL as usize);
             (e, st)
         }),
+        wide: w.out.wide.take().map(|(e, mut st)| {
+            let a = &rep.units[w.ids.wide_enc.index()];
+            st.busy_cycles = a.activity.busy_cycles;
+            st.starved_cycles = stalled(a, ST_STARVED as usize);
+            st.read_wait_cycles = stalled(a, ST_READ_WAIT as usize);
+            st.flush_wait_cycles = stalled(a, ST_FLUSH_WAIT as usize);
+            st.write_full_cycles = stalled(a, ST_WRITE_FULL as usize);
+            (e, st)
+        }),
         collapse: w.out.collapse.take().map(|(c, mut st)| {
             let a = &rep.units[w.ids.stream.index()];
             st.busy_cycles = a.activity.busy_cycles;
             st.starved_cycles = stalled(a, CO_STARVED as usize);
             st.write_full_cycles = stalled(a, CO_WRITE_FULL as usize);
+            st.encoder_full_cycles = stalled(a, CO_ENCODER_FULL as usize);
             (c, st)
         }),
         topdown: w.out.topdown.take().map(|mut t| {
