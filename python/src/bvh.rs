@@ -574,10 +574,14 @@ impl Bvh {
     }
 }
 
-/// Names of every builder, in `arbor build`'s order.
+/// Names of every builder, in `arbor build`'s order, but those that cut triangles
+/// (`sbvh`: its trees name parts of triangles, which this package's arrays, validation
+/// and files do not hold yet).
 #[pyfunction]
 fn builders() -> Vec<&'static str> {
-    cli::available_builders().collect()
+    cli::available_builders()
+        .filter(|n| !cli::cuts_triangles(n))
+        .collect()
 }
 
 /// Registers the BVH class and functions.
