@@ -64,8 +64,9 @@ pub struct SbvhBuilder {
     /// references uses `max(n, 4)`).
     pub spatial_bins: usize,
     /// Spatial splits are tried only where the object split's two sides overlap by more
-    /// than `alpha` times the scene box's half area (the paper's α; 1e-5 there). 0 tries
-    /// them everywhere; values >= 1 never.
+    /// than `alpha` times the scene box's half area (the paper's α; 1e-5 there), and in
+    /// nodes whose centroids all coincide (no object split exists). 0 tries them
+    /// everywhere; values >= 1 only in those nodes (`max_growth` 0 turns them off).
     pub alpha: f32,
     /// At most about `(1 + max_growth)` references per triangle in the whole tree.
     pub max_growth: f32,
