@@ -433,6 +433,20 @@ fn plan(quick: bool, scene_dir: &Path) -> Vec<Page> {
                 }],
             }],
         },
+        Page {
+            file: "beyond.html",
+            title: "Beyond the thesis (issue 18)",
+            about: "The open problems the thesis names, each a mode of the MergeTree model \
+                    beside the thesis's baseline: forecasting read scheduling, MBVH4 and \
+                    compressed 4-wide nodes out of the stream, point k-d trees and octrees, \
+                    and plane-sharing CBVH update (no thesis numbers to compare: the thesis \
+                    leaves them open; docs/beyond-thesis.md).",
+            steps: vec![Step {
+                dir: "beyond/report",
+                args: dir_arg(q(&["report", "beyond", "--quick"], &["report", "beyond"])),
+                compares: Vec::new(),
+            }],
+        },
     ]
 }
 

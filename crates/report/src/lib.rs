@@ -16,7 +16,8 @@
 //! - one module per area, each a `run` function of its options: [`mergetree`] (\[P2\]
 //!   Tables III, VI), [`cbvh`] (\[P3\] §5), [`rtunit`] (\[P4\] Tables 1, 2), [`energy`]
 //!   (components, \[P2\] IV and VII, \[P4\] 1 and 2; uses `mergetree` and `rtunit`),
-//!   [`system`] (\[P2\] §6.4), [`sensitivity`] (uses `system`);
+//!   [`system`] (\[P2\] §6.4), [`sensitivity`] (uses `system`), [`beyond`] (issue 18:
+//!   the thesis's open problems against their baselines);
 //! - [`html`]: the static site of every report.
 //!
 //! See `crates/report/README.md` for where each report lives.
@@ -36,5 +37,7 @@ pub mod energy;
 pub mod system;
 
 pub mod sensitivity;
+
+pub mod beyond;
 
 pub mod html;

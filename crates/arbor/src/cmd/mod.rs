@@ -14,6 +14,7 @@ pub mod info;
 pub mod log_info;
 pub mod render;
 pub mod report;
+pub mod report_beyond;
 pub mod report_cbvh;
 pub mod report_energy;
 pub mod report_html;

@@ -34,6 +34,10 @@ enum ReportKind {
     /// low, high and driving assumption of each figure of \[P2\] Tables III, IV, VI, VII
     /// and VIII and \[P4\] Tables 1 and 2.
     Sensitivity(super::report_sensitivity::ReportSensitivityArgs),
+    /// Beyond the thesis (issue 18): forecasting read scheduling, MBVH4 and compressed
+    /// 4-wide nodes out of the stream, point k-d trees and octrees, plane-sharing CBVH
+    /// update, each against the thesis's baseline on the MergeTree model.
+    Beyond(super::report_beyond::ReportBeyondArgs),
     /// Every report above as one self-contained static HTML site (index and one page per
     /// area), each reproduced table beside the thesis's numbers; `--quick` for small runs.
     Html(super::report_html::ReportHtmlArgs),
@@ -48,6 +52,7 @@ pub fn run(a: &ReportArgs, ui: &Ui) -> anyhow::Result<()> {
         ReportKind::Energy(r) => super::report_energy::run(r, ui),
         ReportKind::System(r) => super::report_system::run(r, ui),
         ReportKind::Sensitivity(r) => super::report_sensitivity::run(r, ui),
+        ReportKind::Beyond(r) => super::report_beyond::run(r, ui),
         ReportKind::Html(r) => super::report_html::run(r, ui),
     }
 }

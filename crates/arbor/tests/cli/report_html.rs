@@ -8,7 +8,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 /// The pages the site must have.
-const PAGES: [&str; 8] = [
+const PAGES: [&str; 9] = [
     "index.html",
     "builders.html",
     "mergetree.html",
@@ -17,6 +17,7 @@ const PAGES: [&str; 8] = [
     "accelerator.html",
     "system.html",
     "sensitivity.html",
+    "beyond.html",
 ];
 
 /// The values of every `href="..."` and `src="..."` attribute in `html`.
@@ -145,7 +146,7 @@ fn quick_site_is_complete_self_contained_and_renders() {
     );
     let err = String::from_utf8_lossy(&out.stderr);
     assert!(
-        err.contains("report html: [1/8] arbor bench build"),
+        err.contains("report html: [1/9] arbor bench build"),
         "{err}"
     );
     assert!(err.contains("wrote") && err.contains("index.html"), "{err}");
@@ -313,7 +314,7 @@ fn a_failing_command_is_shown_on_its_page_and_the_others_still_run() {
         site.to_str().unwrap(),
     ]);
     assert!(
-        e.contains("1 of 8 commands failed (arbor report mergetree"),
+        e.contains("1 of 9 commands failed (arbor report mergetree"),
         "{e}"
     );
     let page = std::fs::read_to_string(site.join("mergetree.html")).unwrap();

@@ -191,3 +191,45 @@ fn bad_arguments_are_one_line_errors() {
         assert!(err.contains(needle), "{err}");
     }
 }
+
+/// `arbor report beyond` (issue 18): every part's rows on a small scene, each checked
+/// against its software; the files; bad arguments as one-line errors.
+#[test]
+fn report_beyond_runs_every_part() {
+    let dir = tempfile::tempdir().unwrap();
+    let out = dir.path().join("b");
+    let o = arbor(&[
+        "report",
+        "beyond",
+        "--scenes",
+        "proc:soup?n=3000",
+        "--out",
+        out.to_str().unwrap(),
+        "--json",
+        "--quiet",
+    ]);
+    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
+    let doc: serde_json::Value = serde_json::from_slice(&o.stdout).unwrap();
+    assert_eq!(doc["schema"], "arbor.report.beyond.v1");
+    let rows = doc["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 13);
+    for part in 1..=4 {
+        let n = rows.iter().filter(|r| r["part"] == part).count();
+        assert!(n >= 2, "part {part}: {n} rows");
+    }
+    assert!(rows.iter().all(|r| r["matches"] == true), "{rows:#?}");
+    for f in ["report.md", "beyond.csv", "beyond.json"] {
+        assert!(out.join(f).is_file(), "{f}");
+    }
+    let e = arbor(&[
+        "report",
+        "beyond",
+        "--scenes",
+        "proc:soup?n=300",
+        "--dram",
+        "nope",
+    ]);
+    assert_eq!(e.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&e.stderr);
+    assert!(err.contains("--dram") && err.lines().count() == 1, "{err}");
+}
