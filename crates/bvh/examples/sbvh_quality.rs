@@ -22,17 +22,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     for file in files {
         let scene = scene::open(&file, &Default::default())?;
         let mesh = scene.mesh_at(0.0)?;
-        let tris: Vec<geom::Triangle> = mesh
-            .triangles
-            .iter()
-            .map(|t| {
-                geom::Triangle::new(
-                    mesh.positions[t[0] as usize],
-                    mesh.positions[t[1] as usize],
-                    mesh.positions[t[2] as usize],
-                )
-            })
-            .collect();
+        let tris: Vec<geom::Triangle> = mesh.triangles_iter().collect();
         let prims = bvh::triangle_aabbs(&tris);
         let sweep = bvh::sah_cost(&SweepSahBuilder::default().build(&prims)?);
         let name = std::path::Path::new(&file)

@@ -205,16 +205,7 @@ pub fn run(o: &BeyondOptions, p: &dyn Progress) -> anyhow::Result<Vec<BeyondRow>
                 .with_context(|| format!("cannot open {spec}"))?;
             let mesh = scene.mesh_at(0.0)?;
             let prims = crate::scenes::mesh_boxes(&mesh)?;
-            let centroids: Vec<geom::Vec3> = mesh
-                .triangles
-                .iter()
-                .map(|t| {
-                    t.iter()
-                        .map(|&v| mesh.positions[v as usize])
-                        .sum::<geom::Vec3>()
-                        / 3.0
-                })
-                .collect();
+            let centroids = mesh.centroids();
             let points = mergetree::point_boxes(&centroids)?;
             (crate::scenes::short_name(spec), prims, points)
         };

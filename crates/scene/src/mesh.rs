@@ -52,6 +52,15 @@ impl Mesh {
         (0..self.triangles.len()).map(|i| self.triangle(i))
     }
 
+    /// The centroid (vertex mean) of every triangle, in primitive-id order: the points of
+    /// the point-tree modes.
+    pub fn centroids(&self) -> Vec<Vec3> {
+        self.triangles
+            .iter()
+            .map(|t| t.iter().map(|&v| self.positions[v as usize]).sum::<Vec3>() / 3.0)
+            .collect()
+    }
+
     /// Bounding box of the referenced vertices (empty for an empty mesh).
     pub fn bounds(&self) -> Aabb {
         self.triangles

@@ -210,15 +210,7 @@ pub fn cuts_triangles(name: &str) -> bool {
 
 /// The triangles of `mesh` for a builder that cuts them ([`cuts_triangles`]), else `None`.
 pub fn triangles_for(name: &str, mesh: &scene::Mesh) -> Option<std::sync::Arc<[geom::Triangle]>> {
-    cuts_triangles(name).then(|| {
-        mesh.triangles
-            .iter()
-            .map(|t| {
-                let v = |i: u32| mesh.positions[i as usize];
-                geom::Triangle::new(v(t[0]), v(t[1]), v(t[2]))
-            })
-            .collect()
-    })
+    cuts_triangles(name).then(|| mesh.triangles_iter().collect())
 }
 
 /// Validates the tree builder `name` made over `prims` (`bvh::validate_spatial` for a

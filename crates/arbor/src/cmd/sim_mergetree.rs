@@ -338,16 +338,7 @@ fn points_spec(spec: &str) -> anyhow::Result<Option<usize>> {
 /// or `uniform` points drawn uniformly in the centroids' box (xorshift, a fixed seed: the
 /// sets of `cargo run -p bvh --example point_knn`).
 pub fn scene_points(mesh: &scene::Mesh, uniform: Option<usize>) -> Vec<geom::Vec3> {
-    let centroids: Vec<geom::Vec3> = mesh
-        .triangles
-        .iter()
-        .map(|t| {
-            t.iter()
-                .map(|&v| mesh.positions[v as usize])
-                .sum::<geom::Vec3>()
-                / 3.0
-        })
-        .collect();
+    let centroids = mesh.centroids();
     let Some(n) = uniform else {
         return centroids;
     };
