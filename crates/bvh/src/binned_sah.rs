@@ -127,6 +127,49 @@ impl BinnedSahBuilder {
     }
 }
 
+/// The binned builder's object split of one node, for another top-down builder (the
+/// spatial-split builder's object splits): the same search as [`BinnedSahBuilder`]'s own
+/// nodes (exact over sorted centroids in nodes of at most `cfg.bins` boxes, binned with
+/// the refinement of large nodes otherwise). `boxes` are the node's boxes, `bounds` their
+/// union. Returns the split's SAH cost and, per box, whether it goes left; `None` when
+/// all centroids coincide (no plane) or no split leaves boxes on both sides.
+pub(crate) fn object_split_of(
+    cfg: &BinnedSahBuilder,
+    boxes: &[Aabb],
+    bounds: &Aabb,
+) -> Option<(f32, Vec<bool>)> {
+    let mut refs: Vec<PrimRef> = boxes
+        .iter()
+        .enumerate()
+        .map(|(i, b)| PrimRef::new(b, i as u32))
+        .collect();
+    let cbounds = refs.iter().fold(Aabb::EMPTY, |c, r| c.grow(r.centroid()));
+    if refs.len() < 2 || cbounds.min == cbounds.max {
+        return None;
+    }
+    let ctx = Ctx { cfg };
+    let mut t = Task {
+        refs: &mut refs,
+        first: 0,
+        bounds: *bounds,
+        cbounds,
+    };
+    let s = if t.refs.len() <= cfg.bins {
+        sorted_split(&ctx, &mut t)
+    } else {
+        find_split(&ctx, &t)
+    }?;
+    let (l, r) = partition(&ctx, t, &s);
+    if l.refs.is_empty() || r.refs.is_empty() {
+        return None;
+    }
+    let mut left = vec![false; boxes.len()];
+    for x in l.refs.iter() {
+        left[x.index() as usize] = true;
+    }
+    Some((s.cost, left))
+}
+
 /// Builds the subtree of `t`; returns its child reference (local to `frag`).
 fn build_rec(ctx: &Ctx, mut t: Task, depth: u32, frag: &mut Frag) -> ChildRef {
     let n = t.refs.len();

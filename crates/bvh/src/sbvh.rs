@@ -14,9 +14,9 @@
 //! of a triangle lies in the box of at least one leaf that names it.
 //!
 //! Per node, as in the paper:
-//! 1. the best object split: binned over the centroids (`bins` bins per axis), or in
-//!    nodes of at most `bins` references exact over their sorted centroids (as the
-//!    binned builder does; the SAH and the sweep are `split`'s);
+//! 1. the best object split, by the binned SAH builder's own search over the references'
+//!    boxes (`bins` bins per axis with its refinement of large nodes; exact over sorted
+//!    centroids in nodes of at most `bins` references);
 //! 2. if the two sides of that split overlap by more than `alpha` times the scene box's
 //!    area (the paper's λ / SA(root) test), the best spatial split: `spatial_bins` equal
 //!    slabs of the node box per axis (at most one per reference, at least 4: in small
@@ -45,13 +45,14 @@
 //! is then cut to the reference's box and to its side of the plane. So a part's box
 //! contains every point of the triangle on that side within the reference's box.
 
+use crate::binned_sah::{self, BinnedSahBuilder, MAX_BINS};
 use crate::bvh2::Bvh2;
 use crate::error::{in_pool, BuildError};
 use crate::layout::preorder;
 use crate::node::{ChildRef, Node};
 use crate::sah::SahParams;
-use crate::split::{left_pass, right_pass, sweep, Counted, Unit};
-use crate::{binned_sah::MAX_BINS, MAX_SAH_DEPTH, PARALLEL_MIN_PRIMS};
+use crate::split::{left_pass, right_pass, Counted};
+use crate::{MAX_SAH_DEPTH, PARALLEL_MIN_PRIMS};
 use geom::{Aabb, Triangle, Vec3};
 use rayon::prelude::*;
 
@@ -114,6 +115,8 @@ enum Sub {
 
 struct Ctx<'a> {
     cfg: &'a SbvhBuilder,
+    /// The binned builder whose object split search the object splits use.
+    binned: BinnedSahBuilder,
     tris: &'a [Triangle],
     /// `alpha` times the scene box's half area.
     overlap_limit: f32,
@@ -122,11 +125,8 @@ struct Ctx<'a> {
 /// How a chosen split partitions the node.
 #[derive(Clone, Copy, Debug)]
 enum Kind {
-    /// Centroids in bins `< bin` (of `scale` and `min` on the axis) go left.
-    Object { bin: usize, min: f32, scale: f32 },
-    /// The first `bin` references in centroid order on the axis (ties by triangle) go
-    /// left ([`sorted_split`]).
-    Sorted { bin: usize },
+    /// The binned builder's object split: the references of its mask go left.
+    Object,
     /// References wholly below `plane` go left, wholly above it right; the others are cut
     /// or moved (unsplitting). `bin`: the first slab on the right.
     Spatial { plane: f32, bin: usize },
@@ -193,6 +193,12 @@ impl SbvhBuilder {
         let bounds = refs.iter().fold(Aabb::EMPTY, |b, r| b.union(r.bbox));
         let ctx = Ctx {
             cfg: self,
+            binned: BinnedSahBuilder {
+                bins: self.bins,
+                max_leaf_size: self.max_leaf_size,
+                sah: self.sah,
+                ..Default::default()
+            },
             tris,
             overlap_limit: self.alpha * bounds.half_area(),
         };
@@ -238,14 +244,12 @@ fn build_rec(ctx: &Ctx, refs: Vec<Ref>, bounds: Aabb, depth: u32, budget: usize)
     if n <= 1 {
         return leaf(&refs);
     }
+    let mut object_mask = None;
     let best = if depth >= MAX_SAH_DEPTH {
         None
     } else {
-        let object = if n <= cfg.bins {
-            sorted_split(ctx, &refs, &bounds)
-        } else {
-            object_split(ctx, &refs, &bounds)
-        };
+        let (object, mask) = object_split(ctx, &refs, &bounds).unzip();
+        object_mask = mask;
         let try_spatial = budget > n
             && match &object {
                 Some(o) => overlap_area(&o.left, &o.right) > ctx.overlap_limit,
@@ -269,7 +273,7 @@ fn build_rec(ctx: &Ctx, refs: Vec<Ref>, bounds: Aabb, depth: u32, budget: usize)
         None if fits => return leaf(&refs),
         _ => {}
     }
-    let (l, r) = match best.and_then(|s| partition(ctx, &refs, &s)) {
+    let (l, r) = match best.and_then(|s| partition(ctx, &refs, &s, object_mask.as_deref())) {
         Some(lr) => lr,
         None => median_split(refs),
     };
@@ -416,107 +420,41 @@ impl AxisBins {
             .as_mut()
             .filter(|s| s.axis == axis && Some(s.cost) != before)
         {
-            let k = match s.kind {
-                Kind::Object { bin, .. } | Kind::Sorted { bin } | Kind::Spatial { bin, .. } => bin,
+            let Kind::Spatial { bin: k, .. } = s.kind else {
+                return;
             };
             s.right = boxes[k..nb].iter().fold(Aabb::EMPTY, |a, b| a.union(*b));
         }
     }
 }
 
-/// The best binned object split over the centroids, or `None` when all centroids
-/// coincide.
-fn object_split(ctx: &Ctx, refs: &[Ref], bounds: &Aabb) -> Option<Split> {
-    let nb = ctx.cfg.bins;
-    let cb = refs.iter().fold(Aabb::EMPTY, |b, r| b.grow(r.centroid()));
-    let extent = cb.max - cb.min;
-    // Bins per unit length; 0 on an axis where all centroids coincide (no plane there).
-    let scale: [f32; 3] = std::array::from_fn(|a| {
-        if extent[a] > 0.0 {
-            nb as f32 / extent[a]
+/// The best object split: the binned builder's own search
+/// ([`binned_sah::object_split_of`]: exact over sorted centroids in small nodes, binned
+/// with its refinement of large nodes), over the references' boxes; with the mask of
+/// the references that go left. `None` when all centroids coincide.
+fn object_split(ctx: &Ctx, refs: &[Ref], bounds: &Aabb) -> Option<(Split, Vec<bool>)> {
+    let boxes: Vec<Aabb> = refs.iter().map(|r| r.bbox).collect();
+    let (cost, left) = binned_sah::object_split_of(&ctx.binned, &boxes, bounds)?;
+    let (mut lb, mut rb, mut lc, mut rc) = (Aabb::EMPTY, Aabb::EMPTY, 0u32, 0u32);
+    for (b, &l) in boxes.iter().zip(&left) {
+        if l {
+            lb = lb.union(*b);
+            lc += 1;
         } else {
-            0.0
-        }
-    });
-    let bins = AxisBins::fill(refs, |bins, r| {
-        let c = r.centroid();
-        for axis in 0..3 {
-            let k = bin_of(c[axis], cb.min[axis], scale[axis], nb);
-            bins.boxes[axis][k] = bins.boxes[axis][k].union(r.bbox);
-            bins.a[axis][k] += 1;
-            bins.b[axis][k] += 1;
-        }
-    });
-    let p = &ctx.cfg.sah;
-    let base = p.c_inner * bounds.half_area();
-    let mut best = None;
-    for axis in (0..3).filter(|&a| scale[a] > 0.0) {
-        let (min, scale) = (cb.min[axis], scale[axis]);
-        let kind = |bin| Kind::Object { bin, min, scale };
-        bins.sweep_axis(axis, nb, p, base, kind, &mut best);
-    }
-    best
-}
-
-/// The order of references by centroid on `axis`, ties by triangle then box (a total
-/// order, so the sorted split is the same whatever the input order).
-fn centroid_order(a: &Ref, b: &Ref, axis: usize) -> std::cmp::Ordering {
-    a.centroid()[axis]
-        .total_cmp(&b.centroid()[axis])
-        .then(a.prim.cmp(&b.prim))
-        .then(a.bbox.min[axis].total_cmp(&b.bbox.min[axis]))
-}
-
-/// The exact object split of a node of at most `bins` references (as the binned
-/// builder's small nodes): every boundary between consecutive centroids on each axis,
-/// cheaper than clearing the bins and never worse in SAH.
-fn sorted_split(ctx: &Ctx, refs: &[Ref], bounds: &Aabb) -> Option<Split> {
-    let n = refs.len();
-    let p = &ctx.cfg.sah;
-    let base = p.c_inner * bounds.half_area();
-    let mut best = None;
-    let mut sorted: Vec<Ref> = refs.to_vec();
-    let mut right_area = [0f32; MAX_BINS];
-    for axis in 0..3 {
-        sorted.sort_unstable_by(|a, b| centroid_order(a, b, axis));
-        let before = best.as_ref().map(|s: &Split| s.cost);
-        let right = &mut Unit(&mut right_area, n);
-        sweep(
-            n,
-            |i| (sorted[i].bbox, 1),
-            right,
-            |k, left, lc, ra, rc| {
-                // A plane between equal centroids cannot be drawn: skip it.
-                if sorted[k - 1].centroid()[axis] == sorted[k].centroid()[axis] {
-                    return;
-                }
-                let cost = sah(p, base, left.half_area(), lc, ra, rc);
-                offer(
-                    &mut best,
-                    Split {
-                        cost,
-                        axis,
-                        kind: Kind::Sorted { bin: k },
-                        left: *left,
-                        right: Aabb::EMPTY,
-                        left_count: lc,
-                        right_count: rc,
-                    },
-                );
-            },
-        );
-        if let Some(s) = best
-            .as_mut()
-            .filter(|s| s.axis == axis && Some(s.cost) != before)
-        {
-            if let Kind::Sorted { bin } = s.kind {
-                s.right = sorted[bin..]
-                    .iter()
-                    .fold(Aabb::EMPTY, |b, r| b.union(r.bbox));
-            }
+            rb = rb.union(*b);
+            rc += 1;
         }
     }
-    best
+    let s = Split {
+        cost,
+        axis: 0,
+        kind: Kind::Object,
+        left: lb,
+        right: rb,
+        left_count: lc,
+        right_count: rc,
+    };
+    Some((s, left))
 }
 
 /// The bin of coordinate `x` among `nb` bins starting at `min`, `scale` bins per unit.
@@ -583,28 +521,27 @@ fn plane_at(min: f32, max: f32, i: usize, nb: usize) -> f32 {
 
 /// Partitions `refs` by split `s`; `None` if one side would be empty (the caller then
 /// halves the node).
-fn partition(ctx: &Ctx, refs: &[Ref], s: &Split) -> Option<(Vec<Ref>, Vec<Ref>)> {
+fn partition(
+    ctx: &Ctx,
+    refs: &[Ref],
+    s: &Split,
+    object_mask: Option<&[bool]>,
+) -> Option<(Vec<Ref>, Vec<Ref>)> {
     let axis = s.axis;
     let (mut l, mut r) = (
         Vec::with_capacity(s.left_count as usize),
         Vec::with_capacity(s.right_count as usize),
     );
     match s.kind {
-        Kind::Object { bin, min, scale } => {
-            let nb = ctx.cfg.bins;
-            for x in refs {
-                if bin_of(x.centroid()[axis], min, scale, nb) < bin {
+        Kind::Object => {
+            let mask = object_mask?;
+            for (x, &left) in refs.iter().zip(mask) {
+                if left {
                     l.push(*x);
                 } else {
                     r.push(*x);
                 }
             }
-        }
-        Kind::Sorted { bin } => {
-            let mut v = refs.to_vec();
-            v.sort_unstable_by(|a, b| centroid_order(a, b, axis));
-            r = v.split_off(bin);
-            l = v;
         }
         Kind::Spatial { plane, .. } => {
             let p = &ctx.cfg.sah;
