@@ -131,13 +131,14 @@ impl BinnedSahBuilder {
 /// spatial-split builder's object splits): the same search as [`BinnedSahBuilder`]'s own
 /// nodes (exact over sorted centroids in nodes of at most `cfg.bins` boxes, binned with
 /// the refinement of large nodes otherwise). `boxes` are the node's boxes, `bounds` their
-/// union. Returns the split's SAH cost and, per box, whether it goes left; `None` when
-/// all centroids coincide (no plane) or no split leaves boxes on both sides.
+/// union. Returns the split's SAH cost, the boxes of its two sides and, per box, whether
+/// it goes left; `None` when all centroids coincide (no plane) or no split leaves boxes
+/// on both sides.
 pub(crate) fn object_split_of(
     cfg: &BinnedSahBuilder,
     boxes: &[Aabb],
     bounds: &Aabb,
-) -> Option<(f32, Vec<bool>)> {
+) -> Option<(f32, [Aabb; 2], Vec<bool>)> {
     let mut refs: Vec<PrimRef> = boxes
         .iter()
         .enumerate()
@@ -167,7 +168,7 @@ pub(crate) fn object_split_of(
     for x in l.refs.iter() {
         left[x.index() as usize] = true;
     }
-    Some((s.cost, left))
+    Some((s.cost, [s.left, s.right], left))
 }
 
 /// Builds the subtree of `t`; returns its child reference (local to `frag`).
@@ -404,7 +405,7 @@ fn split_cost(p: &SahParams, base: f32, l: &Side, r: &Side) -> f32 {
 /// The SAH of a split whose sides have areas `la`, `ra` and counts `lc`, `rc`, under `base`
 /// (the node's own cost).
 #[inline(always)]
-fn sah(p: &SahParams, base: f32, la: f32, lc: u32, ra: f32, rc: u32) -> f32 {
+pub(crate) fn sah(p: &SahParams, base: f32, la: f32, lc: u32, ra: f32, rc: u32) -> f32 {
     base + la * (p.c_leaf + p.c_tri * lc as f32) + ra * (p.c_leaf + p.c_tri * rc as f32)
 }
 

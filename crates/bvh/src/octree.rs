@@ -24,9 +24,8 @@
 
 use crate::hlbvh::EmittedNode;
 use crate::point_stream::{emit_points, OpenStack, PointSink};
-use crate::points::{box_dist2, checked_sort, dist2, key, unkey, PointError, Sorted};
+use crate::points::{box_dist2, checked_sort, unkey, within_leaf, Nearest, PointError, Sorted};
 use geom::{Aabb, MortonGrid, MortonQuantizer, Vec3};
-use std::collections::BinaryHeap;
 
 /// Depth of the finest cells (one full 63-bit code).
 pub const OCTREE_MAX_DEPTH: u8 = 21;
@@ -246,32 +245,18 @@ impl Octree {
         if k == 0 {
             return Ok(());
         }
-        let mut heap: BinaryHeap<u64> = BinaryHeap::with_capacity(k);
+        let mut best = Nearest::new(k);
         let mut stack: Vec<(u32, f32)> = Vec::with_capacity(256);
         stack.push((0, box_dist2(q, &self.nodes[0].bounds)));
-        // Pruned when the bound exceeds the k-th best (equal is kept: a lower index at the
-        // same distance could still enter).
-        let pruned = |heap: &BinaryHeap<u64>, bound: f32| {
-            heap.len() == k && bound.to_bits() > (heap.peek().copied().unwrap_or(0) >> 32) as u32
-        };
         let mut kids = [(0u32, 0u32); 8];
         while let Some((n, bound)) = stack.pop() {
-            if pruned(&heap, bound) {
+            if best.pruned(bound) {
                 continue;
             }
             let node = &self.nodes[n as usize];
             if node.is_leaf() {
                 let (f, c) = (node.first as usize, node.count as usize);
-                for (p, &id) in self.points[f..f + c].iter().zip(&self.ids[f..f + c]) {
-                    let kk = key(dist2(q, *p), id);
-                    if heap.len() < k {
-                        heap.push(kk);
-                    } else if let Some(mut top) = heap.peek_mut() {
-                        if kk < *top {
-                            *top = kk;
-                        }
-                    }
-                }
+                best.offer_leaf(q, &self.points[f..f + c], &self.ids[f..f + c]);
                 continue;
             }
             // Children by bound, farthest pushed first so the nearest is visited next.
@@ -283,12 +268,12 @@ impl Octree {
             kids[..m].sort_unstable();
             for &(b, c) in kids[..m].iter().rev() {
                 let b = f32::from_bits(b);
-                if !pruned(&heap, b) {
+                if !best.pruned(b) {
                     stack.push((c, b));
                 }
             }
         }
-        out.extend(heap.into_sorted_vec().into_iter().map(unkey));
+        best.finish(out);
         Ok(())
     }
 
@@ -311,12 +296,13 @@ impl Octree {
             }
             if node.is_leaf() {
                 let (f, c) = (node.first as usize, node.count as usize);
-                for (p, &id) in self.points[f..f + c].iter().zip(&self.ids[f..f + c]) {
-                    let d = dist2(q, *p);
-                    if d <= r2 {
-                        keys.push(key(d, id));
-                    }
-                }
+                within_leaf(
+                    &mut keys,
+                    q,
+                    r2,
+                    &self.points[f..f + c],
+                    &self.ids[f..f + c],
+                );
             } else {
                 stack.extend(node.child..node.child + node.children as u32);
             }
@@ -755,7 +741,7 @@ impl Octree {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::points::{sort_points, tests::cloud};
+    use crate::points::{dist2, key, sort_points, tests::cloud};
     use crate::{knn_brute, PointTree};
     use proptest::prelude::*;
 

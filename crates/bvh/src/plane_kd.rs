@@ -25,9 +25,10 @@
 //! [`crate::knn_brute`]'s, ties by index. Index splits ([`NO_AXIS`]) give both children
 //! their parent's bound, the left child first.
 
-use crate::points::{box_dist2, dist2, key, unkey, PointError, PointTree, QueryStats, NO_AXIS};
+use crate::points::{
+    box_dist2, dist2, unkey, within_leaf, Nearest, PointError, PointTree, QueryStats, NO_AXIS,
+};
 use geom::{Aabb, Vec3};
-use std::collections::BinaryHeap;
 
 /// Bytes of one [`PlaneNode`].
 pub const PLANE_NODE_BYTES: usize = 16;
@@ -207,44 +208,32 @@ impl<'a> PlaneKdTree<'a> {
             return Ok(st);
         };
         let (points, ids) = (self.tree.sorted_points(), self.tree.ids());
-        let mut heap: BinaryHeap<u64> = BinaryHeap::with_capacity(k);
+        let mut best = Nearest::new(k);
         let c0 = self.root_clamp(q);
         let mut stack: Vec<(Ref, Vec3, f32)> = vec![(root, c0, dist2(q, c0))];
-        let pruned = |heap: &BinaryHeap<u64>, bound: f32| {
-            heap.len() == k && bound.to_bits() > (heap.peek().copied().unwrap_or(0) >> 32) as u32
-        };
         while let Some((r, c, bound)) = stack.pop() {
-            if pruned(&heap, bound) {
+            if best.pruned(bound) {
                 continue;
             }
             match r {
                 Ref::Leaf { first, count } => {
                     let (f, n) = (first as usize, count as usize);
                     st.points += n as u64;
-                    for (p, &id) in points[f..f + n].iter().zip(&ids[f..f + n]) {
-                        let kk = key(dist2(q, *p), id);
-                        if heap.len() < k {
-                            heap.push(kk);
-                        } else if let Some(mut top) = heap.peek_mut() {
-                            if kk < *top {
-                                *top = kk;
-                            }
-                        }
-                    }
+                    best.offer_leaf(q, &points[f..f + n], &ids[f..f + n]);
                 }
                 Ref::Node(i) => {
                     st.nodes += 1;
                     let [near, far] = self.children(&self.nodes[i as usize], q, c);
                     for (r, c) in [far, near] {
                         let b = dist2(q, c);
-                        if !pruned(&heap, b) {
+                        if !best.pruned(b) {
                             stack.push((r, c, b));
                         }
                     }
                 }
             }
         }
-        out.extend(heap.into_sorted_vec().into_iter().map(unkey));
+        best.finish(out);
         Ok(st)
     }
 
@@ -280,12 +269,7 @@ impl<'a> PlaneKdTree<'a> {
                 Ref::Leaf { first, count } => {
                     let (f, n) = (first as usize, count as usize);
                     st.points += n as u64;
-                    for (p, &id) in points[f..f + n].iter().zip(&ids[f..f + n]) {
-                        let d = dist2(q, *p);
-                        if d <= r2 {
-                            keys.push(key(d, id));
-                        }
-                    }
+                    within_leaf(&mut keys, q, r2, &points[f..f + n], &ids[f..f + n]);
                 }
                 Ref::Node(i) => {
                     st.nodes += 1;
@@ -310,8 +294,8 @@ impl<'a> PlaneKdTree<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::points::knn_brute;
     use crate::points::tests::cloud;
+    use crate::points::{key, knn_brute};
     use proptest::prelude::*;
 
     /// Plane-pruned kNN and radius queries equal brute force (ties by index) and the

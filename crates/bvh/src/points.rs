@@ -147,6 +147,63 @@ pub(crate) fn unkey(k: u64) -> (f32, u32) {
     (f32::from_bits((k >> 32) as u32), k as u32)
 }
 
+/// The k nearest candidates of a query, shared by the point trees' kNN queries: a
+/// max-heap of the best `k` result keys (its top is the k-th best).
+pub(crate) struct Nearest {
+    heap: BinaryHeap<u64>,
+    k: usize,
+}
+
+impl Nearest {
+    pub(crate) fn new(k: usize) -> Self {
+        Self {
+            heap: BinaryHeap::with_capacity(k),
+            k,
+        }
+    }
+
+    /// Whether a node whose squared-distance bound is `bound` can hold no better point:
+    /// the bound exceeds the k-th best (equal is kept: a lower index at the same distance
+    /// could still enter).
+    #[inline(always)]
+    pub(crate) fn pruned(&self, bound: f32) -> bool {
+        self.heap.len() == self.k
+            && bound.to_bits() > (self.heap.peek().copied().unwrap_or(0) >> 32) as u32
+    }
+
+    /// Offers the points of a leaf (`points[i]` with input index `ids[i]`).
+    #[inline(always)]
+    pub(crate) fn offer_leaf(&mut self, q: Vec3, points: &[Vec3], ids: &[u32]) {
+        for (p, &id) in points.iter().zip(ids) {
+            let kk = key(dist2(q, *p), id);
+            if self.heap.len() < self.k {
+                self.heap.push(kk);
+            } else if let Some(mut top) = self.heap.peek_mut() {
+                if kk < *top {
+                    *top = kk;
+                }
+            }
+        }
+    }
+
+    /// The results in increasing order into `out`.
+    pub(crate) fn finish(self, out: &mut Vec<(f32, u32)>) {
+        out.extend(self.heap.into_sorted_vec().into_iter().map(unkey));
+    }
+}
+
+/// The keys of a leaf's points within squared distance `r2` of `q`, appended to `keys`
+/// (the radius queries of the point trees).
+#[inline(always)]
+pub(crate) fn within_leaf(keys: &mut Vec<u64>, q: Vec3, r2: f32, points: &[Vec3], ids: &[u32]) {
+    for (p, &id) in points.iter().zip(ids) {
+        let d = dist2(q, *p);
+        if d <= r2 {
+            keys.push(key(d, id));
+        }
+    }
+}
+
 pub(crate) fn check_points(points: &[Vec3]) -> Result<(), PointError> {
     if points.len() > u32::MAX as usize {
         return Err(PointError::TooMany(points.len()));
@@ -532,34 +589,19 @@ impl PointTree {
         if k == 0 {
             return Ok(st);
         }
-        // Max-heap of the best k keys; its top is the k-th best.
-        let mut heap: BinaryHeap<u64> = BinaryHeap::with_capacity(k);
+        let mut best = Nearest::new(k);
         // Nodes to visit with their squared-distance bound.
         let mut stack: Vec<(u32, f32)> = Vec::with_capacity(128);
         stack.push((0, box_dist2(q, &self.nodes[0].bounds)));
-        // A node whose bound exceeds the k-th best distance holds no better point (a point
-        // at the same distance with a lower index could still enter: not pruned).
-        let pruned = |heap: &BinaryHeap<u64>, bound: f32| {
-            heap.len() == k && bound.to_bits() > (heap.peek().copied().unwrap_or(0) >> 32) as u32
-        };
         while let Some((n, bound)) = stack.pop() {
-            if pruned(&heap, bound) {
+            if best.pruned(bound) {
                 continue;
             }
             let node = &self.nodes[n as usize];
             if node.is_leaf() {
                 let (f, c) = (node.first as usize, node.count as usize);
                 st.points += c as u64;
-                for (p, &id) in self.points[f..f + c].iter().zip(&self.ids[f..f + c]) {
-                    let kk = key(dist2(q, *p), id);
-                    if heap.len() < k {
-                        heap.push(kk);
-                    } else if let Some(mut top) = heap.peek_mut() {
-                        if kk < *top {
-                            *top = kk;
-                        }
-                    }
-                }
+                best.offer_leaf(q, &self.points[f..f + c], &self.ids[f..f + c]);
                 continue;
             }
             st.nodes += 1;
@@ -577,14 +619,14 @@ impl PointTree {
             } else {
                 ((r, rb), (l, lb))
             };
-            if !pruned(&heap, far.1) {
+            if !best.pruned(far.1) {
                 stack.push(far);
             }
-            if !pruned(&heap, near.1) {
+            if !best.pruned(near.1) {
                 stack.push(near);
             }
         }
-        out.extend(heap.into_sorted_vec().into_iter().map(unkey));
+        best.finish(out);
         Ok(st)
     }
 
@@ -620,12 +662,13 @@ impl PointTree {
             if node.is_leaf() {
                 let (f, c) = (node.first as usize, node.count as usize);
                 st.points += c as u64;
-                for (p, &id) in self.points[f..f + c].iter().zip(&self.ids[f..f + c]) {
-                    let d = dist2(q, *p);
-                    if d <= r2 {
-                        keys.push(key(d, id));
-                    }
-                }
+                within_leaf(
+                    &mut keys,
+                    q,
+                    r2,
+                    &self.points[f..f + c],
+                    &self.ids[f..f + c],
+                );
             } else {
                 st.nodes += 1;
                 stack.push(node.right);

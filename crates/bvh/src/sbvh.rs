@@ -45,7 +45,7 @@
 //! is then cut to the reference's box and to its side of the plane. So a part's box
 //! contains every point of the triangle on that side within the reference's box.
 
-use crate::binned_sah::{self, BinnedSahBuilder, MAX_BINS};
+use crate::binned_sah::{self, sah, BinnedSahBuilder, MAX_BINS};
 use crate::bvh2::Bvh2;
 use crate::error::{in_pool, BuildError};
 use crate::layout::preorder;
@@ -312,12 +312,6 @@ fn overlap_area(a: &Aabb, b: &Aabb) -> f32 {
     }
 }
 
-/// The SAH cost of a split of a node with `base = C_i * area(node)`.
-#[inline(always)]
-fn sah(p: &SahParams, base: f32, la: f32, lc: u32, ra: f32, rc: u32) -> f32 {
-    base + la * (p.c_leaf + p.c_tri * lc as f32) + ra * (p.c_leaf + p.c_tri * rc as f32)
-}
-
 /// Keeps `cand` in `best` if it is cheaper (finite costs only; ties keep the first).
 fn offer(best: &mut Option<Split>, cand: Split) {
     if cand.cost.is_finite() && best.as_ref().is_none_or(|b| cand.cost < b.cost) {
@@ -325,8 +319,8 @@ fn offer(best: &mut Option<Split>, cand: Split) {
     }
 }
 
-/// Per-axis bins of a split search: a box and two counts per bin (an object split counts
-/// its primitives in `a`; a spatial split its entries in `a` and exits in `b`).
+/// Per-axis bins of the spatial split search: a box per bin, the references entering in
+/// it (`a`) and those leaving in it (`b`).
 #[derive(Clone)]
 struct AxisBins {
     boxes: [[Aabb; MAX_BINS]; 3],
@@ -434,17 +428,9 @@ impl AxisBins {
 /// the references that go left. `None` when all centroids coincide.
 fn object_split(ctx: &Ctx, refs: &[Ref], bounds: &Aabb) -> Option<(Split, Vec<bool>)> {
     let boxes: Vec<Aabb> = refs.iter().map(|r| r.bbox).collect();
-    let (cost, left) = binned_sah::object_split_of(&ctx.binned, &boxes, bounds)?;
-    let (mut lb, mut rb, mut lc, mut rc) = (Aabb::EMPTY, Aabb::EMPTY, 0u32, 0u32);
-    for (b, &l) in boxes.iter().zip(&left) {
-        if l {
-            lb = lb.union(*b);
-            lc += 1;
-        } else {
-            rb = rb.union(*b);
-            rc += 1;
-        }
-    }
+    let (cost, [lb, rb], left) = binned_sah::object_split_of(&ctx.binned, &boxes, bounds)?;
+    let lc = left.iter().filter(|&&l| l).count() as u32;
+    let rc = left.len() as u32 - lc;
     let s = Split {
         cost,
         axis: 0,

@@ -182,7 +182,6 @@ fn simulate(
     for (k, v) in settings {
         cfg.set(k, v).with_context(|| format!("--set {k}={v}"))?;
     }
-    cfg.validate().context("configuration")?;
     let port = sim::dram::open(dram, cfg.period_fs())?;
     let r = mergetree::simulate(prims, &cfg, port)?;
     let matches = mergetree::tree_matches_software(&r, prims)?

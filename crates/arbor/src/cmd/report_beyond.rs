@@ -60,7 +60,9 @@ pub fn run(a: &ReportBeyondArgs, ui: &Ui) -> anyhow::Result<()> {
         scenes,
         dram: a.dram.clone(),
     };
-    sim::dram::open(&o.dram, 1_000_000).map_err(|e| anyhow::anyhow!("--dram: {e}"))?;
+    // An unknown memory system fails here, before any scene is loaded.
+    let period = sim::mergetree::MergeTreeConfig::p2().period_fs();
+    sim::dram::open(&o.dram, period).map_err(|e| anyhow::anyhow!("--dram: {e}"))?;
     let rows = report::beyond::run(&o, ui)?;
     if a.json {
         ui.emit_json(&report::beyond::document(&o, &rows))?;
