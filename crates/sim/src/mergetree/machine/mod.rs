@@ -1161,6 +1161,16 @@ pub(super) fn run<'a>(
         r.phase = w.phase_log[k.max(1) - 1].1.clone();
     }
     let port = w.mem.port();
+    // A streaming CBVH encoder's counters with its activity (the pair or the wide one).
+    let encoder_stats = |id: UnitId, mut st: StreamUnitStats| {
+        let a = &rep.units[id.index()];
+        st.busy_cycles = a.activity.busy_cycles;
+        st.starved_cycles = stalled(a, ST_STARVED as usize);
+        st.read_wait_cycles = stalled(a, ST_READ_WAIT as usize);
+        st.flush_wait_cycles = stalled(a, ST_FLUSH_WAIT as usize);
+        st.write_full_cycles = stalled(a, ST_WRITE_FULL as usize);
+        st
+    };
     Ok(KRun {
         cycles,
         stalls,
@@ -1173,24 +1183,16 @@ pub(super) fn run<'a>(
         top: w.out.top.take(),
         cbvh_ids: w.out.cbvh_ids.take(),
         points: w.out.points.take(),
-        stream: w.out.stream.take().map(|(e, mut st)| {
-            let a = &rep.units[w.ids.stream.index()];
-            st.busy_cycles = a.activity.busy_cycles;
-            st.starved_cycles = stalled(a, ST_STARVED as usize);
-            st.read_wait_cycles = stalled(a, ST_READ_WAIT as usize);
-            st.flush_wait_cycles = stalled(a, ST_FLUSH_WAIT as usize);
-            st.write_full_cycles = stalled(a, ST_WRITE_FULL as usize);
-            (e, st)
-        }),
-        wide: w.out.wide.take().map(|(e, mut st)| {
-            let a = &rep.units[w.ids.wide_enc.index()];
-            st.busy_cycles = a.activity.busy_cycles;
-            st.starved_cycles = stalled(a, ST_STARVED as usize);
-            st.read_wait_cycles = stalled(a, ST_READ_WAIT as usize);
-            st.flush_wait_cycles = stalled(a, ST_FLUSH_WAIT as usize);
-            st.write_full_cycles = stalled(a, ST_WRITE_FULL as usize);
-            (e, st)
-        }),
+        stream: w
+            .out
+            .stream
+            .take()
+            .map(|(e, st)| (e, encoder_stats(w.ids.stream, st))),
+        wide: w
+            .out
+            .wide
+            .take()
+            .map(|(e, st)| (e, encoder_stats(w.ids.wide_enc, st))),
         collapse: w.out.collapse.take().map(|(c, mut st)| {
             let a = &rep.units[w.ids.stream.index()];
             st.busy_cycles = a.activity.busy_cycles;
