@@ -86,6 +86,10 @@ pub(crate) struct StackEntry {
 #[derive(Clone, Debug, Default)]
 pub struct TraversalStack {
     pub(crate) entries: Vec<StackEntry>,
+    /// The 8-wide kernel's stack: 32-bit child references and entry distances, written
+    /// eight at a time.
+    refs: Vec<u32>,
+    dists: Vec<f32>,
 }
 
 impl TraversalStack {
@@ -94,7 +98,19 @@ impl TraversalStack {
     pub fn new() -> Self {
         Self {
             entries: Vec::with_capacity(64),
+            refs: vec![0; 64],
+            dists: vec![0.0; 64],
         }
+    }
+
+    /// The 8-wide kernel's stack, at least `room` entries long.
+    #[inline(always)]
+    pub(crate) fn wide(&mut self, room: usize) -> (&mut Vec<u32>, &mut Vec<f32>) {
+        if self.refs.len() < room {
+            self.refs.resize(room, 0);
+            self.dists.resize(room, 0.0);
+        }
+        (&mut self.refs, &mut self.dists)
     }
 
     /// Pushes `child` (a packed reference, see [`LeafTriangles`]), counting the push and

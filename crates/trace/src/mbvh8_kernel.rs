@@ -6,14 +6,18 @@
 //! 8-lane SIMD (Embree's BVH8) use it for that reason.
 //!
 //! A node is 256 bytes: per box plane one row of the eight children (six 32-byte rows),
-//! then the eight child references. A visit tests the eight boxes as two 4-wide halves,
+//! then the eight child references in 32 bits each. A visit tests the eight boxes,
 //! continues with the nearest hit child and pushes the others farthest first, with the
-//! distance stack (as [`crate::Mbvh4Accel`]). Counters and observer events are those of
-//! the other kernels (child masks of eight bits).
+//! distance stack (as [`crate::Mbvh4Accel`]). On CPUs with AVX2 the visit has no branch
+//! on the hit children beyond their count: one 8-lane box test, a bitonic sorting network
+//! over distance keys, and two 8-lane stores onto the kernel's own stack of 32-bit
+//! references and distances; elsewhere the same order comes from a scalar insertion sort
+//! (tested to give the same counters ray by ray). Counters and observer events are those
+//! of the other kernels (child masks of eight bits).
 
 use crate::accel::{
-    cull_distance, huge_page_vec, prefetch, refit_nodes, traverse, Hit, LeafTriangles, Slab,
-    TraversalStack, Traverse,
+    cull_distance, huge_page_vec, prefetch, refit_nodes, Hit, LeafTriangles, Slab, TraversalStack,
+    Traverse,
 };
 use crate::bvh2_kernel::check_links;
 use crate::observer::{Observer, Query};
@@ -25,20 +29,38 @@ use geom::{Aabb, Ray, RayPrecomp, Triangle, SLAB_FAR_SCALE};
 /// Child slots per node.
 pub const WIDTH8: usize = 8;
 
-/// A node: six plane rows (`min_x, min_y, min_z, max_x, max_y, max_z`) of eight lanes,
-/// then the child references; 256 bytes on 64-byte cache lines.
+/// A node: six plane rows (`min_x, min_y, min_z, max_x, max_y, max_z`) of eight lanes
+/// and the eight child references in 32 bits each ([`child8`]), padded to 256 bytes on
+/// 64-byte cache lines (the rows fill three lines, the references half the fourth).
 #[repr(C, align(64))]
 #[derive(Clone, Copy, Debug)]
 struct Node8 {
     rows: [[f32; WIDTH8]; 6],
-    children: [ChildRef; WIDTH8],
+    children: [u32; WIDTH8],
 }
 
 const _: () = assert!(std::mem::size_of::<Node8>() == 256);
 
+/// A child reference in 32 bits: an inner node's index (bit 31 clear), or a leaf (bit 31
+/// set) with `count - 1` in bits 26-30 and its first packed slot in bits 0-25. Leaves that
+/// do not fit (more than 31 triangles, or slots past `2^26`) set bits 26-30 to all ones
+/// and keep in bits 0-25 an index into the accelerator's table of large leaves. The empty
+/// slot is `u32::MAX`.
+mod child8 {
+    pub const LEAF: u32 = 1 << 31;
+    pub const SLOT_BITS: u32 = 26;
+    pub const SLOT_MASK: u32 = (1 << SLOT_BITS) - 1;
+    pub const COUNT_ESCAPE: u32 = 31;
+    pub const EMPTY: u32 = u32::MAX;
+}
+
 impl Node8 {
-    fn new(n: &bvh::WideNode<WIDTH8>) -> Self {
-        let mut rows = [[0f32; WIDTH8]; 6];
+    /// The node of `n` with its children encoded; `big` collects the large leaves.
+    fn new(n: &bvh::WideNode<WIDTH8>, big: &mut Vec<ChildRef>) -> Result<Self, TraceError> {
+        let mut node = Self {
+            rows: [[0f32; WIDTH8]; 6],
+            children: [child8::EMPTY; WIDTH8],
+        };
         for (i, b) in n.boxes.iter().enumerate() {
             // The kernel tells used slots by their boxes: an absent child gets the empty
             // box (never hit, whatever box the tree stored), so it is never entered.
@@ -47,15 +69,39 @@ impl Node8 {
             } else {
                 b
             };
-            let v = [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z];
-            for p in 0..6 {
-                rows[p][i] = v[p];
-            }
+            node.set_box(i, b);
+            node.children[i] = encode(n.children[i], big)?;
         }
-        Self {
-            rows,
-            children: n.children,
+        Ok(node)
+    }
+
+    fn set_box(&mut self, i: usize, b: &Aabb) {
+        let v = [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z];
+        for (p, x) in v.into_iter().enumerate() {
+            self.rows[p][i] = x;
         }
+    }
+}
+
+/// Encodes a (packed) child reference in 32 bits (see [`child8`]).
+fn encode(c: ChildRef, big: &mut Vec<ChildRef>) -> Result<u32, TraceError> {
+    let too_large = || TraceError::BadTree("too many nodes or leaves to address".into());
+    if c.is_empty() {
+        Ok(child8::EMPTY)
+    } else if c.is_inner() {
+        if c.index & child8::LEAF != 0 {
+            return Err(too_large());
+        }
+        Ok(c.index)
+    } else if c.count < child8::COUNT_ESCAPE + 1 && c.index <= child8::SLOT_MASK {
+        Ok(child8::LEAF | (c.count - 1) << child8::SLOT_BITS | c.index)
+    } else {
+        let i = u32::try_from(big.len())
+            .ok()
+            .filter(|&i| i <= child8::SLOT_MASK)
+            .ok_or_else(too_large)?;
+        big.push(c);
+        Ok(child8::LEAF | child8::COUNT_ESCAPE << child8::SLOT_BITS | i)
     }
 }
 
@@ -64,9 +110,11 @@ impl Node8 {
 pub struct Mbvh8Accel {
     nodes: Vec<Node8>,
     leaf: LeafTriangles,
+    /// Leaves whose count or first slot does not fit a 32-bit reference.
+    big: Vec<ChildRef>,
     options: KernelOptions,
-    /// The CPU has AVX (checked once): the kernel then tests all eight boxes in one
-    /// 8-lane operation, compiled for AVX.
+    /// The CPU has AVX2 (checked once): the kernel then tests all eight boxes and orders
+    /// the hit children in 8-lane operations.
     avx: bool,
 }
 
@@ -86,45 +134,126 @@ fn test8(slab: &Slab, n: &Node8, t_max: f32) -> ([f32; WIDTH8], u8, u8) {
     (dist, mask, valid)
 }
 
-/// [`test8`] in AVX: the same operations on all eight lanes at once (the same bits as the
-/// two SSE halves: same IEEE operations, `vmaxps`/`vminps` return their second operand on
-/// NaN like `maxps`/`minps`).
+/// [`test8`] in AVX2: the entry distances (lanes of missed slots hold whatever the test
+/// computed), the hit lanes (all ones), the hit mask and the mask of non-empty slots. The
+/// same IEEE operations as the SSE halves (`vmaxps`/`vminps` return their second operand
+/// on NaN like `maxps`/`minps`), so the same bits.
+///
+/// # Safety
+/// The CPU must have AVX2.
 #[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx")]
+#[target_feature(enable = "avx,avx2")]
 #[inline]
-fn test8_avx(slab: &Slab, n: &Node8, t_max: f32) -> ([f32; WIDTH8], u8, u8) {
+unsafe fn test8_avx(
+    slab: &Slab,
+    n: &Node8,
+    t_max: f32,
+) -> (std::arch::x86_64::__m256, std::arch::x86_64::__m256, u8, u8) {
     use std::arch::x86_64::*;
-    // SAFETY: the caller runs with AVX enabled (this function's target feature); every
-    // load reads one 8-lane row of the node.
-    unsafe {
-        let row = |p: usize| _mm256_loadu_ps(n.rows[p % 6].as_ptr());
-        let o = slab.origin;
-        let d = slab.inv_dir;
-        let t = |p: usize, a: usize| {
-            _mm256_mul_ps(
-                _mm256_sub_ps(row(p), _mm256_set1_ps(o[a])),
-                _mm256_set1_ps(d[a]),
-            )
-        };
-        let near = _mm256_max_ps(
-            _mm256_max_ps(t(slab.near[0], 0), t(slab.near[1], 1)),
-            _mm256_max_ps(t(slab.near[2], 2), _mm256_set1_ps(slab.t_min)),
-        );
-        let far = _mm256_mul_ps(
-            _mm256_min_ps(
-                _mm256_min_ps(t(slab.far[0], 0), t(slab.far[1], 1)),
-                t(slab.far[2], 2),
-            ),
-            _mm256_set1_ps(SLAB_FAR_SCALE),
-        );
-        let hit = _mm256_cmp_ps::<_CMP_LE_OQ>(near, _mm256_min_ps(far, _mm256_set1_ps(t_max)));
-        let inf = _mm256_set1_ps(f32::INFINITY);
-        let dist = _mm256_blendv_ps(inf, near, hit);
-        let mut out = [0f32; WIDTH8];
-        _mm256_storeu_ps(out.as_mut_ptr(), dist);
-        let valid = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(row(0), inf)) as u8;
-        (out, _mm256_movemask_ps(hit) as u8, valid)
-    }
+    let row = |p: usize| _mm256_loadu_ps(n.rows[p % 6].as_ptr());
+    let o = slab.origin;
+    let d = slab.inv_dir;
+    let t = |p: usize, a: usize| {
+        _mm256_mul_ps(
+            _mm256_sub_ps(row(p), _mm256_set1_ps(o[a])),
+            _mm256_set1_ps(d[a]),
+        )
+    };
+    let near = _mm256_max_ps(
+        _mm256_max_ps(t(slab.near[0], 0), t(slab.near[1], 1)),
+        _mm256_max_ps(t(slab.near[2], 2), _mm256_set1_ps(slab.t_min)),
+    );
+    let far = _mm256_mul_ps(
+        _mm256_min_ps(
+            _mm256_min_ps(t(slab.far[0], 0), t(slab.far[1], 1)),
+            t(slab.far[2], 2),
+        ),
+        _mm256_set1_ps(SLAB_FAR_SCALE),
+    );
+    let hit = _mm256_cmp_ps::<_CMP_LE_OQ>(near, _mm256_min_ps(far, _mm256_set1_ps(t_max)));
+    let valid = _mm256_movemask_ps(_mm256_cmp_ps::<_CMP_LT_OQ>(
+        row(0),
+        _mm256_set1_ps(f32::INFINITY),
+    )) as u8;
+    (near, hit, _mm256_movemask_ps(hit) as u8, valid)
+}
+
+/// One layer of the sorting network of [`push_sorted_avx`]: each lane meets the lane its
+/// shuffle brings, and keeps the larger where `MAX` has its bit set.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx,avx2")]
+#[inline]
+unsafe fn sort_layer<const MAX: i32>(
+    k: std::arch::x86_64::__m256i,
+    partner: std::arch::x86_64::__m256i,
+) -> std::arch::x86_64::__m256i {
+    use std::arch::x86_64::*;
+    _mm256_blend_epi32::<MAX>(_mm256_min_epu32(k, partner), _mm256_max_epu32(k, partner))
+}
+
+/// Writes the `hits` hit children of a node visit (from [`test8_avx`]) farthest first:
+/// child references to `refs[0..hits]`, entry distances to `dists[0..hits]` (eight lanes
+/// are written whatever the count), and returns the nearest child's reference (the one
+/// written last). The order is that of [`sort_key`]: entry distance, ties by slot, sorted
+/// by a bitonic network of six layers on the keys (a missed lane's key is 0, below every
+/// hit's).
+///
+/// # Safety
+/// The CPU must have AVX2, `refs` and `dists` must be valid for eight writes, and
+/// `1 <= hits <= 8`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx,avx2")]
+#[inline]
+unsafe fn push_sorted_avx(
+    n: &Node8,
+    near: std::arch::x86_64::__m256,
+    hit: std::arch::x86_64::__m256,
+    hits: usize,
+    refs: *mut u32,
+    dists: *mut f32,
+) -> u32 {
+    use std::arch::x86_64::*;
+    // `sort_key` in eight lanes: flip the bits of negative distances and set the sign
+    // bit of the others, then put the slot in the three low bits.
+    let b = _mm256_castps_si256(near);
+    let ordered = _mm256_xor_si256(
+        b,
+        _mm256_or_si256(_mm256_srai_epi32::<31>(b), _mm256_set1_epi32(i32::MIN)),
+    );
+    let slot = _mm256_setr_epi32(0, 1, 2, 3, 4, 5, 6, 7);
+    let k = _mm256_and_si256(
+        _mm256_or_si256(_mm256_andnot_si256(_mm256_set1_epi32(7), ordered), slot),
+        _mm256_castps_si256(hit),
+    );
+    // Bitonic sort, descending (layer masks: lanes that keep the larger key).
+    let k = sort_layer::<0b1001_1001>(k, _mm256_shuffle_epi32::<0b10_11_00_01>(k));
+    let k = sort_layer::<0b1100_0011>(k, _mm256_shuffle_epi32::<0b01_00_11_10>(k));
+    let k = sort_layer::<0b1010_0101>(k, _mm256_shuffle_epi32::<0b10_11_00_01>(k));
+    let k = sort_layer::<0b0000_1111>(k, _mm256_permute2x128_si256::<1>(k, k));
+    let k = sort_layer::<0b0011_0011>(k, _mm256_shuffle_epi32::<0b01_00_11_10>(k));
+    let k = sort_layer::<0b0101_0101>(k, _mm256_shuffle_epi32::<0b10_11_00_01>(k));
+    let slots = _mm256_and_si256(k, _mm256_set1_epi32(7));
+    let kids = _mm256_permutevar8x32_epi32(
+        _mm256_loadu_si256(n.children.as_ptr() as *const __m256i),
+        slots,
+    );
+    _mm256_storeu_si256(refs as *mut __m256i, kids);
+    _mm256_storeu_ps(dists, _mm256_permutevar8x32_ps(near, slots));
+    let last = _mm256_set1_epi32(hits as i32 - 1);
+    _mm256_cvtsi256_si32(_mm256_permutevar8x32_epi32(kids, last)) as u32
+}
+
+/// The key that orders a node's hit children: the entry distance as an order-preserving
+/// integer with the slot in its three low bits (distances within 8 ulps order by slot).
+#[inline(always)]
+fn sort_key(dist: f32, slot: usize) -> u32 {
+    let b = dist.to_bits();
+    let ordered = if b & 0x8000_0000 != 0 {
+        !b
+    } else {
+        b | 0x8000_0000
+    };
+    (ordered & !7) | slot as u32
 }
 
 /// Lanes `lo .. lo + 4` of [`test8`] in SSE (the x86-64 baseline).
@@ -200,26 +329,13 @@ const POPCOUNT8: [u8; 256] = {
     t
 };
 
-/// A sort key per hit child: the entry distance as an order-preserving integer with the
-/// slot in its three low bits (distances within 8 ulps order by slot).
-#[inline(always)]
-fn key(dist: f32, slot: usize) -> u32 {
-    let b = dist.to_bits();
-    let ordered = if b & 0x8000_0000 != 0 {
-        !b
-    } else {
-        b | 0x8000_0000
-    };
-    (ordered & !7) | slot as u32
-}
-
 impl Mbvh8Accel {
     /// Prepares an 8-wide tree (built over `triangles`) for tracing. Fails when a leaf
     /// names a triangle that does not exist, or the links fail the checks of the
     /// crate's "Trees from anywhere" section (out of range, not after the parent, a node
     /// linked twice, overlapping leaves).
     pub fn new(
-        bvh: WideBvh<WIDTH8>,
+        mut bvh: WideBvh<WIDTH8>,
         triangles: &[Triangle],
         options: KernelOptions,
     ) -> Result<Self, TraceError> {
@@ -229,14 +345,17 @@ impl Mbvh8Accel {
             bvh.nodes.len(),
             bvh.prim_indices.len(),
         )?;
-        let mut nodes: Vec<Node8> = huge_page_vec(bvh.nodes.len());
-        nodes.extend(bvh.nodes.iter().map(Node8::new));
         let leaf = LeafTriangles::pack(
             &bvh.prim_indices,
             triangles,
-            nodes.iter_mut().flat_map(|n| n.children.iter_mut()),
+            bvh.nodes.iter_mut().flat_map(|n| n.children.iter_mut()),
         )
         .map_err(|e| e.into_trace_error(triangles.len()))?;
+        let mut big = Vec::new();
+        let mut nodes: Vec<Node8> = huge_page_vec(bvh.nodes.len());
+        for n in &bvh.nodes {
+            nodes.push(Node8::new(n, &mut big)?);
+        }
         #[cfg(target_arch = "x86_64")]
         let avx = std::arch::is_x86_feature_detected!("avx2")
             && std::arch::is_x86_feature_detected!("fma")
@@ -249,6 +368,7 @@ impl Mbvh8Accel {
         Ok(Self {
             nodes,
             leaf,
+            big,
             options,
             avx,
         })
@@ -278,32 +398,51 @@ impl Mbvh8Accel {
         self.options
     }
 
+    /// The (packed) reference of a 32-bit child reference.
+    #[inline(always)]
+    fn decode(&self, c: u32) -> ChildRef {
+        if c & child8::LEAF == 0 {
+            ChildRef::inner(c)
+        } else if c == child8::EMPTY {
+            ChildRef::EMPTY
+        } else {
+            let count = c >> child8::SLOT_BITS & 31;
+            let index = c & child8::SLOT_MASK;
+            if count == child8::COUNT_ESCAPE {
+                // Written by `encode`, so in range; stay panic-free regardless.
+                self.big
+                    .get(index as usize)
+                    .copied()
+                    .unwrap_or(ChildRef::EMPTY)
+            } else {
+                ChildRef::leaf(index, count + 1)
+            }
+        }
+    }
+
     /// Refits in place to `triangles`, the list the tree was prepared over with its
     /// vertices moved (same topology); see [`crate::Bvh2Accel::refit`].
     pub fn refit(&mut self, triangles: &[Triangle]) -> Result<(), TraceError> {
         self.leaf.update(triangles)?;
+        let mut nodes = std::mem::take(&mut self.nodes);
         refit_nodes(
-            &mut self.nodes,
+            &mut nodes,
             &self.leaf,
-            |n| n.children,
-            |n, c, b| {
-                let v = [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z];
-                for (p, x) in v.into_iter().enumerate() {
-                    n.rows[p][c] = x;
-                }
-            },
+            |n| n.children.map(|c| self.decode(c)),
+            |n, c, b| n.set_box(c, b),
         );
+        self.nodes = nodes;
         Ok(())
     }
 
     /// Starts loading a child that traversal will visit later (all four cache lines of a
-    /// node).
+    /// node, or the first block of a leaf).
     #[inline(always)]
-    fn prefetch_child(&self, child: ChildRef) {
-        if child.is_leaf() {
-            self.leaf.prefetch(child.index);
+    fn prefetch_child(&self, child: u32) {
+        if child & child8::LEAF != 0 {
+            self.leaf.prefetch(child & child8::SLOT_MASK);
         } else {
-            let p = self.nodes.as_ptr().wrapping_add(child.index as usize) as *const u8;
+            let p = self.nodes.as_ptr().wrapping_add(child as usize) as *const u8;
             for line in 0..4 {
                 prefetch(p.wrapping_add(64 * line));
             }
@@ -311,8 +450,8 @@ impl Mbvh8Accel {
     }
 
     /// [`Self::run`] compiled for AVX2 (with FMA, BMI1/2, POPCNT and LZCNT, which every
-    /// AVX2 CPU has), with the AVX box test. Rust never contracts a multiply and an add
-    /// into an FMA, so the results are those of the baseline path bit for bit.
+    /// AVX2 CPU has), with the AVX2 node visit. Rust never contracts a multiply and an
+    /// add into an FMA, so the results are those of the baseline path bit for bit.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx,avx2,fma,bmi1,bmi2,popcnt,lzcnt")]
     fn run_avx<const DIST: bool, O: Observer>(
@@ -326,6 +465,10 @@ impl Mbvh8Accel {
         self.run::<DIST, true, O>(ray, query, stack, total, obs)
     }
 
+    /// The traversal loop. A node visit with more than one hit child writes them,
+    /// farthest first, on top of the stack; the last written (nearest) is visited next and
+    /// the others stay pushed. Leaves are tested as in the other
+    /// kernels ([`LeafTriangles::intersect`]).
     #[inline(always)]
     fn run<const DIST: bool, const AVX: bool, O: Observer>(
         &self,
@@ -337,66 +480,201 @@ impl Mbvh8Accel {
     ) -> Option<Hit> {
         let pre = RayPrecomp::new(ray);
         let slab = Slab::new(&pre, ray.t_min);
-        let nodes = &self.nodes;
-        let visit = |index: u32,
-                     best_t: f32,
-                     stack: &mut TraversalStack,
-                     stats: &mut RayStats,
-                     obs: &mut O| {
-            let node = &nodes[index as usize];
-            #[cfg(target_arch = "x86_64")]
-            let (dist, mask, valid) = if AVX {
-                // SAFETY: `AVX` is only set by `run_avx`, which runs with AVX enabled
-                // (and is only called where the CPU has it).
-                unsafe { test8_avx(&slab, node, cull_distance(best_t)) }
-            } else {
-                test8(&slab, node, cull_distance(best_t))
-            };
-            #[cfg(not(target_arch = "x86_64"))]
-            let (dist, mask, valid) = test8(&slab, node, cull_distance(best_t));
-            let kids = &node.children;
-            stats.node_visits += 1;
-            stats.box_tests += POPCOUNT8[valid as usize] as u64;
-            obs.node(index, valid, mask);
-            match POPCOUNT8[mask as usize] {
-                0 => None,
-                1 => Some(kids[mask.trailing_zeros() as usize & 7]),
-                2 => {
-                    let a = mask.trailing_zeros() as usize & 7;
-                    let b = (7 - mask.leading_zeros() as usize) & 7;
-                    let (near, far) = if dist[b] < dist[a] { (b, a) } else { (a, b) };
-                    self.prefetch_child(kids[far]);
-                    stack.push(kids[far], dist[far], &self.leaf, stats, obs);
-                    Some(kids[near])
+        let mut stats = RayStats::default();
+        obs.begin(ray, query);
+        stats.rays += 1;
+        let mut best: Option<Hit> = None;
+        let mut best_t = ray.t_max;
+        let finite = geom::is_finite3(ray.origin) && geom::is_finite3(ray.dir);
+        let (refs, dists) = stack.wide(WIDTH8);
+        let mut sp = 0usize;
+        let mut cur = 0u32;
+        let mut live = finite;
+        while live {
+            if cur & child8::LEAF != 0 {
+                let c = self.decode(cur);
+                let stop = self.leaf.intersect(
+                    c.index,
+                    c.count,
+                    &pre,
+                    ray.t_min,
+                    query,
+                    &mut best,
+                    &mut best_t,
+                    &mut stats,
+                    obs,
+                );
+                if stop {
+                    break;
                 }
-                hits => {
-                    // Insertion sort of the hit children's keys (at most eight).
-                    let mut keys = [0u32; WIDTH8];
-                    let mut n = 0;
-                    let mut m = mask;
-                    while m != 0 {
-                        let slot = m.trailing_zeros() as usize;
-                        m &= m - 1;
-                        let k = key(dist[slot], slot);
-                        let mut j = n;
-                        while j > 0 && keys[j - 1] > k {
-                            keys[j] = keys[j - 1];
-                            j -= 1;
+            } else {
+                let node = &self.nodes[cur as usize];
+                if refs.len() < sp + WIDTH8 {
+                    refs.resize(sp + 2 * WIDTH8, 0);
+                    dists.resize(sp + 2 * WIDTH8, 0.0);
+                }
+                let t_max = cull_distance(best_t);
+                #[cfg(target_arch = "x86_64")]
+                if AVX {
+                    // SAFETY: `AVX` is only set by `run_avx`, which runs with AVX2
+                    // enabled (and is only called where the CPU has it); the stack has
+                    // room for eight entries from `sp` (resized above).
+                    let next = unsafe {
+                        let (near, hit, mask, valid) = test8_avx(&slab, node, t_max);
+                        stats.node_visits += 1;
+                        stats.box_tests += POPCOUNT8[valid as usize] as u64;
+                        obs.node(cur, valid, mask);
+                        let hits = POPCOUNT8[mask as usize] as usize;
+                        if hits == 0 {
+                            None
+                        } else {
+                            self.prefetch_hits(node, mask);
+                            if hits == 1 {
+                                Some(node.children[mask.trailing_zeros() as usize & 7])
+                            } else {
+                                let next = push_sorted_avx(
+                                    node,
+                                    near,
+                                    hit,
+                                    hits,
+                                    refs.as_mut_ptr().add(sp),
+                                    dists.as_mut_ptr().add(sp),
+                                );
+                                self.pushed(&refs[sp..sp + hits - 1], &mut stats, obs);
+                                sp += hits - 1;
+                                stats.max_stack_depth = stats.max_stack_depth.max(sp as u64);
+                                Some(next)
+                            }
                         }
-                        keys[j] = k;
-                        n += 1;
+                    };
+                    if let Some(next) = next {
+                        cur = next;
+                        continue;
                     }
-                    debug_assert_eq!(n, hits as usize);
-                    for &k in keys[1..n].iter().rev() {
-                        let slot = (k & 7) as usize;
-                        self.prefetch_child(kids[slot]);
-                        stack.push(kids[slot], dist[slot], &self.leaf, stats, obs);
-                    }
-                    Some(kids[(keys[0] & 7) as usize])
+                } else if let Some(next) = self.visit8(
+                    &slab,
+                    node,
+                    cur,
+                    t_max,
+                    &mut refs[sp..],
+                    &mut dists[sp..],
+                    &mut sp,
+                    &mut stats,
+                    obs,
+                ) {
+                    cur = next;
+                    continue;
+                }
+                #[cfg(not(target_arch = "x86_64"))]
+                if let Some(next) = self.visit8(
+                    &slab,
+                    node,
+                    cur,
+                    t_max,
+                    &mut refs[sp..],
+                    &mut dists[sp..],
+                    &mut sp,
+                    &mut stats,
+                    obs,
+                ) {
+                    cur = next;
+                    continue;
                 }
             }
-        };
-        traverse::<DIST, O>(&self.leaf, ray, &pre, query, stack, total, obs, visit)
+            // Pop the next entry (culled by the closest hit with the distance stack).
+            live = false;
+            while sp > 0 {
+                sp -= 1;
+                if DIST && dists[sp] > cull_distance(best_t) {
+                    stats.culled_pops += 1;
+                    obs.pop(true);
+                    continue;
+                }
+                stats.pops += 1;
+                obs.pop(false);
+                cur = refs[sp];
+                live = true;
+                break;
+            }
+        }
+        stats.hits += best.is_some() as u64;
+        total.add(&stats);
+        obs.end(best.as_ref());
+        best
+    }
+
+    /// Prefetches the hit children of `node` (`mask`), the one visited next included.
+    #[inline(always)]
+    fn prefetch_hits(&self, node: &Node8, mask: u8) {
+        let mut m = mask;
+        while m != 0 {
+            let slot = m.trailing_zeros() as usize & 7;
+            m &= m - 1;
+            self.prefetch_child(node.children[slot]);
+        }
+    }
+
+    /// Counts the pushes of `refs` and reports them to the observer.
+    #[inline(always)]
+    fn pushed<O: Observer>(&self, refs: &[u32], stats: &mut RayStats, obs: &mut O) {
+        for &r in refs {
+            obs.push(self.leaf.original(self.decode(r)));
+        }
+        stats.pushes += refs.len() as u64;
+    }
+
+    /// The node visit of the AVX2 path without AVX: the same box test (two SSE halves)
+    /// and the same order of the hit children (by [`sort_key`], farthest pushed first).
+    /// Pushes all hit children but the nearest onto `refs`/`dists` (advancing `sp`) and
+    /// returns the nearest.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn visit8<O: Observer>(
+        &self,
+        slab: &Slab,
+        node: &Node8,
+        index: u32,
+        t_max: f32,
+        refs: &mut [u32],
+        dists: &mut [f32],
+        sp: &mut usize,
+        stats: &mut RayStats,
+        obs: &mut O,
+    ) -> Option<u32> {
+        let (dist, mask, valid) = test8(slab, node, t_max);
+        stats.node_visits += 1;
+        stats.box_tests += POPCOUNT8[valid as usize] as u64;
+        obs.node(index, valid, mask);
+        let hits = POPCOUNT8[mask as usize] as usize;
+        if hits == 0 {
+            return None;
+        }
+        self.prefetch_hits(node, mask);
+        // Insertion sort of the hit children's keys, largest first.
+        let mut keys = [0u32; WIDTH8];
+        let mut n = 0;
+        let mut m = mask;
+        while m != 0 {
+            let slot = m.trailing_zeros() as usize;
+            m &= m - 1;
+            let k = sort_key(dist[slot], slot);
+            let mut j = n;
+            while j > 0 && keys[j - 1] < k {
+                keys[j] = keys[j - 1];
+                j -= 1;
+            }
+            keys[j] = k;
+            n += 1;
+        }
+        for (i, &k) in keys[..hits].iter().enumerate() {
+            let slot = (k & 7) as usize;
+            refs[i] = node.children[slot];
+            dists[i] = dist[slot];
+        }
+        self.pushed(&refs[..hits - 1], stats, obs);
+        *sp += hits - 1;
+        stats.max_stack_depth = stats.max_stack_depth.max(*sp as u64);
+        Some(refs[hits - 1])
     }
 }
 
@@ -446,5 +724,192 @@ impl Traverse for Mbvh8Accel {
 
     fn leaf_entries(&self) -> usize {
         self.leaf.entry_count()
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::testutil::{all_mbvh8, random_rays, soup};
+    use bvh::WideNode;
+    use geom::Vec3;
+
+    #[test]
+    fn child_references_round_trip_and_large_leaves_escape() {
+        let mut big = Vec::new();
+        let accel = |big: Vec<ChildRef>| Mbvh8Accel {
+            nodes: Vec::new(),
+            leaf: LeafTriangles::default(),
+            big,
+            options: KernelOptions::default(),
+            avx: false,
+        };
+        let cases = [
+            ChildRef::inner(1),
+            ChildRef::inner((1 << 31) - 1),
+            ChildRef::leaf(0, 1),
+            ChildRef::leaf(child8::SLOT_MASK, 31),
+            ChildRef::leaf(7, 32),
+            ChildRef::leaf(child8::SLOT_MASK + 1, 1),
+            ChildRef::leaf(3, u32::MAX),
+            ChildRef::EMPTY,
+        ];
+        let coded: Vec<u32> = cases
+            .iter()
+            .map(|&c| encode(c, &mut big).unwrap())
+            .collect();
+        // The three that do not fit went to the table, in order.
+        assert_eq!(big, vec![cases[4], cases[5], cases[6]]);
+        assert_eq!(coded[3], (1 << 31) | (30 << 26) | child8::SLOT_MASK);
+        let a = accel(big);
+        for (c, &k) in cases.iter().zip(&coded) {
+            assert_eq!(a.decode(k), *c);
+        }
+        // An inner index with the leaf bit cannot be written.
+        assert!(encode(ChildRef::inner(1 << 31), &mut Vec::new()).is_err());
+        // The test trees of `all_mbvh8` include leaves that need the table.
+        let tris = soup(1500, 1.5, 11);
+        let big_leaves = all_mbvh8(&tris)
+            .into_iter()
+            .filter(|(n, _)| n.starts_with("big-leaves"))
+            .collect::<Vec<_>>();
+        assert!(!big_leaves.is_empty());
+        assert!(big_leaves.iter().all(|(_, a)| !a.big.is_empty()));
+    }
+
+    /// A ray along +x through three leaves meets them nearest first, along -x the other
+    /// way round; both paths (AVX2 and baseline) alike.
+    #[test]
+    fn rays_visit_leaves_nearest_first() {
+        #[derive(Default)]
+        struct Leaves(Vec<u32>);
+        impl Observer for Leaves {
+            fn leaf(&mut self, first: u32, _count: u32) {
+                self.0.push(first);
+            }
+        }
+        let tri = |x: f32| Triangle {
+            v: [
+                Vec3::new(x + 0.5, -1.0, -1.0),
+                Vec3::new(x + 0.5, 3.0, -1.0),
+                Vec3::new(x + 0.5, -1.0, 3.0),
+            ],
+        };
+        // Triangles (prims) 0, 1, 2 at x = 10.5, 20.5, 0.5; leaf k holds prim k.
+        let tris = [tri(10.0), tri(20.0), tri(0.0)];
+        let mut n = WideNode::<WIDTH8> {
+            boxes: [Aabb::EMPTY; WIDTH8],
+            children: [ChildRef::EMPTY; WIDTH8],
+        };
+        for (slot, t) in tris.iter().enumerate() {
+            n.boxes[slot] = t.aabb();
+            n.children[slot] = ChildRef::leaf(slot as u32, 1);
+        }
+        let bvh = WideBvh {
+            nodes: vec![n],
+            prim_indices: vec![0, 1, 2],
+            bounds: tris.iter().fold(Aabb::EMPTY, |b, t| b.union(t.aabb())),
+        };
+        let opts = KernelOptions {
+            distance_stack: false,
+        };
+        let a = Mbvh8Accel::new(bvh, &tris, opts).unwrap();
+        for accel in [a.clone(), a.without_avx()] {
+            for (origin, dir, order) in [(-5.0, 1.0, [2, 0, 1]), (30.0, -1.0, [1, 0, 2])] {
+                let ray = Ray::new(Vec3::new(origin, 0.5, 0.5), Vec3::new(dir, 0.01, 0.02));
+                let mut obs = Leaves::default();
+                let mut stats = RayStats::default();
+                let hit = accel.trace_observed(
+                    &ray,
+                    Query::Closest,
+                    &mut TraversalStack::new(),
+                    &mut stats,
+                    &mut obs,
+                );
+                assert_eq!(obs.0, order);
+                assert_eq!(hit.map(|h| h.prim), Some(order[0]));
+                assert_eq!((stats.node_visits, stats.pushes, stats.pops), (1, 2, 2));
+            }
+        }
+    }
+
+    /// The AVX2 node visit and the baseline one give the same answers and the same
+    /// counters ray by ray (same box bits, same order of the hit children).
+    #[test]
+    fn avx_and_baseline_paths_count_alike() {
+        let tris = soup(1500, 1.5, 7);
+        let rays = random_rays(3000, Vec3::ZERO, 2.0, 3);
+        let all = all_mbvh8(&tris);
+        for pair in all.chunks(2) {
+            let [(sse_name, sse), (name, avx)] = pair else {
+                panic!("all_mbvh8 lists each tree twice");
+            };
+            assert_eq!(*sse_name, format!("{name}/sse"));
+            let mut stack = TraversalStack::new();
+            for ray in &rays {
+                for q in [Query::Closest, Query::Any] {
+                    let (mut s1, mut s2) = (RayStats::default(), RayStats::default());
+                    let h1 = sse.trace_observed(ray, q, &mut stack, &mut s1, &mut ());
+                    let h2 = avx.trace_observed(ray, q, &mut stack, &mut s2, &mut ());
+                    assert_eq!(h1, h2, "{name}");
+                    assert_eq!(s1, s2, "{name}");
+                }
+            }
+        }
+    }
+
+    /// The AVX2 sorting network writes the hit children in the order of the scalar sort
+    /// (`sort_key` descending), on random distances with ties, signed zeros, infinities
+    /// and every hit mask.
+    #[cfg(target_arch = "x86_64")]
+    #[test]
+    fn sorting_network_orders_like_the_keys() {
+        use std::arch::x86_64::*;
+        if !std::arch::is_x86_feature_detected!("avx2") {
+            eprintln!("skipped: this CPU has no AVX2 (the baseline path is tested elsewhere)");
+            return;
+        }
+        let mut rng = crate::testutil::Rng::new(5);
+        let pool = [0.0f32, -0.0, 1.0, 1.0, 2.5, f32::INFINITY, 1e-30, 7.0];
+        let node = Node8 {
+            rows: [[0.0; WIDTH8]; 6],
+            children: std::array::from_fn(|i| 100 + i as u32),
+        };
+        for case in 0..20_000 {
+            let mask = (case % 256) as u8;
+            let near: [f32; WIDTH8] = std::array::from_fn(|_| {
+                if rng.f32() < 0.5 {
+                    pool[(rng.f32() * 8.0) as usize & 7]
+                } else {
+                    rng.f32() * 10.0
+                }
+            });
+            let hits = mask.count_ones() as usize;
+            if hits == 0 {
+                continue;
+            }
+            let mut order: Vec<usize> = (0..WIDTH8).filter(|&i| mask >> i & 1 == 1).collect();
+            order.sort_by_key(|&i| std::cmp::Reverse(sort_key(near[i], i)));
+            let (mut refs, mut dists) = ([0u32; WIDTH8], [0f32; WIDTH8]);
+            // SAFETY: AVX2 is present (checked above); both outputs hold eight lanes.
+            let next = unsafe {
+                let hit_lanes: [u32; WIDTH8] =
+                    std::array::from_fn(|i| if mask >> i & 1 == 1 { u32::MAX } else { 0 });
+                push_sorted_avx(
+                    &node,
+                    _mm256_loadu_ps(near.as_ptr()),
+                    _mm256_castsi256_ps(_mm256_loadu_si256(hit_lanes.as_ptr() as *const __m256i)),
+                    hits,
+                    refs.as_mut_ptr(),
+                    dists.as_mut_ptr(),
+                )
+            };
+            let want: Vec<u32> = order.iter().map(|&i| 100 + i as u32).collect();
+            assert_eq!(refs[..hits], want[..], "{near:?} {mask:08b}");
+            for (k, &i) in order.iter().enumerate() {
+                assert_eq!(dists[k].to_bits(), near[i].to_bits());
+            }
+            assert_eq!(next, want[hits - 1]);
+        }
     }
 }

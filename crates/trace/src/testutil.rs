@@ -230,7 +230,18 @@ pub fn all_accels(tris: &[Triangle]) -> (Named<Bvh2Accel>, Named<Mbvh4Accel>) {
 /// The 8-wide collapse of every binary tree, with and without the distance stack.
 pub fn all_mbvh8(tris: &[Triangle]) -> Named<crate::Mbvh8Accel> {
     let mut out = Vec::new();
-    for (name, t) in all_bvh2(tris) {
+    // Leaves of up to 48 triangles: more than a 32-bit child reference holds, so the
+    // kernel's table of large leaves is used.
+    let big = bvh::BinnedSahBuilder {
+        max_leaf_size: 48,
+        min_leaf_size: 33,
+        ..Default::default()
+    }
+    .build(&bvh::triangle_aabbs(tris))
+    .unwrap();
+    let mut trees = all_bvh2(tris);
+    trees.push(("big-leaves", big));
+    for (name, t) in trees {
         for d in [false, true] {
             let o = KernelOptions { distance_stack: d };
             let a = crate::Mbvh8Accel::from_bvh2(&t, tris, o).unwrap();
