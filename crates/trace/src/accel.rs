@@ -103,14 +103,14 @@ impl TraversalStack {
         }
     }
 
-    /// The 8-wide kernel's stack, at least `room` entries long.
+    /// The stack of a kernel with 32-bit child references (the 8-wide one), empty.
     #[inline(always)]
-    pub(crate) fn wide(&mut self, room: usize) -> (&mut Vec<u32>, &mut Vec<f32>) {
-        if self.refs.len() < room {
-            self.refs.resize(room, 0);
-            self.dists.resize(room, 0.0);
+    pub(crate) fn wide(&mut self) -> WideStack<'_> {
+        WideStack {
+            refs: &mut self.refs,
+            dists: &mut self.dists,
+            len: 0,
         }
-        (&mut self.refs, &mut self.dists)
     }
 
     /// Pushes `child` (a packed reference, see [`LeafTriangles`]), counting the push and
@@ -149,6 +149,110 @@ impl TraversalStack {
             stats.pops += 1;
             obs.pop(false);
             return Some(e.child);
+        }
+        None
+    }
+}
+
+/// A kernel's traversal stack, as [`traverse`] uses it.
+pub(crate) trait KernelStack {
+    /// A child reference as the kernel stores it.
+    type Ref: Copy;
+    /// Empties the stack for a new ray.
+    fn clear(&mut self);
+    /// Pops the next entry to traverse; with `distance_culling`, entries whose entry
+    /// distance lies beyond `cull_distance(best_t)` are popped and skipped (counted as
+    /// culled pops).
+    fn pop<O: Observer>(
+        &mut self,
+        distance_culling: bool,
+        best_t: f32,
+        stats: &mut RayStats,
+        obs: &mut O,
+    ) -> Option<Self::Ref>;
+}
+
+impl KernelStack for TraversalStack {
+    type Ref = ChildRef;
+
+    #[inline(always)]
+    fn clear(&mut self) {
+        self.entries.clear();
+    }
+
+    #[inline(always)]
+    fn pop<O: Observer>(
+        &mut self,
+        distance_culling: bool,
+        best_t: f32,
+        stats: &mut RayStats,
+        obs: &mut O,
+    ) -> Option<ChildRef> {
+        TraversalStack::pop(self, distance_culling, best_t, stats, obs)
+    }
+}
+
+/// The stack of a kernel with 32-bit child references: references and entry distances in
+/// two arrays (borrowed from a [`TraversalStack`], so reused across rays), which a node
+/// visit may write several entries at a time ([`WideStack::top`], then
+/// [`WideStack::grow`]). It grows as deep as a tree needs.
+pub(crate) struct WideStack<'a> {
+    refs: &'a mut Vec<u32>,
+    dists: &'a mut Vec<f32>,
+    len: usize,
+}
+
+impl WideStack<'_> {
+    /// The free entries above the top, at least `room` of them.
+    #[inline(always)]
+    pub fn top(&mut self, room: usize) -> (&mut [u32], &mut [f32]) {
+        if self.refs.len() < self.len + room {
+            let n = (self.len + room).max(2 * self.refs.len());
+            self.refs.resize(n, 0);
+            self.dists.resize(n, 0.0);
+        }
+        (&mut self.refs[self.len..], &mut self.dists[self.len..])
+    }
+
+    /// Makes the first `n` entries written above the top part of the stack.
+    #[inline(always)]
+    pub fn grow(&mut self, n: usize) {
+        self.len = (self.len + n).min(self.refs.len());
+    }
+
+    /// Entries on the stack.
+    #[inline(always)]
+    pub fn len(&self) -> usize {
+        self.len
+    }
+}
+
+impl KernelStack for WideStack<'_> {
+    type Ref = u32;
+
+    #[inline(always)]
+    fn clear(&mut self) {
+        self.len = 0;
+    }
+
+    #[inline(always)]
+    fn pop<O: Observer>(
+        &mut self,
+        distance_culling: bool,
+        best_t: f32,
+        stats: &mut RayStats,
+        obs: &mut O,
+    ) -> Option<u32> {
+        while self.len > 0 {
+            self.len -= 1;
+            if distance_culling && self.dists[self.len] > cull_distance(best_t) {
+                stats.culled_pops += 1;
+                obs.pop(true);
+                continue;
+            }
+            stats.pops += 1;
+            obs.pop(false);
+            return Some(self.refs[self.len]);
         }
         None
     }
@@ -487,37 +591,42 @@ impl LeafTriangles {
 /// `Mbvh8`): per-ray counters kept in a local and added to `total` once, observer begin and
 /// end, a ray with a non-finite origin or direction hitting nothing (the slab tests assume
 /// finite values), leaves tested through `leaf`, and the stack popped (culled by the
-/// closest hit when `DIST`) whenever a node visit continues nowhere. `visit(node,
-/// best_t, stack, stats, obs)` tests inner node `node` against the cull distance of
+/// closest hit when `DIST`) whenever a node visit continues nowhere. Traversal starts at
+/// `root`; `as_leaf(r)` says whether reference `r` is a leaf (and which packed slots);
+/// `visit(r, best_t, stack, stats, obs)` tests inner node `r` against the cull distance of
 /// `best_t`, pushes the hit children it does not continue with, and returns the one it
-/// continues with (or `None`). Inlined into each kernel, so each keeps its own code.
+/// continues with (or `None`). The kernels differ only in their node visit and in how
+/// they store references and stack entries ([`KernelStack`]). Inlined into each kernel,
+/// so each keeps its own code.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
-pub(crate) fn traverse<const DIST: bool, O: Observer>(
+pub(crate) fn traverse<const DIST: bool, O: Observer, S: KernelStack>(
     leaf: &LeafTriangles,
     ray: &Ray,
     pre: &RayPrecomp,
     query: Query,
-    stack: &mut TraversalStack,
+    stack: &mut S,
     total: &mut RayStats,
     obs: &mut O,
-    mut visit: impl FnMut(u32, f32, &mut TraversalStack, &mut RayStats, &mut O) -> Option<ChildRef>,
+    root: S::Ref,
+    as_leaf: impl Fn(S::Ref) -> Option<ChildRef>,
+    mut visit: impl FnMut(S::Ref, f32, &mut S, &mut RayStats, &mut O) -> Option<S::Ref>,
 ) -> Option<Hit> {
     // Counted in a local (kept in registers), added to `total` once at the end.
     let mut ray_stats = RayStats::default();
     let stats = &mut ray_stats;
     obs.begin(ray, query);
     stats.rays += 1;
-    stack.entries.clear();
+    stack.clear();
     let mut best: Option<Hit> = None;
     let mut best_t = ray.t_max;
     let finite = geom::is_finite3(ray.origin) && geom::is_finite3(ray.dir);
-    let mut cur = finite.then_some(ChildRef::inner(0));
+    let mut cur = finite.then_some(root);
     while let Some(c) = cur {
-        if c.is_leaf() {
+        if let Some(l) = as_leaf(c) {
             let stop = leaf.intersect(
-                c.index,
-                c.count,
+                l.index,
+                l.count,
                 pre,
                 ray.t_min,
                 query,
@@ -529,7 +638,7 @@ pub(crate) fn traverse<const DIST: bool, O: Observer>(
             if stop {
                 break;
             }
-        } else if let Some(next) = visit(c.index, best_t, stack, stats, obs) {
+        } else if let Some(next) = visit(c, best_t, stack, stats, obs) {
             cur = Some(next);
             continue;
         }

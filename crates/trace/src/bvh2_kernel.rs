@@ -226,11 +226,12 @@ impl Bvh2Accel {
         let o = pre.origin.to_array();
         let inv = pre.inv_dir.to_array();
         let nodes = &self.nodes;
-        let visit = |index: u32,
+        let visit = |c: ChildRef,
                      best_t: f32,
                      stack: &mut TraversalStack,
                      stats: &mut RayStats,
                      obs: &mut O| {
+            let index = c.index;
             let node = &nodes[index as usize];
             let (d, hit) = test2(node, &o, &inv, ray.t_min, cull_distance(best_t));
             let [c0, c1] = node.children;
@@ -262,7 +263,18 @@ impl Bvh2Accel {
                 [false, false] => None,
             }
         };
-        traverse::<DIST, O>(&self.leaf, ray, &pre, query, stack, total, obs, visit)
+        traverse::<DIST, O, _>(
+            &self.leaf,
+            ray,
+            &pre,
+            query,
+            stack,
+            total,
+            obs,
+            ChildRef::inner(0),
+            |c| c.is_leaf().then_some(c),
+            visit,
+        )
     }
 }
 

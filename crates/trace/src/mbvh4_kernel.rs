@@ -257,11 +257,12 @@ impl Mbvh4Accel {
         let pre = RayPrecomp::new(ray);
         let slab = Slab::new(&pre, ray.t_min);
         let nodes = &self.nodes;
-        let visit = |index: u32,
+        let visit = |c: ChildRef,
                      best_t: f32,
                      stack: &mut TraversalStack,
                      stats: &mut RayStats,
                      obs: &mut O| {
+            let index = c.index;
             let node = &nodes[index as usize].0;
             let (dist, mask, valid) = test4(&slab, node, cull_distance(best_t));
             let kids = &node.children;
@@ -295,7 +296,18 @@ impl Mbvh4Accel {
                 }
             }
         };
-        traverse::<DIST, O>(&self.leaf, ray, &pre, query, stack, total, obs, visit)
+        traverse::<DIST, O, _>(
+            &self.leaf,
+            ray,
+            &pre,
+            query,
+            stack,
+            total,
+            obs,
+            ChildRef::inner(0),
+            |c| c.is_leaf().then_some(c),
+            visit,
+        )
     }
 }
 

@@ -16,8 +16,8 @@
 //! of the other kernels (child masks of eight bits).
 
 use crate::accel::{
-    cull_distance, huge_page_vec, prefetch, refit_nodes, Hit, LeafTriangles, Slab, TraversalStack,
-    Traverse,
+    cull_distance, huge_page_vec, prefetch, refit_nodes, traverse, Hit, LeafTriangles, Slab,
+    TraversalStack, Traverse, WideStack,
 };
 use crate::bvh2_kernel::check_links;
 use crate::observer::{Observer, Query};
@@ -465,10 +465,9 @@ impl Mbvh8Accel {
         self.run::<DIST, true, O>(ray, query, stack, total, obs)
     }
 
-    /// The traversal loop. A node visit with more than one hit child writes them,
-    /// farthest first, on top of the stack; the last written (nearest) is visited next and
-    /// the others stay pushed. Leaves are tested as in the other
-    /// kernels ([`LeafTriangles::intersect`]).
+    /// Traversal ([`traverse`]) with the 8-wide node visit: a visit with more than one hit
+    /// child writes them, farthest first, on top of the stack; the last written (nearest)
+    /// is visited next and the others stay pushed.
     #[inline(always)]
     fn run<const DIST: bool, const AVX: bool, O: Observer>(
         &self,
@@ -480,127 +479,61 @@ impl Mbvh8Accel {
     ) -> Option<Hit> {
         let pre = RayPrecomp::new(ray);
         let slab = Slab::new(&pre, ray.t_min);
-        let mut stats = RayStats::default();
-        obs.begin(ray, query);
-        stats.rays += 1;
-        let mut best: Option<Hit> = None;
-        let mut best_t = ray.t_max;
-        let finite = geom::is_finite3(ray.origin) && geom::is_finite3(ray.dir);
-        let (refs, dists) = stack.wide(WIDTH8);
-        let mut sp = 0usize;
-        let mut cur = 0u32;
-        let mut live = finite;
-        while live {
-            if cur & child8::LEAF != 0 {
-                let c = self.decode(cur);
-                let stop = self.leaf.intersect(
-                    c.index,
-                    c.count,
-                    &pre,
-                    ray.t_min,
-                    query,
-                    &mut best,
-                    &mut best_t,
-                    &mut stats,
-                    obs,
-                );
-                if stop {
-                    break;
-                }
-            } else {
-                let node = &self.nodes[cur as usize];
-                if refs.len() < sp + WIDTH8 {
-                    refs.resize(sp + 2 * WIDTH8, 0);
-                    dists.resize(sp + 2 * WIDTH8, 0.0);
-                }
-                let t_max = cull_distance(best_t);
-                #[cfg(target_arch = "x86_64")]
-                if AVX {
-                    // SAFETY: `AVX` is only set by `run_avx`, which runs with AVX2
-                    // enabled (and is only called where the CPU has it); the stack has
-                    // room for eight entries from `sp` (resized above).
-                    let next = unsafe {
-                        let (near, hit, mask, valid) = test8_avx(&slab, node, t_max);
-                        stats.node_visits += 1;
-                        stats.box_tests += POPCOUNT8[valid as usize] as u64;
-                        obs.node(cur, valid, mask);
-                        let hits = POPCOUNT8[mask as usize] as usize;
-                        if hits == 0 {
-                            None
-                        } else {
-                            self.prefetch_hits(node, mask);
-                            if hits == 1 {
-                                Some(node.children[mask.trailing_zeros() as usize & 7])
-                            } else {
-                                let next = push_sorted_avx(
-                                    node,
-                                    near,
-                                    hit,
-                                    hits,
-                                    refs.as_mut_ptr().add(sp),
-                                    dists.as_mut_ptr().add(sp),
-                                );
-                                self.pushed(&refs[sp..sp + hits - 1], &mut stats, obs);
-                                sp += hits - 1;
-                                stats.max_stack_depth = stats.max_stack_depth.max(sp as u64);
-                                Some(next)
-                            }
-                        }
-                    };
-                    if let Some(next) = next {
-                        cur = next;
-                        continue;
+        let visit = |cur: u32,
+                     best_t: f32,
+                     st: &mut WideStack,
+                     stats: &mut RayStats,
+                     obs: &mut O|
+         -> Option<u32> {
+            let node = &self.nodes[cur as usize];
+            let t_max = cull_distance(best_t);
+            #[cfg(target_arch = "x86_64")]
+            if AVX {
+                // SAFETY: `AVX` is only set by `run_avx`, which runs with AVX2 enabled
+                // (and is only called where the CPU has it); `top` hands out at least
+                // eight entries, all that `push_sorted_avx` writes.
+                return unsafe {
+                    let (near, hit, mask, valid) = test8_avx(&slab, node, t_max);
+                    stats.node_visits += 1;
+                    stats.box_tests += POPCOUNT8[valid as usize] as u64;
+                    obs.node(cur, valid, mask);
+                    let hits = POPCOUNT8[mask as usize] as usize;
+                    if hits == 0 {
+                        return None;
                     }
-                } else if let Some(next) = self.visit8(
-                    &slab,
-                    node,
-                    cur,
-                    t_max,
-                    &mut refs[sp..],
-                    &mut dists[sp..],
-                    &mut sp,
-                    &mut stats,
-                    obs,
-                ) {
-                    cur = next;
-                    continue;
-                }
-                #[cfg(not(target_arch = "x86_64"))]
-                if let Some(next) = self.visit8(
-                    &slab,
-                    node,
-                    cur,
-                    t_max,
-                    &mut refs[sp..],
-                    &mut dists[sp..],
-                    &mut sp,
-                    &mut stats,
-                    obs,
-                ) {
-                    cur = next;
-                    continue;
-                }
+                    self.prefetch_hits(node, mask);
+                    if hits == 1 {
+                        return Some(node.children[mask.trailing_zeros() as usize & 7]);
+                    }
+                    let (refs, dists) = st.top(WIDTH8);
+                    let next = push_sorted_avx(
+                        node,
+                        near,
+                        hit,
+                        hits,
+                        refs.as_mut_ptr(),
+                        dists.as_mut_ptr(),
+                    );
+                    self.pushed(&refs[..hits - 1], stats, obs);
+                    st.grow(hits - 1);
+                    stats.max_stack_depth = stats.max_stack_depth.max(st.len() as u64);
+                    Some(next)
+                };
             }
-            // Pop the next entry (culled by the closest hit with the distance stack).
-            live = false;
-            while sp > 0 {
-                sp -= 1;
-                if DIST && dists[sp] > cull_distance(best_t) {
-                    stats.culled_pops += 1;
-                    obs.pop(true);
-                    continue;
-                }
-                stats.pops += 1;
-                obs.pop(false);
-                cur = refs[sp];
-                live = true;
-                break;
-            }
-        }
-        stats.hits += best.is_some() as u64;
-        total.add(&stats);
-        obs.end(best.as_ref());
-        best
+            self.visit8(&slab, node, cur, t_max, st, stats, obs)
+        };
+        traverse::<DIST, O, _>(
+            &self.leaf,
+            ray,
+            &pre,
+            query,
+            &mut stack.wide(),
+            total,
+            obs,
+            0,
+            |c| (c & child8::LEAF != 0).then(|| self.decode(c)),
+            visit,
+        )
     }
 
     /// Prefetches the hit children of `node` (`mask`), the one visited next included.
@@ -625,8 +558,7 @@ impl Mbvh8Accel {
 
     /// The node visit of the AVX2 path without AVX: the same box test (two SSE halves)
     /// and the same order of the hit children (by [`sort_key`], farthest pushed first).
-    /// Pushes all hit children but the nearest onto `refs`/`dists` (advancing `sp`) and
-    /// returns the nearest.
+    /// Pushes all hit children but the nearest and returns the nearest.
     #[inline(always)]
     #[allow(clippy::too_many_arguments)]
     fn visit8<O: Observer>(
@@ -635,9 +567,7 @@ impl Mbvh8Accel {
         node: &Node8,
         index: u32,
         t_max: f32,
-        refs: &mut [u32],
-        dists: &mut [f32],
-        sp: &mut usize,
+        st: &mut WideStack,
         stats: &mut RayStats,
         obs: &mut O,
     ) -> Option<u32> {
@@ -666,15 +596,17 @@ impl Mbvh8Accel {
             keys[j] = k;
             n += 1;
         }
+        let (refs, dists) = st.top(WIDTH8);
         for (i, &k) in keys[..hits].iter().enumerate() {
             let slot = (k & 7) as usize;
             refs[i] = node.children[slot];
             dists[i] = dist[slot];
         }
+        let next = refs[hits - 1];
         self.pushed(&refs[..hits - 1], stats, obs);
-        *sp += hits - 1;
-        stats.max_stack_depth = stats.max_stack_depth.max(*sp as u64);
-        Some(refs[hits - 1])
+        st.grow(hits - 1);
+        stats.max_stack_depth = stats.max_stack_depth.max(st.len() as u64);
+        Some(next)
     }
 }
 
