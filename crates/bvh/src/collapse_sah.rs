@@ -1,12 +1,15 @@
 //! SAH-optimal collapse of a binary [`Bvh2`] into a 4-wide [`Mbvh4`] with the same leaves
-//! (issue 31 part 4): the dynamic program of Ylitie, Karras and Laine (2017, "Efficient
-//! incoherent ray traversal on GPUs through compressed wide BVHs", §3), restricted to
-//! keeping the binary tree's leaves.
+//! (issue 31 part 4), or into a tree of any width `W` ([`collapse_wide_optimal`], the
+//! 8-wide tree of the `mbvh8` kernel): the dynamic program of Ylitie, Karras and Laine
+//! (2017, "Efficient incoherent ray traversal on GPUs through compressed wide BVHs", §3),
+//! restricted to keeping the binary tree's leaves.
 //!
-//! Among all 4-wide trees whose nodes are cuts of the binary tree (every wide node's
+//! Among all `W`-wide trees whose nodes are cuts of the binary tree (every wide node's
 //! children are a frontier of the binary subtree below it, as in any collapse), it picks
-//! the one of least SAH with 4-wide nodes costing `2 C_i` ([`SahParams::for_width`]), the
-//! cost that [`Mbvh4::normalized_sah`] reports. Every wide node is paid in full whether it
+//! the one of least SAH with wide nodes costing `(W / 2) C_i` ([`SahParams::for_width`];
+//! for 4-wide nodes `2 C_i`, the cost that [`Mbvh4::normalized_sah`] reports). With the
+//! leaves fixed, every candidate pays the same for its leaves, so the optimum is the tree
+//! of least total wide-node area whatever `C_i`. Every wide node is paid in full whether it
 //! has two children or four, so the optimum opens small subtrees into their parent rather
 //! than giving them nodes of their own: it fills nodes where the greedy collapse
 //! ([`crate::Collapse`], which pulls up only the largest inner child and leaves subtrees of
@@ -19,19 +22,17 @@
 //! `i` into its parent; a leaf child costs `A (C_l + C_t n)` in one slot.
 
 use crate::bvh2::Bvh2;
-use crate::collapse::{check_links, CollapseError};
+use crate::collapse::{check_links, CollapseError, WideBvh, WideNode};
 use crate::layout::try_preorder;
 use crate::mbvh4::{Mbvh4, Node4, MBVH_WIDTH};
 use crate::node::ChildRef;
 use crate::sah::SahParams;
 use geom::Aabb;
 
-const W: usize = MBVH_WIDTH;
-
 /// Per binary inner node: least cost for up to `j + 1` slots, and how it is reached
 /// (`0`: a wide node of its own; `a` in 1..W: `a` slots to the left child, the rest right).
 #[derive(Clone, Copy)]
-struct Entry {
+struct Entry<const W: usize> {
     cost: [Cost; W],
     how: [u8; W],
     /// Split of the 4 slots of this node's own wide node (`a` slots to the left child).
@@ -63,6 +64,34 @@ pub fn collapse_optimal(
     sah: &SahParams,
     goal: CollapseGoal,
 ) -> Result<Mbvh4, CollapseError> {
+    let w = collapse_wide_optimal::<MBVH_WIDTH>(bvh, sah, goal)?;
+    let nodes = w
+        .nodes
+        .iter()
+        .map(|n| {
+            let mut node = Node4::EMPTY;
+            for slot in 0..MBVH_WIDTH {
+                node.set_child_aabb(slot, &n.boxes[slot]);
+            }
+            node.children = n.children;
+            node
+        })
+        .collect();
+    Ok(Mbvh4 {
+        nodes,
+        prim_indices: w.prim_indices,
+        bounds: w.bounds,
+    })
+}
+
+/// The `W`-wide collapse (`W >= 2`) of `bvh` keeping its leaves that is optimal for
+/// `goal`, with wide nodes costing `sah.for_width(W).c_inner`.
+pub fn collapse_wide_optimal<const W: usize>(
+    bvh: &Bvh2,
+    sah: &SahParams,
+    goal: CollapseGoal,
+) -> Result<WideBvh<W>, CollapseError> {
+    const { assert!(W >= 2 && W <= 255) };
     let lt = |a: Cost, b: Cost| match goal {
         CollapseGoal::Sah => a.1 < b.1,
         CollapseGoal::FewestNodes => a < b,
@@ -85,7 +114,7 @@ pub fn collapse_optimal(
         n
     ];
     // Cost of child `slot` of binary node `i` in up to `j + 1` slots (`None`: empty slot).
-    let child_cost = |dp: &[Entry], i: usize, slot: usize, j: usize| -> Option<Cost> {
+    let child_cost = |dp: &[Entry<W>], i: usize, slot: usize, j: usize| -> Option<Cost> {
         let node = &bvh.nodes[i];
         let c = node.children[slot];
         if c.is_leaf() {
@@ -135,7 +164,7 @@ pub fn collapse_optimal(
         }
     }
     // Emission, depth-first preorder as in the greedy collapse.
-    let mut out: Vec<Node4> = Vec::with_capacity(n / 2 + 1);
+    let mut out: Vec<WideNode<W>> = Vec::with_capacity(n / 2 + 1);
     let mut table: Vec<u32> = Vec::with_capacity(bvh.prim_indices.len());
     let mut seen = vec![false; n];
     let mut kids: Vec<(Aabb, ChildRef)> = Vec::with_capacity(W);
@@ -146,9 +175,12 @@ pub fn collapse_optimal(
         kids.clear();
         let a = dp[bi].own as usize;
         expand_open(bvh, &dp, bi, a, W, &mut kids, &mut seen)?;
-        let mut node = Node4::EMPTY;
+        let mut node = WideNode {
+            boxes: [Aabb::EMPTY; W],
+            children: [ChildRef::EMPTY; W],
+        };
         for (slot, &(b, c)) in kids.iter().enumerate() {
-            node.set_child_aabb(slot, &b);
+            node.boxes[slot] = b;
             node.children[slot] = if c.is_leaf() {
                 let first = table.len() as u32;
                 let s = c.index as usize;
@@ -162,7 +194,7 @@ pub fn collapse_optimal(
         out.push(node);
         Ok::<(), CollapseError>(())
     })?;
-    Ok(Mbvh4 {
+    Ok(WideBvh {
         nodes: out,
         prim_indices: table,
         bounds: bvh.bounds,
@@ -171,31 +203,48 @@ pub fn collapse_optimal(
 
 /// Appends the children of binary node `i` opened into `slots` slots, `a` of them for its
 /// left child: leaves as they are, inner children as their own choices say (an inner child
-/// kept whole is a new wide node, `ChildRef::inner` of its binary index).
-fn expand_open(
+/// kept whole is a new wide node, `ChildRef::inner` of its binary index). Iterative, so a
+/// long chain of one-child nodes in a tree from a file cannot overflow the call stack.
+fn expand_open<const W: usize>(
     bvh: &Bvh2,
-    dp: &[Entry],
+    dp: &[Entry<W>],
     i: usize,
     a: usize,
     slots: usize,
     kids: &mut Vec<(Aabb, ChildRef)>,
     seen: &mut [bool],
 ) -> Result<(), CollapseError> {
-    let node = &bvh.nodes[i];
-    for (slot, j) in [(0usize, a), (1, slots - a)] {
-        let c = node.children[slot];
-        if c.is_leaf() {
-            kids.push((node.child_aabb(slot), c));
-        } else if c.is_inner() {
-            let k = c.index as usize;
-            let how = dp[k].how[j.max(1) - 1] as usize;
-            if how == 0 {
-                kids.push((node.child_aabb(slot), c));
-            } else {
-                if std::mem::replace(&mut seen[k], true) {
-                    return Err(CollapseError::SharedNode { node: k });
+    // (binary node, slots, slots of its left child); or a slot to emit.
+    enum Step {
+        Open(usize, usize, usize),
+        Emit((Aabb, ChildRef)),
+    }
+    let mut todo = vec![Step::Open(i, slots, a)];
+    while let Some(step) = todo.pop() {
+        let (i, slots, a) = match step {
+            Step::Emit(kid) => {
+                kids.push(kid);
+                continue;
+            }
+            Step::Open(i, slots, a) => (i, slots, a),
+        };
+        let node = &bvh.nodes[i];
+        // Pushed right child first, so that the left child's slots come first.
+        for (slot, j) in [(1usize, slots - a), (0, a)] {
+            let c = node.children[slot];
+            if c.is_leaf() {
+                todo.push(Step::Emit((node.child_aabb(slot), c)));
+            } else if c.is_inner() {
+                let k = c.index as usize;
+                let how = dp[k].how[j.max(1) - 1] as usize;
+                if how == 0 {
+                    todo.push(Step::Emit((node.child_aabb(slot), c)));
+                } else {
+                    if std::mem::replace(&mut seen[k], true) {
+                        return Err(CollapseError::SharedNode { node: k });
+                    }
+                    todo.push(Step::Open(k, j, how));
                 }
-                expand_open(bvh, dp, k, how, j, kids, seen)?;
             }
         }
     }
@@ -295,5 +344,85 @@ mod tests {
         let o = check("cubes", &b, &prims, 1);
         assert_eq!(o.nodes.len(), 5);
         assert!(o.nodes.iter().all(|n| n.child_count() == 4));
+    }
+
+    /// Any width: valid trees with the binary tree's leaves and never more wide-node area
+    /// (the only term that differs between collapses keeping the leaves) than the greedy
+    /// collapse of the same width; for 8-wide nodes, fewer nodes.
+    #[test]
+    fn wide_optimum_beats_the_greedy_wide_collapse() {
+        fn node_area<const W: usize>(t: &WideBvh<W>) -> f64 {
+            t.nodes
+                .iter()
+                .map(|n| {
+                    n.boxes
+                        .iter()
+                        .fold(Aabb::EMPTY, |a, b| a.union(*b))
+                        .half_area() as f64
+                })
+                .sum()
+        }
+        fn leaves<const W: usize>(t: &WideBvh<W>) -> usize {
+            t.nodes
+                .iter()
+                .flat_map(|n| n.children.iter())
+                .filter(|c| c.is_leaf())
+                .count()
+        }
+        for spec in ["proc:soup?n=20000", "proc:city?n=20000&seed=2"] {
+            let prims = proc_scene(spec);
+            let b = BinnedSahBuilder::default().build(&prims).unwrap();
+            let o8 = collapse_wide_optimal::<8>(&b, &SahParams::THESIS, CollapseGoal::Sah).unwrap();
+            let g8 = crate::Collapse::default().collapse_wide::<8>(&b).unwrap();
+            crate::validate_wide(&o8, &prims, 8).unwrap_or_else(|e| panic!("{spec}: {e}"));
+            assert_eq!(leaves(&o8), leaves(&g8), "{spec}");
+            assert!(node_area(&o8) <= node_area(&g8) * (1.0 + 1e-9), "{spec}");
+            assert!(o8.nodes.len() < g8.nodes.len(), "{spec}");
+            let o3 = collapse_wide_optimal::<3>(&b, &SahParams::THESIS, CollapseGoal::Sah).unwrap();
+            let g3 = crate::Collapse::default().collapse_wide::<3>(&b).unwrap();
+            crate::validate_wide(&o3, &prims, 8).unwrap_or_else(|e| panic!("{spec}: {e}"));
+            assert!(node_area(&o3) <= node_area(&g3) * (1.0 + 1e-9), "{spec}");
+            // The 4-wide form is the 4-wide optimum node for node.
+            let o4 = collapse_wide_optimal::<4>(&b, &SahParams::THESIS, CollapseGoal::Sah).unwrap();
+            let m4 = collapse_sah_optimal(&b, &SahParams::THESIS).unwrap();
+            assert_eq!(o4.nodes.len(), m4.nodes.len());
+            assert_eq!(o4.prim_indices, m4.prim_indices);
+            for (w, m) in o4.nodes.iter().zip(&m4.nodes) {
+                assert_eq!(w.children, m.children);
+            }
+        }
+    }
+
+    /// A chain of 200,000 one-child nodes (possible in a tree read from a file) collapses
+    /// without overflowing the call stack: the whole chain opens into the root.
+    #[test]
+    fn a_long_chain_of_one_child_nodes_collapses() {
+        let n = 200_000u32;
+        let unit = Aabb::new(geom::Vec3::ZERO, geom::Vec3::ONE);
+        let nodes: Vec<crate::node::Node> = (0..n)
+            .map(|i| {
+                let c = if i + 1 < n {
+                    ChildRef::inner(i + 1)
+                } else {
+                    ChildRef::leaf(0, 1)
+                };
+                crate::node::Node::new(&unit, c, &Aabb::EMPTY, ChildRef::EMPTY)
+            })
+            .collect();
+        let b = Bvh2 {
+            nodes,
+            prim_indices: vec![0],
+            bounds: unit,
+        };
+        let w = collapse_wide_optimal::<8>(&b, &SahParams::THESIS, CollapseGoal::Sah).unwrap();
+        assert_eq!(w.nodes.len(), 1);
+        assert_eq!(w.nodes[0].children[0], ChildRef::leaf(0, 1));
+        assert_eq!(
+            collapse_sah_optimal(&b, &SahParams::THESIS)
+                .unwrap()
+                .nodes
+                .len(),
+            1
+        );
     }
 }

@@ -463,9 +463,8 @@ pub fn build_accel_with(
         }
         Format::Mbvh8 => {
             let s = Instant::now();
-            let wide = bvh::Collapse::default()
-                .collapse_wide::<{ trace::WIDTH8 }>(&tree)
-                .context("cannot collapse the tree to 8 wide")?;
+            let wide =
+                trace::Mbvh8Accel::collapse(&tree).context("cannot collapse the tree to 8 wide")?;
             build_ms += ms(s.elapsed());
             (
                 Accel::Mbvh8(trace::Mbvh8Accel::new(wide, triangles, options)?),
