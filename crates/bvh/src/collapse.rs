@@ -363,7 +363,7 @@ fn child_count(bvh: &Bvh2, i: usize) -> usize {
 }
 
 /// Appends every primitive of binary subtree `i` to `table` (depth-first).
-fn gather(
+pub(crate) fn gather(
     bvh: &Bvh2,
     i: usize,
     table: &mut Vec<u32>,

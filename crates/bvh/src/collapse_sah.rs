@@ -22,7 +22,7 @@
 //! `i` into its parent; a leaf child costs `A (C_l + C_t n)` in one slot.
 
 use crate::bvh2::Bvh2;
-use crate::collapse::{check_links, CollapseError, WideBvh, WideNode};
+use crate::collapse::{check_links, gather, CollapseError, WideBvh, WideNode};
 use crate::layout::try_preorder;
 use crate::mbvh4::{Mbvh4, Node4, MBVH_WIDTH};
 use crate::node::ChildRef;
@@ -37,6 +37,9 @@ struct Entry<const W: usize> {
     how: [u8; W],
     /// Split of the 4 slots of this node's own wide node (`a` slots to the left child).
     own: u8,
+    /// Kept whole, the subtree is one merged leaf rather than a wide node
+    /// ([`collapse_wide_blocks`]).
+    leaf: bool,
 }
 
 /// (wide nodes, unnormalized SAH) of a subtree.
@@ -91,6 +94,32 @@ pub fn collapse_wide_optimal<const W: usize>(
     sah: &SahParams,
     goal: CollapseGoal,
 ) -> Result<WideBvh<W>, CollapseError> {
+    collapse_wide(bvh, sah, goal, 0)
+}
+
+/// The SAH-optimal `W`-wide collapse of `bvh` for a kernel that tests triangles in SIMD
+/// blocks of `block` (`>= 1`): a leaf costs its area times `C_leaf + C_tri * block *
+/// ceil(n / block)` (a partly filled block costs a whole test), and a binary subtree of at
+/// most `block` primitives may become one leaf (its primitives gathered) where that costs
+/// less than keeping it as a wide node or opening it into its parent. Small leaves of a
+/// fine mesh then share one block instead of a node and a block each (the `mbvh8` kernel
+/// traces the tree with `block = 4`).
+pub fn collapse_wide_blocks<const W: usize>(
+    bvh: &Bvh2,
+    sah: &SahParams,
+    block: u32,
+) -> Result<WideBvh<W>, CollapseError> {
+    collapse_wide(bvh, sah, CollapseGoal::Sah, block.max(1))
+}
+
+/// [`collapse_wide_optimal`] (`block == 0`: the binary leaves kept, costs per triangle) or
+/// [`collapse_wide_blocks`].
+fn collapse_wide<const W: usize>(
+    bvh: &Bvh2,
+    sah: &SahParams,
+    goal: CollapseGoal,
+    block: u32,
+) -> Result<WideBvh<W>, CollapseError> {
     const { assert!(W >= 2 && W <= 255) };
     let lt = |a: Cost, b: Cost| match goal {
         CollapseGoal::Sah => a.1 < b.1,
@@ -110,16 +139,26 @@ pub fn collapse_wide_optimal<const W: usize>(
             cost: [INF; W],
             how: [0; W],
             own: 0,
+            leaf: false,
         };
         n
     ];
+    // Triangles a leaf of `count` is tested as (whole blocks).
+    let tested = |count: u64| -> f64 {
+        if block == 0 {
+            count as f64
+        } else {
+            (count.div_ceil(block as u64) * block as u64) as f64
+        }
+    };
+    let mut prims = vec![0u64; n];
     // Cost of child `slot` of binary node `i` in up to `j + 1` slots (`None`: empty slot).
     let child_cost = |dp: &[Entry<W>], i: usize, slot: usize, j: usize| -> Option<Cost> {
         let node = &bvh.nodes[i];
         let c = node.children[slot];
         if c.is_leaf() {
             let a = node.child_aabb(slot).half_area() as f64;
-            Some((0.0, a * (cl + ct * c.count as f64)))
+            Some((0.0, a * (cl + ct * tested(c.count as u64))))
         } else if c.is_inner() {
             Some(dp[c.index as usize].cost[j])
         } else {
@@ -152,10 +191,31 @@ pub fn collapse_wide_optimal<const W: usize>(
             }
         }
         let area = bvh.nodes[i].aabb().half_area() as f64;
+        let count: u64 = bvh.nodes[i]
+            .children
+            .iter()
+            .map(|c| {
+                if c.is_leaf() {
+                    c.count as u64
+                } else if c.is_inner() {
+                    prims[c.index as usize]
+                } else {
+                    0
+                }
+            })
+            .sum();
+        prims[i] = count;
         let e = &mut dp[i];
         e.own = open[W - 1].1;
         e.cost[0] = add((1.0, ci * area), open[W - 1].0);
         e.how[0] = 0;
+        if block > 0 && i != 0 && count <= block as u64 {
+            let as_leaf = (0.0, area * (cl + ct * tested(count)));
+            if lt(as_leaf, e.cost[0]) {
+                e.cost[0] = as_leaf;
+                e.leaf = true;
+            }
+        }
         for (j, &(oc, oa)) in open.iter().enumerate().skip(1) {
             (e.cost[j], e.how[j]) = (e.cost[j - 1], e.how[j - 1]);
             if lt(oc, e.cost[j]) {
@@ -186,6 +246,10 @@ pub fn collapse_wide_optimal<const W: usize>(
                 let s = c.index as usize;
                 table.extend_from_slice(&bvh.prim_indices[s..s + c.count as usize]);
                 ChildRef::leaf(first, c.count)
+            } else if dp[c.index as usize].leaf {
+                let first = table.len();
+                gather(bvh, c.index as usize, &mut table, &mut seen)?;
+                ChildRef::leaf(first as u32, (table.len() - first) as u32)
             } else {
                 next.push((slot, c.index as usize));
                 ChildRef::EMPTY
@@ -276,6 +340,9 @@ mod tests {
                 .build(&prims)
                 .unwrap();
                 check(name, &b, &prims, max);
+                let w = collapse_wide_blocks::<8>(&b, &SahParams::THESIS, 4).unwrap();
+                crate::validate_wide(&w, &prims, max.max(4))
+                    .unwrap_or_else(|e| panic!("{name}: blocks: {e}"));
             }
         }
     }
@@ -424,5 +491,70 @@ mod tests {
                 .len(),
             1
         );
+    }
+
+    /// Block costs: valid trees holding every primitive once, merged leaves of at most a
+    /// block, and never a higher block-rounded SAH than the optimum keeping the binary
+    /// leaves (one of its candidates); on a fine mesh of one-triangle leaves, fewer nodes
+    /// and leaves.
+    #[test]
+    fn block_costs_merge_small_subtrees_where_cheaper() {
+        fn cost<const W: usize>(t: &WideBvh<W>, block: u32) -> f64 {
+            let p = SahParams::THESIS.for_width(W);
+            let mut c = 0.0;
+            for n in &t.nodes {
+                let own = n.boxes.iter().fold(Aabb::EMPTY, |a, b| a.union(*b));
+                c += p.c_inner as f64 * own.half_area() as f64;
+                for (b, k) in n.boxes.iter().zip(&n.children) {
+                    if k.is_leaf() {
+                        let tested = k.count.div_ceil(block) * block;
+                        c += b.half_area() as f64 * (p.c_leaf + p.c_tri * tested as f32) as f64;
+                    }
+                }
+            }
+            c
+        }
+        for (spec, max) in [
+            ("proc:soup?n=20000", 1),
+            ("proc:city?n=20000&seed=2", 8),
+            ("proc:hairball?n=20000&seed=3", 1),
+        ] {
+            let prims = proc_scene(spec);
+            let b = BinnedSahBuilder {
+                max_leaf_size: max,
+                ..Default::default()
+            }
+            .build(&prims)
+            .unwrap();
+            let kept =
+                collapse_wide_optimal::<8>(&b, &SahParams::THESIS, CollapseGoal::Sah).unwrap();
+            let merged = collapse_wide_blocks::<8>(&b, &SahParams::THESIS, 4).unwrap();
+            crate::validate_wide(&merged, &prims, max.max(4))
+                .unwrap_or_else(|e| panic!("{spec}: {e}"));
+            let mut sorted = merged.prim_indices.clone();
+            sorted.sort_unstable();
+            assert_eq!(
+                sorted,
+                (0..prims.len() as u32).collect::<Vec<_>>(),
+                "{spec}"
+            );
+            assert!(
+                cost(&merged, 4) <= cost(&kept, 4) * (1.0 + 1e-9),
+                "{spec}: {} above {}",
+                cost(&merged, 4),
+                cost(&kept, 4)
+            );
+            if max == 1 {
+                assert!(merged.nodes.len() < kept.nodes.len(), "{spec}");
+                let leaves = |t: &WideBvh<8>| {
+                    t.nodes
+                        .iter()
+                        .flat_map(|n| n.children.iter())
+                        .filter(|c| c.is_leaf())
+                        .count()
+                };
+                assert!(leaves(&merged) < leaves(&kept), "{spec}");
+            }
+        }
     }
 }

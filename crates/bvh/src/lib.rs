@@ -56,7 +56,8 @@ pub use binned_sah::{BinnedSahBuilder, MAX_BINS};
 pub use bvh2::{Bvh2, TreeStats};
 pub use collapse::{collapse, Collapse, CollapseError, WideBvh, WideNode};
 pub use collapse_sah::{
-    collapse_optimal, collapse_sah_optimal, collapse_wide_optimal, CollapseGoal,
+    collapse_optimal, collapse_sah_optimal, collapse_wide_blocks, collapse_wide_optimal,
+    CollapseGoal,
 };
 pub use error::{BuildError, MAX_PRIMITIVES};
 pub use geom::MortonGrid;
