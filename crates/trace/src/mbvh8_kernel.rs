@@ -3,9 +3,8 @@
 //! needs fewer dependent node fetches per ray than a 4-wide one, which is what bounds an
 //! incoherent ray's time once the tree no longer fits the caches; CPU ray tracers with
 //! 8-lane SIMD (Embree's BVH8) use it for that reason. [`Mbvh8Accel::from_bvh2`] makes it
-//! by the SAH-optimal collapse of a binary tree with leaves costed in blocks of four
-//! triangles ([`Mbvh8Accel::collapse`]); any valid 8-wide tree can be given to
-//! [`Mbvh8Accel::new`].
+//! by the SAH-optimal collapse of a binary tree ([`Mbvh8Accel::collapse`]); any valid
+//! 8-wide tree can be given to [`Mbvh8Accel::new`].
 //!
 //! A node is 256 bytes: per box plane one row of the eight children (six 32-byte rows),
 //! then the eight child references in 32 bits each. A visit tests the eight boxes,
@@ -402,15 +401,16 @@ impl Mbvh8Accel {
         Self::new(Self::collapse(bvh)?, triangles, options)
     }
 
-    /// The 8-wide tree this kernel traces best for a binary tree: its SAH-optimal collapse
-    /// with leaves costed in this kernel's blocks of four triangles
-    /// ([`bvh::collapse_wide_blocks`]: wide nodes of least total area, and binary subtrees
-    /// of at most four triangles merged into one leaf where the block-rounded SAH says so).
-    /// On the Crytek Sponza binned SAH tree 12% fewer node visits per diffuse ray than the
-    /// greedy collapse ([`bvh::Collapse::collapse_wide`]); on Dragon 3% fewer node visits
-    /// and 3% fewer leaf visits than the optimum keeping the binary leaves.
+    /// The 8-wide tree this kernel traces for a binary tree: its SAH-optimal collapse
+    /// keeping the binary leaves ([`bvh::collapse_wide_optimal`], the wide nodes of least
+    /// total area; on the Crytek Sponza binned SAH tree 36% fewer nodes and 9% fewer node
+    /// visits per diffuse ray than the greedy collapse, [`bvh::Collapse::collapse_wide`]).
+    /// [`bvh::collapse_wide_blocks`] also merges small subtrees into leaves of one block:
+    /// faster on Crytek Sponza, Sibenik, Bunny and Dragon, slower on Conference, so it is
+    /// not the default (see `docs/ray-tracing.md`); its trees can be given to
+    /// [`Mbvh8Accel::new`].
     pub fn collapse(bvh: &bvh::Bvh2) -> Result<WideBvh<WIDTH8>, TraceError> {
-        bvh::collapse_wide_blocks::<WIDTH8>(bvh, &bvh::SahParams::THESIS, 4)
+        bvh::collapse_wide_optimal::<WIDTH8>(bvh, &bvh::SahParams::THESIS, bvh::CollapseGoal::Sah)
             .map_err(|e| TraceError::BadTree(e.to_string()))
     }
 
