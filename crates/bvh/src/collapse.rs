@@ -156,10 +156,9 @@ pub struct WideBvh<const W: usize> {
     pub bounds: Aabb,
 }
 
-impl Collapse {
-    /// Collapses `bvh` into a 4-wide tree with the same primitives and leaf boxes.
-    pub fn collapse(&self, bvh: &Bvh2) -> Result<Mbvh4, CollapseError> {
-        let w = self.collapse_wide::<MBVH_WIDTH>(bvh)?;
+impl From<WideBvh<MBVH_WIDTH>> for Mbvh4 {
+    /// The same 4-wide tree in [P4]'s node layout ([`Node4`]).
+    fn from(w: WideBvh<MBVH_WIDTH>) -> Self {
         let nodes = w
             .nodes
             .iter()
@@ -172,11 +171,18 @@ impl Collapse {
                 node
             })
             .collect();
-        Ok(Mbvh4 {
+        Mbvh4 {
             nodes,
             prim_indices: w.prim_indices,
             bounds: w.bounds,
-        })
+        }
+    }
+}
+
+impl Collapse {
+    /// Collapses `bvh` into a 4-wide tree with the same primitives and leaf boxes.
+    pub fn collapse(&self, bvh: &Bvh2) -> Result<Mbvh4, CollapseError> {
+        Ok(self.collapse_wide::<MBVH_WIDTH>(bvh)?.into())
     }
 
     /// Collapses `bvh` into a `W`-wide tree (`W >= 2`) with the same primitives and leaf

@@ -24,7 +24,7 @@
 use crate::bvh2::Bvh2;
 use crate::collapse::{check_links, gather, CollapseError, WideBvh, WideNode};
 use crate::layout::try_preorder;
-use crate::mbvh4::{Mbvh4, Node4, MBVH_WIDTH};
+use crate::mbvh4::{Mbvh4, MBVH_WIDTH};
 use crate::node::ChildRef;
 use crate::sah::SahParams;
 use geom::Aabb;
@@ -67,24 +67,7 @@ pub fn collapse_optimal(
     sah: &SahParams,
     goal: CollapseGoal,
 ) -> Result<Mbvh4, CollapseError> {
-    let w = collapse_wide_optimal::<MBVH_WIDTH>(bvh, sah, goal)?;
-    let nodes = w
-        .nodes
-        .iter()
-        .map(|n| {
-            let mut node = Node4::EMPTY;
-            for slot in 0..MBVH_WIDTH {
-                node.set_child_aabb(slot, &n.boxes[slot]);
-            }
-            node.children = n.children;
-            node
-        })
-        .collect();
-    Ok(Mbvh4 {
-        nodes,
-        prim_indices: w.prim_indices,
-        bounds: w.bounds,
-    })
+    Ok(collapse_wide_optimal::<MBVH_WIDTH>(bvh, sah, goal)?.into())
 }
 
 /// The `W`-wide collapse (`W >= 2`) of `bvh` keeping its leaves that is optimal for

@@ -141,14 +141,9 @@ impl TraversalStack {
         obs: &mut O,
     ) -> Option<ChildRef> {
         while let Some(e) = self.entries.pop() {
-            if distance_culling && e.dist > cull_distance(best_t) {
-                stats.culled_pops += 1;
-                obs.pop(true);
-                continue;
+            if !culled(distance_culling, e.dist, best_t, stats, obs) {
+                return Some(e.child);
             }
-            stats.pops += 1;
-            obs.pop(false);
-            return Some(e.child);
         }
         None
     }
@@ -245,17 +240,33 @@ impl KernelStack for WideStack<'_> {
     ) -> Option<u32> {
         while self.len > 0 {
             self.len -= 1;
-            if distance_culling && self.dists[self.len] > cull_distance(best_t) {
-                stats.culled_pops += 1;
-                obs.pop(true);
-                continue;
+            if !culled(distance_culling, self.dists[self.len], best_t, stats, obs) {
+                return Some(self.refs[self.len]);
             }
-            stats.pops += 1;
-            obs.pop(false);
-            return Some(self.refs[self.len]);
         }
         None
     }
+}
+
+/// A popped entry at entry distance `dist`: whether it is skipped (with
+/// `distance_culling`, beyond `cull_distance(best_t)`), counted and reported as a culled or
+/// a plain pop.
+#[inline(always)]
+fn culled<O: Observer>(
+    distance_culling: bool,
+    dist: f32,
+    best_t: f32,
+    stats: &mut RayStats,
+    obs: &mut O,
+) -> bool {
+    let skip = distance_culling && dist > cull_distance(best_t);
+    if skip {
+        stats.culled_pops += 1;
+    } else {
+        stats.pops += 1;
+    }
+    obs.pop(skip);
+    skip
 }
 
 /// Per-ray values of the slab test: for each axis, which box plane the ray enters and
@@ -648,6 +659,34 @@ pub(crate) fn traverse<const DIST: bool, O: Observer, S: KernelStack>(
     total.add(stats);
     obs.end(best.as_ref());
     best
+}
+
+/// [`traverse`] for the kernels that keep [`ChildRef`]s (`Bvh2`, `Mbvh4`): from the root
+/// node, leaves told by their count.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn traverse_child_refs<const DIST: bool, O: Observer>(
+    leaf: &LeafTriangles,
+    ray: &Ray,
+    pre: &RayPrecomp,
+    query: Query,
+    stack: &mut TraversalStack,
+    total: &mut RayStats,
+    obs: &mut O,
+    visit: impl FnMut(ChildRef, f32, &mut TraversalStack, &mut RayStats, &mut O) -> Option<ChildRef>,
+) -> Option<Hit> {
+    traverse::<DIST, O, _>(
+        leaf,
+        ray,
+        pre,
+        query,
+        stack,
+        total,
+        obs,
+        ChildRef::inner(0),
+        |c| c.is_leaf().then_some(c),
+        visit,
+    )
 }
 
 /// A tree that rays can be traced through.

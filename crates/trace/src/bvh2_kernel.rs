@@ -17,8 +17,8 @@
 //! for BVH).
 
 use crate::accel::{
-    cull_distance, fmax, fmin, huge_page_vec, prefetch, refit_nodes, traverse, Hit, LeafTriangles,
-    TraversalStack, Traverse,
+    cull_distance, fmax, fmin, huge_page_vec, prefetch, refit_nodes, traverse_child_refs, Hit,
+    LeafTriangles, TraversalStack, Traverse,
 };
 use crate::observer::{Observer, Query};
 use crate::stats::RayStats;
@@ -263,18 +263,7 @@ impl Bvh2Accel {
                 [false, false] => None,
             }
         };
-        traverse::<DIST, O, _>(
-            &self.leaf,
-            ray,
-            &pre,
-            query,
-            stack,
-            total,
-            obs,
-            ChildRef::inner(0),
-            |c| c.is_leaf().then_some(c),
-            visit,
-        )
+        traverse_child_refs::<DIST, O>(&self.leaf, ray, &pre, query, stack, total, obs, visit)
     }
 }
 

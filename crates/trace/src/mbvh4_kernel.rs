@@ -10,8 +10,8 @@
 //! MBVH. [`KernelOptions::distance_stack`] switches it off to measure that effect.
 
 use crate::accel::{
-    cull_distance, fmax, fmin, huge_page_vec, prefetch, refit_nodes, traverse, Hit, LeafTriangles,
-    Slab, TraversalStack, Traverse,
+    cull_distance, fmax, fmin, huge_page_vec, prefetch, refit_nodes, traverse_child_refs, Hit,
+    LeafTriangles, Slab, TraversalStack, Traverse,
 };
 use crate::bvh2_kernel::check_links;
 use crate::observer::{Observer, Query};
@@ -296,18 +296,7 @@ impl Mbvh4Accel {
                 }
             }
         };
-        traverse::<DIST, O, _>(
-            &self.leaf,
-            ray,
-            &pre,
-            query,
-            stack,
-            total,
-            obs,
-            ChildRef::inner(0),
-            |c| c.is_leaf().then_some(c),
-            visit,
-        )
+        traverse_child_refs::<DIST, O>(&self.leaf, ray, &pre, query, stack, total, obs, visit)
     }
 }
 
