@@ -222,7 +222,7 @@ pub struct TraceRow {
 }
 
 /// Arbor tracer configurations of the benchmark: (name, builder, format, distance stack).
-pub const ARBOR_KERNELS: [(&str, &str, bool, bool); 6] = [
+pub const ARBOR_KERNELS: [(&str, &str, bool, bool); 7] = [
     ("arbor bvh2 binned-sah", "binned-sah", false, false),
     ("arbor bvh2 binned-sah +dist", "binned-sah", false, true),
     ("arbor mbvh4 collapse(binned-sah)", "binned-sah", true, true),
@@ -230,6 +230,15 @@ pub const ARBOR_KERNELS: [(&str, &str, bool, bool); 6] = [
     (
         "arbor mbvh8 collapse(binned-sah)",
         "binned-sah-8",
+        true,
+        true,
+    ),
+    // The same binary tree collapsed with leaves costed in blocks of four triangles
+    // (`bvh::collapse_wide_blocks`): faster on fine meshes, slower on Conference, so not
+    // the kernel's default collapse (issue 33).
+    (
+        "arbor mbvh8 collapse-blocks(binned-sah)",
+        "binned-sah-8-blocks",
         true,
         true,
     ),
@@ -294,6 +303,19 @@ pub fn run(
             ("binned-sah-8", _) => {
                 let t0 = Instant::now();
                 let a = trace::Mbvh8Accel::from_bvh2(&binned, &tris, o)?;
+                (
+                    Accel::Mbvh8(a),
+                    binned_ms + t0.elapsed().as_secs_f64() * 1e3,
+                )
+            }
+            ("binned-sah-8-blocks", _) => {
+                let t0 = Instant::now();
+                let w = bvh::collapse_wide_blocks::<{ trace::WIDTH8 }>(
+                    &binned,
+                    &bvh::SahParams::THESIS,
+                    4,
+                )?;
+                let a = trace::Mbvh8Accel::new(w, &tris, o)?;
                 (
                     Accel::Mbvh8(a),
                     binned_ms + t0.elapsed().as_secs_f64() * 1e3,

@@ -8,7 +8,7 @@ use serde_json::Value;
 const SOUP: &str = "proc:soup?n=3000";
 /// Arbor's kernels in the benchmark, and the peers always present (obvhs; Embree only in
 /// a build with `--features embree`).
-const ARBOR_TRACERS: usize = 6;
+const ARBOR_TRACERS: usize = peers::trace_bench::ARBOR_KERNELS.len();
 
 fn bench(args: &[&str]) -> std::process::Output {
     let mut a = vec![
