@@ -10,6 +10,7 @@ use crate::grid::Params;
 use crate::tree::{prim_ids_of, Cbvh};
 use crate::EncodeStats;
 use bvh::{Bvh2, ChildRef};
+use geom::Aabb;
 
 /// The [`ChildPtr`] of a [`Bvh2`] child.
 pub(crate) fn child_ptr(c: &ChildRef) -> Result<ChildPtr, CbvhError> {
@@ -29,6 +30,45 @@ pub(crate) fn child_ptr(c: &ChildRef) -> Result<ChildPtr, CbvhError> {
     })
 }
 
+/// The top-down walk of both top-down encoders (binary pairs and 4-wide nodes): from node
+/// 0 in `root_ctx`, for each node reached (`node(i)`: its `K` child boxes and references,
+/// `None` outside the tree) checks the boxes and pointers, calls `encode(i, boxes,
+/// pointers, ctx)`, which stores node `i`'s encoding and returns the context each child
+/// gets, and goes on to the inner children in slot order. A tree of `count` nodes that
+/// revisits one (a cycle in `what`) is an error. Returns the nodes visited.
+pub(crate) fn walk_topdown<const K: usize>(
+    count: usize,
+    what: &str,
+    root_ctx: Ctx,
+    node: impl Fn(usize) -> Option<([Aabb; K], [ChildRef; K])>,
+    mut encode: impl FnMut(usize, &[Aabb; K], [ChildPtr; K], &Ctx) -> [Ctx; K],
+) -> Result<usize, CbvhError> {
+    let mut stack = vec![(0u32, root_ctx)];
+    let mut visited = 0usize;
+    while let Some((i, ctx)) = stack.pop() {
+        visited += 1;
+        if visited > count {
+            return Err(CbvhError::Corrupt(format!("cycle in {what}")));
+        }
+        let (boxes, refs) = node(i as usize)
+            .ok_or_else(|| CbvhError::Corrupt(format!("node {i} outside the tree")))?;
+        for (c, b) in boxes.iter().enumerate() {
+            check_box(b, K * i as usize + c)?;
+        }
+        let mut ptrs = [ChildPtr::Empty; K];
+        for (p, c) in ptrs.iter_mut().zip(&refs) {
+            *p = child_ptr(c)?;
+        }
+        let kids = encode(i as usize, &boxes, ptrs, &ctx);
+        for c in (0..K).rev() {
+            if let ChildPtr::Inner(k) = ptrs[c] {
+                stack.push((k, kids[c]));
+            }
+        }
+    }
+    Ok(visited)
+}
+
 /// Compresses `bvh` top-down. Statistics: one write per node pair, no backtracking.
 pub fn compress_topdown(bvh: &Bvh2, params: &Params) -> Result<(Cbvh, EncodeStats), CbvhError> {
     params.check()?;
@@ -43,30 +83,21 @@ pub fn compress_topdown(bvh: &Bvh2, params: &Params) -> Result<(Cbvh, EncodeStat
     check_box(&root_box, 0)?;
     let root_ctx = Ctx::estimate(&root_box, params);
     let mut pairs = vec![crate::format::NodePair::default(); bvh.nodes.len()];
-    let mut stack = vec![(0u32, root_ctx)];
-    let mut visited = 0usize;
-    while let Some((i, ctx)) = stack.pop() {
-        visited += 1;
-        if visited > bvh.nodes.len() {
-            return Err(CbvhError::Corrupt("cycle in the BVH".into()));
-        }
-        let n = bvh
-            .nodes
-            .get(i as usize)
-            .ok_or_else(|| CbvhError::Corrupt(format!("node {i} outside the tree")))?;
-        let boxes = [n.child_aabb(0), n.child_aabb(1)];
-        for (c, b) in boxes.iter().enumerate() {
-            check_box(b, 2 * i as usize + c)?;
-        }
-        let ptrs = [child_ptr(&n.children[0])?, child_ptr(&n.children[1])?];
-        let (pair, kids) = encode_pair(&boxes, ptrs, &ctx, params);
-        pairs[i as usize] = pair;
-        for c in (0..2).rev() {
-            if let ChildPtr::Inner(k) = ptrs[c] {
-                stack.push((k, kids[c]));
-            }
-        }
-    }
+    let visited = walk_topdown(
+        bvh.nodes.len(),
+        "the BVH",
+        root_ctx,
+        |i| {
+            bvh.nodes
+                .get(i)
+                .map(|n| ([n.child_aabb(0), n.child_aabb(1)], n.children))
+        },
+        |i, boxes, ptrs, ctx| {
+            let (pair, kids) = encode_pair(boxes, ptrs, ctx, params);
+            pairs[i] = pair;
+            kids
+        },
+    )?;
     let stats = EncodeStats {
         nodes_written: visited as u64,
         ..EncodeStats::default()

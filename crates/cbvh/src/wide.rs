@@ -54,7 +54,7 @@ use crate::codec::{check_box, decode_slot_boxes, encode_slots, slot_ptr, ChildPt
 use crate::error::CbvhError;
 use crate::format::{node_bytes, pack_slots, unpack_slots, Slot, LEAF_END, MAX_PTR};
 use crate::grid::Params;
-use crate::topdown::child_ptr;
+use crate::topdown::walk_topdown;
 use crate::tree::leaf_range_in;
 use crate::EncodeStats;
 use bvh::{ChildRef, Highlevel, Mbvh4, Node4, StreamCollapse};
@@ -238,33 +238,21 @@ pub fn compress4_topdown(m: &Mbvh4, params: &Params) -> Result<(Cbvh4, EncodeSta
     check_box(&root_box, 0)?;
     let root_ctx = Ctx::estimate(&root_box, params);
     let mut nodes = vec![QuadNode::default(); m.nodes.len()];
-    let mut stack = vec![(0u32, root_ctx)];
-    let mut visited = 0usize;
-    while let Some((i, ctx)) = stack.pop() {
-        visited += 1;
-        if visited > m.nodes.len() {
-            return Err(CbvhError::Corrupt("cycle in the 4-wide tree".into()));
-        }
-        let n = m
-            .nodes
-            .get(i as usize)
-            .ok_or_else(|| CbvhError::Corrupt(format!("node {i} outside the tree")))?;
-        let boxes: [Aabb; WIDTH] = std::array::from_fn(|c| n.child_aabb(c));
-        for (c, b) in boxes.iter().enumerate() {
-            check_box(b, WIDTH * i as usize + c)?;
-        }
-        let mut ptrs = [ChildPtr::Empty; WIDTH];
-        for (p, c) in ptrs.iter_mut().zip(&n.children) {
-            *p = child_ptr(c)?;
-        }
-        let (slots, kids) = encode_slots(&boxes, ptrs, &ctx, params, false);
-        nodes[i as usize] = QuadNode { slots };
-        for c in (0..WIDTH).rev() {
-            if let ChildPtr::Inner(k) = ptrs[c] {
-                stack.push((k, kids[c]));
-            }
-        }
-    }
+    let visited = walk_topdown(
+        m.nodes.len(),
+        "the 4-wide tree",
+        root_ctx,
+        |i| {
+            m.nodes
+                .get(i)
+                .map(|n| (std::array::from_fn(|c| n.child_aabb(c)), n.children))
+        },
+        |i, boxes, ptrs, ctx| {
+            let (slots, kids) = encode_slots(boxes, ptrs, ctx, params, false);
+            nodes[i] = QuadNode { slots };
+            kids
+        },
+    )?;
     let stats = EncodeStats {
         nodes_written: visited as u64,
         ..EncodeStats::default()
