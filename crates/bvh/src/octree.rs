@@ -24,7 +24,9 @@
 
 use crate::hlbvh::EmittedNode;
 use crate::point_stream::{emit_points, OpenStack, PointSink};
-use crate::points::{box_dist2, checked_sort, unkey, within_leaf, Nearest, PointError, Sorted};
+use crate::points::{
+    begin_query, box_dist2, checked_sort, unkey, within_leaf, Nearest, PointError, Sorted,
+};
 use geom::{Aabb, MortonGrid, MortonQuantizer, Vec3};
 
 /// Depth of the finest cells (one full 63-bit code).
@@ -237,10 +239,7 @@ impl Octree {
     /// index)` in increasing order, ties by index, as [`crate::knn_brute`]; all points when
     /// `k >= len`.
     pub fn knn(&self, q: Vec3, k: usize, out: &mut Vec<(f32, u32)>) -> Result<(), PointError> {
-        out.clear();
-        if !q.is_finite() {
-            return Err(PointError::NonFiniteQuery(q));
-        }
+        begin_query(q, out)?;
         let k = k.min(self.points.len());
         if k == 0 {
             return Ok(());
@@ -280,10 +279,7 @@ impl Octree {
     /// Every point within squared distance `r2` of `q` into `out` (cleared first):
     /// `(squared distance, input index)` in increasing order.
     pub fn within(&self, q: Vec3, r2: f32, out: &mut Vec<(f32, u32)>) -> Result<(), PointError> {
-        out.clear();
-        if !q.is_finite() {
-            return Err(PointError::NonFiniteQuery(q));
-        }
+        begin_query(q, out)?;
         if self.nodes.is_empty() || r2.is_nan() || r2 < 0.0 {
             return Ok(());
         }

@@ -26,7 +26,8 @@
 //! their parent's bound, the left child first.
 
 use crate::points::{
-    box_dist2, dist2, unkey, within_leaf, Nearest, PointError, PointTree, QueryStats, NO_AXIS,
+    begin_query, box_dist2, dist2, unkey, within_leaf, Nearest, PointError, PointTree, QueryStats,
+    NO_AXIS,
 };
 use geom::{Aabb, Vec3};
 
@@ -199,10 +200,7 @@ impl<'a> PlaneKdTree<'a> {
         out: &mut Vec<(f32, u32)>,
     ) -> Result<QueryStats, PointError> {
         let mut st = QueryStats::default();
-        out.clear();
-        if !q.is_finite() {
-            return Err(PointError::NonFiniteQuery(q));
-        }
+        begin_query(q, out)?;
         let k = k.min(self.tree.len());
         let Some(root) = self.root().filter(|_| k > 0) else {
             return Ok(st);
@@ -251,10 +249,7 @@ impl<'a> PlaneKdTree<'a> {
         out: &mut Vec<(f32, u32)>,
     ) -> Result<QueryStats, PointError> {
         let mut st = QueryStats::default();
-        out.clear();
-        if !q.is_finite() {
-            return Err(PointError::NonFiniteQuery(q));
-        }
+        begin_query(q, out)?;
         let Some(root) = self.root().filter(|_| !r2.is_nan() && r2 >= 0.0) else {
             return Ok(st);
         };

@@ -147,6 +147,16 @@ pub(crate) fn unkey(k: u64) -> (f32, u32) {
     (f32::from_bits((k >> 32) as u32), k as u32)
 }
 
+/// The start of every point query: `out` emptied, and a non-finite `q` an error.
+pub(crate) fn begin_query(q: Vec3, out: &mut Vec<(f32, u32)>) -> Result<(), PointError> {
+    out.clear();
+    if q.is_finite() {
+        Ok(())
+    } else {
+        Err(PointError::NonFiniteQuery(q))
+    }
+}
+
 /// The k nearest candidates of a query, shared by the point trees' kNN queries: a
 /// max-heap of the best `k` result keys (its top is the k-th best).
 pub(crate) struct Nearest {
@@ -581,10 +591,7 @@ impl PointTree {
         out: &mut Vec<(f32, u32)>,
     ) -> Result<QueryStats, PointError> {
         let mut st = QueryStats::default();
-        out.clear();
-        if !q.is_finite() {
-            return Err(PointError::NonFiniteQuery(q));
-        }
+        begin_query(q, out)?;
         let k = k.min(self.points.len());
         if k == 0 {
             return Ok(st);
@@ -645,10 +652,7 @@ impl PointTree {
         out: &mut Vec<(f32, u32)>,
     ) -> Result<QueryStats, PointError> {
         let mut st = QueryStats::default();
-        out.clear();
-        if !q.is_finite() {
-            return Err(PointError::NonFiniteQuery(q));
-        }
+        begin_query(q, out)?;
         if self.nodes.is_empty() || r2.is_nan() || r2 < 0.0 {
             return Ok(st);
         }

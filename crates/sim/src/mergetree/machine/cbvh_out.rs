@@ -44,6 +44,21 @@ pub(super) const ST_WRITE_FULL: u8 = 3;
 pub(super) const ST_REQ_FULL: u8 = 4;
 
 impl Stream {
+    /// A streaming encoder unit around `enc`, idle; `flush_before_read` as
+    /// `cbvh_flush_before_backtrack`.
+    pub(super) fn new(enc: Encoder, flush_before_read: bool) -> Self {
+        Self {
+            enc: Some(enc),
+            ops: VecDeque::new(),
+            awaiting_read: false,
+            flushing: false,
+            ended: false,
+            done: false,
+            stats: StreamUnitStats::default(),
+            flush_before_read,
+        }
+    }
+
     pub(super) fn read_returned(&mut self, latency: u64) {
         self.awaiting_read = false;
         self.stats.backtrack_read_latency_cycles += latency;

@@ -1080,16 +1080,10 @@ pub(super) fn run<'a>(
         None
     };
     if let Some(enc) = enc {
-        let id = s.add(Box::new(Stream {
-            enc: Some(Encoder::Pair(enc)),
-            ops: VecDeque::new(),
-            awaiting_read: false,
-            flushing: false,
-            ended: false,
-            done: false,
-            stats: StreamUnitStats::default(),
-            flush_before_read: cfg.cbvh_flush_before_backtrack,
-        }));
+        let id = s.add(Box::new(Stream::new(
+            Encoder::Pair(enc),
+            cfg.cbvh_flush_before_backtrack,
+        )));
         debug_assert_eq!(id, stream);
     }
     if cfg.output.collapses_stream() {
@@ -1106,18 +1100,11 @@ pub(super) fn run<'a>(
         debug_assert_eq!(id, stream);
     }
     if wide {
-        let id = s.add(Box::new(Stream {
-            enc: Some(Encoder::Wide(cbvh::WideStreamEncoder::new(
-                cfg.stream_config(layout.cbvh),
-            )?)),
-            ops: VecDeque::new(),
-            awaiting_read: false,
-            flushing: false,
-            ended: false,
-            done: false,
-            stats: StreamUnitStats::default(),
-            flush_before_read: cfg.cbvh_flush_before_backtrack,
-        }));
+        let enc = cbvh::WideStreamEncoder::new(cfg.stream_config(layout.cbvh))?;
+        let id = s.add(Box::new(Stream::new(
+            Encoder::Wide(enc),
+            cfg.cbvh_flush_before_backtrack,
+        )));
         debug_assert_eq!(id, ids.wide_enc);
     }
     if matches!(
