@@ -106,6 +106,26 @@ fn encode(c: ChildRef, big: &mut Vec<ChildRef>) -> Result<u32, TraceError> {
     }
 }
 
+/// The (packed) reference of a 32-bit child reference; `big` is the accelerator's table
+/// of large leaves.
+#[inline(always)]
+fn decode(c: u32, big: &[ChildRef]) -> ChildRef {
+    if c & child8::LEAF == 0 {
+        ChildRef::inner(c)
+    } else if c == child8::EMPTY {
+        ChildRef::EMPTY
+    } else {
+        let count = c >> child8::SLOT_BITS & 31;
+        let index = c & child8::SLOT_MASK;
+        if count == child8::COUNT_ESCAPE {
+            // Written by `encode`, so in range; stay panic-free regardless.
+            big.get(index as usize).copied().unwrap_or(ChildRef::EMPTY)
+        } else {
+            ChildRef::leaf(index, count + 1)
+        }
+    }
+}
+
 /// An 8-wide BVH with its triangles in leaf order, ready to trace.
 #[derive(Clone, Debug)]
 pub struct Mbvh8Accel {
@@ -419,40 +439,16 @@ impl Mbvh8Accel {
         self.options
     }
 
-    /// The (packed) reference of a 32-bit child reference.
-    #[inline(always)]
-    fn decode(&self, c: u32) -> ChildRef {
-        if c & child8::LEAF == 0 {
-            ChildRef::inner(c)
-        } else if c == child8::EMPTY {
-            ChildRef::EMPTY
-        } else {
-            let count = c >> child8::SLOT_BITS & 31;
-            let index = c & child8::SLOT_MASK;
-            if count == child8::COUNT_ESCAPE {
-                // Written by `encode`, so in range; stay panic-free regardless.
-                self.big
-                    .get(index as usize)
-                    .copied()
-                    .unwrap_or(ChildRef::EMPTY)
-            } else {
-                ChildRef::leaf(index, count + 1)
-            }
-        }
-    }
-
     /// Refits in place to `triangles`, the list the tree was prepared over with its
     /// vertices moved (same topology); see [`crate::Bvh2Accel::refit`].
     pub fn refit(&mut self, triangles: &[Triangle]) -> Result<(), TraceError> {
         self.leaf.update(triangles)?;
-        let mut nodes = std::mem::take(&mut self.nodes);
         refit_nodes(
-            &mut nodes,
+            &mut self.nodes,
             &self.leaf,
-            |n| n.children.map(|c| self.decode(c)),
+            |n| n.children.map(|c| decode(c, &self.big)),
             |n, c, b| n.set_box(c, b),
         );
-        self.nodes = nodes;
         Ok(())
     }
 
@@ -546,7 +542,7 @@ impl Mbvh8Accel {
             total,
             obs,
             0,
-            |c| (c & child8::LEAF != 0).then(|| self.decode(c)),
+            |c| (c & child8::LEAF != 0).then(|| decode(c, &self.big)),
             visit,
         )
     }
@@ -566,7 +562,7 @@ impl Mbvh8Accel {
     #[inline(always)]
     fn pushed<O: Observer>(&self, refs: &[u32], stats: &mut RayStats, obs: &mut O) {
         for &r in refs {
-            obs.push(self.leaf.original(self.decode(r)));
+            obs.push(self.leaf.original(decode(r, &self.big)));
         }
         stats.pushes += refs.len() as u64;
     }
@@ -684,13 +680,6 @@ mod tests {
     #[test]
     fn child_references_round_trip_and_large_leaves_escape() {
         let mut big = Vec::new();
-        let accel = |big: Vec<ChildRef>| Mbvh8Accel {
-            nodes: Vec::new(),
-            leaf: LeafTriangles::default(),
-            big,
-            options: KernelOptions::default(),
-            avx: false,
-        };
         let cases = [
             ChildRef::inner(1),
             ChildRef::inner((1 << 31) - 1),
@@ -708,9 +697,8 @@ mod tests {
         // The three that do not fit went to the table, in order.
         assert_eq!(big, vec![cases[4], cases[5], cases[6]]);
         assert_eq!(coded[3], (1 << 31) | (30 << 26) | child8::SLOT_MASK);
-        let a = accel(big);
         for (c, &k) in cases.iter().zip(&coded) {
-            assert_eq!(a.decode(k), *c);
+            assert_eq!(decode(k, &big), *c);
         }
         // An inner index with the leaf bit cannot be written.
         assert!(encode(ChildRef::inner(1 << 31), &mut Vec::new()).is_err());
