@@ -10,7 +10,7 @@
 use crate::arrays::{err, points};
 use crate::bvh::aabbs;
 use crate::detached;
-use crate::query::{cached_normals, ray_column, HitArrays};
+use crate::query::{cached_normals, one_by_one, ray_column, HitArrays};
 use crate::raycaster::{count_arg, mesh_arrays, read, BuildOptions, Healthy, Part, RayCaster};
 use crate::trace::{accel_of, NO_HIT};
 use ::trace::instance::{BottomLevel, Instance, InstanceAccel, InstanceStack, Transform};
@@ -563,7 +563,11 @@ impl InstanceCaster {
             &rays,
             &self.state,
             InstanceStack::new,
-            |s, stack, ray, st| s.accel.closest_hit(ray, stack, st),
+            |s, stack, batch, done| {
+                one_by_one(stack, batch, done, |stack, ray, st| {
+                    s.accel.closest_hit(ray, stack, st)
+                })
+            },
             |s| {
                 (
                     self.generation.load(Ordering::SeqCst),

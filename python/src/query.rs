@@ -201,50 +201,50 @@ impl<'a> Closest<'a> {
         out
     }
 
-    /// Traces rays `first..first + self.t.len()` with `trace(ray, counters)` (the closest
-    /// hit; `instance` 0 where there are no instances) and writes their results.
+    /// Traces rays `first..first + self.t.len()` as one batch with `trace(rays, done)`,
+    /// which calls `done(i, hit, counters)` once for each ray `i` of the batch (the closest
+    /// hit; `instance` 0 where there are no instances), and writes their results.
     fn fill(
         self,
         rays: &RaySlices<'_>,
         first: usize,
         totals: &mut RayStats,
-        mut trace: impl FnMut(&Ray, &mut RayStats) -> Option<InstanceHit>,
+        mut trace: impl FnMut(&[Ray], &mut Done<'_>),
     ) {
-        let mut instance = self.instance;
-        let mut counters = self.counters;
-        for k in 0..self.t.len() {
-            let ray = rays.ray(first + k);
-            // Without per-ray counters the kernel counts straight into the totals (it adds
-            // to what it is given); with them, one ray's counters first.
-            let mut st = RayStats::default();
-            let into = if counters.is_some() {
-                &mut st
-            } else {
-                &mut *totals
-            };
-            let h = trace(&ray, into);
-            let p = &mut self.location[3 * k..3 * k + 3];
+        let batch: Vec<Ray> = (first..first + self.t.len()).map(|i| rays.ray(i)).collect();
+        let Closest {
+            t,
+            mut instance,
+            prim,
+            u,
+            v,
+            hit,
+            location,
+            mut counters,
+        } = self;
+        trace(&batch, &mut |k, h, st| {
+            let p = &mut location[3 * k..3 * k + 3];
             match h {
                 Some(h) => {
-                    self.t[k] = h.t;
+                    t[k] = h.t;
                     if let Some(i) = instance.as_deref_mut() {
                         i[k] = h.instance;
                     }
-                    self.prim[k] = h.prim;
-                    self.u[k] = h.bary[1];
-                    self.v[k] = h.bary[2];
-                    self.hit[k] = true;
-                    p.copy_from_slice(&ray.at(h.t).to_array());
+                    prim[k] = h.prim;
+                    u[k] = h.bary[1];
+                    v[k] = h.bary[2];
+                    hit[k] = true;
+                    p.copy_from_slice(&batch[k].at(h.t).to_array());
                 }
                 None => {
-                    self.t[k] = f32::INFINITY;
+                    t[k] = f32::INFINITY;
                     if let Some(i) = instance.as_deref_mut() {
                         i[k] = NO_HIT;
                     }
-                    self.prim[k] = NO_HIT;
-                    self.u[k] = 0.0;
-                    self.v[k] = 0.0;
-                    self.hit[k] = false;
+                    prim[k] = NO_HIT;
+                    u[k] = 0.0;
+                    v[k] = 0.0;
+                    hit[k] = false;
                     p.fill(f32::NAN);
                 }
             }
@@ -261,26 +261,44 @@ impl<'a> Closest<'a> {
                 for (j, x) in row.into_iter().enumerate() {
                     c[COUNTERS.len() * k + j] = c32(x);
                 }
-                totals.add(&st);
             }
-        }
+            totals.add(st);
+        });
     }
 
     /// Traces `rays` (as many as the columns) into the columns, on this thread for few
-    /// rays, else in parallel runs, with `trace(scratch, ray, counters)` (`scratch()` made
-    /// once a run); returns the summed counters.
+    /// rays, else in parallel runs, with `trace(scratch, rays, done)` on each run (as
+    /// [`Closest::fill`]; `scratch()` made once a run); returns the summed counters.
     pub(crate) fn run<X>(
         self,
         rays: &RaySlices<'_>,
         scratch: impl Fn() -> X + Sync,
-        trace: impl Fn(&mut X, &Ray, &mut RayStats) -> Option<InstanceHit> + Sync,
+        trace: impl Fn(&mut X, &[Ray], &mut Done<'_>) + Sync,
     ) -> RayStats {
         let n = self.t.len();
         let parts = self.split(chunk_for(n));
         for_chunks(parts, |p, first, tot| {
             let mut x = scratch();
-            p.fill(rays, first, tot, |ray, st| trace(&mut x, ray, st))
+            p.fill(rays, first, tot, |batch, done| trace(&mut x, batch, done))
         })
+    }
+}
+
+/// What a batch query calls once for each ray `i` of its batch: `done(i, hit, counters)`.
+pub(crate) type Done<'a> = dyn FnMut(usize, Option<InstanceHit>, &RayStats) + 'a;
+
+/// A batch query ([`Closest::run`]) from one that traces a ray at a time:
+/// `one(scratch, ray, counters)` for each ray of `batch`.
+pub(crate) fn one_by_one<X>(
+    x: &mut X,
+    batch: &[Ray],
+    done: &mut Done<'_>,
+    one: impl Fn(&mut X, &Ray, &mut RayStats) -> Option<InstanceHit>,
+) {
+    for (i, ray) in batch.iter().enumerate() {
+        let mut st = RayStats::default();
+        let h = one(x, ray, &mut st);
+        done(i, h, &st);
     }
 }
 
@@ -370,7 +388,7 @@ impl<'py> HitArrays<'py> {
     }
 
     /// Closest hits of `rays` (as many as the arrays) written into the arrays with
-    /// `trace(state, scratch, ray, counters)` (as [`Closest::run`]), with the interpreter
+    /// `trace(state, scratch, rays, done)` (as [`Closest::run`]), with the interpreter
     /// released and `lock` read-locked; returns the summed counters and `after(state)`,
     /// read under the same lock.
     pub(crate) fn trace<S, X, R>(
@@ -379,7 +397,7 @@ impl<'py> HitArrays<'py> {
         rays: &RaySlices<'_>,
         lock: &RwLock<S>,
         scratch: impl Fn() -> X + Sync,
-        trace: impl Fn(&S, &mut X, &Ray, &mut RayStats) -> Option<InstanceHit> + Sync,
+        trace: impl Fn(&S, &mut X, &[Ray], &mut Done<'_>) + Sync,
         after: impl FnOnce(&S) -> R + Send,
     ) -> PyResult<(RayStats, R)>
     where
@@ -393,7 +411,7 @@ impl<'py> HitArrays<'py> {
             rays.check()?;
             let s = read(lock)?;
             let s = &*s;
-            let total = cols.run(rays, scratch, |x, ray, st| trace(s, x, ray, st));
+            let total = cols.run(rays, scratch, |x, batch, done| trace(s, x, batch, done));
             Ok::<_, String>((total, after(s)))
         })
     }

@@ -13,7 +13,7 @@
 use crate::arrays::{err, points};
 use crate::bvh::{aabbs, config, in_pool, Bvh};
 use crate::detached;
-use crate::query::{cached_normals, query_column, ray_column, HitArrays};
+use crate::query::{cached_normals, query_column, ray_column, Done, HitArrays};
 use crate::trace::{
     accel_of, check_current, default_distance_stack, tree_kernel, RayArrays, CHUNK, KERNELS,
     NO_HIT, SERIAL_RAYS,
@@ -161,21 +161,20 @@ fn refit_state(
     Ok(())
 }
 
-/// The closest hit of `ray` in `accel`, as the columns of [`HitArrays`] take it.
+/// The closest hits of `rays` in `accel` (one batch, [`Traverse::trace_batch`], which the
+/// 8-wide kernel interleaves over trees larger than the cache), as the columns of
+/// [`HitArrays`] take them.
 #[inline(always)]
-fn closest(
-    accel: &Accel,
-    ray: &Ray,
-    stack: &mut TraversalStack,
-    st: &mut RayStats,
-) -> Option<InstanceHit> {
-    let h = accel.trace_observed(ray, Query::Closest, stack, st, &mut ())?;
-    Some(InstanceHit {
-        t: h.t,
-        instance: 0,
-        prim: h.prim,
-        bary: h.bary,
-    })
+fn closest(accel: &Accel, rays: &[Ray], stack: &mut TraversalStack, done: &mut Done<'_>) {
+    accel.trace_batch(rays, Query::Closest, stack, |i, h, st| {
+        let h = h.map(|h| InstanceHit {
+            t: h.t,
+            instance: 0,
+            prim: h.prim,
+            bary: h.bary,
+        });
+        done(i, h, st)
+    });
 }
 
 /// Directions of the rays of `contains_points` (normalized when used): the first is
@@ -935,8 +934,8 @@ impl RayCaster {
                     rays.window(0, n)
                 };
                 let accel = &s.accel;
-                let total = c.run(&window, TraversalStack::new, |stack, ray, st| {
-                    closest(accel, ray, stack, st)
+                let total = c.run(&window, TraversalStack::new, |stack, batch, done| {
+                    closest(accel, batch, stack, done)
                 });
                 done.push((total, g, s.triangles.clone()));
             }
@@ -975,7 +974,7 @@ impl RayCaster {
             &rays,
             &self.state,
             TraversalStack::new,
-            |s, stack, ray, st| closest(&s.accel, ray, stack, st),
+            |s, stack, batch, done| closest(&s.accel, batch, stack, done),
             // Read under the lock: the generation of the geometry just traced.
             |s| (self.generation.load(Ordering::SeqCst), s.triangles.clone()),
         )?;

@@ -110,7 +110,7 @@ pub fn measure<S, I, F>(
 ) -> Result<Measured, crate::PeerError>
 where
     I: Fn() -> S + Sync,
-    F: Fn(&mut S, &Ray) -> Option<(u32, f32)> + Sync,
+    F: Fn(&mut S, &[Ray], &mut [Option<(u32, f32)>]) + Sync,
 {
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(threads.max(1))
@@ -129,9 +129,7 @@ where
                 .for_each(|(res, rs)| {
                     let c0 = thread_cpu_seconds();
                     let mut state = init();
-                    for (o, r) in res.iter_mut().zip(rs) {
-                        *o = closest(&mut state, r);
-                    }
+                    closest(&mut state, rs, res);
                     let ns = ((thread_cpu_seconds() - c0) * 1e9) as u64;
                     cpu_ns.fetch_add(ns, std::sync::atomic::Ordering::Relaxed);
                 })
@@ -222,7 +220,7 @@ pub struct TraceRow {
 }
 
 /// Arbor tracer configurations of the benchmark: (name, builder, format, distance stack).
-pub const ARBOR_KERNELS: [(&str, &str, bool, bool); 7] = [
+pub const ARBOR_KERNELS: [(&str, &str, bool, bool); 8] = [
     ("arbor bvh2 binned-sah", "binned-sah", false, false),
     ("arbor bvh2 binned-sah +dist", "binned-sah", false, true),
     ("arbor mbvh4 collapse(binned-sah)", "binned-sah", true, true),
@@ -230,6 +228,14 @@ pub const ARBOR_KERNELS: [(&str, &str, bool, bool); 7] = [
     (
         "arbor mbvh8 collapse(binned-sah)",
         "binned-sah-8",
+        true,
+        true,
+    ),
+    // The same kernel with batches always interleaving eight rays per thread (the row
+    // above interleaves only over trees larger than the last-level cache; issue 33).
+    (
+        "arbor mbvh8 collapse(binned-sah) interleave 8",
+        "binned-sah-8-x8",
         true,
         true,
     ),
@@ -300,9 +306,12 @@ pub fn run(
                 let a = trace::Mbvh8Accel::from_bvh2(&t, &tris, o)?;
                 (Accel::Mbvh8(a), t0.elapsed().as_secs_f64() * 1e3)
             }
-            ("binned-sah-8", _) => {
+            ("binned-sah-8", _) | ("binned-sah-8-x8", _) => {
                 let t0 = Instant::now();
-                let a = trace::Mbvh8Accel::from_bvh2(&binned, &tris, o)?;
+                let mut a = trace::Mbvh8Accel::from_bvh2(&binned, &tris, o)?;
+                if builder == "binned-sah-8-x8" {
+                    a = a.with_interleave(trace::Interleave::Rays(8));
+                }
                 (
                     Accel::Mbvh8(a),
                     binned_ms + t0.elapsed().as_secs_f64() * 1e3,
@@ -368,16 +377,33 @@ pub fn run(
     // Every tracer behind one signature, so that they can be measured in rounds: each
     // round times every tracer once, and each tracer's best round counts. Interleaving
     // spreads any change in the machine's load evenly over the tracers.
+    // Arbor's kernels trace each run of rays as a batch (`Traverse::trace_batch`, which
+    // the 8-wide kernel interleaves over trees larger than the cache); the peers take
+    // one ray per call.
     type Scratch = (trace::TraversalStack, trace::RayStats);
-    type Closest<'a> = Box<dyn Fn(&mut Scratch, &Ray) -> Option<(u32, f32)> + Sync + 'a>;
+    type Closest<'a> = Box<dyn Fn(&mut Scratch, &[Ray], &mut [Option<(u32, f32)>]) + Sync + 'a>;
+    fn one_by_one<'a>(f: impl Fn(&Ray) -> Option<(u32, f32)> + Sync + 'a) -> Closest<'a> {
+        Box::new(
+            move |_: &mut Scratch, rays: &[Ray], out: &mut [Option<(u32, f32)>]| {
+                for (o, r) in out.iter_mut().zip(rays) {
+                    *o = f(r);
+                }
+            },
+        )
+    }
     let mut tracers: Vec<(String, f64, Closest<'_>)> = Vec::new();
     for (name, accel, ms) in &kernels {
         tracers.push((
             name.clone(),
             *ms,
-            Box::new(move |(st, stats): &mut Scratch, r: &Ray| {
-                accel.closest_hit(r, st, stats).map(|h| (h.prim, h.t))
-            }),
+            Box::new(
+                move |(st, stats): &mut Scratch, rays: &[Ray], out: &mut [Option<(u32, f32)>]| {
+                    accel.trace_batch(rays, Query::Closest, st, |i, h, s| {
+                        out[i] = h.map(|h| (h.prim, h.t));
+                        stats.add(s);
+                    })
+                },
+            ),
         ));
     }
     #[cfg(feature = "embree")]
@@ -385,18 +411,18 @@ pub fn run(
         tracers.push((
             "embree 3 rtcIntersect1 (MEDIUM)".into(),
             embree.0.build_time.as_secs_f64() * 1e3,
-            Box::new(|_: &mut Scratch, r: &Ray| embree.0.intersect1(r)),
+            one_by_one(|r| embree.0.intersect1(r)),
         ));
         tracers.push((
             "embree 3 rtcIntersect1 (MEDIUM, ROBUST)".into(),
             embree.1.build_time.as_secs_f64() * 1e3,
-            Box::new(|_: &mut Scratch, r: &Ray| embree.1.intersect1(r)),
+            one_by_one(|r| embree.1.intersect1(r)),
         ));
     }
     tracers.push((
         "obvhs cwbvh (medium_build)".into(),
         obvhs.build_time.as_secs_f64() * 1e3,
-        Box::new(|_: &mut Scratch, r: &Ray| obvhs.intersect(r)),
+        one_by_one(|r| obvhs.intersect(r)),
     ));
 
     let embree_index = tracers
@@ -418,7 +444,7 @@ pub fn run(
                         th,
                         1,
                         || (trace::TraversalStack::new(), trace::RayStats::default()),
-                        |s, r| f(s, r),
+                        |s, rs, out| f(s, rs, out),
                         out,
                     )?;
                     best[k] = best[k].min(m.seconds);
@@ -494,7 +520,11 @@ mod tests {
             2,
             2,
             || (trace::TraversalStack::new(), trace::RayStats::default()),
-            |(st, stats), r| accel.closest_hit(r, st, stats).map(|h| (h.prim, h.t)),
+            |(st, stats), rs, out| {
+                for (o, r) in out.iter_mut().zip(rs) {
+                    *o = accel.closest_hit(r, st, stats).map(|h| (h.prim, h.t));
+                }
+            },
             Some(&mut res),
         )
         .unwrap();

@@ -2,7 +2,9 @@
 //! profiling one kernel in isolation (e.g. under `valgrind --tool=callgrind
 //! --toggle-collect='*Mbvh4Accel*run*'`). `cargo run --release -p trace --example
 //! kernel_cost -- SCENE [REPEATS [EYE TARGET FOV [KERNEL]]]` (EYE and TARGET as `x,y,z`;
-//! KERNEL one of `mbvh4`, `mbvh8`, `bvh2` to trace only that one).
+//! KERNEL one of `mbvh4`, `mbvh8`, `bvh2`, or `mbvh8xN` for the 8-wide kernel's batch
+//! path interleaving N rays, to trace only that one; the `mbvh8xN` rows run only when
+//! named).
 
 use trace::{RayKind, RenderSettings, Shading, Traverse};
 
@@ -50,19 +52,40 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         },
         None,
     )?;
+    println!(
+        "mbvh8 tree: {:.1} MB, interleaves {:?} (last-level cache {:?} bytes)",
+        b8.memory_bytes() as f64 / 1e6,
+        b8.interleave(),
+        trace::last_level_cache_bytes()
+    );
     let mut stack = trace::TraversalStack::new();
-    for (name, t) in [
-        ("mbvh4", &trace::Accel::Mbvh4(b4)),
-        ("mbvh8", &trace::Accel::Mbvh8(b8)),
-        ("bvh2", &trace::Accel::Bvh2(b2)),
-    ] {
+    let mut kernels = vec![
+        ("mbvh4".to_string(), trace::Accel::Mbvh4(b4)),
+        ("mbvh8".to_string(), trace::Accel::Mbvh8(b8.clone())),
+        ("bvh2".to_string(), trace::Accel::Bvh2(b2)),
+    ];
+    // The batch path, interleaving N rays, as a kernel of its own.
+    if let Some(n) = only.and_then(|o| o.strip_prefix("mbvh8x")) {
+        let b = b8.with_interleave(trace::Interleave::Rays(n.parse()?));
+        kernels.push((format!("mbvh8x{n}"), trace::Accel::Mbvh8(b)));
+    }
+    for (name, t) in &kernels {
         if only.is_some_and(|o| o != name) {
             continue;
         }
         let mut st = trace::RayStats::default();
         let start = std::time::Instant::now();
         let mut hits = 0u64;
+        let mut out = vec![None; 1024];
         for _ in 0..repeats {
+            if name.starts_with("mbvh8x") {
+                for chunk in rays.chunks(1024) {
+                    let out = &mut out[..chunk.len()];
+                    t.closest_hits(chunk, &mut stack, out, &mut st);
+                    hits += out.iter().filter(|h| h.is_some()).count() as u64;
+                }
+                continue;
+            }
             for r in &rays {
                 hits += t.closest_hit(r, &mut stack, &mut st).is_some() as u64;
             }

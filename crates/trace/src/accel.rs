@@ -90,6 +90,9 @@ pub struct TraversalStack {
     /// eight at a time.
     refs: Vec<u32>,
     dists: Vec<f32>,
+    /// One stack per ray of a batch that interleaves rays
+    /// ([`crate::Mbvh8Accel::trace_batch`]), made when first needed.
+    lanes: Vec<TraversalStack>,
 }
 
 impl TraversalStack {
@@ -100,7 +103,16 @@ impl TraversalStack {
             entries: Vec::with_capacity(64),
             refs: vec![0; 64],
             dists: vec![0.0; 64],
+            lanes: Vec::new(),
         }
+    }
+
+    /// `n` stacks for the rays of an interleaved batch, one each.
+    pub(crate) fn lanes(&mut self, n: usize) -> &mut [TraversalStack] {
+        if self.lanes.len() < n {
+            self.lanes.resize_with(n, TraversalStack::new);
+        }
+        &mut self.lanes[..n]
     }
 
     /// The stack of a kernel with 32-bit child references (the 8-wide one), empty.
@@ -503,6 +515,11 @@ impl LeafTriangles {
         })
     }
 
+    /// Bytes of the packed leaf blocks.
+    pub fn block_bytes(&self) -> usize {
+        self.blocks.len() * std::mem::size_of::<LeafBlock>()
+    }
+
     /// Leaf-table entries (the tree's `prim_indices.len()`).
     pub fn entry_count(&self) -> usize {
         self.prims.len()
@@ -598,17 +615,107 @@ impl LeafTriangles {
     }
 }
 
+/// One ray's traversal in progress over an uncompressed tree (`Bvh2`, `Mbvh4`, `Mbvh8`):
+/// the closest hit so far, the reference to visit next and the ray's counters. A ray is
+/// traced by [`Walk::begin`], [`Walk::step`] until it returns false, and [`Walk::finish`];
+/// [`traverse`] does that for one ray, and the 8-wide kernel's batch path interleaves the
+/// steps of several rays ([`crate::Mbvh8Accel::trace_batch`]). Kept in locals (registers)
+/// while one ray is traced.
+pub(crate) struct Walk<R> {
+    best: Option<Hit>,
+    best_t: f32,
+    cur: Option<R>,
+    stats: RayStats,
+}
+
+impl<R: Copy> Walk<R> {
+    /// Starts `ray` at `root`: the observer's begin, the stack emptied, and a ray with a
+    /// non-finite origin or direction done at once (hitting nothing: the slab tests assume
+    /// finite values).
+    #[inline(always)]
+    pub fn begin<O: Observer, S: KernelStack<Ref = R>>(
+        ray: &Ray,
+        query: Query,
+        root: R,
+        stack: &mut S,
+        obs: &mut O,
+    ) -> Self {
+        obs.begin(ray, query);
+        stack.clear();
+        let finite = geom::is_finite3(ray.origin) && geom::is_finite3(ray.dir);
+        Walk {
+            best: None,
+            best_t: ray.t_max,
+            cur: finite.then_some(root),
+            stats: RayStats {
+                rays: 1,
+                ..RayStats::default()
+            },
+        }
+    }
+
+    /// One step: tests the current leaf through `leaf`, or visits the current inner node
+    /// (`visit(r, best_t, stack, stats, obs)` tests node `r` against the cull distance of
+    /// `best_t`, pushes the hit children it does not continue with, and returns the one it
+    /// continues with, or `None`); pops the stack (culled by the closest hit when `DIST`)
+    /// whenever the step continues nowhere. `as_leaf(r)` says whether reference `r` is a
+    /// leaf (and which packed slots). Returns false when the ray is done.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    pub fn step<const DIST: bool, O: Observer, S: KernelStack<Ref = R>>(
+        &mut self,
+        leaf: &LeafTriangles,
+        ray: &Ray,
+        pre: &RayPrecomp,
+        query: Query,
+        stack: &mut S,
+        obs: &mut O,
+        as_leaf: impl Fn(R) -> Option<ChildRef>,
+        mut visit: impl FnMut(R, f32, &mut S, &mut RayStats, &mut O) -> Option<R>,
+    ) -> bool {
+        let Some(c) = self.cur else {
+            return false;
+        };
+        if let Some(l) = as_leaf(c) {
+            let stop = leaf.intersect(
+                l.index,
+                l.count,
+                pre,
+                ray.t_min,
+                query,
+                &mut self.best,
+                &mut self.best_t,
+                &mut self.stats,
+                obs,
+            );
+            if stop {
+                self.cur = None;
+                return false;
+            }
+        } else if let Some(next) = visit(c, self.best_t, stack, &mut self.stats, obs) {
+            self.cur = Some(next);
+            return true;
+        }
+        self.cur = stack.pop(DIST, self.best_t, &mut self.stats, obs);
+        self.cur.is_some()
+    }
+
+    /// Ends the ray: its hit (the closest, or for `Query::Any` the first found) and its
+    /// counters (`hits` counted), reported to the observer. Leaves the walk empty.
+    #[inline(always)]
+    pub fn finish<O: Observer>(&mut self, obs: &mut O) -> (Option<Hit>, RayStats) {
+        let best = self.best.take();
+        let mut stats = std::mem::take(&mut self.stats);
+        stats.hits += best.is_some() as u64;
+        obs.end(best.as_ref());
+        (best, stats)
+    }
+}
+
 /// The traversal loop shared by the kernels over uncompressed trees (`Bvh2`, `Mbvh4`,
-/// `Mbvh8`): per-ray counters kept in a local and added to `total` once, observer begin and
-/// end, a ray with a non-finite origin or direction hitting nothing (the slab tests assume
-/// finite values), leaves tested through `leaf`, and the stack popped (culled by the
-/// closest hit when `DIST`) whenever a node visit continues nowhere. Traversal starts at
-/// `root`; `as_leaf(r)` says whether reference `r` is a leaf (and which packed slots);
-/// `visit(r, best_t, stack, stats, obs)` tests inner node `r` against the cull distance of
-/// `best_t`, pushes the hit children it does not continue with, and returns the one it
-/// continues with (or `None`). The kernels differ only in their node visit and in how
-/// they store references and stack entries ([`KernelStack`]). Inlined into each kernel,
-/// so each keeps its own code.
+/// `Mbvh8`): one ray's [`Walk`] from `root` to the end, its counters added to `total` once.
+/// The kernels differ only in their node visit and in how they store references and stack
+/// entries ([`KernelStack`]). Inlined into each kernel, so each keeps its own code.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn traverse<const DIST: bool, O: Observer, S: KernelStack>(
@@ -623,41 +730,10 @@ pub(crate) fn traverse<const DIST: bool, O: Observer, S: KernelStack>(
     as_leaf: impl Fn(S::Ref) -> Option<ChildRef>,
     mut visit: impl FnMut(S::Ref, f32, &mut S, &mut RayStats, &mut O) -> Option<S::Ref>,
 ) -> Option<Hit> {
-    // Counted in a local (kept in registers), added to `total` once at the end.
-    let mut ray_stats = RayStats::default();
-    let stats = &mut ray_stats;
-    obs.begin(ray, query);
-    stats.rays += 1;
-    stack.clear();
-    let mut best: Option<Hit> = None;
-    let mut best_t = ray.t_max;
-    let finite = geom::is_finite3(ray.origin) && geom::is_finite3(ray.dir);
-    let mut cur = finite.then_some(root);
-    while let Some(c) = cur {
-        if let Some(l) = as_leaf(c) {
-            let stop = leaf.intersect(
-                l.index,
-                l.count,
-                pre,
-                ray.t_min,
-                query,
-                &mut best,
-                &mut best_t,
-                stats,
-                obs,
-            );
-            if stop {
-                break;
-            }
-        } else if let Some(next) = visit(c, best_t, stack, stats, obs) {
-            cur = Some(next);
-            continue;
-        }
-        cur = stack.pop(DIST, best_t, stats, obs);
-    }
-    stats.hits += best.is_some() as u64;
-    total.add(stats);
-    obs.end(best.as_ref());
+    let mut walk = Walk::begin(ray, query, root, stack, obs);
+    while walk.step::<DIST, O, S>(leaf, ray, pre, query, stack, obs, &as_leaf, &mut visit) {}
+    let (best, stats) = walk.finish(obs);
+    total.add(&stats);
     best
 }
 
@@ -719,6 +795,61 @@ pub trait Traverse: Send + Sync {
     fn occluded(&self, ray: &Ray, stack: &mut TraversalStack, stats: &mut RayStats) -> bool {
         self.trace_observed(ray, Query::Any, stack, stats, &mut ())
             .is_some()
+    }
+
+    /// Traces every ray of `rays` for `query` and calls `done(i, hit, counters)` once for
+    /// each ray `i`, with the ray's own counters; the calls may come in any order. Each
+    /// ray's answer and counters are exactly those of [`Traverse::trace_observed`]. Here
+    /// the rays are traced one after the other; the 8-wide kernel can interleave several
+    /// rays on one thread, so that one ray's node fetches overlap another's work
+    /// ([`crate::Mbvh8Accel::trace_batch`]).
+    #[inline]
+    fn trace_batch<F: FnMut(usize, Option<Hit>, &RayStats)>(
+        &self,
+        rays: &[Ray],
+        query: Query,
+        stack: &mut TraversalStack,
+        mut done: F,
+    ) {
+        for (i, ray) in rays.iter().enumerate() {
+            let mut stats = RayStats::default();
+            let hit = self.trace_observed(ray, query, stack, &mut stats, &mut ());
+            done(i, hit, &stats);
+        }
+    }
+
+    /// The closest hits of `rays` into `out` (as long as `rays`), their counters added to
+    /// `stats`: [`Traverse::trace_batch`] for `Query::Closest`.
+    ///
+    /// ```
+    /// use trace::{Mbvh8Accel, RayStats, Traverse, TraversalStack};
+    /// use geom::{Ray, Triangle, Vec3};
+    ///
+    /// let tris = vec![Triangle::new(Vec3::ZERO, Vec3::X, Vec3::Y)];
+    /// let tree = bvh::SweepSahBuilder::default().build(&bvh::triangle_aabbs(&tris))?;
+    /// let accel = Mbvh8Accel::from_bvh2(&tree, &tris, Default::default())?;
+    /// let rays: Vec<Ray> = (0..100)
+    ///     .map(|i| Ray::new(Vec3::new(0.005 + 0.01 * i as f32, 0.25, 1.0), -Vec3::Z))
+    ///     .collect();
+    /// let mut hits = vec![None; rays.len()];
+    /// let mut stats = RayStats::default();
+    /// accel.closest_hits(&rays, &mut TraversalStack::new(), &mut hits, &mut stats);
+    /// assert_eq!(hits.iter().filter(|h| h.is_some()).count(), 75); // x + y <= 1
+    /// assert_eq!(stats.rays, 100);
+    /// # Ok::<(), Box<dyn std::error::Error>>(())
+    /// ```
+    fn closest_hits(
+        &self,
+        rays: &[Ray],
+        stack: &mut TraversalStack,
+        out: &mut [Option<Hit>],
+        stats: &mut RayStats,
+    ) {
+        assert_eq!(rays.len(), out.len(), "closest_hits: one output per ray");
+        self.trace_batch(rays, Query::Closest, stack, |i, h, s| {
+            out[i] = h;
+            stats.add(s);
+        });
     }
 
     /// Bytes of one node in this tree's format (64 for `Bvh2`, 128 for `Mbvh4`).

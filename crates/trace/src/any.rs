@@ -80,6 +80,22 @@ impl Traverse for Accel {
         }
     }
 
+    #[inline]
+    fn trace_batch<F: FnMut(usize, Option<Hit>, &RayStats)>(
+        &self,
+        rays: &[Ray],
+        query: Query,
+        stack: &mut TraversalStack,
+        done: F,
+    ) {
+        match self {
+            Accel::Bvh2(a) => a.trace_batch(rays, query, stack, done),
+            Accel::Mbvh4(a) => a.trace_batch(rays, query, stack, done),
+            Accel::Mbvh8(a) => a.trace_batch(rays, query, stack, done),
+            Accel::Cbvh(a) => a.trace_batch(rays, query, stack, done),
+        }
+    }
+
     fn node_bytes(&self) -> u32 {
         match self {
             Accel::Bvh2(a) => a.node_bytes(),

@@ -90,7 +90,7 @@ pub use camera::PinholeCamera;
 pub use cbvh_kernel::{BoxObserver, CbvhAccel};
 pub use cbvh_watertight::{WatertightCheck, WatertightStats};
 pub use mbvh4_kernel::{sort4, Mbvh4Accel};
-pub use mbvh8_kernel::{Mbvh8Accel, WIDTH8};
+pub use mbvh8_kernel::{last_level_cache_bytes, Interleave, Mbvh8Accel, WIDTH8};
 pub use observer::{Observer, Query};
 pub use render::{
     bounce_ray, facing_normal, render, RayKind, Render, RenderSettings, RenderStats, Shading,

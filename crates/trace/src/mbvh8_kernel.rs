@@ -18,7 +18,7 @@
 
 use crate::accel::{
     cull_distance, huge_page_vec, prefetch, refit_nodes, traverse, Hit, LeafTriangles, Slab,
-    TraversalStack, Traverse, WideStack,
+    TraversalStack, Traverse, Walk, WideStack,
 };
 use crate::bvh2_kernel::check_links;
 use crate::observer::{Observer, Query};
@@ -137,6 +137,94 @@ pub struct Mbvh8Accel {
     /// The CPU has AVX2 (checked once): the kernel then tests all eight boxes and orders
     /// the hit children in 8-lane operations.
     avx: bool,
+    /// The setting of [`Mbvh8Accel::with_interleave`], and the rays a batch interleaves
+    /// per thread that it comes to for this tree (1: one ray after the other).
+    interleave: Interleave,
+    lanes: usize,
+}
+
+/// How many rays [`Mbvh8Accel::trace_batch`] traces at once on one thread, taking turns
+/// node visit by node visit: while one ray waits for a node from memory, the others work
+/// (the node it will visit next is prefetched as soon as it is known). This pays once the
+/// tree no longer fits the caches, where a ray's time goes to dependent loads from DRAM;
+/// on a tree held in the cache the turns only cost (register state is saved and restored,
+/// and the branches of different rays mix), so the default interleaves by the tree's size.
+/// Measured in `docs/ray-tracing.md` ("Interleaved rays").
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, serde::Serialize)]
+pub enum Interleave {
+    /// [`Interleave::DEFAULT_RAYS`] rays when the tree (nodes and leaf blocks) is larger
+    /// than the CPU's last-level cache ([`last_level_cache_bytes`]; 32 MiB assumed where
+    /// the system does not say), else one.
+    #[default]
+    Auto,
+    /// This many rays at once (1: one after the other; at most [`Interleave::MAX_RAYS`]).
+    Rays(usize),
+}
+
+impl Interleave {
+    /// The rays interleaved where [`Interleave::Auto`] interleaves (measured best of 4, 8
+    /// and 16 on Dragon; see `docs/ray-tracing.md`).
+    pub const DEFAULT_RAYS: usize = 8;
+    /// The most rays one thread interleaves.
+    pub const MAX_RAYS: usize = 32;
+
+    /// The rays to interleave over a tree of `tree_bytes`.
+    pub fn rays_for(self, tree_bytes: usize) -> usize {
+        match self {
+            Interleave::Auto => {
+                let cache = last_level_cache_bytes().unwrap_or(32 << 20);
+                if tree_bytes > cache {
+                    Self::DEFAULT_RAYS
+                } else {
+                    1
+                }
+            }
+            Interleave::Rays(n) => n.clamp(1, Self::MAX_RAYS),
+        }
+    }
+}
+
+/// The size of the CPU's last-level cache, as the operating system reports it (Linux:
+/// the highest-level cache of CPU 0 in `/sys/devices/system/cpu/cpu0/cache`); `None`
+/// elsewhere or when it cannot be read. Read once.
+pub fn last_level_cache_bytes() -> Option<usize> {
+    static BYTES: std::sync::OnceLock<Option<usize>> = std::sync::OnceLock::new();
+    *BYTES.get_or_init(|| {
+        let dir = std::fs::read_dir("/sys/devices/system/cpu/cpu0/cache").ok()?;
+        let mut best: Option<(u32, usize)> = None;
+        for e in dir.flatten() {
+            let read = |f: &str| std::fs::read_to_string(e.path().join(f)).ok();
+            let (Some(level), Some(size)) = (read("level"), read("size")) else {
+                continue;
+            };
+            let (Ok(level), Some(bytes)) = (level.trim().parse::<u32>(), parse_cache_size(&size))
+            else {
+                continue;
+            };
+            if best.is_none_or(|(l, _)| level > l) {
+                best = Some((level, bytes));
+            }
+        }
+        best.map(|(_, b)| b)
+    })
+}
+
+/// A cache size as Linux writes it (`32768K`, `1M`, `512`).
+fn parse_cache_size(s: &str) -> Option<usize> {
+    let s = s.trim();
+    let (digits, unit) = match s.char_indices().find(|(_, c)| !c.is_ascii_digit()) {
+        Some((i, _)) => s.split_at(i),
+        None => (s, ""),
+    };
+    let n: usize = digits.parse().ok()?;
+    let scale = match unit {
+        "" => 1,
+        "K" => 1 << 10,
+        "M" => 1 << 20,
+        "G" => 1 << 30,
+        _ => return None,
+    };
+    n.checked_mul(scale)
 }
 
 /// Entry distances of a node's eight children (`+inf` for a missed or empty slot), the
@@ -396,13 +484,38 @@ impl Mbvh8Accel {
             && std::arch::is_x86_feature_detected!("lzcnt");
         #[cfg(not(target_arch = "x86_64"))]
         let avx = false;
-        Ok(Self {
+        let mut accel = Self {
             nodes,
             leaf,
             big,
             options,
             avx,
-        })
+            interleave: Interleave::Auto,
+            lanes: 1,
+        };
+        accel.lanes = Interleave::Auto.rays_for(accel.memory_bytes());
+        Ok(accel)
+    }
+
+    /// The same tree with batches interleaving rays as `interleave` says (the default is
+    /// [`Interleave::Auto`]).
+    pub fn with_interleave(mut self, interleave: Interleave) -> Self {
+        self.interleave = interleave;
+        self.lanes = interleave.rays_for(self.memory_bytes());
+        self
+    }
+
+    /// The interleave setting, and the rays a batch interleaves per thread for this tree.
+    pub fn interleave(&self) -> (Interleave, usize) {
+        (self.interleave, self.lanes)
+    }
+
+    /// Bytes that traversal reads from: the nodes, the leaf blocks and the large-leaf
+    /// table.
+    pub fn memory_bytes(&self) -> usize {
+        self.nodes.len() * std::mem::size_of::<Node8>()
+            + self.leaf.block_bytes()
+            + self.big.len() * std::mem::size_of::<ChildRef>()
     }
 
     /// The same tree traced without AVX even where the CPU has it (to test and measure
@@ -482,9 +595,7 @@ impl Mbvh8Accel {
         self.run::<DIST, true, O>(ray, query, stack, total, obs)
     }
 
-    /// Traversal ([`traverse`]) with the 8-wide node visit: a visit with more than one hit
-    /// child writes them, farthest first, on top of the stack; the last written (nearest)
-    /// is visited next and the others stay pushed.
+    /// Traversal ([`traverse`]) with the 8-wide node visit ([`Self::visit`]).
     #[inline(always)]
     fn run<const DIST: bool, const AVX: bool, O: Observer>(
         &self,
@@ -496,43 +607,6 @@ impl Mbvh8Accel {
     ) -> Option<Hit> {
         let pre = RayPrecomp::new(ray);
         let slab = Slab::new(&pre, ray.t_min);
-        let visit = |cur: u32,
-                     best_t: f32,
-                     st: &mut WideStack,
-                     stats: &mut RayStats,
-                     obs: &mut O|
-         -> Option<u32> {
-            let node = &self.nodes[cur as usize];
-            let t_max = cull_distance(best_t);
-            #[cfg(target_arch = "x86_64")]
-            if AVX {
-                // SAFETY: `AVX` is only set by `run_avx`, which runs with AVX2 enabled
-                // (and is only called where the CPU has it); `top` hands out at least
-                // eight entries, all that `push_sorted_avx` writes.
-                return unsafe {
-                    let (near, hit, mask, valid) = test8_avx(&slab, node, t_max);
-                    stats.node_visits += 1;
-                    stats.box_tests += POPCOUNT8[valid as usize] as u64;
-                    obs.node(cur, valid, mask);
-                    let hits = POPCOUNT8[mask as usize] as usize;
-                    if hits == 0 {
-                        return None;
-                    }
-                    self.prefetch_hits(node, mask);
-                    if hits == 1 {
-                        return Some(node.children[mask.trailing_zeros() as usize & 7]);
-                    }
-                    let (refs, dists) = st.top(WIDTH8);
-                    let next =
-                        push_sorted_avx(node, near, hit, refs.as_mut_ptr(), dists.as_mut_ptr());
-                    self.pushed(&refs[..hits - 1], stats, obs);
-                    st.grow(hits - 1);
-                    stats.max_stack_depth = stats.max_stack_depth.max(st.len() as u64);
-                    Some(next)
-                };
-            }
-            self.visit8(&slab, node, cur, t_max, st, stats, obs)
-        };
         traverse::<DIST, O, _>(
             &self.leaf,
             ray,
@@ -542,9 +616,153 @@ impl Mbvh8Accel {
             total,
             obs,
             0,
-            |c| (c & child8::LEAF != 0).then(|| decode(c, &self.big)),
-            visit,
+            |c| self.as_leaf(c),
+            |c, best_t, st, stats, obs| self.visit::<AVX, O>(&slab, c, best_t, st, stats, obs),
         )
+    }
+
+    /// The leaf a reference names, if it names one.
+    #[inline(always)]
+    fn as_leaf(&self, c: u32) -> Option<ChildRef> {
+        (c & child8::LEAF != 0).then(|| decode(c, &self.big))
+    }
+
+    /// The 8-wide node visit of inner node `cur` against the cull distance of `best_t`:
+    /// with more than one hit child, writes them, farthest first, on top of the stack; the
+    /// last written (nearest) is returned to be visited next and the others stay pushed.
+    #[inline(always)]
+    fn visit<const AVX: bool, O: Observer>(
+        &self,
+        slab: &Slab,
+        cur: u32,
+        best_t: f32,
+        st: &mut WideStack,
+        stats: &mut RayStats,
+        obs: &mut O,
+    ) -> Option<u32> {
+        let node = &self.nodes[cur as usize];
+        let t_max = cull_distance(best_t);
+        #[cfg(target_arch = "x86_64")]
+        if AVX {
+            // SAFETY: `AVX` is only set by the `_avx` entry points, which run with AVX2
+            // enabled (and are only called where the CPU has it); `top` hands out at
+            // least eight entries, all that `push_sorted_avx` writes.
+            return unsafe {
+                let (near, hit, mask, valid) = test8_avx(slab, node, t_max);
+                stats.node_visits += 1;
+                stats.box_tests += POPCOUNT8[valid as usize] as u64;
+                obs.node(cur, valid, mask);
+                let hits = POPCOUNT8[mask as usize] as usize;
+                if hits == 0 {
+                    return None;
+                }
+                self.prefetch_hits(node, mask);
+                if hits == 1 {
+                    return Some(node.children[mask.trailing_zeros() as usize & 7]);
+                }
+                let (refs, dists) = st.top(WIDTH8);
+                let next = push_sorted_avx(node, near, hit, refs.as_mut_ptr(), dists.as_mut_ptr());
+                self.pushed(&refs[..hits - 1], stats, obs);
+                st.grow(hits - 1);
+                stats.max_stack_depth = stats.max_stack_depth.max(st.len() as u64);
+                Some(next)
+            };
+        }
+        self.visit8(slab, node, cur, t_max, st, stats, obs)
+    }
+
+    /// [`Self::batch`] compiled for AVX2, as [`Self::run_avx`].
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx,avx2,fma,bmi1,bmi2,popcnt,lzcnt")]
+    fn batch_avx<const DIST: bool, F: FnMut(usize, Option<Hit>, &RayStats)>(
+        &self,
+        rays: &[Ray],
+        query: Query,
+        stack: &mut TraversalStack,
+        done: F,
+    ) {
+        self.batch::<DIST, true, F>(rays, query, stack, done)
+    }
+
+    /// Traces `rays` [`Self::lanes`] at a time on this thread, round robin: each ray in
+    /// turn takes one step of its [`Walk`] (a node visit, which prefetches the children it
+    /// will visit, or a leaf test), so that while one ray's next node is on its way from
+    /// memory the others work. A finished ray hands its lane to the next ray of the batch.
+    /// Each ray's steps are those it takes alone, so its answer and counters are too.
+    #[inline(always)]
+    fn batch<const DIST: bool, const AVX: bool, F: FnMut(usize, Option<Hit>, &RayStats)>(
+        &self,
+        rays: &[Ray],
+        query: Query,
+        stack: &mut TraversalStack,
+        mut done: F,
+    ) {
+        struct Lane<'s> {
+            /// The ray traced in this lane (`usize::MAX`: none, the batch is ending).
+            ray: usize,
+            pre: RayPrecomp,
+            slab: Slab,
+            walk: Walk<u32>,
+            stack: WideStack<'s>,
+        }
+        let start = |i: usize, stack: &mut WideStack<'_>| {
+            let ray = &rays[i];
+            let pre = RayPrecomp::new(ray);
+            let slab = Slab::new(&pre, ray.t_min);
+            (pre, slab, Walk::begin(ray, query, 0, stack, &mut ()))
+        };
+        let n = self.lanes.min(rays.len());
+        let mut lanes: Vec<Lane> = stack
+            .lanes(n)
+            .iter_mut()
+            .enumerate()
+            .map(|(i, st)| {
+                let mut stack = st.wide();
+                let (pre, slab, walk) = start(i, &mut stack);
+                Lane {
+                    ray: i,
+                    pre,
+                    slab,
+                    walk,
+                    stack,
+                }
+            })
+            .collect();
+        let mut next = n;
+        let mut live = n;
+        while live > 0 {
+            for l in lanes.iter_mut() {
+                if l.ray == usize::MAX {
+                    continue;
+                }
+                let slab = &l.slab;
+                let more = l.walk.step::<DIST, (), _>(
+                    &self.leaf,
+                    &rays[l.ray],
+                    &l.pre,
+                    query,
+                    &mut l.stack,
+                    &mut (),
+                    |c| self.as_leaf(c),
+                    |c, best_t, st, stats, obs| {
+                        self.visit::<AVX, ()>(slab, c, best_t, st, stats, obs)
+                    },
+                );
+                if more {
+                    continue;
+                }
+                let (hit, stats) = l.walk.finish(&mut ());
+                done(l.ray, hit, &stats);
+                if next < rays.len() {
+                    (l.pre, l.slab, l.walk) = start(next, &mut l.stack);
+                    l.ray = next;
+                    next += 1;
+                } else {
+                    l.ray = usize::MAX;
+                    live -= 1;
+                }
+            }
+        }
     }
 
     /// Prefetches the hit children of `node` (`mask`), the one visited next included.
@@ -646,6 +864,41 @@ impl Traverse for Mbvh8Accel {
             self.run::<true, false, O>(ray, query, stack, stats, obs)
         } else {
             self.run::<false, false, O>(ray, query, stack, stats, obs)
+        }
+    }
+
+    /// As [`Traverse::trace_batch`], interleaving the rays [`Mbvh8Accel::interleave`]
+    /// says on this thread (see [`Interleave`]).
+    fn trace_batch<F: FnMut(usize, Option<Hit>, &RayStats)>(
+        &self,
+        rays: &[Ray],
+        query: Query,
+        stack: &mut TraversalStack,
+        mut done: F,
+    ) {
+        if self.lanes <= 1 || rays.len() <= 1 {
+            for (i, ray) in rays.iter().enumerate() {
+                let mut stats = RayStats::default();
+                let hit = self.trace_observed(ray, query, stack, &mut stats, &mut ());
+                done(i, hit, &stats);
+            }
+            return;
+        }
+        #[cfg(target_arch = "x86_64")]
+        if self.avx {
+            // SAFETY: `avx` is set only where the CPU has AVX2.
+            return unsafe {
+                if self.options.distance_stack {
+                    self.batch_avx::<true, F>(rays, query, stack, done)
+                } else {
+                    self.batch_avx::<false, F>(rays, query, stack, done)
+                }
+            };
+        }
+        if self.options.distance_stack {
+            self.batch::<true, false, F>(rays, query, stack, done)
+        } else {
+            self.batch::<false, false, F>(rays, query, stack, done)
         }
     }
 
@@ -770,6 +1023,81 @@ mod tests {
 
     /// The AVX2 node visit and the baseline one give the same answers and the same
     /// counters ray by ray (same box bits, same order of the hit children).
+    /// Batches (interleaved or not, any number of rays per lane, with rays that start
+    /// non-finite among them) answer each ray exactly once, with the hit and counters it
+    /// gets alone, on every test tree and both paths.
+    #[test]
+    fn interleaved_batches_trace_each_ray_as_alone() {
+        let tris = soup(1200, 1.5, 11);
+        let mut rays = random_rays(700, Vec3::ZERO, 2.0, 5);
+        rays[3].origin.x = f32::NAN;
+        rays[500].dir = Vec3::new(f32::INFINITY, 0.0, 0.0);
+        rays[9].t_max = 0.5;
+        for (name, accel) in all_mbvh8(&tris) {
+            let mut stack = TraversalStack::new();
+            for q in [Query::Closest, Query::Any] {
+                let alone: Vec<_> = rays
+                    .iter()
+                    .map(|r| {
+                        let mut s = RayStats::default();
+                        (accel.trace_observed(r, q, &mut stack, &mut s, &mut ()), s)
+                    })
+                    .collect();
+                for lanes in [1, 2, 3, 8, 31, 32, 1000] {
+                    let a = accel.clone().with_interleave(Interleave::Rays(lanes));
+                    assert_eq!(a.interleave().1, lanes.min(Interleave::MAX_RAYS));
+                    for len in [0, 1, 5, rays.len()] {
+                        let mut got = vec![None; len];
+                        a.trace_batch(&rays[..len], q, &mut stack, |i, h, s| {
+                            assert!(got[i].is_none(), "{name}: ray {i} answered twice");
+                            got[i] = Some((h, *s));
+                        });
+                        for (i, g) in got.iter().enumerate() {
+                            assert_eq!(
+                                g.as_ref(),
+                                Some(&alone[i]),
+                                "{name} {q:?} x{lanes}: ray {i}"
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    /// `Auto` interleaves exactly when the tree is larger than the last-level cache.
+    #[test]
+    fn auto_interleaves_trees_larger_than_the_cache() {
+        let cache = last_level_cache_bytes().unwrap_or(32 << 20);
+        assert_eq!(Interleave::Auto.rays_for(cache), 1);
+        assert_eq!(
+            Interleave::Auto.rays_for(cache + 1),
+            Interleave::DEFAULT_RAYS
+        );
+        assert_eq!(Interleave::Rays(0).rays_for(1), 1);
+        assert_eq!(Interleave::Rays(1 << 40).rays_for(1), Interleave::MAX_RAYS);
+        // A small tree is not interleaved unless asked.
+        let tris = soup(100, 1.0, 2);
+        let (_, a) = all_mbvh8(&tris).swap_remove(1);
+        assert_eq!(a.interleave(), (Interleave::Auto, 1));
+        assert!(a.memory_bytes() >= a.node_count() * 256);
+        assert_eq!(
+            a.with_interleave(Interleave::Rays(4)).interleave(),
+            (Interleave::Rays(4), 4)
+        );
+    }
+
+    #[test]
+    fn cache_sizes_parse_as_linux_writes_them() {
+        assert_eq!(parse_cache_size("32768K\n"), Some(32 << 20));
+        assert_eq!(parse_cache_size("1M"), Some(1 << 20));
+        assert_eq!(parse_cache_size("512"), Some(512));
+        assert_eq!(parse_cache_size("2G"), Some(2 << 30));
+        assert_eq!(parse_cache_size("12Q"), None);
+        assert_eq!(parse_cache_size(""), None);
+        assert_eq!(parse_cache_size("99999999999999999999999K"), None);
+    }
+
     #[test]
     fn avx_and_baseline_paths_count_alike() {
         let tris = soup(1500, 1.5, 7);
