@@ -617,7 +617,11 @@ impl InstanceCaster {
             "occluded",
             &self.state,
             |_| InstanceStack::new(),
-            |s, stack, ray, tot| s.accel.any_hit(ray, stack, tot).is_some(),
+            |s, stack, batch, out, tot| {
+                for (o, ray) in out.iter_mut().zip(batch) {
+                    *o = s.accel.any_hit(ray, stack, tot).is_some();
+                }
+            },
         )
     }
 

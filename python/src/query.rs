@@ -85,9 +85,8 @@ fn out_array<'py, T: numpy::Element>(
 }
 
 /// Fills a `(n,)` column of `T` (`out`, checked by [`out_array`] under the name `what`, or
-/// a fresh array) with `each(state, scratch, i, totals)` for `i` in `0..n`, with the
-/// interpreter released and `lock` read-locked, in parallel runs when `n` is large
-/// (`scratch(state)` is made once a run). `check` runs first, released, before the lock.
+/// a fresh array) with `each(state, scratch, i, totals)` for `i` in `0..n`, as
+/// [`query_runs`].
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn query_column<'py, T, S, X>(
     py: Python<'py>,
@@ -103,13 +102,49 @@ where
     T: numpy::Element + Send,
     S: Healthy + Send + Sync,
 {
+    query_runs(
+        py,
+        out,
+        n,
+        what,
+        lock,
+        check,
+        scratch,
+        |s, x, first, run, tot| {
+            for (k, o) in run.iter_mut().enumerate() {
+                *o = each(s, x, first + k, tot);
+            }
+        },
+    )
+}
+
+/// Fills a `(n,)` column of `T` (`out`, checked by [`out_array`] under the name `what`, or
+/// a fresh array) run by run, `fill(state, scratch, first, run, totals)` writing the
+/// entries `first..first + run.len()`, with the interpreter released and `lock`
+/// read-locked, the runs in parallel when `n` is large (`scratch(state)` is made once a
+/// run). `check` runs first, released, before the lock.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn query_runs<'py, T, S, X>(
+    py: Python<'py>,
+    out: Option<&Bound<'py, PyAny>>,
+    n: usize,
+    what: &str,
+    lock: &RwLock<S>,
+    check: impl FnOnce() -> Result<(), String> + Send,
+    scratch: impl Fn(&S) -> X + Sync,
+    fill: impl Fn(&S, &mut X, usize, &mut [T], &mut RayStats) + Sync,
+) -> PyResult<Bound<'py, PyArray1<T>>>
+where
+    T: numpy::Element + Send,
+    S: Healthy + Send + Sync,
+{
     let a = out_array::<T>(py, out, n, what)?;
     {
         let mut w = a.try_readwrite().map_err(|_| err("out is in use"))?;
         let col = w
             .as_slice_mut()
             .map_err(|_| err("internal error: array not contiguous"))?;
-        let (scratch, each) = (&scratch, &each);
+        let (scratch, fill) = (&scratch, &fill);
         detached(py, move || {
             check()?;
             let s = read(lock)?;
@@ -117,9 +152,7 @@ where
             let parts: Vec<&mut [T]> = col.chunks_mut(chunk_for(n)).collect();
             for_chunks(parts, |p, first, tot| {
                 let mut x = scratch(s);
-                for (k, o) in p.iter_mut().enumerate() {
-                    *o = each(s, &mut x, first + k, tot);
-                }
+                fill(s, &mut x, first, p, tot);
             });
             Ok::<_, String>(())
         })?;
@@ -127,7 +160,8 @@ where
     Ok(a)
 }
 
-/// [`query_column`] over `rays` (checked first): `each(state, scratch, ray, totals)`.
+/// [`query_runs`] over `rays` (checked first): `batch(state, scratch, rays, out, totals)`
+/// answers a run of rays into `out` (as long as the run).
 pub(crate) fn ray_column<'py, T, S, X>(
     py: Python<'py>,
     rays: &RaySlices<'_>,
@@ -135,13 +169,13 @@ pub(crate) fn ray_column<'py, T, S, X>(
     what: &str,
     lock: &RwLock<S>,
     scratch: impl Fn(&S) -> X + Sync,
-    each: impl Fn(&S, &mut X, &Ray, &mut RayStats) -> T + Sync,
+    batch: impl Fn(&S, &mut X, &[Ray], &mut [T], &mut RayStats) + Sync,
 ) -> PyResult<Bound<'py, PyArray1<T>>>
 where
     T: numpy::Element + Send,
     S: Healthy + Send + Sync,
 {
-    query_column(
+    query_runs(
         py,
         out,
         rays.len(),
@@ -149,7 +183,10 @@ where
         lock,
         || rays.check(),
         scratch,
-        |s, x, i, tot| each(s, x, &rays.ray(i), tot),
+        |s, x, first, run, tot| {
+            let r: Vec<Ray> = (first..first + run.len()).map(|i| rays.ray(i)).collect();
+            batch(s, x, &r, run, tot)
+        },
     )
 }
 

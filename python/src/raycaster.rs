@@ -1119,11 +1119,9 @@ impl RayCaster {
             "occluded",
             &self.state,
             |_| TraversalStack::new(),
-            |s, stack, ray, _| {
-                let mut st = RayStats::default();
+            |s, stack, batch, out, _| {
                 s.accel
-                    .trace_observed(ray, Query::Any, stack, &mut st, &mut ())
-                    .is_some()
+                    .trace_batch(batch, Query::Any, stack, |i, h, _| out[i] = h.is_some())
             },
         )
     }

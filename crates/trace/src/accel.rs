@@ -615,107 +615,101 @@ impl LeafTriangles {
     }
 }
 
-/// One ray's traversal in progress over an uncompressed tree (`Bvh2`, `Mbvh4`, `Mbvh8`):
-/// the closest hit so far, the reference to visit next and the ray's counters. A ray is
-/// traced by [`Walk::begin`], [`Walk::step`] until it returns false, and [`Walk::finish`];
-/// [`traverse`] does that for one ray, and the 8-wide kernel's batch path interleaves the
-/// steps of several rays ([`crate::Mbvh8Accel::trace_batch`]). Kept in locals (registers)
-/// while one ray is traced.
-pub(crate) struct Walk<R> {
-    best: Option<Hit>,
-    best_t: f32,
-    cur: Option<R>,
-    stats: RayStats,
+/// The closest hit so far of one ray's traversal over an uncompressed tree (`Bvh2`,
+/// `Mbvh4`, `Mbvh8`), and its cull distance's source `best_t`. [`traverse`] keeps one in
+/// locals for one ray; the 8-wide kernel's batch path keeps one per ray it interleaves
+/// ([`crate::Mbvh8Accel::trace_batch`]).
+#[derive(Clone, Copy)]
+pub(crate) struct Closest {
+    pub best: Option<Hit>,
+    pub best_t: f32,
 }
 
-impl<R: Copy> Walk<R> {
-    /// Starts `ray` at `root`: the observer's begin, the stack emptied, and a ray with a
-    /// non-finite origin or direction done at once (hitting nothing: the slab tests assume
-    /// finite values).
-    #[inline(always)]
-    pub fn begin<O: Observer, S: KernelStack<Ref = R>>(
-        ray: &Ray,
-        query: Query,
-        root: R,
-        stack: &mut S,
-        obs: &mut O,
-    ) -> Self {
-        obs.begin(ray, query);
-        stack.clear();
-        let finite = geom::is_finite3(ray.origin) && geom::is_finite3(ray.dir);
-        Walk {
-            best: None,
-            best_t: ray.t_max,
-            cur: finite.then_some(root),
-            stats: RayStats {
-                rays: 1,
-                ..RayStats::default()
-            },
-        }
-    }
+/// Starts `ray` at `root`: the observer's begin, the stack emptied, the ray counted in
+/// `stats`. Returns the reference to visit first: `root`, or `None` for a ray with a
+/// non-finite origin or direction (it hits nothing: the slab tests assume finite values).
+/// The ray's closest hit starts empty at `best_t = ray.t_max`.
+#[inline(always)]
+pub(crate) fn begin<O: Observer, S: KernelStack>(
+    ray: &Ray,
+    query: Query,
+    root: S::Ref,
+    stack: &mut S,
+    stats: &mut RayStats,
+    obs: &mut O,
+) -> Option<S::Ref> {
+    obs.begin(ray, query);
+    stats.rays += 1;
+    stack.clear();
+    let finite = geom::is_finite3(ray.origin) && geom::is_finite3(ray.dir);
+    finite.then_some(root)
+}
 
-    /// One step: tests the current leaf through `leaf`, or visits the current inner node
-    /// (`visit(r, best_t, stack, stats, obs)` tests node `r` against the cull distance of
-    /// `best_t`, pushes the hit children it does not continue with, and returns the one it
-    /// continues with, or `None`); pops the stack (culled by the closest hit when `DIST`)
-    /// whenever the step continues nowhere. `as_leaf(r)` says whether reference `r` is a
-    /// leaf (and which packed slots). Returns false when the ray is done.
-    #[inline(always)]
-    #[allow(clippy::too_many_arguments)]
-    pub fn step<const DIST: bool, O: Observer, S: KernelStack<Ref = R>>(
-        &mut self,
-        leaf: &LeafTriangles,
-        ray: &Ray,
-        pre: &RayPrecomp,
-        query: Query,
-        stack: &mut S,
-        obs: &mut O,
-        as_leaf: impl Fn(R) -> Option<ChildRef>,
-        mut visit: impl FnMut(R, f32, &mut S, &mut RayStats, &mut O) -> Option<R>,
-    ) -> bool {
-        let Some(c) = self.cur else {
-            return false;
-        };
-        if let Some(l) = as_leaf(c) {
-            let stop = leaf.intersect(
-                l.index,
-                l.count,
-                pre,
-                ray.t_min,
-                query,
-                &mut self.best,
-                &mut self.best_t,
-                &mut self.stats,
-                obs,
-            );
-            if stop {
-                self.cur = None;
-                return false;
-            }
-        } else if let Some(next) = visit(c, self.best_t, stack, &mut self.stats, obs) {
-            self.cur = Some(next);
-            return true;
-        }
-        self.cur = stack.pop(DIST, self.best_t, &mut self.stats, obs);
-        self.cur.is_some()
-    }
+/// What a ray does after one [`step`].
+pub(crate) enum Next<R> {
+    /// Visit this reference (the node visit's chosen child).
+    Visit(R),
+    /// Pop the stack ([`KernelStack::pop`]).
+    Pop,
+    /// The ray is done (an any-hit query found its hit).
+    Done,
+}
 
-    /// Ends the ray: its hit (the closest, or for `Query::Any` the first found) and its
-    /// counters (`hits` counted), reported to the observer. Leaves the walk empty.
-    #[inline(always)]
-    pub fn finish<O: Observer>(&mut self, obs: &mut O) -> (Option<Hit>, RayStats) {
-        let best = self.best.take();
-        let mut stats = std::mem::take(&mut self.stats);
-        stats.hits += best.is_some() as u64;
-        obs.end(best.as_ref());
-        (best, stats)
+/// One step of a ray's traversal at reference `c`: tests the leaf through `leaf`
+/// (updating `best` and `best_t`), or visits the inner node (`visit(r, best_t, stack,
+/// stats, obs)` tests node `r` against the cull distance of `best_t`, pushes the hit
+/// children it does not continue with, and returns the one it continues with, or
+/// `None`). `as_leaf(r)` says whether reference `r` is a leaf (and which packed slots).
+/// The caller then pops the stack (culled by the closest hit when `DIST`) whenever the
+/// step continues nowhere.
+#[inline(always)]
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn step<O: Observer, S: KernelStack>(
+    c: S::Ref,
+    leaf: &LeafTriangles,
+    ray: &Ray,
+    pre: &RayPrecomp,
+    query: Query,
+    best: &mut Option<Hit>,
+    best_t: &mut f32,
+    stack: &mut S,
+    stats: &mut RayStats,
+    obs: &mut O,
+    as_leaf: impl Fn(S::Ref) -> Option<ChildRef>,
+    mut visit: impl FnMut(S::Ref, f32, &mut S, &mut RayStats, &mut O) -> Option<S::Ref>,
+) -> Next<S::Ref> {
+    if let Some(l) = as_leaf(c) {
+        let stop = leaf.intersect(
+            l.index, l.count, pre, ray.t_min, query, best, best_t, stats, obs,
+        );
+        if stop {
+            return Next::Done;
+        }
+    } else if let Some(next) = visit(c, *best_t, stack, stats, obs) {
+        return Next::Visit(next);
     }
+    Next::Pop
+}
+
+/// Ends a ray: its hit (the closest, or for `Query::Any` the first found), counted in
+/// `stats` and reported to the observer.
+#[inline(always)]
+pub(crate) fn finish<O: Observer>(
+    best: Option<Hit>,
+    stats: &mut RayStats,
+    obs: &mut O,
+) -> Option<Hit> {
+    stats.hits += best.is_some() as u64;
+    obs.end(best.as_ref());
+    best
 }
 
 /// The traversal loop shared by the kernels over uncompressed trees (`Bvh2`, `Mbvh4`,
-/// `Mbvh8`): one ray's [`Walk`] from `root` to the end, its counters added to `total` once.
-/// The kernels differ only in their node visit and in how they store references and stack
-/// entries ([`KernelStack`]). Inlined into each kernel, so each keeps its own code.
+/// `Mbvh8`): one ray from `root` to the end ([`begin`], [`step`] until done, [`finish`]),
+/// its closest hit and counters kept in locals (registers), the counters added to `total`
+/// once. The kernels differ only in their node visit and in how they store references
+/// and stack entries ([`KernelStack`]). Inlined into each kernel, so each keeps its own
+/// code.
 #[inline(always)]
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn traverse<const DIST: bool, O: Observer, S: KernelStack>(
@@ -730,10 +724,38 @@ pub(crate) fn traverse<const DIST: bool, O: Observer, S: KernelStack>(
     as_leaf: impl Fn(S::Ref) -> Option<ChildRef>,
     mut visit: impl FnMut(S::Ref, f32, &mut S, &mut RayStats, &mut O) -> Option<S::Ref>,
 ) -> Option<Hit> {
-    let mut walk = Walk::begin(ray, query, root, stack, obs);
-    while walk.step::<DIST, O, S>(leaf, ray, pre, query, stack, obs, &as_leaf, &mut visit) {}
-    let (best, stats) = walk.finish(obs);
-    total.add(&stats);
+    let mut ray_stats = RayStats::default();
+    let stats = &mut ray_stats;
+    let mut cur = begin(ray, query, root, stack, stats, obs);
+    let mut best: Option<Hit> = None;
+    let mut best_t = ray.t_max;
+    while let Some(c) = cur {
+        let next = step::<O, S>(
+            c,
+            leaf,
+            ray,
+            pre,
+            query,
+            &mut best,
+            &mut best_t,
+            stack,
+            stats,
+            obs,
+            &as_leaf,
+            &mut visit,
+        );
+        match next {
+            Next::Visit(n) => {
+                cur = Some(n);
+                continue;
+            }
+            Next::Done => break,
+            Next::Pop => {}
+        }
+        cur = stack.pop(DIST, best_t, stats, obs);
+    }
+    let best = finish(best, stats, obs);
+    total.add(stats);
     best
 }
 

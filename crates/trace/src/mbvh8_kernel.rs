@@ -17,8 +17,8 @@
 //! of the other kernels (child masks of eight bits).
 
 use crate::accel::{
-    cull_distance, huge_page_vec, prefetch, refit_nodes, traverse, Hit, LeafTriangles, Slab,
-    TraversalStack, Traverse, Walk, WideStack,
+    self, cull_distance, huge_page_vec, prefetch, refit_nodes, traverse, Hit, KernelStack,
+    LeafTriangles, Slab, TraversalStack, Traverse, WideStack,
 };
 use crate::bvh2_kernel::check_links;
 use crate::observer::{Observer, Query};
@@ -700,16 +700,25 @@ impl Mbvh8Accel {
         struct Lane<'s> {
             /// The ray traced in this lane (`usize::MAX`: none, the batch is ending).
             ray: usize,
+            /// The reference it visits next (`None`: the ray is done).
+            cur: Option<u32>,
             pre: RayPrecomp,
             slab: Slab,
-            walk: Walk<u32>,
+            walk: accel::Closest,
+            stats: RayStats,
             stack: WideStack<'s>,
         }
         let start = |i: usize, stack: &mut WideStack<'_>| {
             let ray = &rays[i];
             let pre = RayPrecomp::new(ray);
             let slab = Slab::new(&pre, ray.t_min);
-            (pre, slab, Walk::begin(ray, query, 0, stack, &mut ()))
+            let mut stats = RayStats::default();
+            let cur = accel::begin(ray, query, 0, stack, &mut stats, &mut ());
+            let walk = accel::Closest {
+                best: None,
+                best_t: ray.t_max,
+            };
+            (pre, slab, walk, stats, cur)
         };
         let n = self.lanes.min(rays.len());
         let mut lanes: Vec<Lane> = stack
@@ -718,12 +727,14 @@ impl Mbvh8Accel {
             .enumerate()
             .map(|(i, st)| {
                 let mut stack = st.wide();
-                let (pre, slab, walk) = start(i, &mut stack);
+                let (pre, slab, walk, stats, cur) = start(i, &mut stack);
                 Lane {
                     ray: i,
+                    cur,
                     pre,
                     slab,
                     walk,
+                    stats,
                     stack,
                 }
             })
@@ -736,25 +747,41 @@ impl Mbvh8Accel {
                     continue;
                 }
                 let slab = &l.slab;
-                let more = l.walk.step::<DIST, (), _>(
-                    &self.leaf,
-                    &rays[l.ray],
-                    &l.pre,
-                    query,
-                    &mut l.stack,
-                    &mut (),
-                    |c| self.as_leaf(c),
-                    |c, best_t, st, stats, obs| {
-                        self.visit::<AVX, ()>(slab, c, best_t, st, stats, obs)
-                    },
-                );
-                if more {
-                    continue;
+                if let Some(c) = l.cur {
+                    l.cur = match accel::step::<(), _>(
+                        c,
+                        &self.leaf,
+                        &rays[l.ray],
+                        &l.pre,
+                        query,
+                        &mut l.walk.best,
+                        &mut l.walk.best_t,
+                        &mut l.stack,
+                        &mut l.stats,
+                        &mut (),
+                        |c| self.as_leaf(c),
+                        |c, best_t, st, stats, obs| {
+                            self.visit::<AVX, ()>(slab, c, best_t, st, stats, obs)
+                        },
+                    ) {
+                        accel::Next::Visit(next) => Some(next),
+                        accel::Next::Pop => KernelStack::pop(
+                            &mut l.stack,
+                            DIST,
+                            l.walk.best_t,
+                            &mut l.stats,
+                            &mut (),
+                        ),
+                        accel::Next::Done => None,
+                    };
+                    if l.cur.is_some() {
+                        continue;
+                    }
                 }
-                let (hit, stats) = l.walk.finish(&mut ());
-                done(l.ray, hit, &stats);
+                let hit = accel::finish(l.walk.best, &mut l.stats, &mut ());
+                done(l.ray, hit, &l.stats);
                 if next < rays.len() {
-                    (l.pre, l.slab, l.walk) = start(next, &mut l.stack);
+                    (l.pre, l.slab, l.walk, l.stats, l.cur) = start(next, &mut l.stack);
                     l.ray = next;
                     next += 1;
                 } else {
