@@ -618,8 +618,8 @@ impl InstanceCaster {
             &self.state,
             |_| InstanceStack::new(),
             |s, stack, batch, out, tot| {
-                for (o, ray) in out.iter_mut().zip(batch) {
-                    *o = s.accel.any_hit(ray, stack, tot).is_some();
+                for (i, o) in out.iter_mut().enumerate() {
+                    *o = s.accel.any_hit(&batch.ray(i), stack, tot).is_some();
                 }
             },
         )

@@ -169,7 +169,7 @@ pub(crate) fn ray_column<'py, T, S, X>(
     what: &str,
     lock: &RwLock<S>,
     scratch: impl Fn(&S) -> X + Sync,
-    batch: impl Fn(&S, &mut X, &[Ray], &mut [T], &mut RayStats) + Sync,
+    batch: impl Fn(&S, &mut X, &RaySlices<'_>, &mut [T], &mut RayStats) + Sync,
 ) -> PyResult<Bound<'py, PyArray1<T>>>
 where
     T: numpy::Element + Send,
@@ -183,10 +183,7 @@ where
         lock,
         || rays.check(),
         scratch,
-        |s, x, first, run, tot| {
-            let r: Vec<Ray> = (first..first + run.len()).map(|i| rays.ray(i)).collect();
-            batch(s, x, &r, run, tot)
-        },
+        |s, x, first, run, tot| batch(s, x, &rays.window(first, run.len()), run, tot),
     )
 }
 
@@ -246,9 +243,9 @@ impl<'a> Closest<'a> {
         rays: &RaySlices<'_>,
         first: usize,
         totals: &mut RayStats,
-        mut trace: impl FnMut(&[Ray], &mut Done<'_>),
+        mut trace: impl FnMut(&RaySlices<'_>, &mut Done<'_>),
     ) {
-        let batch: Vec<Ray> = (first..first + self.t.len()).map(|i| rays.ray(i)).collect();
+        let batch = rays.window(first, self.t.len());
         let Closest {
             t,
             mut instance,
@@ -271,7 +268,7 @@ impl<'a> Closest<'a> {
                     u[k] = h.bary[1];
                     v[k] = h.bary[2];
                     hit[k] = true;
-                    p.copy_from_slice(&batch[k].at(h.t).to_array());
+                    p.copy_from_slice(&batch.ray(k).at(h.t).to_array());
                 }
                 None => {
                     t[k] = f32::INFINITY;
@@ -310,7 +307,7 @@ impl<'a> Closest<'a> {
         self,
         rays: &RaySlices<'_>,
         scratch: impl Fn() -> X + Sync,
-        trace: impl Fn(&mut X, &[Ray], &mut Done<'_>) + Sync,
+        trace: impl Fn(&mut X, &RaySlices<'_>, &mut Done<'_>) + Sync,
     ) -> RayStats {
         let n = self.t.len();
         let parts = self.split(chunk_for(n));
@@ -328,13 +325,13 @@ pub(crate) type Done<'a> = dyn FnMut(usize, Option<InstanceHit>, &RayStats) + 'a
 /// `one(scratch, ray, counters)` for each ray of `batch`.
 pub(crate) fn one_by_one<X>(
     x: &mut X,
-    batch: &[Ray],
+    batch: &RaySlices<'_>,
     done: &mut Done<'_>,
     one: impl Fn(&mut X, &Ray, &mut RayStats) -> Option<InstanceHit>,
 ) {
-    for (i, ray) in batch.iter().enumerate() {
+    for i in 0..batch.len() {
         let mut st = RayStats::default();
-        let h = one(x, ray, &mut st);
+        let h = one(x, &batch.ray(i), &mut st);
         done(i, h, &st);
     }
 }
@@ -434,7 +431,7 @@ impl<'py> HitArrays<'py> {
         rays: &RaySlices<'_>,
         lock: &RwLock<S>,
         scratch: impl Fn() -> X + Sync,
-        trace: impl Fn(&S, &mut X, &[Ray], &mut Done<'_>) + Sync,
+        trace: impl Fn(&S, &mut X, &RaySlices<'_>, &mut Done<'_>) + Sync,
         after: impl FnOnce(&S) -> R + Send,
     ) -> PyResult<(RayStats, R)>
     where

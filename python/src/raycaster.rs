@@ -15,8 +15,8 @@ use crate::bvh::{aabbs, config, in_pool, Bvh};
 use crate::detached;
 use crate::query::{cached_normals, query_column, ray_column, Done, HitArrays};
 use crate::trace::{
-    accel_of, check_current, default_distance_stack, tree_kernel, RayArrays, CHUNK, KERNELS,
-    NO_HIT, SERIAL_RAYS,
+    accel_of, check_current, default_distance_stack, tree_kernel, RayArrays, RaySlices, CHUNK,
+    KERNELS, NO_HIT, SERIAL_RAYS,
 };
 use ::trace::instance::InstanceHit;
 use ::trace::{Accel, KernelOptions, Query, RayStats, TraversalStack, Traverse};
@@ -165,7 +165,7 @@ fn refit_state(
 /// 8-wide kernel interleaves over trees larger than the cache), as the columns of
 /// [`HitArrays`] take them.
 #[inline(always)]
-fn closest(accel: &Accel, rays: &[Ray], stack: &mut TraversalStack, done: &mut Done<'_>) {
+fn closest(accel: &Accel, rays: &RaySlices<'_>, stack: &mut TraversalStack, done: &mut Done<'_>) {
     accel.trace_batch(rays, Query::Closest, stack, |i, h, st| {
         let h = h.map(|h| InstanceHit {
             t: h.t,

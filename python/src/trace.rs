@@ -335,7 +335,8 @@ impl<'py> RayArrays<'py> {
     }
 }
 
-/// The contents of [`RayArrays`].
+/// The contents of [`RayArrays`], read by the batch queries in place
+/// ([`::trace::RaySource`]).
 pub(crate) struct RaySlices<'a> {
     o: &'a [Vec3],
     d: &'a [Vec3],
@@ -447,6 +448,18 @@ impl<'a> RaySlices<'a> {
             .into_par_iter()
             .map(|i| self.ray(i))
             .collect())
+    }
+}
+
+impl ::trace::RaySource for RaySlices<'_> {
+    #[inline(always)]
+    fn len(&self) -> usize {
+        RaySlices::len(self)
+    }
+
+    #[inline(always)]
+    fn ray(&self, i: usize) -> Ray {
+        RaySlices::ray(self, i)
     }
 }
 

@@ -787,6 +787,34 @@ pub(crate) fn traverse_child_refs<const DIST: bool, O: Observer>(
     )
 }
 
+/// The rays of a batch query ([`Traverse::trace_batch`]), read by index: a slice of
+/// [`Ray`]s, or rays kept some other way (columns of origins, directions and ranges, as
+/// the Python binding has them), so that a batch need not be copied into `Ray`s first.
+pub trait RaySource {
+    /// Number of rays.
+    fn len(&self) -> usize;
+
+    /// Ray `i` (below [`RaySource::len`]).
+    fn ray(&self, i: usize) -> Ray;
+
+    /// True when there are no rays.
+    fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+}
+
+impl RaySource for [Ray] {
+    #[inline(always)]
+    fn len(&self) -> usize {
+        <[Ray]>::len(self)
+    }
+
+    #[inline(always)]
+    fn ray(&self, i: usize) -> Ray {
+        self[i]
+    }
+}
+
 /// A tree that rays can be traced through.
 pub trait Traverse: Send + Sync {
     /// Traces `ray` for `query`, reporting events to `obs` and adding the ray's counters
@@ -826,16 +854,16 @@ pub trait Traverse: Send + Sync {
     /// rays on one thread, so that one ray's node fetches overlap another's work
     /// ([`crate::Mbvh8Accel::trace_batch`]).
     #[inline]
-    fn trace_batch<F: FnMut(usize, Option<Hit>, &RayStats)>(
+    fn trace_batch<R: RaySource + ?Sized, F: FnMut(usize, Option<Hit>, &RayStats)>(
         &self,
-        rays: &[Ray],
+        rays: &R,
         query: Query,
         stack: &mut TraversalStack,
         mut done: F,
     ) {
-        for (i, ray) in rays.iter().enumerate() {
+        for i in 0..rays.len() {
             let mut stats = RayStats::default();
-            let hit = self.trace_observed(ray, query, stack, &mut stats, &mut ());
+            let hit = self.trace_observed(&rays.ray(i), query, stack, &mut stats, &mut ());
             done(i, hit, &stats);
         }
     }

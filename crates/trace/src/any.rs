@@ -2,7 +2,7 @@
 //! time (the `arbor render` command, benchmarks). The per-ray `match` costs one predictable
 //! branch.
 
-use crate::accel::{Hit, TraversalStack, Traverse};
+use crate::accel::{Hit, RaySource, TraversalStack, Traverse};
 use crate::observer::{Observer, Query};
 use crate::stats::RayStats;
 use crate::{Bvh2Accel, CbvhAccel, Mbvh4Accel, Mbvh8Accel};
@@ -81,9 +81,9 @@ impl Traverse for Accel {
     }
 
     #[inline]
-    fn trace_batch<F: FnMut(usize, Option<Hit>, &RayStats)>(
+    fn trace_batch<R: RaySource + ?Sized, F: FnMut(usize, Option<Hit>, &RayStats)>(
         &self,
-        rays: &[Ray],
+        rays: &R,
         query: Query,
         stack: &mut TraversalStack,
         done: F,

@@ -82,7 +82,9 @@ mod tests_render;
 #[cfg(test)]
 mod testutil;
 
-pub use accel::{cull_distance, enters_own_box, Hit, TraversalStack, Traverse, CULL_SLACK};
+pub use accel::{
+    cull_distance, enters_own_box, Hit, RaySource, TraversalStack, Traverse, CULL_SLACK,
+};
 pub use any::Accel;
 pub use brute::brute_force;
 pub use bvh2_kernel::Bvh2Accel;

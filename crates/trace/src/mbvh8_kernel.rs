@@ -18,7 +18,7 @@
 
 use crate::accel::{
     self, cull_distance, huge_page_vec, prefetch, refit_nodes, traverse, Hit, KernelStack,
-    LeafTriangles, Slab, TraversalStack, Traverse, WideStack,
+    LeafTriangles, RaySource, Slab, TraversalStack, Traverse, WideStack,
 };
 use crate::bvh2_kernel::check_links;
 use crate::observer::{Observer, Query};
@@ -674,14 +674,18 @@ impl Mbvh8Accel {
     /// [`Self::batch`] compiled for AVX2, as [`Self::run_avx`].
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx,avx2,fma,bmi1,bmi2,popcnt,lzcnt")]
-    fn batch_avx<const DIST: bool, F: FnMut(usize, Option<Hit>, &RayStats)>(
+    fn batch_avx<
+        const DIST: bool,
+        R: RaySource + ?Sized,
+        F: FnMut(usize, Option<Hit>, &RayStats),
+    >(
         &self,
-        rays: &[Ray],
+        rays: &R,
         query: Query,
         stack: &mut TraversalStack,
         done: F,
     ) {
-        self.batch::<DIST, true, F>(rays, query, stack, done)
+        self.batch::<DIST, true, R, F>(rays, query, stack, done)
     }
 
     /// Traces `rays` [`Self::lanes`] at a time on this thread, round robin: each ray in
@@ -690,16 +694,23 @@ impl Mbvh8Accel {
     /// memory the others work. A finished ray hands its lane to the next ray of the batch.
     /// Each ray's steps are those it takes alone, so its answer and counters are too.
     #[inline(always)]
-    fn batch<const DIST: bool, const AVX: bool, F: FnMut(usize, Option<Hit>, &RayStats)>(
+    fn batch<
+        const DIST: bool,
+        const AVX: bool,
+        R: RaySource + ?Sized,
+        F: FnMut(usize, Option<Hit>, &RayStats),
+    >(
         &self,
-        rays: &[Ray],
+        rays: &R,
         query: Query,
         stack: &mut TraversalStack,
         mut done: F,
     ) {
         struct Lane<'s> {
-            /// The ray traced in this lane (`usize::MAX`: none, the batch is ending).
-            ray: usize,
+            /// The index of the ray traced in this lane (`usize::MAX`: none, the batch is
+            /// ending), and the ray.
+            index: usize,
+            ray: Ray,
             /// The reference it visits next (`None`: the ray is done).
             cur: Option<u32>,
             pre: RayPrecomp,
@@ -709,16 +720,16 @@ impl Mbvh8Accel {
             stack: WideStack<'s>,
         }
         let start = |i: usize, stack: &mut WideStack<'_>| {
-            let ray = &rays[i];
-            let pre = RayPrecomp::new(ray);
+            let ray = rays.ray(i);
+            let pre = RayPrecomp::new(&ray);
             let slab = Slab::new(&pre, ray.t_min);
             let mut stats = RayStats::default();
-            let cur = accel::begin(ray, query, 0, stack, &mut stats, &mut ());
+            let cur = accel::begin(&ray, query, 0, stack, &mut stats, &mut ());
             let walk = accel::Closest {
                 best: None,
                 best_t: ray.t_max,
             };
-            (pre, slab, walk, stats, cur)
+            (ray, pre, slab, walk, stats, cur)
         };
         let n = self.lanes.min(rays.len());
         let mut lanes: Vec<Lane> = stack
@@ -727,9 +738,10 @@ impl Mbvh8Accel {
             .enumerate()
             .map(|(i, st)| {
                 let mut stack = st.wide();
-                let (pre, slab, walk, stats, cur) = start(i, &mut stack);
+                let (ray, pre, slab, walk, stats, cur) = start(i, &mut stack);
                 Lane {
-                    ray: i,
+                    index: i,
+                    ray,
                     cur,
                     pre,
                     slab,
@@ -743,7 +755,7 @@ impl Mbvh8Accel {
         let mut live = n;
         while live > 0 {
             for l in lanes.iter_mut() {
-                if l.ray == usize::MAX {
+                if l.index == usize::MAX {
                     continue;
                 }
                 let slab = &l.slab;
@@ -751,7 +763,7 @@ impl Mbvh8Accel {
                     l.cur = match accel::step::<(), _>(
                         c,
                         &self.leaf,
-                        &rays[l.ray],
+                        &l.ray,
                         &l.pre,
                         query,
                         &mut l.walk.best,
@@ -779,13 +791,13 @@ impl Mbvh8Accel {
                     }
                 }
                 let hit = accel::finish(l.walk.best, &mut l.stats, &mut ());
-                done(l.ray, hit, &l.stats);
+                done(l.index, hit, &l.stats);
                 if next < rays.len() {
-                    (l.pre, l.slab, l.walk, l.stats, l.cur) = start(next, &mut l.stack);
-                    l.ray = next;
+                    (l.ray, l.pre, l.slab, l.walk, l.stats, l.cur) = start(next, &mut l.stack);
+                    l.index = next;
                     next += 1;
                 } else {
-                    l.ray = usize::MAX;
+                    l.index = usize::MAX;
                     live -= 1;
                 }
             }
@@ -896,17 +908,17 @@ impl Traverse for Mbvh8Accel {
 
     /// As [`Traverse::trace_batch`], interleaving the rays [`Mbvh8Accel::interleave`]
     /// says on this thread (see [`Interleave`]).
-    fn trace_batch<F: FnMut(usize, Option<Hit>, &RayStats)>(
+    fn trace_batch<R: RaySource + ?Sized, F: FnMut(usize, Option<Hit>, &RayStats)>(
         &self,
-        rays: &[Ray],
+        rays: &R,
         query: Query,
         stack: &mut TraversalStack,
         mut done: F,
     ) {
         if self.lanes <= 1 || rays.len() <= 1 {
-            for (i, ray) in rays.iter().enumerate() {
+            for i in 0..rays.len() {
                 let mut stats = RayStats::default();
-                let hit = self.trace_observed(ray, query, stack, &mut stats, &mut ());
+                let hit = self.trace_observed(&rays.ray(i), query, stack, &mut stats, &mut ());
                 done(i, hit, &stats);
             }
             return;
@@ -916,16 +928,16 @@ impl Traverse for Mbvh8Accel {
             // SAFETY: `avx` is set only where the CPU has AVX2.
             return unsafe {
                 if self.options.distance_stack {
-                    self.batch_avx::<true, F>(rays, query, stack, done)
+                    self.batch_avx::<true, R, F>(rays, query, stack, done)
                 } else {
-                    self.batch_avx::<false, F>(rays, query, stack, done)
+                    self.batch_avx::<false, R, F>(rays, query, stack, done)
                 }
             };
         }
         if self.options.distance_stack {
-            self.batch::<true, false, F>(rays, query, stack, done)
+            self.batch::<true, false, R, F>(rays, query, stack, done)
         } else {
-            self.batch::<false, false, F>(rays, query, stack, done)
+            self.batch::<false, false, R, F>(rays, query, stack, done)
         }
     }
 
@@ -1089,6 +1101,43 @@ mod tests {
                     }
                 }
             }
+        }
+    }
+
+    /// A batch reads its rays through `RaySource`: rays kept as columns trace exactly as
+    /// the same rays in a slice.
+    #[test]
+    fn batches_read_rays_from_any_source() {
+        struct Columns {
+            o: Vec<Vec3>,
+            d: Vec<Vec3>,
+            range: Vec<[f32; 2]>,
+        }
+        impl RaySource for Columns {
+            fn len(&self) -> usize {
+                self.o.len()
+            }
+            fn ray(&self, i: usize) -> Ray {
+                Ray::with_range(self.o[i], self.d[i], self.range[i][0], self.range[i][1])
+            }
+        }
+        let tris = soup(800, 1.5, 4);
+        let rays = random_rays(300, Vec3::ZERO, 2.0, 8);
+        let cols = Columns {
+            o: rays.iter().map(|r| r.origin).collect(),
+            d: rays.iter().map(|r| r.dir).collect(),
+            range: rays.iter().map(|r| [r.t_min, r.t_max]).collect(),
+        };
+        assert!(!cols.is_empty() && RaySource::is_empty(&rays[..0]));
+        let (_, a) = all_mbvh8(&tris).swap_remove(3);
+        let mut stack = TraversalStack::new();
+        for lanes in [1, 8] {
+            let a = a.clone().with_interleave(Interleave::Rays(lanes));
+            let (mut x, mut y) = (vec![None; 300], vec![None; 300]);
+            a.trace_batch(&rays[..], Query::Closest, &mut stack, |i, h, _| x[i] = h);
+            a.trace_batch(&cols, Query::Closest, &mut stack, |i, h, _| y[i] = h);
+            assert_eq!(x, y);
+            assert!(x.iter().any(|h| h.is_some()));
         }
     }
 
