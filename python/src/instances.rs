@@ -563,8 +563,8 @@ impl InstanceCaster {
             &rays,
             &self.state,
             InstanceStack::new,
-            |s, stack, batch, done| {
-                one_by_one(stack, batch, done, |stack, ray, st| {
+            |s, stack, batch, sink| {
+                one_by_one(stack, batch, sink, |stack, ray, st| {
                     s.accel.closest_hit(ray, stack, st)
                 })
             },

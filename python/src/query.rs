@@ -235,69 +235,23 @@ impl<'a> Closest<'a> {
         out
     }
 
-    /// Traces rays `first..first + self.t.len()` as one batch with `trace(rays, done)`,
-    /// which calls `done(i, hit, counters)` once for each ray `i` of the batch (the closest
-    /// hit; `instance` 0 where there are no instances), and writes their results.
+    /// Traces rays `first..first + self.t.len()` as one batch with `trace(rays, sink)`,
+    /// which calls `sink.put(i, hit, counters)` once for each ray `i` of the batch (the
+    /// closest hit; `instance` 0 where there are no instances), and writes their results.
     fn fill(
         self,
         rays: &RaySlices<'_>,
         first: usize,
         totals: &mut RayStats,
-        mut trace: impl FnMut(&RaySlices<'_>, &mut Done<'_>),
+        mut trace: impl FnMut(&RaySlices<'_>, &mut Sink<'_, '_>),
     ) {
         let batch = rays.window(first, self.t.len());
-        let Closest {
-            t,
-            mut instance,
-            prim,
-            u,
-            v,
-            hit,
-            location,
-            mut counters,
-        } = self;
-        trace(&batch, &mut |k, h, st| {
-            let p = &mut location[3 * k..3 * k + 3];
-            match h {
-                Some(h) => {
-                    t[k] = h.t;
-                    if let Some(i) = instance.as_deref_mut() {
-                        i[k] = h.instance;
-                    }
-                    prim[k] = h.prim;
-                    u[k] = h.bary[1];
-                    v[k] = h.bary[2];
-                    hit[k] = true;
-                    p.copy_from_slice(&batch.ray(k).at(h.t).to_array());
-                }
-                None => {
-                    t[k] = f32::INFINITY;
-                    if let Some(i) = instance.as_deref_mut() {
-                        i[k] = NO_HIT;
-                    }
-                    prim[k] = NO_HIT;
-                    u[k] = 0.0;
-                    v[k] = 0.0;
-                    hit[k] = false;
-                    p.fill(f32::NAN);
-                }
-            }
-            if let Some(c) = counters.as_deref_mut() {
-                let row = [
-                    st.node_visits,
-                    st.box_tests,
-                    st.tri_tests,
-                    st.leaf_visits,
-                    st.pops,
-                    st.culled_pops,
-                    st.max_stack_depth,
-                ];
-                for (j, x) in row.into_iter().enumerate() {
-                    c[COUNTERS.len() * k + j] = c32(x);
-                }
-            }
-            totals.add(st);
-        });
+        let mut sink = Sink {
+            cols: self,
+            batch: &batch,
+            totals,
+        };
+        trace(&batch, &mut sink);
     }
 
     /// Traces `rays` (as many as the columns) into the columns, on this thread for few
@@ -307,32 +261,85 @@ impl<'a> Closest<'a> {
         self,
         rays: &RaySlices<'_>,
         scratch: impl Fn() -> X + Sync,
-        trace: impl Fn(&mut X, &RaySlices<'_>, &mut Done<'_>) + Sync,
+        trace: impl Fn(&mut X, &RaySlices<'_>, &mut Sink<'_, '_>) + Sync,
     ) -> RayStats {
         let n = self.t.len();
         let parts = self.split(chunk_for(n));
         for_chunks(parts, |p, first, tot| {
             let mut x = scratch();
-            p.fill(rays, first, tot, |batch, done| trace(&mut x, batch, done))
+            p.fill(rays, first, tot, |batch, sink| trace(&mut x, batch, sink))
         })
     }
 }
 
-/// What a batch query calls once for each ray `i` of its batch: `done(i, hit, counters)`.
-pub(crate) type Done<'a> = dyn FnMut(usize, Option<InstanceHit>, &RayStats) + 'a;
+/// Where a batch query ([`Closest::fill`]) puts each ray's answer: the output columns of
+/// the run, the run's rays (for the hit locations) and the summed counters.
+pub(crate) struct Sink<'c, 'r> {
+    cols: Closest<'c>,
+    batch: &'r RaySlices<'r>,
+    totals: &'r mut RayStats,
+}
+
+impl Sink<'_, '_> {
+    /// Writes ray `k`'s closest hit (`None`: a miss) and counters.
+    #[inline(always)]
+    pub(crate) fn put(&mut self, k: usize, h: Option<InstanceHit>, st: &RayStats) {
+        let c = &mut self.cols;
+        let p = &mut c.location[3 * k..3 * k + 3];
+        match h {
+            Some(h) => {
+                c.t[k] = h.t;
+                if let Some(i) = c.instance.as_deref_mut() {
+                    i[k] = h.instance;
+                }
+                c.prim[k] = h.prim;
+                c.u[k] = h.bary[1];
+                c.v[k] = h.bary[2];
+                c.hit[k] = true;
+                p.copy_from_slice(&self.batch.ray(k).at(h.t).to_array());
+            }
+            None => {
+                c.t[k] = f32::INFINITY;
+                if let Some(i) = c.instance.as_deref_mut() {
+                    i[k] = NO_HIT;
+                }
+                c.prim[k] = NO_HIT;
+                c.u[k] = 0.0;
+                c.v[k] = 0.0;
+                c.hit[k] = false;
+                p.fill(f32::NAN);
+            }
+        }
+        if let Some(counters) = c.counters.as_deref_mut() {
+            let row = [
+                st.node_visits,
+                st.box_tests,
+                st.tri_tests,
+                st.leaf_visits,
+                st.pops,
+                st.culled_pops,
+                st.max_stack_depth,
+            ];
+            for (j, x) in row.into_iter().enumerate() {
+                counters[COUNTERS.len() * k + j] = c32(x);
+            }
+        }
+        self.totals.add(st);
+    }
+}
 
 /// A batch query ([`Closest::run`]) from one that traces a ray at a time:
 /// `one(scratch, ray, counters)` for each ray of `batch`.
 pub(crate) fn one_by_one<X>(
     x: &mut X,
     batch: &RaySlices<'_>,
-    done: &mut Done<'_>,
+    sink: &mut Sink<'_, '_>,
     one: impl Fn(&mut X, &Ray, &mut RayStats) -> Option<InstanceHit>,
 ) {
     for i in 0..batch.len() {
         let mut st = RayStats::default();
         let h = one(x, &batch.ray(i), &mut st);
-        done(i, h, &st);
+        sink.put(i, h, &st);
     }
 }
 
@@ -431,7 +438,7 @@ impl<'py> HitArrays<'py> {
         rays: &RaySlices<'_>,
         lock: &RwLock<S>,
         scratch: impl Fn() -> X + Sync,
-        trace: impl Fn(&S, &mut X, &RaySlices<'_>, &mut Done<'_>) + Sync,
+        trace: impl Fn(&S, &mut X, &RaySlices<'_>, &mut Sink<'_, '_>) + Sync,
         after: impl FnOnce(&S) -> R + Send,
     ) -> PyResult<(RayStats, R)>
     where
@@ -445,7 +452,7 @@ impl<'py> HitArrays<'py> {
             rays.check()?;
             let s = read(lock)?;
             let s = &*s;
-            let total = cols.run(rays, scratch, |x, batch, done| trace(s, x, batch, done));
+            let total = cols.run(rays, scratch, |x, batch, sink| trace(s, x, batch, sink));
             Ok::<_, String>((total, after(s)))
         })
     }

@@ -13,7 +13,7 @@
 use crate::arrays::{err, points};
 use crate::bvh::{aabbs, config, in_pool, Bvh};
 use crate::detached;
-use crate::query::{cached_normals, query_column, ray_column, Done, HitArrays};
+use crate::query::{cached_normals, query_column, ray_column, HitArrays, Sink};
 use crate::trace::{
     accel_of, check_current, default_distance_stack, tree_kernel, RayArrays, RaySlices, CHUNK,
     KERNELS, NO_HIT, SERIAL_RAYS,
@@ -165,7 +165,7 @@ fn refit_state(
 /// 8-wide kernel interleaves over trees larger than the cache), as the columns of
 /// [`HitArrays`] take them.
 #[inline(always)]
-fn closest(accel: &Accel, rays: &RaySlices<'_>, stack: &mut TraversalStack, done: &mut Done<'_>) {
+fn closest(accel: &Accel, rays: &RaySlices<'_>, stack: &mut TraversalStack, sink: &mut Sink) {
     accel.trace_batch(rays, Query::Closest, stack, |i, h, st| {
         let h = h.map(|h| InstanceHit {
             t: h.t,
@@ -173,7 +173,7 @@ fn closest(accel: &Accel, rays: &RaySlices<'_>, stack: &mut TraversalStack, done
             prim: h.prim,
             bary: h.bary,
         });
-        done(i, h, st)
+        sink.put(i, h, st)
     });
 }
 
@@ -934,8 +934,8 @@ impl RayCaster {
                     rays.window(0, n)
                 };
                 let accel = &s.accel;
-                let total = c.run(&window, TraversalStack::new, |stack, batch, done| {
-                    closest(accel, batch, stack, done)
+                let total = c.run(&window, TraversalStack::new, |stack, batch, sink| {
+                    closest(accel, batch, stack, sink)
                 });
                 done.push((total, g, s.triangles.clone()));
             }
@@ -974,7 +974,7 @@ impl RayCaster {
             &rays,
             &self.state,
             TraversalStack::new,
-            |s, stack, batch, done| closest(&s.accel, batch, stack, done),
+            |s, stack, batch, sink| closest(&s.accel, batch, stack, sink),
             // Read under the lock: the generation of the geometry just traced.
             |s| (self.generation.load(Ordering::SeqCst), s.triangles.clone()),
         )?;
