@@ -353,7 +353,7 @@ fn goal_rows(d: &BenchTraceJson) -> Table {
             g.scene.clone(),
             g.threads.to_string(),
             format!("{:.2}x (CPU {:.2}x)", g.vs_embree, g.vs_embree_cpu),
-            format!(">= {}x", g.target),
+            format!(">= {:.1}x", g.target),
             if g.met { "yes" } else { "no" }.to_string(),
             g.best_kernel.clone(),
         ]);
