@@ -1,6 +1,6 @@
 //! The plumbing that `RayCaster` and `InstanceCaster` queries share: an `out=` column
 //! filled per ray (or per point) with the interpreter released, in parallel runs for many
-//! rays, under the state's read lock ([`query_column`], [`ray_column`]); and the arrays of
+//! rays, under the state's read lock ([`query_runs`], [`ray_column`]); and the arrays of
 //! a closest-hit query, taken from an earlier result or allocated, borrowed for writing
 //! and filled the same way ([`HitArrays`], [`Closest`]). The helpers are generic over the
 //! per-ray work, so that it inlines into the loops.
@@ -82,40 +82,6 @@ fn out_array<'py, T: numpy::Element>(
             Ok(a.clone())
         }
     }
-}
-
-/// Fills a `(n,)` column of `T` (`out`, checked by [`out_array`] under the name `what`, or
-/// a fresh array) with `each(state, scratch, i, totals)` for `i` in `0..n`, as
-/// [`query_runs`].
-#[allow(clippy::too_many_arguments)]
-pub(crate) fn query_column<'py, T, S, X>(
-    py: Python<'py>,
-    out: Option<&Bound<'py, PyAny>>,
-    n: usize,
-    what: &str,
-    lock: &RwLock<S>,
-    check: impl FnOnce() -> Result<(), String> + Send,
-    scratch: impl Fn(&S) -> X + Sync,
-    each: impl Fn(&S, &mut X, usize, &mut RayStats) -> T + Sync,
-) -> PyResult<Bound<'py, PyArray1<T>>>
-where
-    T: numpy::Element + Send,
-    S: Healthy + Send + Sync,
-{
-    query_runs(
-        py,
-        out,
-        n,
-        what,
-        lock,
-        check,
-        scratch,
-        |s, x, first, run, tot| {
-            for (k, o) in run.iter_mut().enumerate() {
-                *o = each(s, x, first + k, tot);
-            }
-        },
-    )
 }
 
 /// Fills a `(n,)` column of `T` (`out`, checked by [`out_array`] under the name `what`, or

@@ -13,7 +13,7 @@
 use crate::arrays::{err, points};
 use crate::bvh::{aabbs, config, in_pool, Bvh};
 use crate::detached;
-use crate::query::{cached_normals, query_column, ray_column, HitArrays, Sink};
+use crate::query::{cached_normals, query_runs, ray_column, HitArrays, Sink};
 use crate::trace::{
     accel_of, check_current, default_distance_stack, tree_kernel, RayArrays, RaySlices, CHUNK,
     KERNELS, NO_HIT, SERIAL_RAYS,
@@ -21,7 +21,7 @@ use crate::trace::{
 use ::trace::instance::InstanceHit;
 use ::trace::{Accel, KernelOptions, Query, RayStats, TraversalStack, Traverse};
 use bvh::Tree;
-use geom::{Ray, Triangle, Vec3};
+use geom::{Aabb, Ray, Triangle, Vec3};
 use numpy::{PyArray1, PyArray2, PyArrayMethods, PyUntypedArrayMethods};
 use pyo3::prelude::*;
 use pyo3::types::{PyBytes, PyDict, PySlice, PyTuple};
@@ -1068,7 +1068,21 @@ impl RayCaster {
         let ps = p.as_vec3()?;
         let n = ps.len();
         let dirs = CONTAINS_DIRECTIONS.map(|d| Vec3::from_array(d).normalize());
-        query_column(
+        let inside = |s: &State, stack: &mut TraversalStack, bounds: &Aabb, q: Vec3| {
+            bounds.contains_point(q) && {
+                let mut odd = |d: Vec3| {
+                    crossings(&s.accel, &Ray::new(q, d), u32::MAX, stack, |_| {}) % 2 == 1
+                };
+                let (a, b) = (odd(dirs[0]), odd(dirs[1]));
+                // Two that agree decide; else the third.
+                if a == b {
+                    a
+                } else {
+                    odd(dirs[2])
+                }
+            }
+        };
+        query_runs(
             py,
             out,
             n,
@@ -1079,19 +1093,9 @@ impl RayCaster {
                 None => Ok(()),
             },
             |s| (TraversalStack::new(), s.tree.bounds()),
-            |s, (stack, bounds), i, _| {
-                let q = ps[i];
-                bounds.contains_point(q) && {
-                    let mut odd = |d: Vec3| {
-                        crossings(&s.accel, &Ray::new(q, d), u32::MAX, stack, |_| {}) % 2 == 1
-                    };
-                    let (a, b) = (odd(dirs[0]), odd(dirs[1]));
-                    // Two that agree decide; else the third.
-                    if a == b {
-                        a
-                    } else {
-                        odd(dirs[2])
-                    }
+            |s, (stack, bounds), first, run, _| {
+                for (o, &q) in run.iter_mut().zip(&ps[first..]) {
+                    *o = inside(s, stack, bounds, q);
                 }
             },
         )

@@ -830,6 +830,22 @@ fn trace_one<T: Traverse + ?Sized>(
     t.trace_observed(ray, query, stack, stats, &mut ())
 }
 
+/// [`Traverse::trace_batch`] one ray after the other (each through [`trace_one`]).
+#[inline]
+pub(crate) fn trace_each<T: Traverse + ?Sized, R: RaySource + ?Sized>(
+    t: &T,
+    rays: &R,
+    query: Query,
+    stack: &mut TraversalStack,
+    mut done: impl FnMut(usize, Option<Hit>, &RayStats),
+) {
+    for i in 0..rays.len() {
+        let mut stats = RayStats::default();
+        let hit = trace_one(t, &rays.ray(i), query, stack, &mut stats);
+        done(i, hit, &stats);
+    }
+}
+
 /// A tree that rays can be traced through.
 pub trait Traverse: Send + Sync {
     /// Traces `ray` for `query`, reporting events to `obs` and adding the ray's counters
@@ -874,13 +890,9 @@ pub trait Traverse: Send + Sync {
         rays: &R,
         query: Query,
         stack: &mut TraversalStack,
-        mut done: F,
+        done: F,
     ) {
-        for i in 0..rays.len() {
-            let mut stats = RayStats::default();
-            let hit = trace_one(self, &rays.ray(i), query, stack, &mut stats);
-            done(i, hit, &stats);
-        }
+        trace_each(self, rays, query, stack, done)
     }
 
     /// The closest hits of `rays` into `out` (as long as `rays`), their counters added to

@@ -649,10 +649,7 @@ impl Mbvh8Accel {
             // least eight entries, all that `push_sorted_avx` writes.
             return unsafe {
                 let (near, hit, mask, valid) = test8_avx(slab, node, t_max);
-                stats.node_visits += 1;
-                stats.box_tests += POPCOUNT8[valid as usize] as u64;
-                obs.node(cur, valid, mask);
-                let hits = POPCOUNT8[mask as usize] as usize;
+                let hits = Self::visited(cur, valid, mask, stats, obs);
                 if hits == 0 {
                     return None;
                 }
@@ -804,6 +801,23 @@ impl Mbvh8Accel {
         }
     }
 
+    /// Counts a visit of node `index` (its non-empty slots `valid` as box tests) and
+    /// reports it with its hit children `mask` to the observer; returns how many children
+    /// were hit. Both node visits start with it.
+    #[inline(always)]
+    fn visited<O: Observer>(
+        index: u32,
+        valid: u8,
+        mask: u8,
+        stats: &mut RayStats,
+        obs: &mut O,
+    ) -> usize {
+        stats.node_visits += 1;
+        stats.box_tests += POPCOUNT8[valid as usize] as u64;
+        obs.node(index, valid, mask);
+        POPCOUNT8[mask as usize] as usize
+    }
+
     /// Prefetches the hit children of `node` (`mask`), the one visited next included.
     #[inline(always)]
     fn prefetch_hits(&self, node: &Node8, mask: u8) {
@@ -840,10 +854,7 @@ impl Mbvh8Accel {
         obs: &mut O,
     ) -> Option<u32> {
         let (dist, mask, valid) = test8(slab, node, t_max);
-        stats.node_visits += 1;
-        stats.box_tests += POPCOUNT8[valid as usize] as u64;
-        obs.node(index, valid, mask);
-        let hits = POPCOUNT8[mask as usize] as usize;
+        let hits = Self::visited(index, valid, mask, stats, obs);
         if hits == 0 {
             return None;
         }
@@ -913,15 +924,10 @@ impl Traverse for Mbvh8Accel {
         rays: &R,
         query: Query,
         stack: &mut TraversalStack,
-        mut done: F,
+        done: F,
     ) {
         if self.lanes <= 1 || rays.len() <= 1 {
-            for i in 0..rays.len() {
-                let mut stats = RayStats::default();
-                let hit = self.trace_observed(&rays.ray(i), query, stack, &mut stats, &mut ());
-                done(i, hit, &stats);
-            }
-            return;
+            return accel::trace_each(self, rays, query, stack, done);
         }
         #[cfg(target_arch = "x86_64")]
         if self.avx {
