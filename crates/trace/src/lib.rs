@@ -1,7 +1,8 @@
 //! Arbor's ray tracer: traversal kernels for the binary `Bvh2` ([P2] §4.1), the 4-wide
 //! `Mbvh4` ([P4] §3.1) and the compressed `Cbvh` ([P3], boxes decoded on the fly, with the
 //! watertightness check of [P3] §5.5), closest-hit and any-hit queries with per-ray
-//! counters, custom primitives tested by a callback ([`custom`]), two-level instancing
+//! counters, one ray at a time or in batches ([`Traverse::trace_batch`], which the 8-wide
+//! kernel interleaves over trees larger than the cache), custom primitives tested by a callback ([`custom`]), two-level instancing
 //! with animated transforms ([`instance`]), a pinhole camera, primary-ray and diffuse
 //! path-traced rendering, images (shaded PNG, depth PFM or NPY, a heatmap of traversal
 //! cost in the style of the thesis's Fig. 2.2) and traversal logs, the input of the

@@ -14,7 +14,9 @@
 //! over distance keys, and two 8-lane stores onto the kernel's own stack of 32-bit
 //! references and distances; elsewhere the same order comes from a scalar insertion sort
 //! (tested to give the same counters ray by ray). Counters and observer events are those
-//! of the other kernels (child masks of eight bits).
+//! of the other kernels (child masks of eight bits). Batches of rays
+//! ([`Traverse::trace_batch`]) are traced several at a time per thread, a node visit each in
+//! turn, when the tree is larger than the last-level cache ([`Interleave`]).
 
 use crate::accel::{
     self, cull_distance, huge_page_vec, prefetch, refit_nodes, traverse, Hit, KernelStack,
