@@ -215,6 +215,10 @@ pub struct TraceRow {
     pub agreement: f64,
     /// Tree build time of this tracer, in ms (its own builder).
     pub build_ms: f64,
+    /// Rays one thread traces at once, interleaved (`trace::Interleave`): 1 for Arbor's
+    /// kernels but the 8-wide one over a tree larger than the last-level cache (or forced);
+    /// null for the peers, which take one ray per call.
+    pub interleave: Option<usize>,
     /// Wall time of every round, in round order, ms (for benchmark records' spread).
     pub round_ms: Vec<f64>,
 }
@@ -392,7 +396,12 @@ pub fn run(
         )
     }
     let mut tracers: Vec<(String, f64, Closest<'_>)> = Vec::new();
+    let mut lanes: Vec<Option<usize>> = Vec::new();
     for (name, accel, ms) in &kernels {
+        lanes.push(Some(match accel {
+            Accel::Mbvh8(a) => a.interleave().1,
+            _ => 1,
+        }));
         tracers.push((
             name.clone(),
             *ms,
@@ -469,6 +478,7 @@ pub fn run(
                     vs_embree_cpu: embree_cpu.map(|e| mrays_cpu(k) / e),
                     agreement: agreement(&answers[0], &answers[k]),
                     build_ms: *ms,
+                    interleave: lanes.get(k).copied().flatten(),
                     round_ms: round_ms[k].clone(),
                 });
             }

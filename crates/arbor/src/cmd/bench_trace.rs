@@ -267,6 +267,21 @@ pub fn run(a: &BenchTraceArgs, ui: &Ui) -> anyhow::Result<()> {
         let r = peers::trace_bench::run(&bench, &a.threads, a.rounds, &note)
             .map_err(|e| anyhow::anyhow!("{spec}: {e}"))?;
         spinner.replace(None);
+        let mut said = std::collections::BTreeSet::new();
+        for row in r.iter().filter(|r| r.interleave.is_some_and(|n| n > 1)) {
+            if said.insert(row.tracer.clone()) {
+                notes.push(format!(
+                    "{}: {} traces {} rays at a time per thread, interleaved (by default the \
+                     8-wide kernel does so only where its tree is larger than the last-level \
+                     cache: {})",
+                    row.scene,
+                    row.tracer,
+                    row.interleave.unwrap_or(1),
+                    trace::last_level_cache_bytes()
+                        .map_or("32 MiB assumed".into(), |b| format!("{} MiB here", b >> 20))
+                ));
+            }
+        }
         rows.extend(r);
     }
     let goals = goals(&rows);
