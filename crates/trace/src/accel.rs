@@ -372,6 +372,114 @@ pub(crate) fn fmin(a: f32, b: f32) -> f32 {
     }
 }
 
+/// The slab test of four child boxes, the one the 4-wide kernel and the 8-wide kernel's
+/// baseline path (two halves of a node) share. Lane `i` of box plane `p` (numbered as in
+/// [`Slab`]: `min_x, min_y, min_z, max_x, max_y, max_z`) is `planes[first + p * stride +
+/// i]`. Returns the entry distances (`+inf` for a missed or empty slot), the hit mask and
+/// the mask of non-empty slots (an empty slot is the only one whose box has
+/// `min_x = +inf`: trees over finite primitives have finite boxes). SSE on x86-64
+/// ([`slab_test4_sse`]), lane by lane elsewhere ([`slab_test4_portable`]): the same bits.
+#[inline(always)]
+pub(crate) fn slab_test4(
+    slab: &Slab,
+    planes: &[f32],
+    first: usize,
+    stride: usize,
+    t_max: f32,
+) -> ([f32; 4], u8, u8) {
+    #[cfg(target_arch = "x86_64")]
+    {
+        slab_test4_sse(slab, planes, first, stride, t_max)
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        slab_test4_portable(slab, planes, first, stride, t_max)
+    }
+}
+
+/// [`slab_test4`] lane by lane (compare-and-select `fmax`/`fmin`, which compile to SIMD
+/// max and min).
+#[cfg_attr(target_arch = "x86_64", allow(dead_code))]
+#[inline(always)]
+pub(crate) fn slab_test4_portable(
+    slab: &Slab,
+    planes: &[f32],
+    first: usize,
+    stride: usize,
+    t_max: f32,
+) -> ([f32; 4], u8, u8) {
+    let o = slab.origin;
+    let d = slab.inv_dir;
+    let mut dist = [f32::INFINITY; 4];
+    let (mut mask, mut valid) = (0u8, 0u8);
+    for i in 0..4 {
+        let v = |p: usize, a: usize| (planes[first + (p % 6) * stride + i] - o[a]) * d[a];
+        let near = fmax(
+            fmax(v(slab.near[0], 0), v(slab.near[1], 1)),
+            fmax(v(slab.near[2], 2), slab.t_min),
+        );
+        let far = fmin(
+            fmin(v(slab.far[0], 0), v(slab.far[1], 1)),
+            v(slab.far[2], 2),
+        ) * geom::SLAB_FAR_SCALE;
+        let hit = near <= fmin(far, t_max);
+        dist[i] = if hit { near } else { f32::INFINITY };
+        mask |= (hit as u8) << i;
+        valid |= ((planes[first + i] < f32::INFINITY) as u8) << i;
+    }
+    (dist, mask, valid)
+}
+
+/// [`slab_test4_portable`] in SSE (part of every x86-64 CPU): the same operations in the
+/// same order (`maxps`/`minps` return their second operand on NaN, as `fmax`/`fmin` do),
+/// so the same bits, but the hit mask comes from one `movmskps` and nothing goes through
+/// memory lane by lane.
+#[cfg(target_arch = "x86_64")]
+#[inline(always)]
+pub(crate) fn slab_test4_sse(
+    slab: &Slab,
+    planes: &[f32],
+    first: usize,
+    stride: usize,
+    t_max: f32,
+) -> ([f32; 4], u8, u8) {
+    use std::arch::x86_64::*;
+    // Every load below reads four floats at `first + p * stride` for p < 6 (folded away
+    // where the sizes are constants, as in both kernels).
+    assert!(
+        first + 5 * stride + 4 <= planes.len(),
+        "slab_test4: planes out of range"
+    );
+    // SAFETY: SSE and SSE2 are part of the x86-64 baseline; the assertion keeps every
+    // load inside `planes`.
+    unsafe {
+        let row = |p: usize| _mm_loadu_ps(planes.as_ptr().add(first + (p % 6) * stride));
+        let o = slab.origin;
+        let d = slab.inv_dir;
+        let t = |p: usize, a: usize| {
+            _mm_mul_ps(_mm_sub_ps(row(p), _mm_set1_ps(o[a])), _mm_set1_ps(d[a]))
+        };
+        let near = _mm_max_ps(
+            _mm_max_ps(t(slab.near[0], 0), t(slab.near[1], 1)),
+            _mm_max_ps(t(slab.near[2], 2), _mm_set1_ps(slab.t_min)),
+        );
+        let far = _mm_mul_ps(
+            _mm_min_ps(
+                _mm_min_ps(t(slab.far[0], 0), t(slab.far[1], 1)),
+                t(slab.far[2], 2),
+            ),
+            _mm_set1_ps(geom::SLAB_FAR_SCALE),
+        );
+        let hit = _mm_cmple_ps(near, _mm_min_ps(far, _mm_set1_ps(t_max)));
+        let inf = _mm_set1_ps(f32::INFINITY);
+        let dist = _mm_or_ps(_mm_and_ps(hit, near), _mm_andnot_ps(hit, inf));
+        let mut out = [0f32; 4];
+        _mm_storeu_ps(out.as_mut_ptr(), dist);
+        let valid = _mm_movemask_ps(_mm_cmplt_ps(row(0), inf)) as u8;
+        (out, _mm_movemask_ps(hit) as u8, valid)
+    }
+}
+
 /// A leaf's triangles packed for 4-wide tests.
 ///
 /// Triangles live in blocks of four ([`Triangles4`], structure of arrays). Leaves are

@@ -10,7 +10,7 @@
 //! MBVH. [`KernelOptions::distance_stack`] switches it off to measure that effect.
 
 use crate::accel::{
-    cull_distance, fmax, fmin, huge_page_vec, prefetch, refit_nodes, traverse_child_refs, Hit,
+    cull_distance, huge_page_vec, prefetch, refit_nodes, slab_test4, traverse_child_refs, Hit,
     LeafTriangles, Slab, TraversalStack, Traverse,
 };
 use crate::bvh2_kernel::check_links;
@@ -18,7 +18,7 @@ use crate::observer::{Observer, Query};
 use crate::stats::RayStats;
 use crate::{KernelOptions, TraceError};
 use bvh::{ChildRef, Mbvh4, Node4};
-use geom::{Ray, RayPrecomp, Triangle, SLAB_FAR_SCALE};
+use geom::{Ray, RayPrecomp, Triangle};
 
 /// A node aligned to 64-byte cache lines (a `Vec<Node4>` is only 4-byte aligned, so
 /// most of its 128-byte nodes would touch three lines instead of two).
@@ -35,95 +35,21 @@ pub struct Mbvh4Accel {
     options: KernelOptions,
 }
 
-/// Entry distances of the four children of a node; `+inf` for a missed or empty slot.
-/// (The portable form; x86-64 uses [`test4_sse`], which computes the same values.)
-#[cfg_attr(target_arch = "x86_64", allow(dead_code))]
+/// The six box-plane rows of a node (`min_x .. max_z`), four lanes each, as one array.
 #[inline(always)]
-fn test4_portable(slab: &Slab, n: &Node4, t_max: f32) -> ([f32; 4], u8, u8) {
-    // Padded to eight so that an index masked with 7 needs no bounds check.
-    let planes = [
-        &n.min_x, &n.min_y, &n.min_z, &n.max_x, &n.max_y, &n.max_z, &n.max_z, &n.max_z,
-    ];
-    let o = slab.origin;
-    let d = slab.inv_dir;
-    let row = |p: usize| planes[p & 7];
-    let (nx, ny, nz) = (row(slab.near[0]), row(slab.near[1]), row(slab.near[2]));
-    let (fx, fy, fz) = (row(slab.far[0]), row(slab.far[1]), row(slab.far[2]));
-    let mut dist = [f32::INFINITY; 4];
-    let mut mask = 0u8;
-    for i in 0..4 {
-        let near = fmax(
-            fmax((nx[i] - o[0]) * d[0], (ny[i] - o[1]) * d[1]),
-            fmax((nz[i] - o[2]) * d[2], slab.t_min),
-        );
-        let far = fmin(
-            fmin((fx[i] - o[0]) * d[0], (fy[i] - o[1]) * d[1]),
-            (fz[i] - o[2]) * d[2],
-        ) * SLAB_FAR_SCALE;
-        let hit = near <= fmin(far, t_max);
-        dist[i] = if hit { near } else { f32::INFINITY };
-        mask |= (hit as u8) << i;
-    }
-    let valid = (0..4).fold(0u8, |v, i| v | ((n.min_x[i] < f32::INFINITY) as u8) << i);
-    (dist, mask, valid)
+fn planes(n: &Node4) -> &[f32; 24] {
+    const _: () = assert!(std::mem::offset_of!(Node4, max_z) == 20 * 4);
+    // SAFETY: `Node4` is `repr(C)` and starts with its six `[f32; 4]` plane rows, in this
+    // order and without padding (checked above), so its first 96 bytes are 24 floats.
+    unsafe { &*(n as *const Node4 as *const [f32; 24]) }
 }
 
-/// [`test4_portable`] in SSE (part of every x86-64 CPU): the same operations in the same
-/// order (`maxps`/`minps` return their second operand on NaN, as `fmax`/`fmin` do), so the
-/// same bits, but the hit mask comes from one `movmskps` and nothing goes through memory
-/// lane by lane.
-#[cfg(target_arch = "x86_64")]
-#[inline(always)]
-fn test4_sse(slab: &Slab, n: &Node4, t_max: f32) -> ([f32; 4], u8, u8) {
-    use std::arch::x86_64::*;
-    // SAFETY: SSE and SSE2 are part of the x86-64 baseline; the six plane rows of a Node4
-    // are [f32; 4] fields, so each load reads 16 bytes inside the node.
-    unsafe {
-        let base = n as *const Node4 as *const f32;
-        let row = |p: usize| _mm_loadu_ps(base.add((p % 6) * 4));
-        let o = slab.origin;
-        let d = slab.inv_dir;
-        let t = |p: usize, a: usize| {
-            _mm_mul_ps(_mm_sub_ps(row(p), _mm_set1_ps(o[a])), _mm_set1_ps(d[a]))
-        };
-        let near = _mm_max_ps(
-            _mm_max_ps(t(slab.near[0], 0), t(slab.near[1], 1)),
-            _mm_max_ps(t(slab.near[2], 2), _mm_set1_ps(slab.t_min)),
-        );
-        let far = _mm_mul_ps(
-            _mm_min_ps(
-                _mm_min_ps(t(slab.far[0], 0), t(slab.far[1], 1)),
-                t(slab.far[2], 2),
-            ),
-            _mm_set1_ps(SLAB_FAR_SCALE),
-        );
-        let hit = _mm_cmple_ps(near, _mm_min_ps(far, _mm_set1_ps(t_max)));
-        let dist = _mm_or_ps(
-            _mm_and_ps(hit, near),
-            _mm_andnot_ps(hit, _mm_set1_ps(f32::INFINITY)),
-        );
-        let mut out = [0f32; 4];
-        _mm_storeu_ps(out.as_mut_ptr(), dist);
-        let inf = _mm_set1_ps(f32::INFINITY);
-        let valid = _mm_movemask_ps(_mm_cmplt_ps(row(0), inf)) as u8;
-        (out, _mm_movemask_ps(hit) as u8, valid)
-    }
-}
-
-/// The child-box test of the kernel: entry distances, the hit mask, and the mask of
-/// non-empty slots (an empty slot is the only one whose box has `min_x = +inf`: trees over
-/// finite primitives have finite boxes), read off the loaded box rows instead of the four
-/// child references.
+/// The child-box test of the kernel ([`slab_test4`] over the node's plane rows): entry
+/// distances, the hit mask, and the mask of non-empty slots, read off the loaded box rows
+/// instead of the four child references.
 #[inline(always)]
 fn test4(slab: &Slab, n: &Node4, t_max: f32) -> ([f32; 4], u8, u8) {
-    #[cfg(target_arch = "x86_64")]
-    {
-        test4_sse(slab, n, t_max)
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        test4_portable(slab, n, t_max)
-    }
+    slab_test4(slab, planes(n), 0, 4, t_max)
 }
 
 /// Sorts four keys with the five comparators of the optimal 4-input network ([P4]
@@ -341,6 +267,7 @@ impl Traverse for Mbvh4Accel {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::accel::{slab_test4_portable, slab_test4_sse};
 
     /// The SSE box test computes the portable test's values bit for bit.
     #[cfg(target_arch = "x86_64")]
@@ -366,8 +293,8 @@ mod tests {
             } else {
                 f32::INFINITY
             };
-            let (a, ma, va) = test4_portable(&slab, &n, t_max);
-            let (b, mb, vb) = test4_sse(&slab, &n, t_max);
+            let (a, ma, va) = slab_test4_portable(&slab, planes(&n), 0, 4, t_max);
+            let (b, mb, vb) = slab_test4_sse(&slab, planes(&n), 0, 4, t_max);
             assert_eq!((ma, va), (mb, vb));
             // The valid mask names exactly the slots that were given a box.
             let given = n

@@ -19,8 +19,8 @@
 //! turn, when the tree is larger than the last-level cache ([`Interleave`]).
 
 use crate::accel::{
-    self, cull_distance, huge_page_vec, prefetch, refit_nodes, traverse, Hit, KernelStack,
-    LeafTriangles, RaySource, Slab, TraversalStack, Traverse, WideStack,
+    self, cull_distance, huge_page_vec, prefetch, refit_nodes, slab_test4, traverse, Hit,
+    KernelStack, LeafTriangles, RaySource, Slab, TraversalStack, Traverse, WideStack,
 };
 use crate::bvh2_kernel::check_links;
 use crate::observer::{Observer, Query};
@@ -237,7 +237,7 @@ fn test8(slab: &Slab, n: &Node8, t_max: f32) -> ([f32; WIDTH8], u8, u8) {
     let mut dist = [f32::INFINITY; WIDTH8];
     let (mut mask, mut valid) = (0u8, 0u8);
     for half in 0..2 {
-        let (d, m, v) = test_half(slab, n, half * 4, t_max);
+        let (d, m, v) = slab_test4(slab, n.rows.as_flattened(), half * 4, WIDTH8, t_max);
         dist[half * 4..half * 4 + 4].copy_from_slice(&d);
         mask |= m << (half * 4);
         valid |= v << (half * 4);
@@ -375,68 +375,6 @@ fn sort_key(dist: f32, slot: usize) -> u32 {
         b | 0x8000_0000
     };
     (ordered & !7) | slot as u32
-}
-
-/// Lanes `lo .. lo + 4` of [`test8`] in SSE (the x86-64 baseline).
-#[cfg(target_arch = "x86_64")]
-#[inline(always)]
-fn test_half(slab: &Slab, n: &Node8, lo: usize, t_max: f32) -> ([f32; 4], u8, u8) {
-    use std::arch::x86_64::*;
-    // SAFETY: SSE is part of the x86-64 baseline; `lo` is 0 or 4, so every load reads
-    // four floats inside one 8-lane row of the node.
-    unsafe {
-        let row = |p: usize| _mm_loadu_ps(n.rows[p % 6].as_ptr().add(lo));
-        let o = slab.origin;
-        let d = slab.inv_dir;
-        let t = |p: usize, a: usize| {
-            _mm_mul_ps(_mm_sub_ps(row(p), _mm_set1_ps(o[a])), _mm_set1_ps(d[a]))
-        };
-        let near = _mm_max_ps(
-            _mm_max_ps(t(slab.near[0], 0), t(slab.near[1], 1)),
-            _mm_max_ps(t(slab.near[2], 2), _mm_set1_ps(slab.t_min)),
-        );
-        let far = _mm_mul_ps(
-            _mm_min_ps(
-                _mm_min_ps(t(slab.far[0], 0), t(slab.far[1], 1)),
-                t(slab.far[2], 2),
-            ),
-            _mm_set1_ps(SLAB_FAR_SCALE),
-        );
-        let hit = _mm_cmple_ps(near, _mm_min_ps(far, _mm_set1_ps(t_max)));
-        let inf = _mm_set1_ps(f32::INFINITY);
-        let dist = _mm_or_ps(_mm_and_ps(hit, near), _mm_andnot_ps(hit, inf));
-        let mut out = [0f32; 4];
-        _mm_storeu_ps(out.as_mut_ptr(), dist);
-        let valid = _mm_movemask_ps(_mm_cmplt_ps(row(0), inf)) as u8;
-        (out, _mm_movemask_ps(hit) as u8, valid)
-    }
-}
-
-/// Lanes `lo .. lo + 4` of [`test8`], lane by lane (off x86-64).
-#[cfg(not(target_arch = "x86_64"))]
-#[inline(always)]
-fn test_half(slab: &Slab, n: &Node8, lo: usize, t_max: f32) -> ([f32; 4], u8, u8) {
-    use crate::accel::{fmax, fmin};
-    let o = slab.origin;
-    let d = slab.inv_dir;
-    let mut dist = [f32::INFINITY; 4];
-    let (mut mask, mut valid) = (0u8, 0u8);
-    for i in 0..4 {
-        let v = |p: usize, a: usize| (n.rows[p % 6][lo + i] - o[a]) * d[a];
-        let near = fmax(
-            fmax(v(slab.near[0], 0), v(slab.near[1], 1)),
-            fmax(v(slab.near[2], 2), slab.t_min),
-        );
-        let far = fmin(
-            fmin(v(slab.far[0], 0), v(slab.far[1], 1)),
-            v(slab.far[2], 2),
-        ) * SLAB_FAR_SCALE;
-        let hit = near <= fmin(far, t_max);
-        dist[i] = if hit { near } else { f32::INFINITY };
-        mask |= (hit as u8) << i;
-        valid |= ((n.rows[0][lo + i] < f32::INFINITY) as u8) << i;
-    }
-    (dist, mask, valid)
 }
 
 /// Bits set in each byte (a table: the x86-64 baseline has no popcount instruction).
