@@ -395,16 +395,17 @@ pub fn run(
             },
         )
     }
-    let mut tracers: Vec<(String, f64, Closest<'_>)> = Vec::new();
-    let mut lanes: Vec<Option<usize>> = Vec::new();
+    // (name, build ms, rays interleaved per thread (None: a peer), the tracer)
+    let mut tracers: Vec<(String, f64, Option<usize>, Closest<'_>)> = Vec::new();
     for (name, accel, ms) in &kernels {
-        lanes.push(Some(match accel {
+        let lanes = match accel {
             Accel::Mbvh8(a) => a.interleave().1,
             _ => 1,
-        }));
+        };
         tracers.push((
             name.clone(),
             *ms,
+            Some(lanes),
             Box::new(
                 move |(st, stats): &mut Scratch, rays: &[Ray], out: &mut [Option<(u32, f32)>]| {
                     accel.trace_batch(rays, Query::Closest, st, |i, h, s| {
@@ -420,17 +421,20 @@ pub fn run(
         tracers.push((
             "embree 3 rtcIntersect1 (MEDIUM)".into(),
             embree.0.build_time.as_secs_f64() * 1e3,
+            None,
             one_by_one(|r| embree.0.intersect1(r)),
         ));
         tracers.push((
             "embree 3 rtcIntersect1 (MEDIUM, ROBUST)".into(),
             embree.1.build_time.as_secs_f64() * 1e3,
+            None,
             one_by_one(|r| embree.1.intersect1(r)),
         ));
     }
     tracers.push((
         "obvhs cwbvh (medium_build)".into(),
         obvhs.build_time.as_secs_f64() * 1e3,
+        None,
         one_by_one(|r| obvhs.intersect(r)),
     ));
 
@@ -446,7 +450,7 @@ pub fn run(
             let mut round_ms = vec![Vec::new(); tracers.len()];
             let mut answers: Vec<Vec<Option<(u32, f32)>>> = vec![Vec::new(); tracers.len()];
             for round in 0..repeats.max(1) {
-                for (k, (_, _, f)) in tracers.iter().enumerate() {
+                for (k, (_, _, _, f)) in tracers.iter().enumerate() {
                     let out = (round == 0).then_some(&mut answers[k]);
                     let m = measure(
                         rays,
@@ -465,7 +469,7 @@ pub fn run(
             let mrays_cpu = |k: usize| rays.len() as f64 / best_cpu[k] / 1e6;
             let embree_m = embree_index.map(mrays);
             let embree_cpu = embree_index.map(mrays_cpu);
-            for (k, (name, ms, _)) in tracers.iter().enumerate() {
+            for (k, (name, ms, lanes, _)) in tracers.iter().enumerate() {
                 rows.push(TraceRow {
                     scene: scene.name.clone(),
                     tracer: name.clone(),
@@ -478,7 +482,7 @@ pub fn run(
                     vs_embree_cpu: embree_cpu.map(|e| mrays_cpu(k) / e),
                     agreement: agreement(&answers[0], &answers[k]),
                     build_ms: *ms,
-                    interleave: lanes.get(k).copied().flatten(),
+                    interleave: *lanes,
                     round_ms: round_ms[k].clone(),
                 });
             }

@@ -723,16 +723,6 @@ impl LeafTriangles {
     }
 }
 
-/// The closest hit so far of one ray's traversal over an uncompressed tree (`Bvh2`,
-/// `Mbvh4`, `Mbvh8`), and its cull distance's source `best_t`. [`traverse`] keeps one in
-/// locals for one ray; the 8-wide kernel's batch path keeps one per ray it interleaves
-/// ([`crate::Mbvh8Accel::trace_batch`]).
-#[derive(Clone, Copy)]
-pub(crate) struct Closest {
-    pub best: Option<Hit>,
-    pub best_t: f32,
-}
-
 /// Starts `ray` at `root`: the observer's begin, the stack emptied, the ray counted in
 /// `stats`. Returns the reference to visit first: `root`, or `None` for a ray with a
 /// non-finite origin or direction (it hits nothing: the slab tests assume finite values).

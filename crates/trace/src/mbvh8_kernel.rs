@@ -139,10 +139,8 @@ pub struct Mbvh8Accel {
     /// The CPU has AVX2 (checked once): the kernel then tests all eight boxes and orders
     /// the hit children in 8-lane operations.
     avx: bool,
-    /// The setting of [`Mbvh8Accel::with_interleave`], and the rays a batch interleaves
-    /// per thread that it comes to for this tree (1: one ray after the other).
+    /// The setting of [`Mbvh8Accel::with_interleave`].
     interleave: Interleave,
-    lanes: usize,
 }
 
 /// How many rays [`Mbvh8Accel::trace_batch`] traces at once on one thread, taking turns
@@ -424,30 +422,30 @@ impl Mbvh8Accel {
             && std::arch::is_x86_feature_detected!("lzcnt");
         #[cfg(not(target_arch = "x86_64"))]
         let avx = false;
-        let mut accel = Self {
+        Ok(Self {
             nodes,
             leaf,
             big,
             options,
             avx,
             interleave: Interleave::Auto,
-            lanes: 1,
-        };
-        accel.lanes = Interleave::Auto.rays_for(accel.memory_bytes());
-        Ok(accel)
+        })
     }
 
     /// The same tree with batches interleaving rays as `interleave` says (the default is
     /// [`Interleave::Auto`]).
     pub fn with_interleave(mut self, interleave: Interleave) -> Self {
         self.interleave = interleave;
-        self.lanes = interleave.rays_for(self.memory_bytes());
         self
     }
 
-    /// The interleave setting, and the rays a batch interleaves per thread for this tree.
+    /// The interleave setting, and the rays a batch interleaves per thread for this tree
+    /// (1: one ray after the other).
     pub fn interleave(&self) -> (Interleave, usize) {
-        (self.interleave, self.lanes)
+        (
+            self.interleave,
+            self.interleave.rays_for(self.memory_bytes()),
+        )
     }
 
     /// Bytes that traversal reads from: the nodes, the leaf blocks and the large-leaf
@@ -652,7 +650,9 @@ impl Mbvh8Accel {
             cur: Option<u32>,
             pre: RayPrecomp,
             slab: Slab,
-            walk: accel::Closest,
+            /// The closest hit so far (`best_t`: its distance, or the ray's end).
+            best: Option<Hit>,
+            best_t: f32,
             stats: RayStats,
             stack: WideStack<'s>,
         }
@@ -662,27 +662,24 @@ impl Mbvh8Accel {
             let slab = Slab::new(&pre, ray.t_min);
             let mut stats = RayStats::default();
             let cur = accel::begin(&ray, query, 0, stack, &mut stats, &mut ());
-            let walk = accel::Closest {
-                best: None,
-                best_t: ray.t_max,
-            };
-            (ray, pre, slab, walk, stats, cur)
+            (ray, pre, slab, stats, cur)
         };
-        let n = self.lanes.min(rays.len());
+        let n = self.interleave().1.min(rays.len());
         let mut lanes: Vec<Lane> = stack
             .lanes(n)
             .iter_mut()
             .enumerate()
             .map(|(i, st)| {
                 let mut stack = st.wide();
-                let (ray, pre, slab, walk, stats, cur) = start(i, &mut stack);
+                let (ray, pre, slab, stats, cur) = start(i, &mut stack);
                 Lane {
                     index: i,
                     ray,
                     cur,
                     pre,
                     slab,
-                    walk,
+                    best: None,
+                    best_t: ray.t_max,
                     stats,
                     stack,
                 }
@@ -703,8 +700,8 @@ impl Mbvh8Accel {
                         &l.ray,
                         &l.pre,
                         query,
-                        &mut l.walk.best,
-                        &mut l.walk.best_t,
+                        &mut l.best,
+                        &mut l.best_t,
                         &mut l.stack,
                         &mut l.stats,
                         &mut (),
@@ -714,23 +711,20 @@ impl Mbvh8Accel {
                         },
                     ) {
                         accel::Next::Visit(next) => Some(next),
-                        accel::Next::Pop => KernelStack::pop(
-                            &mut l.stack,
-                            DIST,
-                            l.walk.best_t,
-                            &mut l.stats,
-                            &mut (),
-                        ),
+                        accel::Next::Pop => {
+                            KernelStack::pop(&mut l.stack, DIST, l.best_t, &mut l.stats, &mut ())
+                        }
                         accel::Next::Done => None,
                     };
                     if l.cur.is_some() {
                         continue;
                     }
                 }
-                let hit = accel::finish(l.walk.best, &mut l.stats, &mut ());
+                let hit = accel::finish(l.best.take(), &mut l.stats, &mut ());
                 done(l.index, hit, &l.stats);
                 if next < rays.len() {
-                    (l.ray, l.pre, l.slab, l.walk, l.stats, l.cur) = start(next, &mut l.stack);
+                    (l.ray, l.pre, l.slab, l.stats, l.cur) = start(next, &mut l.stack);
+                    l.best_t = l.ray.t_max;
                     l.index = next;
                     next += 1;
                 } else {
@@ -866,7 +860,7 @@ impl Traverse for Mbvh8Accel {
         stack: &mut TraversalStack,
         done: F,
     ) {
-        if self.lanes <= 1 || rays.len() <= 1 {
+        if rays.len() <= 1 || self.interleave().1 <= 1 {
             return accel::trace_each(self, rays, query, stack, done);
         }
         #[cfg(target_arch = "x86_64")]
