@@ -262,6 +262,17 @@ impl PerRay<'_> {
     }
 }
 
+/// The index of the first NaN of `s`, if any: a branch-free pass over the whole slice
+/// (which the compiler vectorizes) answers for the common case of none; only a slice with
+/// a NaN is searched.
+fn first_nan(s: &[f32]) -> Option<usize> {
+    if s.iter().fold(false, |a, x| a | x.is_nan()) {
+        s.iter().position(|x| x.is_nan())
+    } else {
+        None
+    }
+}
+
 /// `obj` (None: `default`) as a number or a `(n,)` array of non-NaN floats.
 pub(crate) fn per_ray<'py>(
     what: &str,
@@ -289,12 +300,10 @@ pub(crate) fn per_ray<'py>(
             && (a.data() as usize).is_multiple_of(std::mem::align_of::<f32>())
         {
             let a = a.readonly();
-            if let Some(i) = a
-                .as_slice()
-                .map_err(|_| err("internal error: array not contiguous"))?
-                .iter()
-                .position(|x| x.is_nan())
-            {
+            if let Some(i) = first_nan(
+                a.as_slice()
+                    .map_err(|_| err("internal error: array not contiguous"))?,
+            ) {
                 return Err(err(format!("{what}[{i}] is NaN")));
             }
             return Ok(PerRay::Array(a));
@@ -328,12 +337,10 @@ pub(crate) fn per_ray<'py>(
         .cast_into::<PyArray1<f32>>()
         .map_err(|_| err(format!("{what}: not a float32 array")))?
         .readonly();
-    if let Some(i) = a
-        .as_slice()
-        .map_err(|_| err("internal error: array not contiguous"))?
-        .iter()
-        .position(|x| x.is_nan())
-    {
+    if let Some(i) = first_nan(
+        a.as_slice()
+            .map_err(|_| err("internal error: array not contiguous"))?,
+    ) {
         return Err(err(format!("{what}[{i}] is NaN")));
     }
     Ok(PerRay::Array(a))

@@ -24,22 +24,28 @@ fn c32(x: u64) -> u32 {
     x.min(u32::MAX as u64) as u32
 }
 
-/// Runs `work(first, len, totals)` over runs of rays: on this thread for few rays, else
-/// in parallel runs of [`CHUNK`]; returns the summed counters.
-fn for_chunks<P: Send>(parts: Vec<P>, work: impl Fn(P, usize, &mut RayStats) + Sync) -> RayStats {
+/// Runs `work(scratch, part, first, totals)` over the runs of rays `parts` (`first`: the
+/// run's first ray): on this thread for one run, else in parallel, `scratch()` made once
+/// for each worker's share rather than once a run (a traversal stack allocates); returns
+/// the summed counters.
+fn for_chunks<P: Send, X>(
+    parts: Vec<P>,
+    scratch: impl Fn() -> X + Sync,
+    work: impl Fn(&mut X, P, usize, &mut RayStats) + Sync,
+) -> RayStats {
     if parts.len() <= 1 {
         let mut total = RayStats::default();
-        for p in parts {
-            work(p, 0, &mut total);
+        if let Some(p) = parts.into_iter().next() {
+            work(&mut scratch(), p, 0, &mut total);
         }
         return total;
     }
     parts
         .into_par_iter()
         .enumerate()
-        .map(|(i, p)| {
+        .map_init(&scratch, |x, (i, p)| {
             let mut s = RayStats::default();
-            work(p, i * CHUNK, &mut s);
+            work(x, p, i * CHUNK, &mut s);
             s
         })
         .reduce(RayStats::default, |mut a, b| {
@@ -87,8 +93,8 @@ fn out_array<'py, T: numpy::Element>(
 /// Fills a `(n,)` column of `T` (`out`, checked by [`out_array`] under the name `what`, or
 /// a fresh array) run by run, `fill(state, scratch, first, run, totals)` writing the
 /// entries `first..first + run.len()`, with the interpreter released and `lock`
-/// read-locked, the runs in parallel when `n` is large (`scratch(state)` is made once a
-/// run). `check` runs first, released, before the lock.
+/// read-locked, the runs in parallel when `n` is large (`scratch(state)` made once for
+/// each worker's share). `check` runs first, released, before the lock.
 #[allow(clippy::too_many_arguments)]
 pub(crate) fn query_runs<'py, T, S, X>(
     py: Python<'py>,
@@ -116,10 +122,11 @@ where
             let s = read(lock)?;
             let s = &*s;
             let parts: Vec<&mut [T]> = col.chunks_mut(chunk_for(n)).collect();
-            for_chunks(parts, |p, first, tot| {
-                let mut x = scratch(s);
-                fill(s, &mut x, first, p, tot);
-            });
+            for_chunks(
+                parts,
+                || scratch(s),
+                |x, p, first, tot| fill(s, x, first, p, tot),
+            );
             Ok::<_, String>(())
         })?;
     }
@@ -222,7 +229,8 @@ impl<'a> Closest<'a> {
 
     /// Traces `rays` (as many as the columns) into the columns, on this thread for few
     /// rays, else in parallel runs, with `trace(scratch, rays, done)` on each run (as
-    /// [`Closest::fill`]; `scratch()` made once a run); returns the summed counters.
+    /// [`Closest::fill`]; `scratch()` made once for each worker's share); returns the summed
+    /// counters.
     pub(crate) fn run<X>(
         self,
         rays: &RaySlices<'_>,
@@ -231,9 +239,8 @@ impl<'a> Closest<'a> {
     ) -> RayStats {
         let n = self.t.len();
         let parts = self.split(chunk_for(n));
-        for_chunks(parts, |p, first, tot| {
-            let mut x = scratch();
-            p.fill(rays, first, tot, |batch, sink| trace(&mut x, batch, sink))
+        for_chunks(parts, scratch, |x, p, first, tot| {
+            p.fill(rays, first, tot, |batch, sink| trace(x, batch, sink))
         })
     }
 }

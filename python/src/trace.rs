@@ -324,11 +324,20 @@ impl<'py> RayArrays<'py> {
         })
     }
 
-    /// The arrays' contents, which can cross into a detached closure.
+    /// The arrays' contents, which can cross into a detached closure; as many directions
+    /// as origins (else an error).
     pub(crate) fn slices(&self) -> PyResult<RaySlices<'_>> {
+        let (o, d) = (self.origins.as_vec3()?, self.directions.as_vec3()?);
+        if o.len() != d.len() {
+            return Err(err(format!(
+                "origins and directions differ in length: {} and {}",
+                o.len(),
+                d.len()
+            )));
+        }
         Ok(RaySlices {
-            o: self.origins.as_vec3()?,
-            d: self.directions.as_vec3()?,
+            o,
+            d,
             tmin: self.tmin.parts()?,
             tmax: self.tmax.parts()?,
         })
@@ -397,45 +406,40 @@ impl<'a> RaySlices<'a> {
         }
     }
 
-    /// Checks the lengths and every ray; the error names the first bad ray. A branch-free
-    /// pass over the flat coordinates (which the compiler vectorizes) answers for the
-    /// common case of all rays valid; only a failing batch is searched ray by ray.
-    pub(crate) fn check(&self) -> Result<(), String> {
-        let (o, d) = (self.o, self.d);
-        if o.len() != d.len() {
-            return Err(format!(
-                "origins and directions differ in length: {} and {}",
-                o.len(),
-                d.len()
-            ));
-        }
-        let ranges_ok = match self.tmin {
+    /// Whether every ray is valid (finite origin and direction, a direction not zero, a
+    /// range that starts at 0 or later; NaN ranges were refused when the arrays were
+    /// read): a branch-free pass over the flat coordinates, which the compiler vectorizes.
+    pub(crate) fn valid(&self) -> bool {
+        let finite = |v: &[Vec3]| {
+            v.iter().fold(true, |a, p| {
+                a & p.x.is_finite() & p.y.is_finite() & p.z.is_finite()
+            })
+        };
+        let ranges = match self.tmin {
             (x, None) => x >= 0.0,
             (_, Some(t)) => t.iter().fold(true, |a, x| a & (*x >= 0.0)),
         };
-        let rays_ok = || {
-            let batch = |r: std::ops::Range<usize>| {
-                let finite = |v: &[Vec3]| {
-                    v.iter().fold(true, |a, p| {
-                        a & p.x.is_finite() & p.y.is_finite() & p.z.is_finite()
-                    })
-                };
-                finite(&o[r.clone()])
-                    && finite(&d[r.clone()])
-                    && d[r].iter().fold(true, |a, p| a & (*p != Vec3::ZERO))
-            };
-            if o.len() <= 16 * CHUNK {
-                batch(0..o.len())
-            } else {
-                (0..o.len().div_ceil(CHUNK))
-                    .into_par_iter()
-                    .all(|c| batch(c * CHUNK..((c + 1) * CHUNK).min(o.len())))
-            }
+        ranges
+            && finite(self.o)
+            && finite(self.d)
+            && self.d.iter().fold(true, |a, p| a & (*p != Vec3::ZERO))
+    }
+
+    /// Checks every ray ([`RaySlices::valid`], in parallel runs for many rays); the error
+    /// names the first bad ray (searched ray by ray only when there is one).
+    pub(crate) fn check(&self) -> Result<(), String> {
+        let n = self.len();
+        let ok = if n <= 16 * CHUNK {
+            self.valid()
+        } else {
+            (0..n.div_ceil(CHUNK))
+                .into_par_iter()
+                .all(|c| self.window(c * CHUNK, CHUNK.min(n - c * CHUNK)).valid())
         };
-        if ranges_ok && rays_ok() {
+        if ok {
             return Ok(());
         }
-        match (0..o.len()).find_map(|i| self.fault(i)) {
+        match (0..n).find_map(|i| self.fault(i)) {
             Some(e) => Err(e),
             None => Ok(()),
         }

@@ -231,6 +231,15 @@ def test_errors_name_the_problem(mesh: arbor.Mesh) -> None:
         rc.intersect(o, d, tmax=np.where(np.arange(10) == 4, np.nan, 1).astype(np.float32))
     with pytest.raises(ArborError, match="tmin is NaN"):
         rc.occluded(o, d, tmin=float("nan"))
+    # The first NaN of a long range array is named, on the float32 path read in place and
+    # on the converted one (the scan is one vectorized pass, then a search).
+    o1k, d1k = rays_at(v, 1000, seed=6)
+    far = np.ones(1000, dtype=np.float32)
+    far[[517, 999]] = np.nan
+    with pytest.raises(ArborError, match=r"tmax\[517\] is NaN"):
+        rc.intersect(o1k, d1k, tmax=far)
+    with pytest.raises(ArborError, match=r"tmin\[517\] is NaN"):
+        rc.occluded(o1k, d1k, tmin=np.where(np.isnan(far), np.nan, 0.0))
     with pytest.raises(ArborError, match="max_leaf"):
         RayCaster(v, ix, max_leaf=-1)
     with pytest.raises(ArborError, match="threads"):
