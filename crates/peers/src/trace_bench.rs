@@ -443,6 +443,10 @@ pub fn run(
         .position(|t| t.0 == "embree 3 rtcIntersect1 (MEDIUM)");
     let mut rows = Vec::new();
     for (set_name, rays) in [("primary", &sets.primary), ("diffuse", &sets.diffuse)] {
+        // An empty set (no bounces asked, or no primary ray hit) has no throughput: no rows.
+        if rays.is_empty() {
+            continue;
+        }
         for &th in threads {
             note(&format!("{set_name} rays, {th} thread(s)"));
             let mut best = vec![f64::INFINITY; tracers.len()];

@@ -267,6 +267,14 @@ pub fn run(a: &BenchTraceArgs, ui: &Ui) -> anyhow::Result<()> {
         let r = peers::trace_bench::run(&bench, &a.threads, a.rounds, &note)
             .map_err(|e| anyhow::anyhow!("{spec}: {e}"))?;
         spinner.replace(None);
+        for set in ["primary", "diffuse"] {
+            if !r.iter().any(|row| row.rays == set) {
+                notes.push(format!(
+                    "{name}: no {set} rays to trace (--bounces 0, or no primary ray hit the \
+                     scene), so no {set} rows"
+                ));
+            }
+        }
         let mut said = std::collections::BTreeSet::new();
         for row in r.iter().filter(|r| r.interleave.is_some_and(|n| n > 1)) {
             if said.insert(row.tracer.clone()) {

@@ -185,3 +185,44 @@ fn bad_arguments_are_one_line_errors() {
         assert!(out.stdout.is_empty());
     }
 }
+
+#[test]
+fn no_bounces_means_no_diffuse_rows_and_says_so() {
+    let out = arbor(&[
+        "bench",
+        "trace",
+        "--quiet",
+        "--width",
+        "24",
+        "--height",
+        "16",
+        "--bounces",
+        "0",
+        "--runs",
+        "1",
+        "--threads",
+        "1",
+        "--json",
+        SOUP,
+    ]);
+    ok(&out);
+    let j: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let rows = j["rows"].as_array().unwrap();
+    assert!(!rows.is_empty());
+    assert!(rows.iter().all(|r| r["rays"] == "primary"), "{rows:#?}");
+    assert!(rows
+        .iter()
+        .all(|r| r["mrays_per_s"].as_f64().unwrap() > 0.0));
+    let notes = j["notes"].as_array().unwrap();
+    assert!(
+        notes
+            .iter()
+            .any(|n| n.as_str().unwrap().contains("no diffuse rays")),
+        "{notes:#?}"
+    );
+    assert!(j["goals"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|g| g["rays"] == "primary"));
+}
