@@ -54,8 +54,9 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         None,
     )?;
     println!(
-        "mbvh8 tree: {:.1} MB, interleaves {:?} (last-level cache {:?} bytes)",
+        "mbvh8 tree: {:.1} MB, {}, interleaves {:?} (last-level cache {:?} bytes)",
         b8.memory_bytes() as f64 / 1e6,
+        b8.isa(),
         b8.interleave(),
         trace::last_level_cache_bytes()
     );

@@ -128,6 +128,43 @@ fn decode(c: u32, big: &[ChildRef]) -> ChildRef {
     }
 }
 
+/// The instruction set of the 8-wide kernel, in increasing order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
+enum Isa {
+    /// SSE on x86-64 (the 4-lane slab test twice), portable code elsewhere.
+    Baseline,
+    /// AVX2 with FMA, BMI1/2, POPCNT and LZCNT (which every AVX2 CPU has): all eight boxes
+    /// and the order of the hit children in 8-lane operations.
+    Avx2,
+    /// The AVX2 program compiled with AVX-512F/VL/BW/DQ as well, for its 32 registers.
+    Avx512,
+}
+
+impl Isa {
+    /// The best the CPU has.
+    fn detect() -> Isa {
+        #[cfg(target_arch = "x86_64")]
+        {
+            use std::arch::is_x86_feature_detected as has;
+            let avx2 = has!("avx2")
+                && has!("fma")
+                && has!("bmi1")
+                && has!("bmi2")
+                && has!("popcnt")
+                && has!("lzcnt");
+            let avx512 =
+                has!("avx512f") && has!("avx512vl") && has!("avx512bw") && has!("avx512dq");
+            match (avx2, avx512) {
+                (true, true) => Isa::Avx512,
+                (true, false) => Isa::Avx2,
+                _ => Isa::Baseline,
+            }
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        Isa::Baseline
+    }
+}
+
 /// An 8-wide BVH with its triangles in leaf order, ready to trace.
 #[derive(Clone, Debug)]
 pub struct Mbvh8Accel {
@@ -136,9 +173,8 @@ pub struct Mbvh8Accel {
     /// Leaves whose count or first slot does not fit a 32-bit reference.
     big: Vec<ChildRef>,
     options: KernelOptions,
-    /// The CPU has AVX2 (checked once): the kernel then tests all eight boxes and orders
-    /// the hit children in 8-lane operations.
-    avx: bool,
+    /// The instruction set the kernel runs with, the best the CPU has (checked once).
+    isa: Isa,
     /// The setting of [`Mbvh8Accel::with_interleave`].
     interleave: Interleave,
 }
@@ -413,21 +449,12 @@ impl Mbvh8Accel {
         for n in &bvh.nodes {
             nodes.push(Node8::new(n, &mut big)?);
         }
-        #[cfg(target_arch = "x86_64")]
-        let avx = std::arch::is_x86_feature_detected!("avx2")
-            && std::arch::is_x86_feature_detected!("fma")
-            && std::arch::is_x86_feature_detected!("bmi1")
-            && std::arch::is_x86_feature_detected!("bmi2")
-            && std::arch::is_x86_feature_detected!("popcnt")
-            && std::arch::is_x86_feature_detected!("lzcnt");
-        #[cfg(not(target_arch = "x86_64"))]
-        let avx = false;
         Ok(Self {
             nodes,
             leaf,
             big,
             options,
-            avx,
+            isa: Isa::detect(),
             interleave: Interleave::Auto,
         })
     }
@@ -459,8 +486,25 @@ impl Mbvh8Accel {
     /// The same tree traced without AVX even where the CPU has it (to test and measure
     /// both paths).
     pub fn without_avx(mut self) -> Self {
-        self.avx = false;
+        self.isa = Isa::Baseline;
         self
+    }
+
+    /// The same tree traced with AVX2 but without the AVX-512 registers even where the CPU
+    /// has them (to test and measure both paths; no change elsewhere).
+    pub fn without_avx512(mut self) -> Self {
+        self.isa = self.isa.min(Isa::Avx2);
+        self
+    }
+
+    /// The instruction set traversal uses: `"avx512"` (the AVX2 kernel compiled with
+    /// AVX-512's 32 vector registers), `"avx2"` or `"baseline"` (SSE, or portable code).
+    pub fn isa(&self) -> &'static str {
+        match self.isa {
+            Isa::Baseline => "baseline",
+            Isa::Avx2 => "avx2",
+            Isa::Avx512 => "avx512",
+        }
     }
 
     /// An 8-wide tree collapsed from a binary one by [`Mbvh8Accel::collapse`].
@@ -530,12 +574,34 @@ impl Mbvh8Accel {
         total: &mut RayStats,
         obs: &mut O,
     ) -> Option<Hit> {
-        self.run::<DIST, true, O>(ray, query, stack, total, obs)
+        self.run::<DIST, true, false, O>(ray, query, stack, total, obs)
     }
 
-    /// Traversal ([`traverse`]) with the 8-wide node visit ([`Self::visit`]).
+    /// [`Self::run_avx`] compiled with AVX-512 as well: the same 8-lane (256-bit) program,
+    /// which then has 32 vector registers instead of 16, so the ray's broadcast origin,
+    /// reciprocal direction and ranges stay in registers through a node visit instead of
+    /// being reloaded from the stack. Same results bit for bit (no operation changes).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(
+        enable = "avx,avx2,fma,bmi1,bmi2,popcnt,lzcnt,avx512f,avx512vl,avx512bw,avx512dq"
+    )]
+    fn run_avx512<const DIST: bool, O: Observer>(
+        &self,
+        ray: &Ray,
+        query: Query,
+        stack: &mut TraversalStack,
+        total: &mut RayStats,
+        obs: &mut O,
+    ) -> Option<Hit> {
+        self.run::<DIST, true, true, O>(ray, query, stack, total, obs)
+    }
+
+    /// Traversal ([`traverse`]) with the 8-wide node visit ([`Self::visit`]). `AVX512`
+    /// changes no operation: it makes the AVX-512 entry point's instantiation (and so its
+    /// closures) its own, so that they inline there as in the AVX2 one rather than stay
+    /// one out-of-line function between the two.
     #[inline(always)]
-    fn run<const DIST: bool, const AVX: bool, O: Observer>(
+    fn run<const DIST: bool, const AVX: bool, const AVX512: bool, O: Observer>(
         &self,
         ray: &Ray,
         query: Query,
@@ -620,7 +686,26 @@ impl Mbvh8Accel {
         stack: &mut TraversalStack,
         done: F,
     ) {
-        self.batch::<DIST, true, R, F>(rays, query, stack, done)
+        self.batch::<DIST, true, false, R, F>(rays, query, stack, done)
+    }
+
+    /// [`Self::batch`] compiled with AVX-512's registers, as [`Self::run_avx512`].
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(
+        enable = "avx,avx2,fma,bmi1,bmi2,popcnt,lzcnt,avx512f,avx512vl,avx512bw,avx512dq"
+    )]
+    fn batch_avx512<
+        const DIST: bool,
+        R: RaySource + ?Sized,
+        F: FnMut(usize, Option<Hit>, &RayStats),
+    >(
+        &self,
+        rays: &R,
+        query: Query,
+        stack: &mut TraversalStack,
+        done: F,
+    ) {
+        self.batch::<DIST, true, true, R, F>(rays, query, stack, done)
     }
 
     /// Traces `rays` [`Self::lanes`] at a time on this thread, round robin: each ray in
@@ -628,10 +713,12 @@ impl Mbvh8Accel {
     /// will visit, or a leaf test), so that while one ray's next node is on its way from
     /// memory the others work. A finished ray hands its lane to the next ray of the batch.
     /// Each ray's steps are those it takes alone, so its answer and counters are too.
+    /// `AVX512` as in [`Self::run`].
     #[inline(always)]
     fn batch<
         const DIST: bool,
         const AVX: bool,
+        const AVX512: bool,
         R: RaySource + ?Sized,
         F: FnMut(usize, Option<Hit>, &RayStats),
     >(
@@ -834,20 +921,26 @@ impl Traverse for Mbvh8Accel {
         obs: &mut O,
     ) -> Option<Hit> {
         #[cfg(target_arch = "x86_64")]
-        if self.avx {
-            // SAFETY: `avx` is set only where the CPU has AVX.
-            return unsafe {
-                if self.options.distance_stack {
-                    self.run_avx::<true, O>(ray, query, stack, stats, obs)
-                } else {
-                    self.run_avx::<false, O>(ray, query, stack, stats, obs)
-                }
-            };
+        // SAFETY: `isa` names only instruction sets the CPU has (`Isa::detect`).
+        match (self.isa, self.options.distance_stack) {
+            (Isa::Avx512, true) => {
+                return unsafe { self.run_avx512::<true, O>(ray, query, stack, stats, obs) }
+            }
+            (Isa::Avx512, false) => {
+                return unsafe { self.run_avx512::<false, O>(ray, query, stack, stats, obs) }
+            }
+            (Isa::Avx2, true) => {
+                return unsafe { self.run_avx::<true, O>(ray, query, stack, stats, obs) }
+            }
+            (Isa::Avx2, false) => {
+                return unsafe { self.run_avx::<false, O>(ray, query, stack, stats, obs) }
+            }
+            (Isa::Baseline, _) => {}
         }
         if self.options.distance_stack {
-            self.run::<true, false, O>(ray, query, stack, stats, obs)
+            self.run::<true, false, false, O>(ray, query, stack, stats, obs)
         } else {
-            self.run::<false, false, O>(ray, query, stack, stats, obs)
+            self.run::<false, false, false, O>(ray, query, stack, stats, obs)
         }
     }
 
@@ -864,20 +957,26 @@ impl Traverse for Mbvh8Accel {
             return accel::trace_each(self, rays, query, stack, done);
         }
         #[cfg(target_arch = "x86_64")]
-        if self.avx {
-            // SAFETY: `avx` is set only where the CPU has AVX2.
-            return unsafe {
-                if self.options.distance_stack {
-                    self.batch_avx::<true, R, F>(rays, query, stack, done)
-                } else {
-                    self.batch_avx::<false, R, F>(rays, query, stack, done)
-                }
-            };
+        // SAFETY: `isa` names only instruction sets the CPU has (`Isa::detect`).
+        match (self.isa, self.options.distance_stack) {
+            (Isa::Avx512, true) => {
+                return unsafe { self.batch_avx512::<true, R, F>(rays, query, stack, done) }
+            }
+            (Isa::Avx512, false) => {
+                return unsafe { self.batch_avx512::<false, R, F>(rays, query, stack, done) }
+            }
+            (Isa::Avx2, true) => {
+                return unsafe { self.batch_avx::<true, R, F>(rays, query, stack, done) }
+            }
+            (Isa::Avx2, false) => {
+                return unsafe { self.batch_avx::<false, R, F>(rays, query, stack, done) }
+            }
+            (Isa::Baseline, _) => {}
         }
         if self.options.distance_stack {
-            self.batch::<true, false, R, F>(rays, query, stack, done)
+            self.batch::<true, false, false, R, F>(rays, query, stack, done)
         } else {
-            self.batch::<false, false, R, F>(rays, query, stack, done)
+            self.batch::<false, false, false, R, F>(rays, query, stack, done)
         }
     }
 
@@ -981,7 +1080,7 @@ mod tests {
             distance_stack: false,
         };
         let a = Mbvh8Accel::new(bvh, &tris, opts).unwrap();
-        for accel in [a.clone(), a.without_avx()] {
+        for accel in [a.clone(), a.clone().without_avx512(), a.without_avx()] {
             for (origin, dir, order) in [(-5.0, 1.0, [2, 0, 1]), (30.0, -1.0, [1, 0, 2])] {
                 let ray = Ray::new(Vec3::new(origin, 0.5, 0.5), Vec3::new(dir, 0.01, 0.02));
                 let mut obs = Leaves::default();
@@ -1119,11 +1218,25 @@ mod tests {
         let tris = soup(1500, 1.5, 7);
         let rays = random_rays(3000, Vec3::ZERO, 2.0, 3);
         let all = all_mbvh8(&tris);
-        for pair in all.chunks(2) {
-            let [(sse_name, sse), (name, avx)] = pair else {
-                panic!("all_mbvh8 lists each tree twice");
-            };
-            assert_eq!(*sse_name, format!("{name}/sse"));
+        // Each tree's baseline path, then its AVX2 and (where the CPU has it) AVX-512 ones.
+        let mut pairs = Vec::new();
+        for (sse_name, sse) in all.iter().filter(|(n, _)| n.ends_with("/sse")) {
+            let base = sse_name.trim_end_matches("sse");
+            for (name, avx) in all
+                .iter()
+                .filter(|(n, _)| n.starts_with(base) && n != sse_name)
+            {
+                pairs.push((name, sse, avx));
+            }
+        }
+        let baselines = all.iter().filter(|(n, _)| n.ends_with("/sse")).count();
+        assert!(baselines > 0);
+        assert_eq!(
+            pairs.len(),
+            all.len() - baselines,
+            "every other path compared with its tree's baseline"
+        );
+        for (name, sse, avx) in pairs {
             let mut stack = TraversalStack::new();
             for ray in &rays {
                 for q in [Query::Closest, Query::Any] {

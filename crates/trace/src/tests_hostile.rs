@@ -371,9 +371,13 @@ fn check_mbvh8(t: &WideBvh<8>, s: &Scene) {
     for o in opts() {
         let made = Mbvh8Accel::new(t.clone(), &s.tris, o);
         let sse = made.as_ref().ok().map(|a| a.clone().without_avx());
+        let avx2 = made.as_ref().ok().map(|a| a.clone().without_avx512());
         check_kernel("mbvh8", made, s, valid, |a, t| a.refit(t));
         if let Some(sse) = sse {
             check_kernel("mbvh8/sse", Ok(sse), s, valid, |a, t| a.refit(t));
+        }
+        if let Some(avx2) = avx2 {
+            check_kernel("mbvh8/avx2", Ok(avx2), s, valid, |a, t| a.refit(t));
         }
     }
 }

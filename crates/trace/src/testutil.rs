@@ -249,7 +249,14 @@ pub fn all_mbvh8(tris: &[Triangle]) -> Named<crate::Mbvh8Accel> {
                 format!("{name}+collapse8/{o:?}/sse"),
                 a.clone().without_avx(),
             ));
-            out.push((format!("{name}+collapse8/{o:?}"), a));
+            // The AVX2 path as well where the default is the AVX-512 one.
+            if a.isa() == "avx512" {
+                out.push((
+                    format!("{name}+collapse8/{o:?}/avx2"),
+                    a.clone().without_avx512(),
+                ));
+            }
+            out.push((format!("{name}+collapse8/{o:?}/{}", a.isa()), a));
         }
     }
     out
