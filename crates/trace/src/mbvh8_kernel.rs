@@ -141,6 +141,15 @@ enum Isa {
 }
 
 impl Isa {
+    /// Its name in reports.
+    fn name(self) -> &'static str {
+        match self {
+            Isa::Baseline => "baseline",
+            Isa::Avx2 => "avx2",
+            Isa::Avx512 => "avx512",
+        }
+    }
+
     /// The best the CPU has.
     fn detect() -> Isa {
         #[cfg(target_arch = "x86_64")]
@@ -500,11 +509,12 @@ impl Mbvh8Accel {
     /// The instruction set traversal uses: `"avx512"` (the AVX2 kernel compiled with
     /// AVX-512's 32 vector registers), `"avx2"` or `"baseline"` (SSE, or portable code).
     pub fn isa(&self) -> &'static str {
-        match self.isa {
-            Isa::Baseline => "baseline",
-            Isa::Avx2 => "avx2",
-            Isa::Avx512 => "avx512",
-        }
+        self.isa.name()
+    }
+
+    /// The instruction set a new kernel uses on this CPU (as [`Mbvh8Accel::isa`]).
+    pub fn detected_isa() -> &'static str {
+        Isa::detect().name()
     }
 
     /// An 8-wide tree collapsed from a binary one by [`Mbvh8Accel::collapse`].

@@ -232,6 +232,11 @@ pub fn run(a: &BenchTraceArgs, ui: &Ui) -> anyhow::Result<()> {
             "built without Embree (cargo feature `embree`): no Embree rows and no ratios".into(),
         );
     }
+    notes.push(format!(
+        "the 8-wide kernel runs with {} on this CPU (avx512: the AVX2 program with AVX-512's \
+         32 vector registers; chosen at run time)",
+        trace::Mbvh8Accel::detected_isa()
+    ));
     let mut rows = Vec::new();
     let bundled = match a.scenes.is_empty() {
         true => Some(super::demo::bundled_scene()?),

@@ -225,4 +225,10 @@ fn no_bounces_means_no_diffuse_rows_and_says_so() {
         .unwrap()
         .iter()
         .all(|g| g["rays"] == "primary"));
+    // Which instruction set the 8-wide kernel chose is part of the record.
+    let isa = format!("runs with {}", trace::Mbvh8Accel::detected_isa());
+    assert!(
+        notes.iter().any(|n| n.as_str().unwrap().contains(&isa)),
+        "{notes:#?}"
+    );
 }
