@@ -1592,9 +1592,16 @@ mod tests {
         let Some(scenes) = real_scenes() else {
             return;
         };
-        for (name, prims) in &scenes {
+        // Through one arena and output tree, as a renderer's frame loop, in both orders:
+        // the tree of a fresh build every time.
+        let (mut arena, mut out) = (HlbvhArena::default(), Bvh2::empty());
+        for (name, prims) in scenes.iter().chain(scenes.iter().rev()) {
             let t = HlbvhBuilder::default().build(prims).unwrap();
             assert_valid(name, &t, prims, 8);
+            HlbvhBuilder::default()
+                .build_into(prims, &mut arena, &mut out)
+                .unwrap();
+            assert!(out == t, "{name}: the reused buffers changed the tree");
         }
     }
 
