@@ -31,6 +31,9 @@
 //! is serial per stream, as in the hardware, but cells are independent (the stack is empty
 //! at every cell boundary), so runs of whole cells are emitted by separate emitters in
 //! parallel and concatenated; the output equals one emitter's, for any thread count.
+//!
+//! Frame loops: [`HlbvhBuilder::build_into`] rebuilds into the tree and the
+//! [`HlbvhArena`] of the previous build, reusing their memory, with the same tree.
 
 use crate::bvh2::Bvh2;
 use crate::error::{check_input, in_pool, BuildError};
@@ -55,8 +58,9 @@ pub struct HlbvhBuilder {
     /// Only [`HlbvhBuilder::build_highlevel`] cuts; [`HlbvhBuilder::build`] gives the same
     /// tree for any threshold.
     pub highlevel_threshold: Option<u32>,
-    /// Worker threads for coding and sorting: 0 uses the current rayon pool, `n` a private
-    /// pool of `n` threads. Emission itself is serial, as in the hardware.
+    /// Worker threads for coding, sorting and the emission of separate cells: 0 uses the
+    /// current rayon pool, `n` a private pool of `n` threads. One stream (one cell) is
+    /// emitted serially, as in the hardware.
     pub threads: usize,
     /// The grid of the Morton codes over the centroid bounds (default: stretched to the
     /// box on each axis; [`MortonGrid::Cube`] for cubic cells).
