@@ -563,9 +563,10 @@ struct CellScratch {
 /// The buffers of [`HlbvhBuilder::build_into`], kept from one build to the next as a
 /// renderer keeps them from frame to frame: the sort keys and their second buffer, the
 /// sorted codes, and the cells' ranges and plan. With the output tree they are all the
-/// large memory a build needs, so a build into buffers of an earlier build of as many
-/// primitives or more allocates nothing large and touches no fresh page (fresh pages and
-/// the frees of the previous build's buffers were a quarter of a 2-thread Dragon build).
+/// memory a build needs but each thread's buffers for one cell, so a build into buffers of
+/// an earlier build of as many primitives or more allocates nothing large and touches no
+/// fresh page (fresh pages and the frees of the previous build's buffers were a quarter of
+/// a 2-thread Dragon build).
 /// Any arena suits any build: its contents never change the tree.
 #[derive(Debug, Default)]
 pub struct HlbvhArena {
