@@ -59,16 +59,33 @@ impl Bvh2 {
         nodes: Vec<Node>,
         prim_indices: Vec<u32>,
     ) -> Self {
-        let nodes = if root.is_leaf() {
-            vec![Node::new(&bounds, root, &Aabb::EMPTY, ChildRef::EMPTY)]
-        } else {
-            nodes
-        };
-        Self {
+        let mut t = Self {
             nodes,
             prim_indices,
             bounds,
+        };
+        t.set_root(root, bounds);
+        t
+    }
+
+    /// Completes a tree whose `nodes` and `prim_indices` a builder has written in place:
+    /// `root` is the child reference of the whole scene (a leaf, or inner node 0 of
+    /// `nodes`), `bounds` its box.
+    pub(crate) fn set_root(&mut self, root: ChildRef, bounds: Aabb) {
+        if root.is_leaf() {
+            self.nodes.clear();
+            self.nodes
+                .push(Node::new(&bounds, root, &Aabb::EMPTY, ChildRef::EMPTY));
         }
+        self.bounds = bounds;
+    }
+
+    /// Makes this the tree of zero primitives ([`Bvh2::empty`]), keeping its buffers.
+    pub(crate) fn clear(&mut self) {
+        self.nodes.clear();
+        self.nodes.push(Node::EMPTY);
+        self.prim_indices.clear();
+        self.bounds = Aabb::EMPTY;
     }
 
     /// Number of primitives (leaf-table entries).

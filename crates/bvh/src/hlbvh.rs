@@ -31,6 +31,9 @@
 //! is serial per stream, as in the hardware, but cells are independent (the stack is empty
 //! at every cell boundary), so runs of whole cells are emitted by separate emitters in
 //! parallel and concatenated; the output equals one emitter's, for any thread count.
+//!
+//! Frame loops: [`HlbvhBuilder::build_into`] rebuilds into the tree and the
+//! [`HlbvhArena`] of the previous build, reusing their memory, with the same tree.
 
 use crate::bvh2::Bvh2;
 use crate::error::{check_input, in_pool, BuildError};
@@ -55,8 +58,9 @@ pub struct HlbvhBuilder {
     /// Only [`HlbvhBuilder::build_highlevel`] cuts; [`HlbvhBuilder::build`] gives the same
     /// tree for any threshold.
     pub highlevel_threshold: Option<u32>,
-    /// Worker threads for coding and sorting: 0 uses the current rayon pool, `n` a private
-    /// pool of `n` threads. Emission itself is serial, as in the hardware.
+    /// Worker threads for coding, sorting and the emission of separate cells: 0 uses the
+    /// current rayon pool, `n` a private pool of `n` threads. One stream (one cell) is
+    /// emitted serially, as in the hardware.
     pub threads: usize,
     /// The grid of the Morton codes over the centroid bounds (default: stretched to the
     /// box on each axis; [`MortonGrid::Cube`] for cubic cells).
@@ -556,6 +560,36 @@ struct CellScratch {
     layout: Vec<u32>,
 }
 
+/// The buffers of [`HlbvhBuilder::build_into`], kept from one build to the next as a
+/// renderer keeps them from frame to frame: the sort keys and their second buffer, the
+/// sorted codes, and the cells' ranges and plan. With the output tree they are all the
+/// memory a build needs but each thread's buffers for one cell, so a build into buffers of
+/// an earlier build of as many primitives or more allocates nothing large and touches no
+/// fresh page (fresh pages and the frees of the previous build's buffers were a quarter of
+/// a 2-thread Dragon build).
+/// Any arena suits any build: its contents never change the tree.
+#[derive(Debug, Default)]
+pub struct HlbvhArena {
+    /// Key arrays of the Morton sort.
+    sort: crate::morton_sort::SortBuffers,
+    /// Sorted Morton codes.
+    codes: Vec<u64>,
+    /// Cells: ranges of sorted positions.
+    cells: Vec<std::ops::Range<usize>>,
+    /// Per cell: inner nodes, tie of its last primitive, box (see `build_cells`).
+    plan: Vec<(u32, u32, Aabb)>,
+}
+
+impl HlbvhArena {
+    /// Bytes held by the arena's buffers (their capacity).
+    pub fn capacity_bytes(&self) -> usize {
+        self.sort.capacity_bytes()
+            + self.codes.capacity() * std::mem::size_of::<u64>()
+            + self.cells.capacity() * std::mem::size_of::<std::ops::Range<usize>>()
+            + self.plan.capacity() * std::mem::size_of::<(u32, u32, Aabb)>()
+    }
+}
+
 /// A node of the top tree over the cells, or a cell, while laying out the final tree.
 #[derive(Clone, Copy)]
 enum Slot {
@@ -589,17 +623,38 @@ impl HlbvhBuilder {
     /// Large inputs are emitted as cells of the top `PARALLEL_CELL_BITS` (9) code bits in
     /// parallel, joined by [`crate::toplevel::morton_top`]: the result is node for node the
     /// single-stream tree (the tests check this), for any thread count. The nodes go
-    /// straight into the final [`Bvh2`] (see `HlbvhBuilder::build_cells`).
+    /// straight into the final [`Bvh2`] (see `HlbvhBuilder::build_cells`). A caller that
+    /// builds again and again (every frame) uses [`HlbvhBuilder::build_into`].
     pub fn build(&self, aabbs: &[Aabb]) -> Result<Bvh2, BuildError> {
-        check_input(aabbs)?;
-        self.check()?;
+        let mut out = Bvh2::empty();
+        self.build_into(aabbs, &mut HlbvhArena::default(), &mut out)?;
+        Ok(out)
+    }
+
+    /// [`HlbvhBuilder::build`] into `out`, whose tree it replaces, with the buffers of
+    /// `arena`: a renderer keeps both from frame to frame and rebuilds into them, so that
+    /// a build after the first reuses the previous one's memory (output nodes, leaf table,
+    /// sort keys, codes) instead of allocating, faulting in and freeing it again. The tree
+    /// is node for node the one [`HlbvhBuilder::build`] gives, whatever `out` and `arena`
+    /// held before (tests check it). On an error `out` is left the empty tree.
+    pub fn build_into(
+        &self,
+        aabbs: &[Aabb],
+        arena: &mut HlbvhArena,
+        out: &mut Bvh2,
+    ) -> Result<(), BuildError> {
+        let checked = check_input(aabbs).and_then(|()| self.check());
+        if let Err(e) = checked {
+            out.clear();
+            return Err(e);
+        }
         let shift = if aabbs.len() >= 2 * PARALLEL_MIN_PRIMS {
             self.bits.total_bits() - PARALLEL_CELL_BITS
         } else {
             u32::MAX
         };
         in_pool(self.threads, || {
-            self.build_cells(aabbs, shift, false, |hl| {
+            self.build_cells(aabbs, shift, false, arena, out, |hl| {
                 Ok(crate::toplevel::morton_top(hl))
             })
         })?
@@ -620,21 +675,61 @@ impl HlbvhBuilder {
     /// whole tree is made (the [`HlbvhBuilder::build_highlevel`] output keeps one). The
     /// result is node for node `stitch(top, build_highlevel(..))` (tests check it); a top
     /// tree with a leaf of several roots is stitched that way.
+    ///
+    /// The tree is written into `out` (replacing it, reusing its buffers), with the
+    /// buffers of `arena`; on an error `out` is left the empty tree.
     pub(crate) fn build_cells(
         &self,
         aabbs: &[Aabb],
         shift: u32,
         boxes: bool,
+        arena: &mut HlbvhArena,
+        out: &mut Bvh2,
         top: impl FnOnce(&Highlevel) -> Result<Bvh2, BuildError>,
-    ) -> Result<Bvh2, BuildError> {
-        let (codes, order) = sorted_codes(aabbs, self.bits, self.grid);
+    ) -> Result<(), BuildError> {
+        let done = self.build_cells_into(aabbs, shift, boxes, arena, out, top);
+        if done.is_err() {
+            out.clear();
+        }
+        done
+    }
+
+    /// [`HlbvhBuilder::build_cells`] without the clean-up on an error.
+    fn build_cells_into(
+        &self,
+        aabbs: &[Aabb],
+        shift: u32,
+        boxes: bool,
+        arena: &mut HlbvhArena,
+        out: &mut Bvh2,
+        top: impl FnOnce(&Highlevel) -> Result<Bvh2, BuildError>,
+    ) -> Result<(), BuildError> {
+        let HlbvhArena {
+            sort,
+            codes,
+            cells,
+            plan,
+        } = arena;
+        let mut order = std::mem::take(&mut out.prim_indices);
+        crate::morton_sort::sorted_codes_into(
+            aabbs.len(),
+            |i| crate::centroid(&aabbs[i]),
+            self.bits,
+            self.grid,
+            sort,
+            codes,
+            &mut order,
+        );
+        let (codes, order) = (&codes[..], order);
         let n = codes.len();
         if n == 0 {
-            return Ok(Bvh2::empty());
+            out.prim_indices = order;
+            out.clear();
+            return Ok(());
         }
         // Cells: runs of equal `code >> shift`.
         let prefix = |c: u64| c.checked_shr(shift).unwrap_or(0);
-        let mut cells: Vec<std::ops::Range<usize>> = Vec::new();
+        cells.clear();
         let mut start = 0;
         while start < n {
             let p = prefix(codes[start]);
@@ -644,7 +739,7 @@ impl HlbvhBuilder {
         }
         // Per cell: inner nodes (its leaves, the distinct keys, less one), the key of its
         // last primitive, and its box when the top tree needs it.
-        let plan: Vec<(u32, u32, Aabb)> = cells
+        cells
             .par_iter()
             .map(|r| {
                 let mut t = Ties::new(self.combine_identical, self.max_leaf_size);
@@ -663,19 +758,23 @@ impl HlbvhBuilder {
                 };
                 (leaves - 1, tie, b)
             })
-            .collect();
+            .collect_into_vec(plan);
+        let (cells, plan) = (&cells[..], &plan[..]);
         if cells.len() == 1 {
-            let mut nodes = crate::node::zeroed_nodes(plan[0].0 as usize);
+            // Every node is written by the emitter's layout: no fill pass.
+            crate::size_for_overwrite(&mut out.nodes, plan[0].0 as usize);
             let mut sc = CellScratch::default();
             let (root, bounds) =
-                self.emit_cell(0..n, &codes, &order, aabbs, 0, &mut nodes, &mut sc);
-            return Ok(Bvh2::from_root(root, bounds, nodes, order));
+                self.emit_cell(0..n, codes, &order, aabbs, 0, &mut out.nodes, &mut sc);
+            out.prim_indices = order;
+            out.set_root(root, bounds);
+            return Ok(());
         }
         let skeleton = Highlevel {
             nodes: Vec::new(),
             roots: cells
                 .iter()
-                .zip(&plan)
+                .zip(plan)
                 .map(|(r, p)| HighlevelRoot {
                     aabb: p.2,
                     root: EmitRef::Leaf { first: 0, count: 0 },
@@ -703,7 +802,8 @@ impl HlbvhBuilder {
                 ..self.clone()
             }
             .emit_all(aabbs);
-            return crate::toplevel::stitch(&top, &hl);
+            *out = crate::toplevel::stitch(&top, &hl)?;
+            return Ok(());
         }
         // Preorder places: each top node, then each cell's range, child 0 first.
         let cell_of = |c: ChildRef| top.prim_indices[c.index as usize] as usize;
@@ -732,8 +832,9 @@ impl HlbvhBuilder {
                 }
             }
         }
-        // Zeroed pages, no fill pass: every node is written below.
-        let mut nodes = crate::node::zeroed_nodes(at as usize);
+        // No fill pass: every node is written below.
+        crate::size_for_overwrite(&mut out.nodes, at as usize);
+        let nodes = &mut out.nodes;
         // Each cell's range of the output, in the order of their places.
         let mut tasks: Vec<(usize, &mut [Node])> = Vec::with_capacity(cells.len());
         let mut rest = nodes.as_mut_slice();
@@ -753,7 +854,7 @@ impl HlbvhBuilder {
                 let r = cells[c].clone();
                 (
                     c,
-                    self.emit_cell(r, &codes, &order, aabbs, cell_at[c], out, sc),
+                    self.emit_cell(r, codes, &order, aabbs, cell_at[c], out, sc),
                 )
             })
             .collect();
@@ -775,11 +876,9 @@ impl HlbvhBuilder {
             nodes[top_at[t] as usize] = Node::new(&k0.1, k0.0, &k1.1, k1.0);
             top_box[t] = k0.1.union(k1.1);
         }
-        Ok(Bvh2 {
-            nodes,
-            prim_indices: order,
-            bounds: top_box[0],
-        })
+        out.prim_indices = order;
+        out.bounds = top_box[0];
+        Ok(())
     }
 
     /// Emits the cell of sorted positions `r` with one emitter and lays its subtree out in
@@ -1170,6 +1269,52 @@ mod tests {
         assert_eq!(t.nodes.len(), 1);
     }
 
+    /// A frame loop: one arena and one output tree through meshes of every size class in
+    /// turn (parallel cells and a single stream, empty, one primitive, the adversarial
+    /// sets), larger after smaller and smaller after larger, give each time the tree of a
+    /// fresh build, bit for bit; a build no larger than an earlier one keeps every buffer.
+    #[test]
+    fn build_into_reused_buffers_equals_a_fresh_build() {
+        let mut meshes: Vec<(&str, Vec<Aabb>)> = vec![
+            ("soup 60K", soup(60_000, 2.0, 5)),
+            ("empty", Vec::new()),
+            ("soup 20K", soup(20_000, 1.0, 11)),
+            ("cloth", proc_scene("proc:cloth?n=5000")),
+        ];
+        meshes.extend(adversarial());
+        meshes.push(("soup 40K", soup(40_000, 0.5, 2)));
+        let small_first = (2..meshes.len()).chain([0, 1]);
+        let order: Vec<usize> = (0..meshes.len()).chain(small_first).collect();
+        let mut cfgs = vec![HlbvhBuilder::default()];
+        cfgs.extend(configs().into_iter().step_by(3));
+        for cfg in cfgs {
+            let mut arena = HlbvhArena::default();
+            let mut out = Bvh2::empty();
+            let mut largest = None;
+            for &m in &order {
+                let (name, prims) = &meshes[m];
+                cfg.build_into(prims, &mut arena, &mut out).unwrap();
+                assert_eq!(out, cfg.build(prims).unwrap(), "{name} {cfg:?}");
+                let held = (
+                    out.nodes.as_ptr(),
+                    out.prim_indices.as_ptr(),
+                    arena.capacity_bytes(),
+                );
+                match largest {
+                    None => largest = Some(held),
+                    // The 60K soup came first: nothing after it needs more room.
+                    Some(l) => assert_eq!(held, l, "{name}: a buffer was reallocated"),
+                }
+            }
+            // A bad input leaves the empty tree; the next build is whole again.
+            let bad = [Aabb::new(Vec3::ONE, Vec3::ZERO)];
+            assert!(cfg.build_into(&bad, &mut arena, &mut out).is_err());
+            assert_eq!(out, Bvh2::empty());
+            cfg.build_into(&meshes[2].1, &mut arena, &mut out).unwrap();
+            assert_eq!(out, cfg.build(&meshes[2].1).unwrap());
+        }
+    }
+
     /// The thesis's Fig. 5 pattern on hand-made codes: every step is one stack operation,
     /// nodes come out bottom-up, and equal codes combine into one leaf.
     #[test]
@@ -1452,9 +1597,16 @@ mod tests {
         let Some(scenes) = real_scenes() else {
             return;
         };
-        for (name, prims) in &scenes {
+        // Through one arena and output tree, as a renderer's frame loop, in both orders:
+        // the tree of a fresh build every time.
+        let (mut arena, mut out) = (HlbvhArena::default(), Bvh2::empty());
+        for (name, prims) in scenes.iter().chain(scenes.iter().rev()) {
             let t = HlbvhBuilder::default().build(prims).unwrap();
             assert_valid(name, &t, prims, 8);
+            HlbvhBuilder::default()
+                .build_into(prims, &mut arena, &mut out)
+                .unwrap();
+            assert!(out == t, "{name}: the reused buffers changed the tree");
         }
     }
 

@@ -62,7 +62,7 @@ pub use collapse_sah::{
 pub use error::{BuildError, MAX_PRIMITIVES};
 pub use geom::MortonGrid;
 pub use hlbvh::{
-    EmitRef, EmittedNode, Emitter, Highlevel, HighlevelRoot, HlbvhBuilder, Prim, Step,
+    EmitRef, EmittedNode, Emitter, Highlevel, HighlevelRoot, HlbvhArena, HlbvhBuilder, Prim, Step,
 };
 pub use lbvh::{LbvhBuilder, MortonBits};
 pub use mbvh4::{mbvh4_sah_cost_with, validate_mbvh4, Mbvh4, Mbvh4Stats, Node4, MBVH_WIDTH};
@@ -96,6 +96,22 @@ pub(crate) const PARALLEL_MIN_PRIMS: usize = 4096;
 /// off per level on adversarial inputs (exponentially spaced, or coincident primitives),
 /// which would make the depth, and the build's recursion, linear in the input size.
 pub(crate) const MAX_SAH_DEPTH: u32 = 96;
+
+/// Makes `v` hold `n` elements that the caller overwrites, without a pass over the memory:
+/// a buffer with room keeps its old contents (only a growth past its length is filled),
+/// one without is replaced by calloc'd zero pages, which the writer touches first. The
+/// builders that reuse their buffers from one build to the next size them with this, so a
+/// reused buffer is neither zero-filled nor faulted in again.
+pub(crate) fn size_for_overwrite<T: bytemuck::Zeroable + Clone>(v: &mut Vec<T>, n: usize) {
+    if v.capacity() < n {
+        // Free the old buffer first: both are never held at once.
+        *v = Vec::new();
+        *v = bytemuck::zeroed_vec(n);
+    } else {
+        v.truncate(n);
+        v.resize(n, T::zeroed());
+    }
+}
 
 /// The bounding box of every triangle.
 pub fn triangle_aabbs(triangles: &[Triangle]) -> Vec<Aabb> {

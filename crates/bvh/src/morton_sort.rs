@@ -23,17 +23,12 @@ use rayon::prelude::*;
 const MIN_CHUNK: usize = 1 << 16;
 
 /// An unsigned integer sort key: the code in the high half, the primitive index low.
-trait Key: Copy + Send + Sync + 'static {
-    /// `n` zero keys (calloc-backed for integers: no pass over the memory).
-    fn zeros(n: usize) -> Vec<Self>;
+trait Key: Copy + Send + Sync + bytemuck::Zeroable + 'static {
     /// Bits `shift..shift + bits` of the key.
     fn digit(self, shift: u32, bits: u32) -> usize;
 }
 
 impl Key for u64 {
-    fn zeros(n: usize) -> Vec<Self> {
-        vec![0; n]
-    }
     #[inline(always)]
     fn digit(self, shift: u32, bits: u32) -> usize {
         ((self >> shift) & ((1 << bits) - 1)) as usize
@@ -41,23 +36,38 @@ impl Key for u64 {
 }
 
 impl Key for u128 {
-    fn zeros(n: usize) -> Vec<Self> {
-        vec![0; n]
-    }
     #[inline(always)]
     fn digit(self, shift: u32, bits: u32) -> usize {
         ((self >> shift) & ((1 << bits) - 1)) as usize
     }
 }
 
-/// Sorts `keys` stably by their bits `lo..lo + passes * bits`, `bits` per pass.
-fn radix_sort<K: Key>(keys: Vec<K>, lo: u32, bits: u32, passes: u32) -> Vec<K> {
-    let n = keys.len();
+/// The key arrays of [`sorted_codes_into`] (the keys and the radix sort's second buffer,
+/// for 30-bit and for 63-bit codes), kept between sorts so that a sort after the first
+/// allocates nothing and touches no fresh page.
+#[derive(Debug, Default)]
+pub(crate) struct SortBuffers {
+    narrow: [Vec<u64>; 2],
+    wide: [Vec<u128>; 2],
+}
+
+impl SortBuffers {
+    /// Bytes held.
+    pub(crate) fn capacity_bytes(&self) -> usize {
+        self.narrow.iter().map(|v| v.capacity() * 8).sum::<usize>()
+            + self.wide.iter().map(|v| v.capacity() * 16).sum::<usize>()
+    }
+}
+
+/// Sorts `src` stably by its keys' bits `lo..lo + passes * bits`, `bits` per pass; `dst`
+/// is the second buffer of the passes (its contents are overwritten; the two may be
+/// swapped, the sorted keys end in `src`).
+fn radix_sort<K: Key>(src: &mut Vec<K>, dst: &mut Vec<K>, lo: u32, bits: u32, passes: u32) {
+    let n = src.len();
     let radix = 1usize << bits;
     let chunks = (n / MIN_CHUNK).clamp(1, 4 * rayon::current_num_threads());
     let chunk_len = n.div_ceil(chunks).max(1);
-    let mut src = keys;
-    let mut dst = K::zeros(n);
+    crate::size_for_overwrite(dst, n);
     for pass in 0..passes {
         let shift = lo + pass * bits;
         let counts: Vec<Vec<u32>> = src
@@ -94,9 +104,8 @@ fn radix_sort<K: Key>(keys: Vec<K>, lo: u32, bits: u32, passes: u32) -> Vec<K> {
                     *out[k.digit(shift, bits)].next().expect("counted") = k;
                 }
             });
-        std::mem::swap(&mut src, &mut dst);
+        std::mem::swap(src, dst);
     }
-    src
 }
 
 /// The Morton code of every centroid over the centroid bounds, sorted with the primitive
@@ -120,40 +129,68 @@ pub(crate) fn sorted_codes_of(
     bits: MortonBits,
     grid: MortonGrid,
 ) -> (Vec<u64>, Vec<u32>, Aabb) {
+    let (mut codes, mut order) = (Vec::new(), Vec::new());
+    let mut buffers = SortBuffers::default();
+    let bounds = sorted_codes_into(n, point, bits, grid, &mut buffers, &mut codes, &mut order);
+    (codes, order, bounds)
+}
+
+/// [`sorted_codes_of`] into `codes` and `order` (their old contents are replaced), with
+/// the key arrays of `buffers`: with buffers kept from an earlier sort of as many points
+/// or more, nothing is allocated. Returns the points' box.
+pub(crate) fn sorted_codes_into(
+    n: usize,
+    point: impl Fn(usize) -> Vec3 + Sync,
+    bits: MortonBits,
+    grid: MortonGrid,
+    buffers: &mut SortBuffers,
+    codes: &mut Vec<u64>,
+    order: &mut Vec<u32>,
+) -> Aabb {
     let cbounds = (0..n)
         .into_par_iter()
         .fold(|| Aabb::EMPTY, |b, i| b.grow(point(i)))
         .reduce(|| Aabb::EMPTY, Aabb::union);
     let q = MortonQuantizer::with_grid(&cbounds, grid);
-    let (codes, order) = match bits {
+    match bits {
         MortonBits::Bits30 => {
             // Code and index packed in one u64; sorted by the 30 code bits, 10 per pass.
-            let keys: Vec<u64> = (0..n)
+            let [keys, tmp] = &mut buffers.narrow;
+            (0..n)
                 .into_par_iter()
                 .map(|i| ((q.code30(point(i)) as u64) << 32) | i as u64)
-                .collect();
-            let keys = radix_sort(keys, 32, 10, 3);
-            keys.par_iter().map(|k| (k >> 32, *k as u32)).unzip()
+                .collect_into_vec(keys);
+            radix_sort(keys, tmp, 32, 10, 3);
+            keys.par_iter()
+                .map(|k| (k >> 32, *k as u32))
+                .unzip_into_vecs(codes, order);
         }
         MortonBits::Bits63 => {
             // Code in the high u64 of a u128; sorted by the 63 code bits, 9 per pass.
-            let keys: Vec<u128> = (0..n)
+            let [keys, tmp] = &mut buffers.wide;
+            (0..n)
                 .into_par_iter()
                 .map(|i| ((q.code63(point(i)) as u128) << 64) | i as u128)
-                .collect();
-            let keys = radix_sort(keys, 64, 9, 7);
+                .collect_into_vec(keys);
+            radix_sort(keys, tmp, 64, 9, 7);
             keys.par_iter()
                 .map(|k| ((k >> 64) as u64, *k as u32))
-                .unzip()
+                .unzip_into_vecs(codes, order);
         }
-    };
-    (codes, order, cbounds)
+    }
+    cbounds
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::testutil::soup;
+
+    /// `radix_sort` of `keys` with a fresh second buffer.
+    fn sort<K: Key>(mut keys: Vec<K>, lo: u32, bits: u32, passes: u32) -> Vec<K> {
+        radix_sort(&mut keys, &mut Vec::new(), lo, bits, passes);
+        keys
+    }
 
     /// Deterministic pseudo-random keys with many repeated digits.
     fn keys(n: usize, seed: u64, bits: u32) -> Vec<u64> {
@@ -186,7 +223,7 @@ mod tests {
                     .num_threads(threads)
                     .build()
                     .unwrap();
-                let got = pool.install(|| radix_sort(k.clone(), 32, 10, 3));
+                let got = pool.install(|| sort(k.clone(), 32, 10, 3));
                 assert_eq!(got, want, "n {n} bits {bits} threads {threads}");
             }
         }
@@ -200,7 +237,7 @@ mod tests {
             .collect();
         let mut want = k.clone();
         want.sort_unstable();
-        assert_eq!(radix_sort(k, 64, 9, 7), want);
+        assert_eq!(sort(k, 64, 9, 7), want);
     }
 
     #[test]

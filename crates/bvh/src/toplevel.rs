@@ -285,9 +285,18 @@ pub fn build_toplevel(
     };
     cfg.check()?;
     // The cells are emitted and laid out in parallel: in the configured pool.
+    let mut out = Bvh2::empty();
     in_pool(hlbvh.threads, || {
-        cfg.build_cells(aabbs, shift, true, |hl| top(hl, &root_boxes(hl)))
-    })?
+        cfg.build_cells(
+            aabbs,
+            shift,
+            true,
+            &mut crate::hlbvh::HlbvhArena::default(),
+            &mut out,
+            |hl| top(hl, &root_boxes(hl)),
+        )
+    })??;
+    Ok(out)
 }
 
 impl HlbvhSahBuilder {

@@ -22,7 +22,9 @@
 
 use super::bench::{goal_table, markdown_report, text_report, RunInfo};
 use super::bench_record::{Record, RecordEntry};
-use super::build::{builder, mesh_aabbs, BuildConfig, SAH_REFERENCE_MAX_TRIANGLES};
+use super::build::{
+    builder, mesh_aabbs, reusing_builder, BuildConfig, Frame, SAH_REFERENCE_MAX_TRIANGLES,
+};
 use super::{open_scene, thousands, SceneArgs};
 use crate::alloc::{peak_bytes, reset_peak, PeakMeter};
 use crate::progress::{Ui, Unit};
@@ -148,6 +150,11 @@ pub struct BenchBuildArgs {
     /// `arbor bench compare`; the committed ones are under bench/records).
     #[arg(long, value_name = "DIR")]
     pub record: Option<std::path::PathBuf>,
+    /// Every Arbor build starts from new buffers. By default the builders that can (hlbvh)
+    /// build into the buffers of their previous run, as a renderer rebuilding every frame
+    /// does; their first run at each thread count is a fresh build either way.
+    #[arg(long)]
+    pub fresh: bool,
 }
 
 /// A peer library's builder.
@@ -342,6 +349,9 @@ pub struct BenchJson {
     pub run: RunInfo,
     /// Runs per measurement.
     pub runs: usize,
+    /// Whether every Arbor build started from new buffers (`--fresh`); otherwise the
+    /// builders that can reuse them built into those of their previous run.
+    pub fresh: bool,
     /// Whether the Embree rows could run (feature `embree`).
     pub embree: bool,
     /// Notes on skipped rows.
@@ -399,13 +409,16 @@ impl Workers {
     }
 }
 
-/// One build: the tree, its timed part and its peak extra bytes.
+/// One build: the tree, its timed part and its peak extra bytes. An Arbor builder of
+/// [`super::build::REUSING`] builds into `frame`'s buffers when one is given; the bytes
+/// they held before the build count in its peak.
 fn build_once(
     e: Entry,
     aabbs: &[Aabb],
     tris: &Option<std::sync::Arc<[geom::Triangle]>>,
     threads: usize,
     w: &Workers,
+    frame: Option<&mut Frame>,
 ) -> anyhow::Result<(Tree, Duration, usize)> {
     let cfg = BuildConfig {
         triangles: match e {
@@ -421,6 +434,16 @@ fn build_once(
     };
     match e {
         Entry::Arbor(name) => {
+            if let (Some(frame), Some(f)) = (frame, reusing_builder(name)) {
+                let held = frame.held_bytes();
+                return w.pool.install(|| {
+                    let m = PeakMeter::start();
+                    let s = Instant::now();
+                    let t = f(aabbs, &cfg, frame)?;
+                    let d = s.elapsed();
+                    Ok((t, d, held + m.extra_peak()))
+                });
+            }
             let f = builder(name)?;
             w.pool.install(|| {
                 let m = PeakMeter::start();
@@ -513,20 +536,25 @@ struct Measured {
 /// Measures every builder in `entries` on `aabbs`, `runs` rounds, each round one build per
 /// builder in turn, so that load from other processes, which comes and goes, falls on all
 /// builders alike rather than on whichever ran during it. Each builder's first tree is
-/// validated (untimed) and every tree is freed before the next build.
+/// validated (untimed) and every tree is freed before the next build, or, unless `fresh`,
+/// kept in its builder's [`Frame`] for the next build to reuse.
+#[allow(clippy::too_many_arguments)]
 fn measure_all(
     entries: &[Entry],
     aabbs: &[Aabb],
     tris: &Option<std::sync::Arc<[geom::Triangle]>>,
     threads: usize,
     runs: usize,
+    fresh: bool,
     w: &Workers,
     tick: &mut dyn FnMut(),
 ) -> anyhow::Result<Vec<Measured>> {
     let mut out: Vec<Option<Measured>> = entries.iter().map(|_| None).collect();
+    let mut frames: Vec<Frame> = entries.iter().map(|_| Frame::default()).collect();
     for _ in 0..runs {
-        for (e, m) in entries.iter().zip(out.iter_mut()) {
-            let (t, d, p) = build_once(*e, aabbs, tris, threads, w)
+        for ((e, m), frame) in entries.iter().zip(out.iter_mut()).zip(&mut frames) {
+            let reuse = (!fresh).then_some(&mut *frame);
+            let (t, d, p) = build_once(*e, aabbs, tris, threads, w, reuse)
                 .with_context(|| format!("{} failed", e.label()))?;
             let ms = d.as_secs_f64() * 1e3;
             match m {
@@ -551,7 +579,11 @@ fn measure_all(
                     });
                 }
             }
-            drop(t);
+            if fresh {
+                drop(t);
+            } else {
+                frame.recycle(t);
+            }
             tick();
         }
     }
@@ -646,8 +678,9 @@ pub fn run(args: &BenchBuildArgs, ui: &Ui) -> anyhow::Result<()> {
         let mut scene_rows = Vec::new();
         for &threads in &args.threads {
             let workers = Workers::new(threads, &run)?;
-            let measured =
-                measure_all(&run, &aabbs, &tris, threads, args.runs, &workers, &mut tick)?;
+            let measured = measure_all(
+                &run, &aabbs, &tris, threads, args.runs, args.fresh, &workers, &mut tick,
+            )?;
             for (&e, mut m) in run.iter().zip(measured) {
                 let (best_ms, median_ms) = best_and_median(&mut m.times);
                 let input_bytes = n * INPUT_BYTES_PER_PRIM;
@@ -701,6 +734,7 @@ pub fn run(args: &BenchBuildArgs, ui: &Ui) -> anyhow::Result<()> {
         schema: "arbor.bench.build.v1",
         run: run.finish(),
         runs: args.runs,
+        fresh: args.fresh,
         embree: EMBREE,
         notes,
         rows,
@@ -954,6 +988,19 @@ fn preamble(d: &BenchJson) -> Vec<String> {
              memory ratio = (input + peak) / (input + output)",
         d.runs
     ));
+    v.push(if d.fresh {
+        "every build from new buffers (--fresh)".to_string()
+    } else {
+        format!(
+            "{} build into the buffers of their previous run (a renderer's frame loop; \
+             --fresh for new buffers every run), which count in their peak memory",
+            super::build::REUSING
+                .iter()
+                .map(|(n, _)| *n)
+                .collect::<Vec<_>>()
+                .join(", ")
+        )
+    });
     v.extend(d.notes.iter().cloned());
     v
 }
@@ -1141,6 +1188,7 @@ mod tests {
                 command: "arbor bench build".into(),
             },
             runs: 3,
+            fresh: false,
             embree: false,
             notes: vec!["a note".into()],
             goals: goals(&rows),

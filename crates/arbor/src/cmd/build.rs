@@ -292,6 +292,52 @@ pub fn builder(name: &str) -> anyhow::Result<BuildFn> {
     }
 }
 
+/// The buffers a builder keeps from one build to the next, as a renderer keeps them from
+/// frame to frame: the previous tree, and the builder's scratch arena. Only the builders of
+/// [`REUSING`] use them.
+#[derive(Debug, Default)]
+pub struct Frame {
+    /// The previous build's tree, whose buffers the next build writes into.
+    tree: Option<bvh::Bvh2>,
+    /// HLBVH's sort, code and cell buffers.
+    hlbvh: bvh::HlbvhArena,
+}
+
+impl Frame {
+    /// Keeps the buffers of `t`, a tree this frame built, for the next build.
+    pub fn recycle(&mut self, t: Tree) {
+        if let Tree::Bvh2(b) = t {
+            self.tree = Some(b);
+        }
+    }
+
+    /// Bytes the frame holds between builds (its buffers' capacity).
+    pub fn held_bytes(&self) -> usize {
+        let tree = self.tree.as_ref().map_or(0, |t| {
+            t.nodes.capacity() * std::mem::size_of::<bvh::Node>()
+                + t.prim_indices.capacity() * std::mem::size_of::<u32>()
+        });
+        tree + self.hlbvh.capacity_bytes()
+    }
+}
+
+/// A builder entry point that builds into the buffers of a [`Frame`] (the returned tree
+/// goes back to the frame by [`Frame::recycle`]). Runs in the current rayon pool.
+pub type BuildIntoFn = fn(&[Aabb], &BuildConfig, &mut Frame) -> anyhow::Result<Tree>;
+
+/// The builders that can build into the buffers of their previous build, with the same
+/// trees as their [`BUILDERS`] entry.
+pub static REUSING: &[(&str, BuildIntoFn)] = &[("hlbvh", |p, c, f| {
+    let mut t = f.tree.take().unwrap_or_else(bvh::Bvh2::empty);
+    hlbvh(c).build_into(p, &mut f.hlbvh, &mut t)?;
+    Ok(Tree::Bvh2(t))
+})];
+
+/// The [`REUSING`] entry point of builder `name`, if it has one.
+pub fn reusing_builder(name: &str) -> Option<BuildIntoFn> {
+    REUSING.iter().find(|(n, _)| *n == name).map(|(_, f)| *f)
+}
+
 /// The registered name of binary builder `name` (what `--collapse-from` accepts; `option`
 /// is how messages spell that option).
 fn binary_builder_name(name: &str, option: &str) -> anyhow::Result<&'static str> {

@@ -13,6 +13,30 @@ fn bench(args: &[&str]) -> std::process::Output {
     arbor(&a)
 }
 
+/// `hlbvh` builds into its previous run's buffers unless `--fresh`: the same tree either
+/// way, the document says which, and the reused buffers count in the peak.
+#[test]
+fn fresh_and_reused_buffers_give_the_same_rows() {
+    let mut sah = Vec::new();
+    for fresh in [false, true] {
+        let mut args = vec![SOUP, "--runs", "3", "--threads", "2", "--builders", "hlbvh"];
+        args.extend(fresh.then_some("--fresh"));
+        args.push("--json");
+        let out = bench(&args);
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let j: Value = serde_json::from_slice(&out.stdout).unwrap();
+        assert_eq!(j["fresh"], fresh);
+        let r = &j["rows"][0];
+        assert!(r["peak_bytes"].as_u64().unwrap() >= r["output_bytes"].as_u64().unwrap());
+        sah.push(r["sah"].as_f64().unwrap());
+    }
+    assert_eq!(sah[0], sah[1]);
+}
+
 #[test]
 fn json_has_every_row_with_ratios_and_memory() {
     // With Embree built in, its Morton builder joins so that the ratio columns fill.
