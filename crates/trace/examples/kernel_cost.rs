@@ -5,7 +5,8 @@
 //! KERNEL one of `mbvh4`, `mbvh8`, `bvh2`, or `mbvh8xN` for the 8-wide kernel's batch
 //! path interleaving N rays, to trace only that one; a name with `-batch` appended traces
 //! runs of 1,024 rays through `closest_hits` instead of one `closest_hit` call a ray; the
-//! `mbvh8xN` and `-batch` rows run only when named).
+//! `mbvh8xN` and `-batch` rows run only when named). A seventh argument `primary` traces
+//! the render's primary rays instead of its diffuse bounce rays.
 
 use trace::{RayKind, RenderSettings, Shading, Traverse};
 
@@ -33,6 +34,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         (cam.eye, cam.target, cam.vfov_deg) = (v3(eye)?, v3(target)?, fov.parse()?);
     }
     let only = args.get(5);
+    // The render's primary rays instead of its bounce rays.
+    let primary = match args.get(6).map(String::as_str) {
+        None | Some("diffuse") => false,
+        Some("primary") => true,
+        Some(other) => return Err(format!("{other}: expected primary or diffuse").into()),
+    };
     let mut s = RenderSettings::new(cam);
     s.width = 320;
     s.height = 180;
@@ -48,7 +55,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         &s,
         trace::render::RayRecorder::default,
         |r| {
-            rays.extend(r.rays.into_iter().filter(|r| r.1 > 0).map(|r| r.0));
+            rays.extend(
+                r.rays
+                    .into_iter()
+                    .filter(|r| (r.1 > 0) != primary)
+                    .map(|r| r.0),
+            );
             Ok(())
         },
         None,
