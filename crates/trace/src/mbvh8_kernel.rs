@@ -128,6 +128,47 @@ fn decode(c: u32, big: &[ChildRef]) -> ChildRef {
     }
 }
 
+/// Defines a pair of entry points of [`Mbvh8Accel`] for one instruction set: `$run`
+/// ([`Mbvh8Accel::run`] for one ray) and `$batch` ([`Mbvh8Accel::batch`]), each compiled
+/// with the target features `$features` (the doc lines say what they give); `$avx512`
+/// makes the instantiation of the generic traversal each pair runs its own (see `run`).
+macro_rules! simd_entry_points {
+    ($(#[doc = $doc:literal])* $run:ident, $batch:ident, $avx512:literal, $features:literal) => {
+        /// [`Self::run`]
+        $(#[doc = $doc])*
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = $features)]
+        fn $run<const DIST: bool, O: Observer>(
+            &self,
+            ray: &Ray,
+            query: Query,
+            stack: &mut TraversalStack,
+            total: &mut RayStats,
+            obs: &mut O,
+        ) -> Option<Hit> {
+            self.run::<DIST, true, $avx512, O>(ray, query, stack, total, obs)
+        }
+
+        /// [`Self::batch`]
+        $(#[doc = $doc])*
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = $features)]
+        fn $batch<
+            const DIST: bool,
+            R: RaySource + ?Sized,
+            F: FnMut(usize, Option<Hit>, &RayStats),
+        >(
+            &self,
+            rays: &R,
+            query: Query,
+            stack: &mut TraversalStack,
+            done: F,
+        ) {
+            self.batch::<DIST, true, $avx512, R, F>(rays, query, stack, done)
+        }
+    };
+}
+
 /// The instruction set of the 8-wide kernel, in increasing order.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 enum Isa {
@@ -571,39 +612,21 @@ impl Mbvh8Accel {
         }
     }
 
-    /// [`Self::run`] compiled for AVX2 (with FMA, BMI1/2, POPCNT and LZCNT, which every
-    /// AVX2 CPU has), with the AVX2 node visit. Rust never contracts a multiply and an
-    /// add into an FMA, so the results are those of the baseline path bit for bit.
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx,avx2,fma,bmi1,bmi2,popcnt,lzcnt")]
-    fn run_avx<const DIST: bool, O: Observer>(
-        &self,
-        ray: &Ray,
-        query: Query,
-        stack: &mut TraversalStack,
-        total: &mut RayStats,
-        obs: &mut O,
-    ) -> Option<Hit> {
-        self.run::<DIST, true, false, O>(ray, query, stack, total, obs)
+    simd_entry_points! {
+        /// compiled for AVX2 (with FMA, BMI1/2, POPCNT and LZCNT, which every AVX2 CPU
+        /// has), with the AVX2 node visit. Rust never contracts a multiply and an add into
+        /// an FMA, so the results are those of the baseline path bit for bit.
+        run_avx, batch_avx, false, "avx,avx2,fma,bmi1,bmi2,popcnt,lzcnt"
     }
 
-    /// [`Self::run_avx`] compiled with AVX-512 as well: the same 8-lane (256-bit) program,
-    /// which then has 32 vector registers instead of 16, so the ray's broadcast origin,
-    /// reciprocal direction and ranges stay in registers through a node visit instead of
-    /// being reloaded from the stack. Same results bit for bit (no operation changes).
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(
-        enable = "avx,avx2,fma,bmi1,bmi2,popcnt,lzcnt,avx512f,avx512vl,avx512bw,avx512dq"
-    )]
-    fn run_avx512<const DIST: bool, O: Observer>(
-        &self,
-        ray: &Ray,
-        query: Query,
-        stack: &mut TraversalStack,
-        total: &mut RayStats,
-        obs: &mut O,
-    ) -> Option<Hit> {
-        self.run::<DIST, true, true, O>(ray, query, stack, total, obs)
+    simd_entry_points! {
+        /// compiled as the AVX2 entry points with AVX-512 as well: the same 8-lane
+        /// (256-bit) program, which then has 32 vector registers instead of 16, so the
+        /// ray's broadcast origin, reciprocal direction and ranges stay in registers
+        /// through a node visit instead of being reloaded from the stack. Same results bit
+        /// for bit (no operation changes).
+        run_avx512, batch_avx512, true,
+        "avx,avx2,fma,bmi1,bmi2,popcnt,lzcnt,avx512f,avx512vl,avx512bw,avx512dq"
     }
 
     /// Traversal ([`traverse`]) with the 8-wide node visit ([`Self::visit`]). `AVX512`
@@ -680,42 +703,6 @@ impl Mbvh8Accel {
             };
         }
         self.visit8(slab, node, cur, t_max, st, stats, obs)
-    }
-
-    /// [`Self::batch`] compiled for AVX2, as [`Self::run_avx`].
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(enable = "avx,avx2,fma,bmi1,bmi2,popcnt,lzcnt")]
-    fn batch_avx<
-        const DIST: bool,
-        R: RaySource + ?Sized,
-        F: FnMut(usize, Option<Hit>, &RayStats),
-    >(
-        &self,
-        rays: &R,
-        query: Query,
-        stack: &mut TraversalStack,
-        done: F,
-    ) {
-        self.batch::<DIST, true, false, R, F>(rays, query, stack, done)
-    }
-
-    /// [`Self::batch`] compiled with AVX-512's registers, as [`Self::run_avx512`].
-    #[cfg(target_arch = "x86_64")]
-    #[target_feature(
-        enable = "avx,avx2,fma,bmi1,bmi2,popcnt,lzcnt,avx512f,avx512vl,avx512bw,avx512dq"
-    )]
-    fn batch_avx512<
-        const DIST: bool,
-        R: RaySource + ?Sized,
-        F: FnMut(usize, Option<Hit>, &RayStats),
-    >(
-        &self,
-        rays: &R,
-        query: Query,
-        stack: &mut TraversalStack,
-        done: F,
-    ) {
-        self.batch::<DIST, true, true, R, F>(rays, query, stack, done)
     }
 
     /// Traces `rays` [`Self::lanes`] at a time on this thread, round robin: each ray in
