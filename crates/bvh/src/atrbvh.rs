@@ -34,6 +34,7 @@
 
 use crate::bvh2::Bvh2;
 use crate::error::{check_input, in_pool, BuildError};
+use crate::layout::Kids;
 use crate::lbvh::{LbvhBuilder, MortonBits};
 use crate::node::{ChildRef, Node};
 use crate::sah::SahParams;
@@ -307,7 +308,9 @@ impl Work {
         Some(Work { nodes, leaves })
     }
 
-    /// The nodes re-laid out in depth-first preorder (child 0 first).
+    /// The nodes re-laid out in depth-first preorder (child 0 first), through the shared
+    /// [`crate::layout::preorder_sized`]: a subtree of `k` leaves has `k - 1` nodes, so
+    /// every subtree's range is known and large ones are written in parallel.
     fn relayout(&self) -> Vec<WNode> {
         let blank = WNode {
             child: [0; 2],
@@ -316,61 +319,17 @@ impl Work {
             leaves: 0,
         };
         let mut out = vec![blank; self.nodes.len()];
-        self.emit(0, &mut out, 0, 0);
-        out
-    }
-
-    /// Writes the subtree of node `i` in preorder into `out`, whose first slot is global
-    /// position `pos`. A subtree of `k` leaves has `k - 1` nodes, so child 1 goes right
-    /// after child 0's subtree and large subtrees are written in parallel.
-    fn emit(&self, i: u32, out: &mut [WNode], pos: u32, depth: u32) {
-        let n = self.nodes[i as usize];
-        let below = |c: u32| {
-            if c & LEAF_BIT != 0 {
-                0
-            } else {
-                self.nodes[c as usize].leaves - 1
-            }
-        };
-        if depth >= MAX_FORK_DEPTH
-            || (n.leaves as usize) < PARALLEL_MIN_PRIMS
-            || rayon::current_num_threads() <= 1
-        {
-            // Iterative: (working node, local slot).
-            let mut stack: Vec<(u32, u32)> = vec![(i, 0)];
-            while let Some((j, at)) = stack.pop() {
-                let mut m = self.nodes[j as usize];
-                let first = [at + 1, at + 1 + below(m.child[0])];
-                for s in [1, 0] {
-                    let c = m.child[s];
-                    if c & LEAF_BIT == 0 {
-                        stack.push((c, first[s]));
-                        m.child[s] = pos + first[s];
-                    }
+        let visit = |i: u32, kids: &mut Kids<'_, u32, ()>| {
+            let mut m = self.nodes[i as usize];
+            for c in &mut m.child {
+                if *c & LEAF_BIT == 0 {
+                    *c = kids.inner(*c, self.nodes[*c as usize].leaves - 1, 0);
                 }
-                out[at as usize] = m;
             }
-            return;
-        }
-        let n0 = below(n.child[0]);
-        let mut m = n;
-        let (head, rest) = out.split_at_mut(1);
-        let (r0, r1) = rest.split_at_mut(n0 as usize);
-        let (p0, p1) = (pos + 1, pos + 1 + n0);
-        let mut go = [None, None];
-        for (s, p) in [(0, p0), (1, p1)] {
-            if m.child[s] & LEAF_BIT == 0 {
-                go[s] = Some(m.child[s]);
-                m.child[s] = p;
-            }
-        }
-        head[0] = m;
-        let run = |c: Option<u32>, r: &mut [WNode], p: u32| {
-            if let Some(c) = c {
-                self.emit(c, r, p, depth + 1);
-            }
+            m
         };
-        rayon::join(|| run(go[0], r0, p0), || run(go[1], r1, p1));
+        crate::layout::preorder_sized(0u32, &mut out, &mut [], &visit);
+        out
     }
 
     /// The final `Bvh2`: SAH-driven leaf collapsing, then a depth-first layout of nodes and

@@ -9,7 +9,9 @@
 //! Shared engines (crate-private): `split` evaluates the SAH boundaries of every top-down
 //! builder's split search and holds the SIMD primitive reference, `bins` the binning of the
 //! binned and 4-wide builders, and `layout` the depth-first preorder writer that the tree
-//! writers (build fragments, HLBVH top trees, optimizer write-outs, wide collapses) share.
+//! writers share: `preorder` where subtree sizes are unknown (build fragments, HLBVH top
+//! trees, optimizer write-outs, wide and streaming collapses), `preorder_sized`, parallel,
+//! where they are known (PLOC's clustered tree, the ATRBVH working tree).
 
 #![warn(missing_docs)]
 

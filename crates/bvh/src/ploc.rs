@@ -28,10 +28,10 @@
 use crate::atrbvh::{optimize_checked, AtrbvhConfig};
 use crate::bvh2::Bvh2;
 use crate::error::{check_input, in_pool, BuildError};
+use crate::layout::Kids;
 use crate::lbvh::MortonBits;
 use crate::node::{zeroed_nodes, ChildRef, Node};
 use crate::sah::SahParams;
-use crate::PARALLEL_MIN_PRIMS;
 use geom::{Aabb, MortonGrid, Vec4};
 use rayon::prelude::*;
 
@@ -372,7 +372,7 @@ impl PlocBuilder {
             order: &order,
             aabbs,
         };
-        e.emit(root, 0, 0, &mut nodes, &mut prims, 0);
+        crate::layout::preorder_sized(root, &mut nodes, &mut prims, &|k, kids| e.node(k, kids));
         Bvh2 {
             nodes,
             prim_indices: prims,
@@ -381,11 +381,8 @@ impl PlocBuilder {
     }
 }
 
-/// Recursion depth after which the preorder emission stops forking and runs iteratively
-/// (a clustering of adversarial input may be deep).
-const MAX_FORK_DEPTH: u32 = 48;
-
-/// The preorder writer of the clustered tree.
+/// The node writer of the clustered tree, for [`crate::layout::preorder_sized`] (a
+/// subtree of `m` leaves takes `m - 1` nodes and `m` leaf-table entries).
 struct Emit<'a> {
     n: usize,
     children: &'a [[u32; 2]],
@@ -396,78 +393,26 @@ struct Emit<'a> {
 }
 
 impl Emit<'_> {
-    /// Leaves under node id `c`.
-    fn leaves_of(&self, c: u32) -> usize {
-        if (c as usize) < self.n {
-            1
-        } else {
-            self.leaves[c as usize - self.n] as usize
-        }
-    }
-
-    /// The child reference and box of node id `c`, placed at node `node` / leaf slot `leaf`.
-    fn child(&self, c: u32, node: usize, leaf: usize, prims: &mut [u32]) -> (ChildRef, Aabb) {
-        if (c as usize) < self.n {
-            let o = self.order[c as usize];
-            prims[0] = o;
-            (ChildRef::leaf(leaf as u32, 1), self.aabbs[o as usize])
-        } else {
-            (
-                ChildRef::inner(node as u32),
-                self.boxes[c as usize - self.n],
-            )
-        }
-    }
-
-    /// Writes inner node `k` and its subtree: `out[0]` is node `base`, `prims[0]` leaf-table
-    /// entry `leaf`; a subtree of `m` leaves takes `m - 1` nodes and `m` entries.
-    fn emit(
-        &self,
-        k: usize,
-        base: usize,
-        leaf: usize,
-        out: &mut [Node],
-        prims: &mut [u32],
-        depth: u32,
-    ) {
-        if depth >= MAX_FORK_DEPTH || (self.leaves[k] as usize) < PARALLEL_MIN_PRIMS {
-            return self.emit_seq(k, base, leaf, out, prims);
-        }
-        let [a, b] = self.children[k];
-        let la = self.leaves_of(a);
-        let (this, rest) = out.split_at_mut(1);
-        let (oa, ob) = rest.split_at_mut(la - 1);
-        let (pa, pb) = prims.split_at_mut(la);
-        let (ba, bb) = (base + 1, base + la);
-        let (la_ref, la_box) = self.child(a, ba, leaf, pa);
-        let (lb_ref, lb_box) = self.child(b, bb, leaf + la, pb);
-        this[0] = Node::new(&la_box, la_ref, &lb_box, lb_ref);
-        let go = |c: u32, node: usize, lf: usize, o: &mut [Node], p: &mut [u32]| {
-            if c as usize >= self.n {
-                self.emit(c as usize - self.n, node, lf, o, p, depth + 1);
-            }
-        };
-        rayon::join(|| go(a, ba, leaf, oa, pa), || go(b, bb, leaf + la, ob, pb));
-    }
-
-    /// [`Emit::emit`] with an explicit stack.
-    fn emit_seq(&self, k: usize, base: usize, leaf: usize, out: &mut [Node], prims: &mut [u32]) {
-        // (inner node, absolute node index, absolute leaf index).
-        let mut stack = vec![(k, base, leaf)];
-        let (b0, l0) = (base, leaf);
-        while let Some((k, node, lf)) = stack.pop() {
-            let [a, b] = self.children[k];
-            let la = self.leaves_of(a);
-            let (na, nb) = (node + 1, node + la);
-            let (ra, xa) = self.child(a, na, lf, &mut prims[lf - l0..]);
-            let (rb, xb) = self.child(b, nb, lf + la, &mut prims[lf + la - l0..]);
-            out[node - b0] = Node::new(&xa, ra, &xb, rb);
-            for (c, at, l) in [(b, nb, lf + la), (a, na, lf)] {
-                if c as usize >= self.n {
-                    stack.push((c as usize - self.n, at, l));
-                }
+    /// The node of inner cluster `k`, its children placed through `kids` in slot order: a
+    /// primitive gets the next leaf-table entry, an inner cluster the next node range.
+    #[inline(always)]
+    fn node(&self, k: usize, kids: &mut Kids<'_, usize, u32>) -> Node {
+        let mut refs = [ChildRef::EMPTY; 2];
+        let mut boxes = [Aabb::EMPTY; 2];
+        for (s, &c) in self.children[k].iter().enumerate() {
+            let c = c as usize;
+            if c < self.n {
+                let o = self.order[c];
+                let (first, entry) = kids.leaf(1);
+                entry[0] = o;
+                (refs[s], boxes[s]) = (ChildRef::leaf(first, 1), self.aabbs[o as usize]);
+            } else {
+                let m = self.leaves[c - self.n];
+                let at = kids.inner(c - self.n, m - 1, m);
+                (refs[s], boxes[s]) = (ChildRef::inner(at), self.boxes[c - self.n]);
             }
         }
+        Node::new(&boxes[0], refs[0], &boxes[1], refs[1])
     }
 }
 

@@ -73,8 +73,9 @@
 //! # Output order
 //! Wide nodes are written in closing order, every node after the nodes it references
 //! (emission order, like the binary nodes of the plain output); [`StreamCollapse::tree`]
-//! renumbers them into the depth-first preorder of [`Mbvh4`], as
-//! [`crate::Highlevel::to_bvh2`] does for the binary tree. Leaves are the emitter's leaves,
+//! renumbers them into the depth-first preorder of [`Mbvh4`] with the crate's shared stack
+//! layout (`layout::try_preorder`), as [`crate::Highlevel::to_bvh2`] does for the binary
+//! tree. Leaves are the emitter's leaves,
 //! ranges of the sorted order, so the leaf table is the emitter's.
 
 use crate::collapse::CollapseError;
@@ -348,31 +349,21 @@ impl StreamCollapse {
                 ..Mbvh4::empty()
             });
         };
-        // Preorder position of every written node (slot 0 first).
-        let mut pre = vec![u32::MAX; self.written.len()];
-        let mut stack = vec![root];
-        let mut next = 0u32;
-        while let Some(k) = stack.pop() {
-            pre[k] = next;
-            next += 1;
-            for c in self.written[k].children.iter().rev() {
+        // Written nodes come children first; the shared stack layout renumbers them into
+        // preorder (slot 0 first), checking every leaf range on the way.
+        let mut nodes = Vec::with_capacity(self.written.len());
+        crate::layout::try_preorder(root, &mut nodes, |k, out, kids| {
+            let m = self.written[k];
+            for (slot, c) in m.children.iter().enumerate() {
                 if c.is_inner() {
-                    stack.push(c.index as usize);
-                }
-            }
-        }
-        let mut nodes = vec![Node4::EMPTY; self.written.len()];
-        for (k, n) in self.written.iter().enumerate() {
-            let mut m = *n;
-            for (slot, c) in m.children.iter_mut().enumerate() {
-                if c.is_inner() {
-                    *c = ChildRef::inner(pre[c.index as usize]);
+                    kids.push((slot, c.index as usize));
                 } else if c.is_leaf() && c.index as u64 + c.count as u64 > order.len() as u64 {
                     return Err(CollapseError::BadLeaf { node: k, slot });
                 }
             }
-            nodes[pre[k] as usize] = m;
-        }
+            out.push(m);
+            Ok(())
+        })?;
         Ok(Mbvh4 {
             nodes,
             prim_indices: order,
