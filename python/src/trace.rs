@@ -409,7 +409,7 @@ impl<'a> RaySlices<'a> {
     /// Whether every ray is valid (finite origin and direction, a direction not zero, a
     /// range that starts at 0 or later; NaN ranges were refused when the arrays were
     /// read): a branch-free pass over the flat coordinates, which the compiler vectorizes.
-    pub(crate) fn valid(&self) -> bool {
+    fn valid(&self) -> bool {
         let finite = |v: &[Vec3]| {
             v.iter().fold(true, |a, p| {
                 a & p.x.is_finite() & p.y.is_finite() & p.z.is_finite()

@@ -362,19 +362,7 @@ mod tests {
             open.swap_remove(i.min(j));
             open.push(id);
         }
-        let mut leaves = vec![0u32; children.len()];
-        for k in 0..children.len() {
-            leaves[k] = children[k]
-                .iter()
-                .map(|&c| {
-                    if (c as usize) < n {
-                        1
-                    } else {
-                        leaves[c as usize - n]
-                    }
-                })
-                .sum();
-        }
+        let leaves = crate::ploc::leaf_counts(&children, n);
         (children, leaves)
     }
 

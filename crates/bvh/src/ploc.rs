@@ -157,6 +157,25 @@ fn distance(a: &Cluster, b: &Cluster) -> f32 {
     }
 }
 
+/// Leaves under each inner node of a tree as PLOC writes one (leaf ids `0..n`, inner node
+/// `k` has id `n + k` and children made before it), for [`crate::layout::preorder_sized`].
+pub(crate) fn leaf_counts(children: &[[u32; 2]], n: usize) -> Vec<u32> {
+    let mut leaves = vec![0u32; children.len()];
+    for k in 0..children.len() {
+        leaves[k] = children[k]
+            .iter()
+            .map(|&c| {
+                if (c as usize) < n {
+                    1
+                } else {
+                    leaves[c as usize - n]
+                }
+            })
+            .sum();
+    }
+    leaves
+}
+
 /// The nearest neighbour of cluster `i` within `r` positions (the reference of
 /// [`nearest_chunk`], which computes the same).
 #[cfg(test)]
@@ -348,20 +367,7 @@ impl PlocBuilder {
         }
         debug_assert_eq!(made, n - 1);
         let root = cur[0].id as usize - n;
-        // Leaves under each inner node (children are made before their parents).
-        let mut leaves = vec![0u32; n - 1];
-        for k in 0..n - 1 {
-            leaves[k] = children[k]
-                .iter()
-                .map(|&c| {
-                    if (c as usize) < n {
-                        1
-                    } else {
-                        leaves[c as usize - n]
-                    }
-                })
-                .sum();
-        }
+        let leaves = leaf_counts(&children, n);
         let mut nodes = zeroed_nodes(n - 1);
         let mut prims = vec![0u32; n];
         let e = Emit {
