@@ -480,6 +480,57 @@ pub(crate) fn slab_test4_sse(
     }
 }
 
+/// [`enters_own_box`] for the four triangles of a block at once: bit `i` is set when the
+/// ray enters lane `i`'s triangle box within `[t_min, cull_distance(t[i])]`. The boxes are
+/// made lane-wise from the vertex rows; per axis both plane distances are computed and
+/// ordered with a `min` and a `max`, which for the finite reciprocal of a ray (never zero)
+/// gives exactly the distances of the planes the scalar test selects by the direction's
+/// sign (the subtraction and the multiplication round monotonically). No NaN arises from
+/// vertices without NaN, so every `min`, `max` and comparison has the scalar test's
+/// outcome whatever its order, and the mask is the scalar test's lane by lane (tested). A
+/// triangle with a NaN vertex, which no validated tree holds, could differ; the watertight
+/// test never reports it as hit anyway. It replaces one scalar test per hit lane, with the
+/// gather of the triangle and its box (12% of the 8-wide kernel's samples on Conference's
+/// primary rays), by one SSE test of the four boxes.
+#[inline(always)]
+pub(crate) fn enter_own_boxes4(
+    pre: &RayPrecomp,
+    t_min: f32,
+    tris: &Triangles4,
+    t: &[f32; 4],
+) -> u8 {
+    #[cfg(target_arch = "x86_64")]
+    // SAFETY: SSE and SSE2 are part of the x86-64 baseline; every load reads a `[f32; 4]`.
+    unsafe {
+        use std::arch::x86_64::*;
+        let v = &tris.v;
+        let row = |k: usize, a: usize| _mm_loadu_ps(v[k][a].as_ptr());
+        let (origin, inv_dir) = (pre.origin.to_array(), pre.inv_dir.to_array());
+        let (mut near, mut far) = (_mm_set1_ps(t_min), _mm_set1_ps(f32::INFINITY));
+        for a in 0..3 {
+            let lo = _mm_min_ps(_mm_min_ps(row(0, a), row(1, a)), row(2, a));
+            let hi = _mm_max_ps(_mm_max_ps(row(0, a), row(1, a)), row(2, a));
+            let (o, d) = (_mm_set1_ps(origin[a]), _mm_set1_ps(inv_dir[a]));
+            let t_lo = _mm_mul_ps(_mm_sub_ps(lo, o), d);
+            let t_hi = _mm_mul_ps(_mm_sub_ps(hi, o), d);
+            near = _mm_max_ps(near, _mm_min_ps(t_lo, t_hi));
+            far = _mm_min_ps(far, _mm_max_ps(t_lo, t_hi));
+        }
+        let far = _mm_mul_ps(far, _mm_set1_ps(geom::SLAB_FAR_SCALE));
+        let cull = _mm_mul_ps(_mm_loadu_ps(t.as_ptr()), _mm_set1_ps(CULL_SLACK));
+        let hit = _mm_and_ps(_mm_cmple_ps(near, far), _mm_cmple_ps(near, cull));
+        _mm_movemask_ps(hit) as u8
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        let mut mask = 0u8;
+        for (i, &ti) in t.iter().enumerate() {
+            mask |= (enters_own_box(pre, &tris.get(i), t_min, ti) as u8) << i;
+        }
+        mask
+    }
+}
+
 /// A leaf's triangles packed for 4-wide tests.
 ///
 /// Triangles live in blocks of four ([`Triangles4`], structure of arrays). Leaves are
@@ -691,13 +742,13 @@ impl LeafTriangles {
             let lanes = (((1u32 << n) - 1) << lane) as u8;
             let h = intersect_triangles4_watertight(pre, tris, lanes, t_min, *best_t);
             let mut m = h.mask;
+            if m != 0 {
+                m &= enter_own_boxes4(pre, t_min, tris, &h.t);
+            }
             let mut tested = n as u64;
             while m != 0 {
                 let i = m.trailing_zeros() as usize;
                 m &= m - 1;
-                if !enters_own_box(pre, &tris.get(i), t_min, h.t[i]) {
-                    continue;
-                }
                 let hit = Hit {
                     t: h.t[i],
                     prim: blk.prims[i],
@@ -1123,5 +1174,74 @@ pub(crate) fn refit_nodes<N, const W: usize>(
             total = total.union(b);
         }
         boxes[i] = total;
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use geom::Vec3;
+    use proptest::prelude::*;
+
+    /// A coordinate: mostly small values on a coarse grid (shared planes, zeros, ties with
+    /// the ray's origin), sometimes huge or infinite.
+    fn coord() -> impl Strategy<Value = f32> {
+        prop_oneof![
+            8 => (-8i32..=8).prop_map(|k| k as f32 * 0.5),
+            4 => -10.0f32..10.0,
+            1 => Just(-0.0f32),
+            1 => Just(3.0e38f32),
+            1 => Just(-3.0e38f32),
+            1 => Just(f32::INFINITY),
+            1 => Just(f32::NEG_INFINITY),
+        ]
+    }
+
+    fn vec3<S: Strategy<Value = f32>>(c: impl Fn() -> S) -> impl Strategy<Value = Vec3> {
+        (c(), c(), c()).prop_map(|(x, y, z)| Vec3::new(x, y, z))
+    }
+
+    /// A finite coordinate of the same kinds.
+    fn finite() -> impl Strategy<Value = f32> {
+        coord().prop_filter("finite", |x| x.is_finite())
+    }
+
+    /// A distance to test against: the lane's hit distance in the kernel.
+    fn dist() -> impl Strategy<Value = f32> {
+        prop_oneof![
+            Just(0.0f32),
+            Just(-0.0f32),
+            Just(f32::INFINITY),
+            Just(1e-30f32),
+            0.0f32..20.0,
+        ]
+    }
+
+    proptest! {
+        #![proptest_config(ProptestConfig::with_cases(4000))]
+
+        /// The four-lane own-box check answers as the scalar one lane by lane, for
+        /// triangles with finite or infinite vertices and rays of any direction
+        /// (axis-aligned ones included).
+        #[test]
+        fn own_boxes_of_a_block_match_the_scalar_check(
+            verts in proptest::collection::vec(vec3(coord), 12),
+            origin in vec3(finite),
+            dir in vec3(finite).prop_filter("non-zero", |d| d.x != 0.0 || d.y != 0.0 || d.z != 0.0),
+            t_min in prop_oneof![Just(0.0f32), Just(1e-4f32), 0.0f32..3.0],
+            t in proptest::array::uniform4(dist()),
+        ) {
+            let tris: Vec<Triangle> = verts
+                .chunks(3)
+                .map(|v| Triangle::new(v[0], v[1], v[2]))
+                .collect();
+            let block = Triangles4::pack(&tris);
+            let pre = RayPrecomp::new(&Ray::new(origin, dir));
+            let got = enter_own_boxes4(&pre, t_min, &block, &t);
+            for (i, tri) in tris.iter().enumerate() {
+                let want = enters_own_box(&pre, tri, t_min, t[i]);
+                prop_assert_eq!(got >> i & 1 == 1, want, "lane {} of {:?}", i, tri);
+            }
+        }
     }
 }
