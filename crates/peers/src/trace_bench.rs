@@ -63,25 +63,7 @@ impl RaySets {
     }
 }
 
-/// CPU time consumed so far by the calling thread, in seconds (Linux; elsewhere 0).
-///
-/// On a machine shared with other work, a thread's CPU time excludes the time it waited
-/// for a core, so throughput per CPU second is far steadier than per wall second (cache
-/// sharing with the other work still shows).
-pub fn thread_cpu_seconds() -> f64 {
-    #[cfg(target_os = "linux")]
-    {
-        let mut ts = libc::timespec {
-            tv_sec: 0,
-            tv_nsec: 0,
-        };
-        // SAFETY: `ts` is a valid timespec for clock_gettime to fill.
-        if unsafe { libc::clock_gettime(libc::CLOCK_THREAD_CPUTIME_ID, &mut ts) } == 0 {
-            return ts.tv_sec as f64 + ts.tv_nsec as f64 * 1e-9;
-        }
-    }
-    0.0
-}
+pub use trace::thread_cpu_seconds;
 
 /// One measurement.
 #[derive(Clone, Copy, Debug)]

@@ -90,6 +90,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         let mut st = trace::RayStats::default();
         let start = std::time::Instant::now();
+        let cpu_start = trace::thread_cpu_seconds();
         let mut hits = 0u64;
         let mut out = vec![None; 1024];
         for _ in 0..repeats {
@@ -106,10 +107,13 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
         }
         let secs = start.elapsed().as_secs_f64();
+        let cpu = trace::thread_cpu_seconds() - cpu_start;
+        let per_ray = |s: f64| s * 1e9 / (rays.len() * repeats) as f64;
         println!(
-            "{name}: {} rays x {repeats}: {:.1} ns/ray, nodes/ray {:.2}, leaves/ray {:.2}, tris/ray {:.2}, hits {hits}",
+            "{name}: {} rays x {repeats}: {:.1} ns/ray (CPU {:.1}), nodes/ray {:.2}, leaves/ray {:.2}, tris/ray {:.2}, hits {hits}",
             rays.len(),
-            secs * 1e9 / (rays.len() * repeats) as f64,
+            per_ray(secs),
+            per_ray(cpu),
             st.per_ray(st.node_visits),
             st.per_ray(st.leaf_visits),
             st.per_ray(st.tri_tests)

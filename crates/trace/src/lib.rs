@@ -98,7 +98,7 @@ pub use observer::{Observer, Query};
 pub use render::{
     bounce_ray, facing_normal, render, RayKind, Render, RenderSettings, RenderStats, Shading,
 };
-pub use stats::RayStats;
+pub use stats::{thread_cpu_seconds, RayStats};
 
 use thiserror::Error;
 
