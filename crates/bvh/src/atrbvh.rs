@@ -2,8 +2,8 @@
 //! post-process of any [`Bvh2`], and the LBVH+ATRBVH builder of \[P2\] §6.2.
 //!
 //! One pass visits the inner nodes bottom-up (post-order). At every node whose subtree has
-//! at least `treelet_size` leaves (Karras and Aila's threshold γ, here equal to the treelet
-//! size so each treelet is full), a treelet is formed as in TRBVH: starting from the node's
+//! at least γ leaves (Karras and Aila's threshold; by default the treelet size, so each
+//! treelet is full; [`AtrbvhConfig::gamma`] and [`AtrbvhConfig::double_gamma`]), a treelet is formed as in TRBVH: starting from the node's
 //! two children, the treelet leaf with the largest surface area that is an inner node is
 //! replaced by its two children until the treelet has `treelet_size` leaves. Its `n - 1`
 //! inner nodes (the root and the expanded nodes) are then rebuilt agglomeratively: the
@@ -57,6 +57,14 @@ pub struct AtrbvhConfig {
     pub treelet_size: usize,
     /// Bottom-up restructuring passes; \[P2\] §6.2 uses 2.
     pub iterations: usize,
+    /// Karras and Aila's γ: the fewest leaves a subtree must have to root a treelet in
+    /// the first pass; 0 means `treelet_size` (every full treelet).
+    pub gamma: usize,
+    /// Double γ after each pass, as the public ATRBVH code of \[DP15\] does
+    /// (`AgglomerativeTreeletOptimizer.cpp`: `gamma = treeletSize`, `gamma *= 2` per
+    /// iteration): later passes restructure only larger subtrees. Off by default, which
+    /// keeps every pass at γ (the configuration \[P2\]'s reproduction measured).
+    pub double_gamma: bool,
     /// Largest leaf that SAH-driven leaf collapsing may create (0 or 1: no collapsing).
     pub max_leaf_size: u32,
     /// SAH weights for the restructuring and collapsing decisions.
@@ -71,6 +79,8 @@ impl Default for AtrbvhConfig {
             // [P2] 6.2: "two iterations ... treelet size of 8"
             treelet_size: 8,
             iterations: 2,
+            gamma: 0,
+            double_gamma: false,
             // The sweep SAH builder's default maximum, so SAH ratios compare like with like.
             max_leaf_size: 8,
             sah: SahParams::THESIS,
@@ -80,7 +90,7 @@ impl Default for AtrbvhConfig {
 }
 
 impl AtrbvhConfig {
-    fn check(&self) -> Result<(), BuildError> {
+    pub(crate) fn check(&self) -> Result<(), BuildError> {
         if !(3..=MAX_TREELET_SIZE).contains(&self.treelet_size) {
             return Err(BuildError::InvalidConfig(format!(
                 "ATRBVH treelet size {} is outside 3..={MAX_TREELET_SIZE}",
@@ -206,13 +216,22 @@ pub(crate) fn optimize_checked(bvh: &mut Bvh2, cfg: &AtrbvhConfig) -> AtrbvhWork
     };
     work.inner_nodes = w.nodes.len() as u64;
     let counts = Counts::default();
+    let mut gamma = if cfg.gamma == 0 {
+        cfg.treelet_size
+    } else {
+        cfg.gamma
+    };
     for it in 0..cfg.iterations {
         if it > 0 {
             w.nodes = w.relayout();
+            if cfg.double_gamma {
+                gamma = gamma.saturating_mul(2);
+            }
         }
         let ctx = Ctx {
             leaves: &w.leaves,
             treelet: cfg.treelet_size,
+            gamma,
             c_inner: cfg.sah.c_inner,
             counts: &counts,
         };
@@ -429,6 +448,8 @@ impl Work {
 struct Ctx<'a> {
     leaves: &'a [WLeaf],
     treelet: usize,
+    /// Fewest leaves of a treelet root (the tree's root always is one).
+    gamma: usize,
     c_inner: f32,
     counts: &'a Counts,
 }
@@ -468,9 +489,11 @@ fn pass(ctx: &Ctx, nodes: &mut [WNode], base: u32, depth: u32) {
         [a] => pass(ctx, rest, a, depth + 1),
         _ => {}
     }
-    let mut scratch = Scratch::new();
-    restructure(ctx, nodes, base, &mut scratch);
-    scratch.flush(ctx);
+    if base == 0 || root.leaves as usize >= ctx.gamma {
+        let mut scratch = Scratch::new();
+        restructure(ctx, nodes, base, &mut scratch);
+        scratch.flush(ctx);
+    }
 }
 
 /// Inner node count of the subtree of node `c`, read from the slice starting at `base`.
@@ -481,10 +504,10 @@ fn nodes_below(nodes: &[WNode], base: u32, c: u32) -> usize {
 
 /// The same post-order pass, sequential and iterative (explicit stack).
 fn pass_seq(ctx: &Ctx, nodes: &mut [WNode], base: u32) {
-    // Subtrees smaller than a treelet root none, except that the tree's root always roots
-    // one, so trees smaller than a treelet are optimized too.
+    // Subtrees of fewer than γ leaves root no treelet, except that the tree's root always
+    // roots one, so trees smaller than a treelet are optimized too.
     let roots = |c: u32, nodes: &[WNode]| {
-        c & LEAF_BIT == 0 && (c == 0 || nodes[(c - base) as usize].leaves as usize >= ctx.treelet)
+        c & LEAF_BIT == 0 && (c == 0 || nodes[(c - base) as usize].leaves as usize >= ctx.gamma)
     };
     if !roots(base, nodes) {
         return;
@@ -807,6 +830,64 @@ mod tests {
         assert_eq!(w1, run(3));
     }
 
+    /// γ limits the treelet roots to subtrees of at least γ leaves (fewer treelets), doubling
+    /// it limits the later passes further, and neither breaks validity, the SAH guarantee or
+    /// determinism.
+    #[test]
+    fn gamma_limits_the_treelet_roots() {
+        let prims = soup(30_000, 1.0, 5);
+        let lbvh = crate::LbvhBuilder::default().build(&prims).unwrap();
+        let run = |cfg: &AtrbvhConfig| {
+            let mut t = lbvh.clone();
+            let w = optimize(&mut t, &prims, cfg).unwrap();
+            optimized("soup", &lbvh, &prims, cfg);
+            (t, w)
+        };
+        let (_, base) = run(&AtrbvhConfig::default());
+        let (_, same) = run(&AtrbvhConfig {
+            gamma: 8,
+            ..Default::default()
+        });
+        assert_eq!(same, base, "gamma 8 is the treelet size");
+        let (_, big) = run(&AtrbvhConfig {
+            gamma: 32,
+            ..Default::default()
+        });
+        assert!(4 * big.treelets() < base.treelets() * 2, "{big:?} {base:?}");
+        let one = AtrbvhConfig {
+            iterations: 1,
+            ..Default::default()
+        };
+        let (t1, w1) = run(&one);
+        let (t1d, w1d) = run(&AtrbvhConfig {
+            double_gamma: true,
+            ..one.clone()
+        });
+        assert_eq!(
+            (t1, w1),
+            (t1d, w1d),
+            "one pass: doubling does not apply yet"
+        );
+        let dbl = AtrbvhConfig {
+            double_gamma: true,
+            iterations: 3,
+            ..Default::default()
+        };
+        let (td, wd) = run(&dbl);
+        let (_, w3) = run(&AtrbvhConfig {
+            double_gamma: false,
+            ..dbl.clone()
+        });
+        assert!(4 * wd.treelets() < 3 * w3.treelets(), "{wd:?} {w3:?}");
+        for threads in [1, 2, 3] {
+            let cfg = AtrbvhConfig {
+                threads,
+                ..dbl.clone()
+            };
+            assert_eq!(run(&cfg), (td.clone(), wd.clone()), "{threads} threads");
+        }
+    }
+
     /// A caterpillar of 100K leaves (depth 100K): no recursion may follow the tree depth,
     /// and restructuring must shorten it a lot.
     #[test]
@@ -1046,14 +1127,15 @@ mod tests {
         #[test]
         fn random_soups_stay_valid_and_never_worse(n in 0usize..1500, size in 0.0f32..20.0,
                 seed: u64, treelet_size in 3usize..12, iterations in 0usize..3, leaf in 0u32..6,
-                sweep: bool) {
+                sweep: bool, gamma in 0usize..40, double_gamma: bool) {
             let prims = soup(n, size, seed);
             let t = if sweep {
                 SweepSahBuilder { max_leaf_size: 4, ..Default::default() }.build(&prims).unwrap()
             } else {
                 LbvhBuilder::default().build(&prims).unwrap()
             };
-            let cfg = AtrbvhConfig { treelet_size, iterations, max_leaf_size: leaf, ..Default::default() };
+            let cfg = AtrbvhConfig { treelet_size, iterations, max_leaf_size: leaf, gamma,
+                double_gamma, ..Default::default() };
             optimized("soup", &t, &prims, &cfg);
         }
 

@@ -10,7 +10,7 @@
 //! gives the Morton-prefix top that the uncut HLBVH would have, the starting point that
 //! ATRBVH optimizes for HLBVH+ATRBVH.
 
-use crate::atrbvh::{optimize, AtrbvhConfig, AtrbvhWork};
+use crate::atrbvh::{optimize, optimize_checked, AtrbvhConfig, AtrbvhWork};
 use crate::binned_sah::BinnedSahBuilder;
 use crate::bvh2::Bvh2;
 use crate::error::{in_pool, BuildError};
@@ -347,6 +347,12 @@ pub struct HlbvhAtrbvhBuilder {
     /// The ATRBVH pass over the top tree. Its leaf collapsing is not used: the top tree's
     /// leaves are whole cells, which stay separate subtrees.
     pub atrbvh: AtrbvhConfig,
+    /// Issue 34's extension (not the thesis's build): after the toplevel build, ATRBVH
+    /// over the whole tree with this configuration, so the cells' own subtrees are
+    /// restructured too (independent subtrees, in parallel) and leaves collapse by the
+    /// SAH up to its `max_leaf_size`. `None` (the default) is \[P2\] §6.2's toplevel-only
+    /// HLBVH+ATRBVH, which `sim` and `arbor report mergetree` reproduce.
+    pub cells: Option<AtrbvhConfig>,
     /// Worker threads: 0 uses the current rayon pool, `n` a private pool of `n` threads.
     pub threads: usize,
 }
@@ -357,7 +363,8 @@ impl HlbvhAtrbvhBuilder {
         Ok(self.build_with_work(aabbs)?.0)
     }
 
-    /// [`Self::build`], with the work of the ATRBVH pass over the top tree.
+    /// [`Self::build`], with the work of the ATRBVH pass over the top tree (a `cells` pass
+    /// is not counted).
     pub fn build_with_work(&self, aabbs: &[Aabb]) -> Result<(Bvh2, AtrbvhWork), BuildError> {
         let hlbvh = HlbvhBuilder {
             threads: self.threads,
@@ -368,12 +375,20 @@ impl HlbvhAtrbvhBuilder {
             threads: self.threads,
             ..self.atrbvh.clone()
         };
+        if let Some(c) = &self.cells {
+            c.check()?;
+        }
         let mut work = AtrbvhWork::default();
-        let tree = build_toplevel(&hlbvh, aabbs, |hl, boxes| {
+        let mut tree = build_toplevel(&hlbvh, aabbs, |hl, boxes| {
             let mut top = morton_top(hl);
             work = optimize(&mut top, boxes, &cfg)?;
             Ok(top)
         })?;
+        if let Some(c) = &self.cells {
+            // The stitched tree is valid by construction (the tests validate it), so the
+            // whole-tree pass skips `optimize`'s validation.
+            in_pool(self.threads, || optimize_checked(&mut tree, c))?;
+        }
         Ok((tree, work))
     }
 }
@@ -428,6 +443,67 @@ mod tests {
             let t = HlbvhAtrbvhBuilder::default().build(&prims).unwrap();
             assert_valid(name, &t, &prims, HlbvhBuilder::default().leaf_limit());
         }
+    }
+
+    /// Issue 34: with `cells`, the whole tree is restructured and its leaves collapsed:
+    /// valid (every primitive once, leaves within the bound), never worse than the
+    /// toplevel-only build, the same for any thread count.
+    #[test]
+    fn hlbvh_atrbvh_cells_restructures_the_whole_tree() {
+        let cells = AtrbvhConfig {
+            iterations: 1,
+            ..Default::default()
+        };
+        for spec in [
+            "proc:forest?n=30000",
+            "proc:cloth?n=20000",
+            "proc:soup?n=20000",
+        ] {
+            let prims = proc_scene(spec);
+            let top = HlbvhAtrbvhBuilder::default().build(&prims).unwrap();
+            let b = |threads| HlbvhAtrbvhBuilder {
+                cells: Some(cells.clone()),
+                threads,
+                ..Default::default()
+            };
+            let t = b(0).build(&prims).unwrap();
+            assert_valid(spec, &t, &prims, 8);
+            let sweep = SweepSahBuilder::default().build(&prims).unwrap();
+            let (rt, rc) = (top.sah_vs(&sweep), t.sah_vs(&sweep));
+            println!("{spec}: hlbvh+atrbvh {rt:.3}, with cells {rc:.3} x sweep");
+            assert!(rc < rt, "{spec}: cells {rc} >= toplevel only {rt}");
+            for threads in [1, 2, 3] {
+                assert_eq!(b(threads).build(&prims).unwrap(), t, "{spec}: {threads}");
+            }
+            // The top pass's work is the toplevel-only build's.
+            assert_eq!(
+                b(0).build_with_work(&prims).unwrap().1,
+                HlbvhAtrbvhBuilder::default()
+                    .build_with_work(&prims)
+                    .unwrap()
+                    .1
+            );
+        }
+        for (name, prims) in adversarial() {
+            let t = HlbvhAtrbvhBuilder {
+                cells: Some(cells.clone()),
+                ..Default::default()
+            }
+            .build(&prims)
+            .unwrap();
+            assert_valid(name, &t, &prims, 8);
+        }
+        let bad = HlbvhAtrbvhBuilder {
+            cells: Some(AtrbvhConfig {
+                treelet_size: 2,
+                ..Default::default()
+            }),
+            ..Default::default()
+        };
+        assert!(matches!(
+            bad.build(&soup(100, 1.0, 1)),
+            Err(BuildError::InvalidConfig(_))
+        ));
     }
 
     #[test]

@@ -891,16 +891,27 @@ fn goals(rows: &[Row]) -> Vec<Goal> {
                 ),
             ));
         }
-        if let (Some(a), Some(h)) = (find("hlbvh+atrbvh"), find("hlbvh")) {
-            if let Some(q) = a.sah_vs_sweep {
-                let time = a.best_ms / h.best_ms;
-                out.push(goal(
-                    "hlbvh+atrbvh SAH <= 1.10x sweep at < 2x hlbvh time",
-                    q,
-                    GOAL_ATRBVH_SAH,
-                    q <= GOAL_ATRBVH_SAH && time < GOAL_ATRBVH_TIME,
-                    format!("{:.2}x hlbvh time", time),
-                ));
+        for (name, label) in [
+            (
+                "hlbvh+atrbvh",
+                "hlbvh+atrbvh SAH <= 1.10x sweep at < 2x hlbvh time",
+            ),
+            (
+                "hlbvh+atrbvh-cells",
+                "hlbvh+atrbvh-cells SAH <= 1.10x sweep at < 2x hlbvh time",
+            ),
+        ] {
+            if let (Some(a), Some(h)) = (find(name), find("hlbvh")) {
+                if let Some(q) = a.sah_vs_sweep {
+                    let time = a.best_ms / h.best_ms;
+                    out.push(goal(
+                        label,
+                        q,
+                        GOAL_ATRBVH_SAH,
+                        q <= GOAL_ATRBVH_SAH && time < GOAL_ATRBVH_TIME,
+                        format!("{:.2}x hlbvh time", time),
+                    ));
+                }
             }
         }
         let worst = rows

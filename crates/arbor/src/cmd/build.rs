@@ -77,6 +77,18 @@ impl Default for BuildConfig {
 /// installs the pool that sets the thread count, so pool creation is not timed.
 pub type BuildFn = fn(&[Aabb], &BuildConfig) -> anyhow::Result<Tree>;
 
+/// The whole-tree ATRBVH pass of `hlbvh+atrbvh-cells`: the thesis's treelet size (8) with
+/// one pass instead of two (issue 34's measurements: one pass keeps SAH within 1.10x sweep
+/// on the shared meshes at about 70% of the second pass's time), leaves up to --max-leaf.
+pub fn atrbvh_cells(c: &BuildConfig) -> bvh::AtrbvhConfig {
+    bvh::AtrbvhConfig {
+        iterations: 1,
+        max_leaf_size: c.max_leaf,
+        threads: 0,
+        ..Default::default()
+    }
+}
+
 /// A binary builder's tree as a [`Tree`].
 fn binary(t: Result<bvh::Bvh2, bvh::BuildError>) -> anyhow::Result<Tree> {
     Ok(Tree::Bvh2(t?))
@@ -100,6 +112,18 @@ pub static BUILDERS: &[(&str, BuildFn)] = &[
         binary(
             bvh::HlbvhAtrbvhBuilder {
                 hlbvh: hlbvh(c),
+                ..Default::default()
+            }
+            .build(p),
+        )
+    }),
+    // Issue 34: the thesis's build, then ATRBVH over the whole tree (the cells' subtrees
+    // too, in parallel) with one pass and the SAH leaf collapse up to --max-leaf.
+    ("hlbvh+atrbvh-cells", |p, c| {
+        binary(
+            bvh::HlbvhAtrbvhBuilder {
+                hlbvh: hlbvh(c),
+                cells: Some(atrbvh_cells(c)),
                 ..Default::default()
             }
             .build(p),
@@ -362,7 +386,8 @@ fn binary_builder_name(name: &str, option: &str) -> anyhow::Result<&'static str>
 pub struct BuildArgs {
     #[command(flatten)]
     scene: SceneArgs,
-    /// Builder: lbvh, hlbvh, hlbvh+sah, hlbvh+atrbvh, binned-sah, sweep-sah, atrbvh, ploc,
+    /// Builder: lbvh, hlbvh, hlbvh+sah, hlbvh+atrbvh, hlbvh+atrbvh-cells, binned-sah,
+    /// sweep-sah, atrbvh, ploc,
     /// ploc+reinsert, hlbvh+reinsert (binary trees), sbvh (binary, with spatial splits:
     /// leaves name parts of triangles; no --out yet), mbvh4-collapse, mbvh4-stream,
     /// mbvh4-stream-w4, mbvh4-topdown (4-wide trees); kdtree-points, octree-points (point
@@ -846,6 +871,7 @@ mod tests {
             "hlbvh",
             "hlbvh+sah",
             "hlbvh+atrbvh",
+            "hlbvh+atrbvh-cells",
             "binned-sah",
             "sweep-sah",
             "atrbvh",

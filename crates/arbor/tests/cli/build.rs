@@ -5,12 +5,13 @@ use crate::common::arbor;
 use serde_json::Value;
 use std::path::Path;
 
-/// Every builder of `arbor build`: ten binary, then the four 4-wide ones.
-const BUILDERS: [&str; 14] = [
+/// Every builder of `arbor build`: eleven binary, then the four 4-wide ones.
+const BUILDERS: [&str; 15] = [
     "lbvh",
     "hlbvh",
     "hlbvh+sah",
     "hlbvh+atrbvh",
+    "hlbvh+atrbvh-cells",
     "binned-sah",
     "sweep-sah",
     "atrbvh",
@@ -190,6 +191,16 @@ fn out_file_reads_back_as_the_built_tree() {
                 .build(&aabbs)
                 .unwrap()
                 .into(),
+            "hlbvh+atrbvh-cells" => bvh::HlbvhAtrbvhBuilder {
+                cells: Some(bvh::AtrbvhConfig {
+                    iterations: 1,
+                    ..Default::default()
+                }),
+                ..Default::default()
+            }
+            .build(&aabbs)
+            .unwrap()
+            .into(),
             "sweep-sah" => bvh::SweepSahBuilder::default()
                 .build(&aabbs)
                 .unwrap()
