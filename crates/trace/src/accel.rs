@@ -703,7 +703,10 @@ impl LeafTriangles {
     /// Prefetches the first block of the leaf at `slot`.
     #[inline(always)]
     pub fn prefetch(&self, slot: u32) {
-        prefetch(self.blocks.as_ptr().wrapping_add(slot as usize / 4));
+        let p = self.blocks.as_ptr().wrapping_add(slot as usize / 4) as *const u8;
+        for line in 0..3 {
+            prefetch(p.wrapping_add(64 * line));
+        }
     }
 
     /// Tests the leaf of `count` triangles at `slot`; updates `best` and `best_t`. Returns
