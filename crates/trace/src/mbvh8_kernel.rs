@@ -128,12 +128,14 @@ fn decode(c: u32, big: &[ChildRef]) -> ChildRef {
     }
 }
 
-/// Defines a pair of entry points of [`Mbvh8Accel`] for one instruction set: `$run`
-/// ([`Mbvh8Accel::run`] for one ray) and `$batch` ([`Mbvh8Accel::batch`]), each compiled
-/// with the target features `$features` (the doc lines say what they give); `$avx512`
-/// makes the instantiation of the generic traversal each pair runs its own (see `run`).
+/// Defines three entry points of [`Mbvh8Accel`] for one instruction set: `$run`
+/// ([`Mbvh8Accel::run`] for one ray), `$each` (a batch traced one ray after the other,
+/// each through `run`) and `$batch` ([`Mbvh8Accel::batch`], interleaving rays), each
+/// compiled with the target features `$features` (the doc lines say what they give);
+/// `$avx512` and the `EACH` parameter of `run` make the instantiation of the generic
+/// traversal each entry point runs its own (see `run`).
 macro_rules! simd_entry_points {
-    ($(#[doc = $doc:literal])* $run:ident, $batch:ident, $avx512:literal, $features:literal) => {
+    ($(#[doc = $doc:literal])* $run:ident, $each:ident, $batch:ident, $avx512:literal, $features:literal) => {
         /// [`Self::run`]
         $(#[doc = $doc])*
         #[cfg(target_arch = "x86_64")]
@@ -146,7 +148,37 @@ macro_rules! simd_entry_points {
             total: &mut RayStats,
             obs: &mut O,
         ) -> Option<Hit> {
-            self.run::<DIST, true, $avx512, O>(ray, query, stack, total, obs)
+            self.run::<DIST, true, $avx512, false, O>(ray, query, stack, total, obs)
+        }
+
+        /// [`Traverse::trace_batch`] one ray after the other, the traversal and `done`
+        /// inlined here: one call into the instruction set's code a batch, and each ray's
+        /// hit handed to `done` in registers. Called through `Traverse::trace_batch` a
+        /// ray at a time, `$run` returned the hit through memory, and the caller's
+        /// 16-byte copy of it straddled the callee's narrower stores: a failed
+        /// store-to-load forward a ray (about 20% of a primary ray's time on Conference).
+        $(#[doc = $doc])*
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = $features)]
+        fn $each<
+            const DIST: bool,
+            R: RaySource + ?Sized,
+            F: FnMut(usize, Option<Hit>, &RayStats),
+        >(
+            &self,
+            rays: &R,
+            query: Query,
+            stack: &mut TraversalStack,
+            mut done: F,
+        ) {
+            for i in 0..rays.len() {
+                let mut stats = RayStats::default();
+                let ray = rays.ray(i);
+                let hit = self.run::<DIST, true, $avx512, true, ()>(
+                    &ray, query, stack, &mut stats, &mut (),
+                );
+                done(i, hit, &stats);
+            }
         }
 
         /// [`Self::batch`]
@@ -616,7 +648,7 @@ impl Mbvh8Accel {
         /// compiled for AVX2 (with FMA, BMI1/2, POPCNT and LZCNT, which every AVX2 CPU
         /// has), with the AVX2 node visit. Rust never contracts a multiply and an add into
         /// an FMA, so the results are those of the baseline path bit for bit.
-        run_avx, batch_avx, false, "avx,avx2,fma,bmi1,bmi2,popcnt,lzcnt"
+        run_avx, each_avx, batch_avx, false, "avx,avx2,fma,bmi1,bmi2,popcnt,lzcnt"
     }
 
     simd_entry_points! {
@@ -625,16 +657,16 @@ impl Mbvh8Accel {
         /// ray's broadcast origin, reciprocal direction and ranges stay in registers
         /// through a node visit instead of being reloaded from the stack. Same results bit
         /// for bit (no operation changes).
-        run_avx512, batch_avx512, true,
+        run_avx512, each_avx512, batch_avx512, true,
         "avx,avx2,fma,bmi1,bmi2,popcnt,lzcnt,avx512f,avx512vl,avx512bw,avx512dq"
     }
 
-    /// Traversal ([`traverse`]) with the 8-wide node visit ([`Self::visit`]). `AVX512`
-    /// changes no operation: it makes the AVX-512 entry point's instantiation (and so its
-    /// closures) its own, so that they inline there as in the AVX2 one rather than stay
-    /// one out-of-line function between the two.
+    /// Traversal ([`traverse`]) with the 8-wide node visit ([`Self::visit`]). `AVX512` and
+    /// `EACH` change no operation: they make each entry point's instantiation (and so its
+    /// closures) its own (`EACH`: the one-ray-after-the-other batch), so that they inline
+    /// there rather than stay one out-of-line function between two entry points.
     #[inline(always)]
-    fn run<const DIST: bool, const AVX: bool, const AVX512: bool, O: Observer>(
+    fn run<const DIST: bool, const AVX: bool, const AVX512: bool, const EACH: bool, O: Observer>(
         &self,
         ray: &Ray,
         query: Query,
@@ -935,9 +967,9 @@ impl Traverse for Mbvh8Accel {
             (Isa::Baseline, _) => {}
         }
         if self.options.distance_stack {
-            self.run::<true, false, false, O>(ray, query, stack, stats, obs)
+            self.run::<true, false, false, false, O>(ray, query, stack, stats, obs)
         } else {
-            self.run::<false, false, false, O>(ray, query, stack, stats, obs)
+            self.run::<false, false, false, false, O>(ray, query, stack, stats, obs)
         }
     }
 
@@ -951,6 +983,23 @@ impl Traverse for Mbvh8Accel {
         done: F,
     ) {
         if rays.len() <= 1 || self.interleave().1 <= 1 {
+            #[cfg(target_arch = "x86_64")]
+            // SAFETY: `isa` names only instruction sets the CPU has (`Isa::detect`).
+            match (self.isa, self.options.distance_stack) {
+                (Isa::Avx512, true) => {
+                    return unsafe { self.each_avx512::<true, R, F>(rays, query, stack, done) }
+                }
+                (Isa::Avx512, false) => {
+                    return unsafe { self.each_avx512::<false, R, F>(rays, query, stack, done) }
+                }
+                (Isa::Avx2, true) => {
+                    return unsafe { self.each_avx::<true, R, F>(rays, query, stack, done) }
+                }
+                (Isa::Avx2, false) => {
+                    return unsafe { self.each_avx::<false, R, F>(rays, query, stack, done) }
+                }
+                (Isa::Baseline, _) => {}
+            }
             return accel::trace_each(self, rays, query, stack, done);
         }
         #[cfg(target_arch = "x86_64")]
