@@ -177,10 +177,10 @@ impl<const N: usize> Bins<N> {
 
 /// Binning with 256-bit AVX updates, chosen at run time (the crate compiles for the
 /// x86-64 baseline). A bin holds its box as one 8-lane vector `(min, -max)`, so that one
-/// `vminps` updates both corners (TinyBVH's `BuildAVX` does the same); the negation is
-/// exact and `-min(-a, -b)` picks the same operand as `max(a, b)` in every case (equal
-/// values and signed zeros: the second; NaN: the second), so the bins are those of
-/// [`Bins::fill_scalar`] bit for bit, with the same sets and the same merge order.
+/// `vminps` updates both corners; the negation is exact and `-min(-a, -b)` picks the same
+/// operand as `max(a, b)` in every case (equal values and signed zeros: the second; NaN:
+/// the second), so the bins are those of [`Bins::fill_scalar`] bit for bit, with the same
+/// sets and the same merge order.
 #[cfg(target_arch = "x86_64")]
 pub(crate) mod avx {
     use super::{Binner, Bins, DUAL_BINS_MIN};
