@@ -378,7 +378,7 @@ impl PlocBuilder {
             order: &order,
             aabbs,
         };
-        crate::layout::preorder_sized(root, &mut nodes, &mut prims, &|k, kids| e.node(k, kids));
+        crate::layout::preorder_sized(root, &mut nodes, &mut prims, &e);
         Bvh2 {
             nodes,
             prim_indices: prims,
@@ -388,7 +388,9 @@ impl PlocBuilder {
 }
 
 /// The node writer of the clustered tree, for [`crate::layout::preorder_sized`] (a
-/// subtree of `m` leaves takes `m - 1` nodes and `m` leaf-table entries).
+/// subtree of `m` leaves takes `m - 1` nodes and `m` leaf-table entries). A
+/// [`SizedVisit`](crate::layout::SizedVisit) with its node inlined into the layout loop,
+/// not a closure, which the compiler called per node.
 struct Emit<'a> {
     n: usize,
     children: &'a [[u32; 2]],
@@ -398,7 +400,7 @@ struct Emit<'a> {
     aabbs: &'a [Aabb],
 }
 
-impl Emit<'_> {
+impl crate::layout::SizedVisit<usize, u32, Node> for Emit<'_> {
     /// The node of inner cluster `k`, its children placed through `kids` in slot order: a
     /// primitive gets the next leaf-table entry, an inner cluster the next node range.
     #[inline(always)]
