@@ -254,7 +254,18 @@ pub(crate) struct Sink<'c, 'r> {
 }
 
 impl Sink<'_, '_> {
-    /// Writes ray `k`'s closest hit (`None`: a miss) and counters.
+    /// Whether the per-ray counters are written out.
+    pub(crate) fn keeps_counters(&self) -> bool {
+        self.cols.counters.is_some()
+    }
+
+    /// Adds counters to the summed ones.
+    pub(crate) fn total(&mut self, st: &RayStats) {
+        self.totals.add(st);
+    }
+
+    /// Writes ray `k`'s closest hit (`None`: a miss) and counters (when they are kept;
+    /// the summed counters are added with [`Sink::total`]).
     #[inline(always)]
     pub(crate) fn put(&mut self, k: usize, h: Option<InstanceHit>, st: &RayStats) {
         let c = &mut self.cols;
@@ -297,7 +308,6 @@ impl Sink<'_, '_> {
                 counters[COUNTERS.len() * k + j] = c32(x);
             }
         }
-        self.totals.add(st);
     }
 }
 
@@ -313,6 +323,7 @@ pub(crate) fn one_by_one<X>(
         let mut st = RayStats::default();
         let h = one(x, &batch.ray(i), &mut st);
         sink.put(i, h, &st);
+        sink.total(&st);
     }
 }
 
