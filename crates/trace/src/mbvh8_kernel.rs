@@ -201,6 +201,24 @@ macro_rules! simd_entry_points {
     };
 }
 
+/// Returns from the calling method through the entry point of the kernel's instruction
+/// set and distance-stack setting (`$avx512` or `$avx`, with `DIST` and then the generic
+/// arguments `$g`, called with `$args`); on the baseline instruction set (or off x86-64)
+/// it does nothing and the caller goes on with its portable path.
+macro_rules! simd_dispatch {
+    ($self:ident, $avx512:ident, $avx:ident, [$($g:ty),*], ($($arg:expr),*)) => {
+        #[cfg(target_arch = "x86_64")]
+        // SAFETY: `isa` names only instruction sets the CPU has (`Isa::detect`).
+        match ($self.isa, $self.options.distance_stack) {
+            (Isa::Avx512, true) => return unsafe { $self.$avx512::<true, $($g),*>($($arg),*) },
+            (Isa::Avx512, false) => return unsafe { $self.$avx512::<false, $($g),*>($($arg),*) },
+            (Isa::Avx2, true) => return unsafe { $self.$avx::<true, $($g),*>($($arg),*) },
+            (Isa::Avx2, false) => return unsafe { $self.$avx::<false, $($g),*>($($arg),*) },
+            (Isa::Baseline, _) => {}
+        }
+    };
+}
+
 /// The instruction set of the 8-wide kernel, in increasing order.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord)]
 enum Isa {
@@ -949,23 +967,13 @@ impl Traverse for Mbvh8Accel {
         stats: &mut RayStats,
         obs: &mut O,
     ) -> Option<Hit> {
-        #[cfg(target_arch = "x86_64")]
-        // SAFETY: `isa` names only instruction sets the CPU has (`Isa::detect`).
-        match (self.isa, self.options.distance_stack) {
-            (Isa::Avx512, true) => {
-                return unsafe { self.run_avx512::<true, O>(ray, query, stack, stats, obs) }
-            }
-            (Isa::Avx512, false) => {
-                return unsafe { self.run_avx512::<false, O>(ray, query, stack, stats, obs) }
-            }
-            (Isa::Avx2, true) => {
-                return unsafe { self.run_avx::<true, O>(ray, query, stack, stats, obs) }
-            }
-            (Isa::Avx2, false) => {
-                return unsafe { self.run_avx::<false, O>(ray, query, stack, stats, obs) }
-            }
-            (Isa::Baseline, _) => {}
-        }
+        simd_dispatch!(
+            self,
+            run_avx512,
+            run_avx,
+            [O],
+            (ray, query, stack, stats, obs)
+        );
         if self.options.distance_stack {
             self.run::<true, false, false, false, O>(ray, query, stack, stats, obs)
         } else {
@@ -983,42 +991,22 @@ impl Traverse for Mbvh8Accel {
         done: F,
     ) {
         if rays.len() <= 1 || self.interleave().1 <= 1 {
-            #[cfg(target_arch = "x86_64")]
-            // SAFETY: `isa` names only instruction sets the CPU has (`Isa::detect`).
-            match (self.isa, self.options.distance_stack) {
-                (Isa::Avx512, true) => {
-                    return unsafe { self.each_avx512::<true, R, F>(rays, query, stack, done) }
-                }
-                (Isa::Avx512, false) => {
-                    return unsafe { self.each_avx512::<false, R, F>(rays, query, stack, done) }
-                }
-                (Isa::Avx2, true) => {
-                    return unsafe { self.each_avx::<true, R, F>(rays, query, stack, done) }
-                }
-                (Isa::Avx2, false) => {
-                    return unsafe { self.each_avx::<false, R, F>(rays, query, stack, done) }
-                }
-                (Isa::Baseline, _) => {}
-            }
+            simd_dispatch!(
+                self,
+                each_avx512,
+                each_avx,
+                [R, F],
+                (rays, query, stack, done)
+            );
             return accel::trace_each(self, rays, query, stack, done);
         }
-        #[cfg(target_arch = "x86_64")]
-        // SAFETY: `isa` names only instruction sets the CPU has (`Isa::detect`).
-        match (self.isa, self.options.distance_stack) {
-            (Isa::Avx512, true) => {
-                return unsafe { self.batch_avx512::<true, R, F>(rays, query, stack, done) }
-            }
-            (Isa::Avx512, false) => {
-                return unsafe { self.batch_avx512::<false, R, F>(rays, query, stack, done) }
-            }
-            (Isa::Avx2, true) => {
-                return unsafe { self.batch_avx::<true, R, F>(rays, query, stack, done) }
-            }
-            (Isa::Avx2, false) => {
-                return unsafe { self.batch_avx::<false, R, F>(rays, query, stack, done) }
-            }
-            (Isa::Baseline, _) => {}
-        }
+        simd_dispatch!(
+            self,
+            batch_avx512,
+            batch_avx,
+            [R, F],
+            (rays, query, stack, done)
+        );
         if self.options.distance_stack {
             self.batch::<true, false, false, R, F>(rays, query, stack, done)
         } else {
