@@ -11,7 +11,7 @@
 
 use crate::accel::{
     cull_distance, huge_page_vec, prefetch, refit_nodes, slab_test4, traverse_child_refs, Hit,
-    LeafTriangles, Slab, TraversalStack, Traverse,
+    LeafTriangles, RaySource, Slab, TraversalStack, Traverse,
 };
 use crate::bvh2_kernel::check_links;
 use crate::observer::{Observer, Query};
@@ -172,7 +172,41 @@ impl Mbvh4Accel {
         }
     }
 
+    #[inline(never)]
     fn run<const DIST: bool, O: Observer>(
+        &self,
+        ray: &Ray,
+        query: Query,
+        stack: &mut TraversalStack,
+        total: &mut RayStats,
+        obs: &mut O,
+    ) -> Option<Hit> {
+        self.traverse_ray::<DIST, false, O>(ray, query, stack, total, obs)
+    }
+
+    /// A batch traced one ray after the other with the traversal inlined in the loop, so
+    /// that each hit reaches `done` in registers (called one ray at a time, `run` returns
+    /// it through memory, and the caller's wide copy of it waits on the callee's narrower
+    /// stores). `EACH` gives this loop its own instantiation of the traversal, so that its
+    /// closures inline here rather than stay out of line, shared with `run`'s.
+    fn each<const DIST: bool, R: RaySource + ?Sized, F: FnMut(usize, Option<Hit>, &RayStats)>(
+        &self,
+        rays: &R,
+        query: Query,
+        stack: &mut TraversalStack,
+        mut done: F,
+    ) {
+        for i in 0..rays.len() {
+            let mut stats = RayStats::default();
+            let ray = rays.ray(i);
+            let hit = self.traverse_ray::<DIST, true, ()>(&ray, query, stack, &mut stats, &mut ());
+            done(i, hit, &stats);
+        }
+    }
+
+    /// The traversal of one ray (`EACH` as in [`Self::each`]; it changes no operation).
+    #[inline(always)]
+    fn traverse_ray<const DIST: bool, const EACH: bool, O: Observer>(
         &self,
         ray: &Ray,
         query: Query,
@@ -240,6 +274,21 @@ impl Traverse for Mbvh4Accel {
             self.run::<true, O>(ray, query, stack, stats, obs)
         } else {
             self.run::<false, O>(ray, query, stack, stats, obs)
+        }
+    }
+
+    #[inline]
+    fn trace_batch<R: RaySource + ?Sized, F: FnMut(usize, Option<Hit>, &RayStats)>(
+        &self,
+        rays: &R,
+        query: Query,
+        stack: &mut TraversalStack,
+        done: F,
+    ) {
+        if self.options.distance_stack {
+            self.each::<true, R, F>(rays, query, stack, done)
+        } else {
+            self.each::<false, R, F>(rays, query, stack, done)
         }
     }
 

@@ -394,3 +394,36 @@ fn rays_leaving_surfaces_far_from_the_origin_match_brute_force() {
         check_against(name, a, &rays, &expected);
     }
 }
+
+/// A batch (`Traverse::trace_batch`, which the binary and 4-wide kernels trace one ray
+/// after the other with the traversal inlined in the loop) answers every ray once, with
+/// the hit and counters of the one-ray trace, for both queries, on every tree and setting.
+#[test]
+fn batches_of_the_binary_and_4_wide_kernels_trace_each_ray_as_alone() {
+    fn check<T: Traverse>(name: &str, accel: &T, rays: &[Ray]) {
+        let mut stack = TraversalStack::new();
+        for q in [Query::Closest, Query::Any] {
+            let mut got: Vec<Option<(Option<Hit>, RayStats)>> = vec![None; rays.len()];
+            accel.trace_batch(rays, q, &mut stack, |i, h, s| {
+                assert!(got[i].is_none(), "{name}: ray {i} answered twice");
+                got[i] = Some((h, *s));
+            });
+            for (i, r) in rays.iter().enumerate() {
+                let mut s = RayStats::default();
+                let alone = accel.trace_observed(r, q, &mut stack, &mut s, &mut ());
+                assert_eq!(got[i], Some((alone, s)), "{name} {q:?}: ray {i}");
+            }
+        }
+    }
+    let tris = soup(800, 1.5, 21);
+    let mut rays = random_rays(300, Vec3::ZERO, 2.0, 8);
+    rays[4].origin.y = f32::NAN;
+    rays[7].t_max = 0.25;
+    let (b2, b4) = all_accels(&tris);
+    for (name, a) in &b2 {
+        check(name, a, &rays);
+    }
+    for (name, a) in &b4 {
+        check(name, a, &rays);
+    }
+}
