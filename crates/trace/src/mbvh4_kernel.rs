@@ -184,15 +184,10 @@ impl Mbvh4Accel {
         self.traverse_ray::<DIST, false, O>(ray, query, stack, total, obs)
     }
 
-    /// A batch traced one ray after the other with the traversal inlined in the loop, so
-    /// that each hit reaches `done` in registers (called one ray at a time, `run` returns
-    /// it through memory, and the caller's wide copy of it waits on the callee's narrower
-    /// stores). `EACH` gives this loop its own instantiation of the traversal, so that its
-    /// closures inline here rather than stay out of line, shared with `run`'s. The loop is
-    /// written out here (as in the 8-wide kernel's entry points) rather than shared through
-    /// a helper taking the traversal as a closure: that form left the traversal out of line
-    /// (Conference primary rays, batch: `bvh2` 199-201 against 150-156 ns, `mbvh4`
-    /// 180-181 against 136-137).
+    /// A batch traced one ray after the other with the traversal inlined in the loop
+    /// ([`crate::accel::each_ray`]); `EACH` gives this loop its own instantiation of the
+    /// traversal, so that its closures inline here rather than stay out of line, shared
+    /// with `run`'s.
     fn each<const DIST: bool, R: RaySource + ?Sized, F: FnMut(usize, Option<Hit>, &RayStats)>(
         &self,
         rays: &R,
@@ -200,12 +195,9 @@ impl Mbvh4Accel {
         stack: &mut TraversalStack,
         mut done: F,
     ) {
-        for i in 0..rays.len() {
-            let mut stats = RayStats::default();
-            let ray = rays.ray(i);
-            let hit = self.traverse_ray::<DIST, true, ()>(&ray, query, stack, &mut stats, &mut ());
-            done(i, hit, &stats);
-        }
+        crate::accel::each_ray!(rays, done, |ray, stats| {
+            self.traverse_ray::<DIST, true, ()>(ray, query, stack, stats, &mut ())
+        });
     }
 
     /// The traversal of one ray (`EACH` as in [`Self::each`]; it changes no operation).

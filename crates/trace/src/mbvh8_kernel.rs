@@ -151,12 +151,10 @@ macro_rules! simd_entry_points {
             self.run::<DIST, true, $avx512, false, O>(ray, query, stack, total, obs)
         }
 
-        /// [`Traverse::trace_batch`] one ray after the other, the traversal and `done`
-        /// inlined here: one call into the instruction set's code a batch, and each ray's
-        /// hit handed to `done` in registers. Called through `Traverse::trace_batch` a
-        /// ray at a time, `$run` returned the hit through memory, and the caller's
-        /// 16-byte copy of it straddled the callee's narrower stores: a failed
-        /// store-to-load forward a ray (about 20% of a primary ray's time on Conference).
+        /// [`Traverse::trace_batch`] one ray after the other ([`accel::each_ray`]), the
+        /// traversal and `done` inlined here: one call into the instruction set's code a
+        /// batch (one call a ray into `$run` cost about 20% of a primary ray's time on
+        /// Conference).
         $(#[doc = $doc])*
         #[cfg(target_arch = "x86_64")]
         #[target_feature(enable = $features)]
@@ -171,14 +169,9 @@ macro_rules! simd_entry_points {
             stack: &mut TraversalStack,
             mut done: F,
         ) {
-            for i in 0..rays.len() {
-                let mut stats = RayStats::default();
-                let ray = rays.ray(i);
-                let hit = self.run::<DIST, true, $avx512, true, ()>(
-                    &ray, query, stack, &mut stats, &mut (),
-                );
-                done(i, hit, &stats);
-            }
+            accel::each_ray!(rays, done, |ray, stats| {
+                self.run::<DIST, true, $avx512, true, ()>(ray, query, stack, stats, &mut ())
+            });
         }
 
         /// [`Self::batch`]
