@@ -532,6 +532,17 @@ class RayCaster:
         """Every hit along each ray, nearest first, at most ``max_hits`` per ray:
         ``(ray, primitive, t)``, ray by ray. Each ray restarts just past its last hit, so
         two triangles hit at exactly the same distance count once."""
+    def closest_primitives(
+        self,
+        origins: npt.ArrayLike,
+        directions: npt.ArrayLike,
+        tmin: float | npt.ArrayLike | None = None,
+        tmax: float | npt.ArrayLike | None = None,
+        *,
+        out: _U32 | None = None,
+    ) -> _U32:
+        """The ``primitive`` column of :meth:`intersect` alone (:data:`NO_HIT` on a miss),
+        without the other columns. ``out``: a uint32 (N,) array to fill."""
     def occluded(
         self,
         origins: npt.ArrayLike,

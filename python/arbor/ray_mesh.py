@@ -21,7 +21,7 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from ._arbor import ArborError, RayCaster
+from ._arbor import NO_HIT, ArborError, RayCaster
 
 __all__ = ["RayMeshIntersector"]
 
@@ -67,8 +67,8 @@ class RayMeshIntersector:
     def intersects_first(self, ray_origins: npt.ArrayLike, ray_directions: npt.ArrayLike) -> _I64:
         """Index of the first triangle each ray hits, -1 for a miss."""
         o, d = _rays(ray_origins, ray_directions)
-        h = self.caster.intersect(o, d)
-        return np.where(h.hit, h.primitive.astype(np.int64), -1)
+        prim = self.caster.closest_primitives(o, d)
+        return np.where(prim == NO_HIT, -1, prim.astype(np.int64))
 
     def intersects_any(self, ray_origins: npt.ArrayLike, ray_directions: npt.ArrayLike) -> _B:
         """Whether each ray hits the mesh."""

@@ -1,13 +1,15 @@
-"""CPU time of :meth:`arbor.RayCaster.intersect` on the ray sets of ``arbor bench trace``
-(a 640x360 render's primary rays and its diffuse bounce rays, in tile order), alone: the
+"""CPU time of :meth:`arbor.RayCaster.intersect` and of
+:meth:`arbor.RayCaster.closest_primitives` on the ray sets of ``arbor bench trace`` (a
+640x360 render's primary rays and its diffuse bounce rays, in tile order), alone: the
 quick measure for comparing two builds of the extension module (install one, run, install
 the other, run, and alternate).
 
     RAYON_NUM_THREADS=1 python python/bench/intersect_rays.py [--scene PATH]
         [--kernel mbvh8] [--calls 7]
 
-Prints, per ray set, the best CPU time of ``--calls`` calls (``out=`` buffers, so no
-allocation) in ns a ray, with the CPU model. ``python/bench/raycast.py --bench-trace``
+Prints, per ray set, the best CPU time of ``--calls`` calls of ``intersect`` and of
+``closest_primitives`` (``out=`` buffers, so no allocation) in ns a ray, with the CPU
+model. ``python/bench/raycast.py --bench-trace``
 times the same calls next to ``arbor bench trace`` in one process.
 """
 
@@ -53,13 +55,23 @@ def main(argv: list[str] | None = None) -> None:
     for kind, sel in (("primary", rs.bounce == 0), ("diffuse", rs.bounce > 0)):
         args = (rs.origins[sel], rs.directions[sel], rs.tmin[sel], rs.tmax[sel])
         hits = rc.intersect(*args)
+        ids = rc.closest_primitives(*args)
         n = int(sel.sum())
-        best = float("inf")
+        best = [float("inf"), float("inf")]
         for _ in range(a.calls):
-            t0 = time.process_time()
-            rc.intersect(*args, out=hits)
-            best = min(best, time.process_time() - t0)
-        print(f"{kind}: {n} rays, {best / n * 1e9:.1f} ns a ray ({n / best / 1e6:.3f} Mrays/s)")
+            for k, call in enumerate(
+                (
+                    lambda: rc.intersect(*args, out=hits),
+                    lambda: rc.closest_primitives(*args, out=ids),
+                )
+            ):
+                t0 = time.process_time()
+                call()
+                best[k] = min(best[k], time.process_time() - t0)
+        for name, b in zip(("intersect", "closest_primitives"), best):
+            print(
+                f"{kind} {name}: {n} rays, {b / n * 1e9:.1f} ns a ray ({n / b / 1e6:.3f} Mrays/s)"
+            )
 
 
 if __name__ == "__main__":

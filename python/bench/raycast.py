@@ -27,7 +27,8 @@ Measured (best of ``--rounds``, wall time):
   Embree when embreex is installed);
 - with ``--bench-trace``: the ray sets of ``arbor bench trace`` (a 640x360 render's
   primary rays and its diffuse bounce rays, in tile order) through the same kernels from
-  Python, next to ``arbor bench trace --threads N`` run in the same process on the same
+  Python (``intersect``, all its columns, and ``closest_primitives``, the primitive
+  alone, as the benchmark keeps little more than that), next to ``arbor bench trace --threads N`` run in the same process on the same
   scene (the kernels with no Python layer; its CPU time counts worker threads only).
 
 ``--threads`` sets Arbor's worker pool (``RAYON_NUM_THREADS``, before arbor is imported);
@@ -404,11 +405,16 @@ def main(argv: list[str] | None = None) -> None:
             for kernel, rc in casters.items():
                 hits = rc.intersect(*args)
                 t = best(lambda: rc.intersect(*args, out=hits), a.rounds)
+                cpu = LAST_CPU[0]
+                ids = rc.closest_primitives(*args)
+                t_ids = best(lambda: rc.closest_primitives(*args, out=ids), a.rounds)
                 report(
                     f"arbor {kernel} {kind}",
                     rays=float(sel.sum()),
                     intersect_mrays=float(sel.sum()) / t / 1e6,
-                    intersect_mrays_cpu=float(sel.sum()) / LAST_CPU[0] / 1e6,
+                    intersect_mrays_cpu=float(sel.sum()) / cpu / 1e6,
+                    closest_primitives_mrays=float(sel.sum()) / t_ids / 1e6,
+                    closest_primitives_mrays_cpu=float(sel.sum()) / LAST_CPU[0] / 1e6,
                 )
         with tempfile.TemporaryDirectory() as tmp:
             arbor.run(

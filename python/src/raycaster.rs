@@ -1141,6 +1141,37 @@ impl RayCaster {
         )
     }
 
+    /// The primitive each ray hits first: the `primitive` column of `intersect` alone
+    /// (`NO_HIT` on a miss), without the others (the arguments as in `intersect`), as a
+    /// uint32 array. `out`: a uint32 array of shape (N,) to write into and return.
+    #[pyo3(signature = (origins, directions, tmin = None, tmax = None, *, out = None))]
+    fn closest_primitives<'py>(
+        &self,
+        py: Python<'py>,
+        origins: &Bound<'py, PyAny>,
+        directions: &Bound<'py, PyAny>,
+        tmin: Option<&Bound<'py, PyAny>>,
+        tmax: Option<&Bound<'py, PyAny>>,
+        out: Option<&Bound<'py, PyAny>>,
+    ) -> PyResult<Bound<'py, PyArray1<u32>>> {
+        let arrays = Self::rays(origins, directions, tmin, tmax)?;
+        let rays = arrays.slices()?;
+        ray_column(
+            py,
+            &rays,
+            out,
+            "closest_primitives",
+            &self.state,
+            |_| TraversalStack::new(),
+            |s, stack, batch, out, _| {
+                s.accel
+                    .trace_batch(batch, Query::Closest, stack, |i, h, _| {
+                        out[i] = h.map_or(NO_HIT, |h| h.prim)
+                    })
+            },
+        )
+    }
+
     /// Whether anything lies along each ray within its range (an any-hit query; the
     /// arguments as in `intersect`), as a bool array. `out`: a bool array of shape (N,) to
     /// write into and return.

@@ -120,6 +120,11 @@ def test_closest_and_any_hits_match_brute_force(mesh: arbor.Mesh) -> None:
         # Every kernel gives the crate's brute-force hits, bit for bit.
         np.testing.assert_array_equal(h.primitive, ref.primitive)
         np.testing.assert_array_equal(h.t, ref.t)
+        # The primitive column alone: the same answer.
+        prim = rc.closest_primitives(o, d)
+        assert prim.dtype == np.uint32 and prim.shape == (400,)
+        np.testing.assert_array_equal(prim, ref.primitive)
+        assert ((prim == arbor.NO_HIT) == ~h.hit).all() and h.hit.any() and not h.hit.all()
         # Any hit: exactly the rays with a closest hit; a tmax short of each hit clears it.
         np.testing.assert_array_equal(rc.occluded(o, d), h.hit)
         short = np.where(h.hit, h.t * 0.999, np.inf).astype(np.float32)
@@ -140,6 +145,7 @@ def test_many_rays_run_in_parallel_and_agree(mesh: arbor.Mesh) -> None:
     np.testing.assert_array_equal(rc.occluded(o, d), h.hit)
     ref = arbor.trace_brute_force(v, ix, o, d)
     np.testing.assert_array_equal(h.primitive, ref.primitive)
+    np.testing.assert_array_equal(rc.closest_primitives(o, d), ref.primitive)
 
 
 @pytest.mark.skipif(not BUNNY.exists(), reason="shared scenes not present")
@@ -207,6 +213,13 @@ def test_out_buffers_are_filled_in_place(mesh: arbor.Mesh) -> None:
         rc.occluded(o, d, out=np.zeros(50, dtype=np.float32))
     with pytest.raises(ArborError, match="out"):
         rc.occluded(o, d, out=np.zeros(49, dtype=bool))
+    ids = np.zeros(50, dtype=np.uint32)
+    assert rc.closest_primitives(o, d, out=ids) is ids
+    np.testing.assert_array_equal(ids, ref.primitive[::-1])
+    with pytest.raises(ArborError, match="closest_primitives: out"):
+        rc.closest_primitives(o, d, out=np.zeros(50, dtype=np.int64))
+    with pytest.raises(ArborError, match="closest_primitives: out"):
+        rc.closest_primitives(o, d, out=np.zeros(51, dtype=np.uint32))
 
 
 def test_errors_name_the_problem(mesh: arbor.Mesh) -> None:
@@ -231,6 +244,8 @@ def test_errors_name_the_problem(mesh: arbor.Mesh) -> None:
         rc.intersect(o, d, tmax=np.where(np.arange(10) == 4, np.nan, 1).astype(np.float32))
     with pytest.raises(ArborError, match="tmin is NaN"):
         rc.occluded(o, d, tmin=float("nan"))
+    with pytest.raises(ArborError, match=r"directions\[2\]"):
+        rc.closest_primitives(o, z)
     # The first NaN of a long range array is named, on the float32 path read in place and
     # on the converted one (the scan is one vectorized pass, then a search).
     o1k, d1k = rays_at(v, 1000, seed=6)
