@@ -6,7 +6,8 @@
 //! path interleaving N rays, to trace only that one; a name with `-batch` appended traces
 //! runs of 1,024 rays through `closest_hits` instead of one `closest_hit` call a ray; the
 //! `mbvh8xN` and `-batch` rows run only when named). A seventh argument `primary` traces
-//! the render's primary rays instead of its diffuse bounce rays.
+//! the render's primary rays instead of its diffuse bounce rays. The 8-wide tree is
+//! collapsed from binned SAH, or from spatial splits with `KC_TREE=sbvh` (see below).
 
 use trace::{RayKind, RenderSettings, Shading, Traverse};
 
@@ -21,7 +22,31 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     let binned = bvh::BinnedSahBuilder::default().build(&aabbs)?;
     let b2 = trace::Bvh2Accel::new(binned.clone(), &tris, Default::default())?;
     let b4 = trace::Mbvh4Accel::new(bvh::collapse(&binned)?, &tris, Default::default())?;
-    let b8 = trace::Mbvh8Accel::from_bvh2(&binned, &tris, Default::default())?;
+    // `KC_TREE=sbvh`: the 8-wide tree collapsed from spatial splits (`bvh::SbvhBuilder`)
+    // instead of binned SAH, with its options from `SBVH_GROWTH`, `SBVH_ALPHA`,
+    // `SBVH_CINNER`, `SBVH_LEAF` and `SBVH_SBINS` where set.
+    let b8 = if std::env::var("KC_TREE").as_deref() == Ok("sbvh") {
+        let env = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<f32>().ok());
+        let mut b = bvh::SbvhBuilder::default();
+        b.max_growth = env("SBVH_GROWTH").unwrap_or(b.max_growth);
+        b.alpha = env("SBVH_ALPHA").unwrap_or(b.alpha);
+        b.sah.c_inner = env("SBVH_CINNER").unwrap_or(b.sah.c_inner);
+        b.max_leaf_size = env("SBVH_LEAF").map_or(b.max_leaf_size, |x| x as u32);
+        b.spatial_bins = env("SBVH_SBINS").map_or(b.spatial_bins, |x| x as usize);
+        let t = b.build(&tris)?;
+        println!(
+            "sbvh (max_growth {}, alpha {}, c_inner {}, max_leaf_size {}, spatial_bins {}): {} nodes",
+            b.max_growth,
+            b.alpha,
+            b.sah.c_inner,
+            b.max_leaf_size,
+            b.spatial_bins,
+            t.nodes.len()
+        );
+        trace::Mbvh8Accel::from_bvh2(&t, &tris, Default::default())?
+    } else {
+        trace::Mbvh8Accel::from_bvh2(&binned, &tris, Default::default())?
+    };
     let mut cam = sc.info().camera;
     let v3 = |a: &str| -> Result<geom::Vec3, Box<dyn std::error::Error>> {
         let c: Vec<f32> = a.split(',').map(str::parse).collect::<Result<_, _>>()?;
