@@ -7,7 +7,8 @@
 //! runs of 1,024 rays through `closest_hits` instead of one `closest_hit` call a ray; the
 //! `mbvh8xN` and `-batch` rows run only when named). A seventh argument `primary` traces
 //! the render's primary rays instead of its diffuse bounce rays. The 8-wide tree is
-//! collapsed from binned SAH, or from spatial splits with `KC_TREE=sbvh` (see below).
+//! collapsed from binned SAH, or from spatial splits with `KC_TREE=sbvh` (see below);
+//! `KC_HOT=N` traces each ray N times in a row.
 
 use trace::{RayKind, RenderSettings, Shading, Traverse};
 
@@ -97,6 +98,17 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         b8.interleave(),
         trace::last_level_cache_bytes()
     );
+    // `KC_HOT=N`: each ray N times in a row, so that all but its first trace find its
+    // nodes and triangles in the L1 cache (the kernel's cost without memory waits).
+    if let Some(h) = std::env::var("KC_HOT")
+        .ok()
+        .and_then(|v| v.parse::<usize>().ok())
+    {
+        rays = rays
+            .iter()
+            .flat_map(|r| std::iter::repeat_n(*r, h))
+            .collect();
+    }
     let mut stack = trace::TraversalStack::new();
     let mut kernels = vec![
         ("mbvh4".to_string(), trace::Accel::Mbvh4(b4)),
