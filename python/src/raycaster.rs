@@ -622,6 +622,37 @@ impl RayCaster {
     }
 
     /// Rays from Python, with the checks every query makes.
+    /// A query answering each ray with one value, `answer(hit)` of its `query` hit, as a
+    /// column (`what` names it in errors; `out` as for `occluded`).
+    #[allow(clippy::too_many_arguments)]
+    fn column<'py, T: numpy::Element + Send>(
+        &self,
+        py: Python<'py>,
+        origins: &Bound<'py, PyAny>,
+        directions: &Bound<'py, PyAny>,
+        tmin: Option<&Bound<'py, PyAny>>,
+        tmax: Option<&Bound<'py, PyAny>>,
+        out: Option<&Bound<'py, PyAny>>,
+        what: &str,
+        query: Query,
+        answer: impl Fn(Option<::trace::Hit>) -> T + Sync,
+    ) -> PyResult<Bound<'py, PyArray1<T>>> {
+        let arrays = Self::rays(origins, directions, tmin, tmax)?;
+        let rays = arrays.slices()?;
+        ray_column(
+            py,
+            &rays,
+            out,
+            what,
+            &self.state,
+            |_| TraversalStack::new(),
+            |s, stack, batch, out, _| {
+                s.accel
+                    .trace_batch(batch, query, stack, |i, h, _| out[i] = answer(h))
+            },
+        )
+    }
+
     pub(crate) fn rays<'py>(
         origins: &Bound<'py, PyAny>,
         directions: &Bound<'py, PyAny>,
@@ -1154,22 +1185,10 @@ impl RayCaster {
         tmax: Option<&Bound<'py, PyAny>>,
         out: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray1<u32>>> {
-        let arrays = Self::rays(origins, directions, tmin, tmax)?;
-        let rays = arrays.slices()?;
-        ray_column(
-            py,
-            &rays,
-            out,
-            "closest_primitives",
-            &self.state,
-            |_| TraversalStack::new(),
-            |s, stack, batch, out, _| {
-                s.accel
-                    .trace_batch(batch, Query::Closest, stack, |i, h, _| {
-                        out[i] = h.map_or(NO_HIT, |h| h.prim)
-                    })
-            },
-        )
+        let (what, query) = ("closest_primitives", Query::Closest);
+        self.column(py, origins, directions, tmin, tmax, out, what, query, |h| {
+            h.map_or(NO_HIT, |h| h.prim)
+        })
     }
 
     /// Whether anything lies along each ray within its range (an any-hit query; the
@@ -1185,20 +1204,10 @@ impl RayCaster {
         tmax: Option<&Bound<'py, PyAny>>,
         out: Option<&Bound<'py, PyAny>>,
     ) -> PyResult<Bound<'py, PyArray1<bool>>> {
-        let arrays = Self::rays(origins, directions, tmin, tmax)?;
-        let rays = arrays.slices()?;
-        ray_column(
-            py,
-            &rays,
-            out,
-            "occluded",
-            &self.state,
-            |_| TraversalStack::new(),
-            |s, stack, batch, out, _| {
-                s.accel
-                    .trace_batch(batch, Query::Any, stack, |i, h, _| out[i] = h.is_some())
-            },
-        )
+        let (what, query) = ("occluded", Query::Any);
+        self.column(py, origins, directions, tmin, tmax, out, what, query, |h| {
+            h.is_some()
+        })
     }
 
     /// A copy of the vertices the structure traces (those of the last build or refit).
