@@ -23,7 +23,7 @@ use crate::error::{check_input, in_pool, BuildError};
 use crate::frag::Frag;
 use crate::node::{ChildRef, Node};
 use crate::sah::SahParams;
-use crate::split::{sweep, Box4, Counted, PrimRef, Unit};
+use crate::split::{sweep, Box4, Counted, PrimRef};
 use crate::{ordered_bits, MAX_SAH_DEPTH, PARALLEL_MIN_PRIMS};
 use geom::{Aabb, Vec4};
 use rayon::prelude::*;
@@ -61,6 +61,9 @@ impl Default for BinnedSahBuilder {
 /// Read-only data shared by all recursion branches.
 struct Ctx<'a> {
     cfg: &'a BinnedSahBuilder,
+    /// Whether the children of a sorted split skip ranking their centroids on its axis
+    /// ([`build_small`]; false only in tests, as the reference).
+    reuse_order: bool,
 }
 
 /// A node to build: its primitives, their box and centroid box.
@@ -94,6 +97,12 @@ impl BinnedSahBuilder {
     }
 
     fn build_checked(&self, aabbs: &[Aabb]) -> Bvh2 {
+        self.build_with(aabbs, true)
+    }
+
+    /// [`BinnedSahBuilder::build_checked`], choosing whether the children of sorted splits
+    /// reuse the split axis's order (`reuse_order`) or rank every axis from scratch.
+    fn build_with(&self, aabbs: &[Aabb], reuse_order: bool) -> Bvh2 {
         let mut refs: Vec<PrimRef> = aabbs
             .par_iter()
             .enumerate()
@@ -109,7 +118,10 @@ impl BinnedSahBuilder {
                 || (Aabb::EMPTY, Aabb::EMPTY),
                 |(b0, c0), (b1, c1)| (b0.union(b1), c0.union(c1)),
             );
-        let ctx = Ctx { cfg: self };
+        let ctx = Ctx {
+            cfg: self,
+            reuse_order,
+        };
         let task = Task {
             refs: &mut refs,
             first: 0,
@@ -148,7 +160,10 @@ pub(crate) fn object_split_of(
     if refs.len() < 2 || cbounds.min == cbounds.max {
         return None;
     }
-    let ctx = Ctx { cfg };
+    let ctx = Ctx {
+        cfg,
+        reuse_order: true,
+    };
     let mut t = Task {
         refs: &mut refs,
         first: 0,
@@ -172,7 +187,7 @@ pub(crate) fn object_split_of(
 }
 
 /// Builds the subtree of `t`; returns its child reference (local to `frag`).
-fn build_rec(ctx: &Ctx, mut t: Task, depth: u32, frag: &mut Frag) -> ChildRef {
+fn build_rec(ctx: &Ctx, t: Task, depth: u32, frag: &mut Frag) -> ChildRef {
     let n = t.refs.len();
     let cfg = ctx.cfg;
     let leaf = ChildRef::leaf(t.first as u32, n as u32);
@@ -187,12 +202,10 @@ fn build_rec(ctx: &Ctx, mut t: Task, depth: u32, frag: &mut Frag) -> ChildRef {
         None
     } else if depth >= MAX_SAH_DEPTH {
         None
+    } else if n <= cfg.bins {
+        return build_small_entry(ctx, t, depth, frag);
     } else {
-        let best = if n <= cfg.bins {
-            sorted_split(ctx, &mut t)
-        } else {
-            find_split(ctx, &t)
-        };
+        let best = find_split(ctx, &t);
         let p = &cfg.sah;
         let leaf_cost = t.bounds.half_area() * (p.c_leaf + p.c_tri * n as f32);
         match best {
@@ -322,6 +335,24 @@ fn refine<const N: usize>(
     k: usize,
     best: &mut Split,
 ) {
+    // One copy per axis, so the scan over the node picks its centroid lane statically.
+    match axis {
+        0 => refine_on::<N, 0>(ctx, t, bins, binner, k, best),
+        1 => refine_on::<N, 1>(ctx, t, bins, binner, k, best),
+        _ => refine_on::<N, 2>(ctx, t, bins, binner, k, best),
+    }
+}
+
+/// [`refine`] on axis `A`.
+fn refine_on<const N: usize, const A: usize>(
+    ctx: &Ctx,
+    t: &Task,
+    bins: &Bins<N>,
+    binner: &Binner,
+    k: usize,
+    best: &mut Split,
+) {
+    let axis = A;
     let side_of = |range: std::ops::Range<usize>| {
         range.fold(Side::EMPTY, |s, j| {
             let b = Box4 {
@@ -336,11 +367,14 @@ fn refine<const N: usize>(
     let p = &ctx.cfg.sah;
     // The sub-bin of a primitive of bins k - 1 and k (None for the others): the binner's
     // coordinate (monotone in the centroid, its integer part the bin) over [k - 1, k + 1).
+    // That coordinate is clamped to [0, last], so its integer part is k - 1 or k exactly
+    // when k - 1 <= f < k + 1: two float compares instead of a saturating conversion of
+    // every primitive's coordinate (issue 34: this scan was half of `find_split`).
     let half = (ZOOM_BINS / 2) as f32;
+    let (from, to) = ((k - 1) as f32, (k + 1) as f32);
     let sub = |r: &PrimRef| {
         let f = binner.coord(r.centroid4(), axis);
-        let b = f as usize;
-        (b + 1 == k || b == k).then(|| (((f - (k - 1) as f32) * half) as usize).min(ZOOM_BINS - 1))
+        (from <= f && f < to).then(|| (((f - from) * half) as usize).min(ZOOM_BINS - 1))
     };
     let mut side = [Side::EMPTY; ZOOM_BINS];
     let mut first = [f32::INFINITY; ZOOM_BINS];
@@ -583,15 +617,94 @@ fn zoom(
 fn sorted_split(ctx: &Ctx, t: &mut Task) -> Option<Split> {
     // Scratch arrays sized to the bin count (n <= bins), so small nodes clear little.
     match ctx.cfg.bins {
-        0..=8 => sorted_split_n::<8>(ctx, t),
-        9..=16 => sorted_split_n::<16>(ctx, t),
-        17..=32 => sorted_split_n::<32>(ctx, t),
-        _ => sorted_split_n::<MAX_BINS>(ctx, t),
+        0..=8 => sorted_split_n::<8>(ctx, t, None),
+        9..=16 => sorted_split_n::<16>(ctx, t, None),
+        17..=32 => sorted_split_n::<32>(ctx, t, None),
+        _ => sorted_split_n::<MAX_BINS>(ctx, t, None),
     }
 }
 
-/// [`sorted_split`] for nodes of at most `N <= 64` primitives.
-fn sorted_split_n<const N: usize>(ctx: &Ctx, t: &mut Task) -> Option<Split> {
+/// Builds the subtree of a node of at most `cfg.bins` primitives that [`build_rec`] splits
+/// by [`sorted_split`] (more than `min_leaf_size` primitives, centroids not all equal,
+/// depth below [`MAX_SAH_DEPTH`]), with scratch arrays sized to the bin count.
+fn build_small_entry(ctx: &Ctx, t: Task, depth: u32, frag: &mut Frag) -> ChildRef {
+    match ctx.cfg.bins {
+        0..=8 => build_small::<8>(ctx, t, depth, frag, None),
+        9..=16 => build_small::<16>(ctx, t, depth, frag, None),
+        17..=32 => build_small::<32>(ctx, t, depth, frag, None),
+        _ => build_small::<MAX_BINS>(ctx, t, depth, frag, None),
+    }
+}
+
+/// [`build_rec`] for a node of at most `N` primitives that it would split by
+/// [`sorted_split`]: the same decisions, nodes in the same order. `sorted_axis`: an axis on
+/// which the node's references are already in centroid order (ties by position).
+///
+/// Why (issue 34): a child of a sorted split is a run of its parent's references in the
+/// parent's order on the split axis, which orders by (centroid, position); the child's
+/// order on that axis is then the identity, and its ranking is skipped.
+fn build_small<const N: usize>(
+    ctx: &Ctx,
+    mut t: Task,
+    depth: u32,
+    frag: &mut Frag,
+    sorted_axis: Option<usize>,
+) -> ChildRef {
+    let n = t.refs.len();
+    let cfg = ctx.cfg;
+    let leaf = ChildRef::leaf(t.first as u32, n as u32);
+    let best = sorted_split_n::<N>(ctx, &mut t, sorted_axis);
+    let p = &cfg.sah;
+    let leaf_cost = t.bounds.half_area() * (p.c_leaf + p.c_tri * n as f32);
+    let fits = n <= cfg.max_leaf_size as usize;
+    let (l, r, axis) = match best {
+        Some(s) if fits && leaf_cost <= s.cost => return leaf,
+        None if fits => return leaf,
+        Some(s) => {
+            let (l, r) = partition(ctx, t, &s);
+            (l, r, ctx.reuse_order.then_some(s.axis))
+        }
+        None => {
+            let (l, r) = median_split(t, false);
+            (l, r, None)
+        }
+    };
+    let at = frag.nodes.len();
+    frag.nodes.push(Node::EMPTY);
+    let (lb, rb) = (l.bounds, r.bounds);
+    let lc = build_small_child::<N>(ctx, l, depth + 1, frag, axis);
+    let rc = build_small_child::<N>(ctx, r, depth + 1, frag, axis);
+    frag.nodes[at] = Node::new(&lb, lc, &rb, rc);
+    ChildRef::inner(at as u32)
+}
+
+/// A child of [`build_small`]: built by it if [`build_rec`] would split it by
+/// [`sorted_split`], else by [`build_rec`].
+fn build_small_child<const N: usize>(
+    ctx: &Ctx,
+    t: Task,
+    depth: u32,
+    frag: &mut Frag,
+    sorted_axis: Option<usize>,
+) -> ChildRef {
+    let n = t.refs.len();
+    if n > ctx.cfg.min_leaf_size.max(1) as usize
+        && t.cbounds.min != t.cbounds.max
+        && depth < MAX_SAH_DEPTH
+    {
+        build_small::<N>(ctx, t, depth, frag, sorted_axis)
+    } else {
+        build_rec(ctx, t, depth, frag)
+    }
+}
+
+/// [`sorted_split`] for nodes of at most `N <= 64` primitives; on `sorted_axis` (if any)
+/// the node's references are already in centroid order, ties by position.
+fn sorted_split_n<const N: usize>(
+    ctx: &Ctx,
+    t: &mut Task,
+    sorted_axis: Option<usize>,
+) -> Option<Split> {
     let n = t.refs.len();
     debug_assert!(n <= N && N <= 64);
     let p = &ctx.cfg.sah;
@@ -614,16 +727,13 @@ fn sorted_split_n<const N: usize>(ctx: &Ctx, t: &mut Task) -> Option<Split> {
             right: r,
         });
     }
-    let mut best: Option<Split> = None;
     // Per axis, the node's positions in centroid order (ties by position: a total,
     // deterministic order), found by ranking: an element's rank is the number of elements
     // before it in that order. For n <= 64 the n^2 branch-free comparisons (vectorized;
     // padding keys are u32::MAX, which no finite centroid's key reaches) cost less than a
     // comparison sort, whose branches mispredict on every other element.
-    let mut best_order = [0u8; N];
-    let mut order = [0u8; N];
+    let mut orders = [[0u8; N]; 3];
     let mut all_keys = [[u32::MAX; N]; 3];
-    let mut right_area = [0f32; N];
     let refs = &*t.refs;
     // The three axes' keys in one pass (`centroid4` is `centroid`'s arithmetic lane by lane).
     for (i, r) in refs.iter().enumerate() {
@@ -634,55 +744,89 @@ fn sorted_split_n<const N: usize>(ctx: &Ctx, t: &mut Task) -> Option<Split> {
     }
     #[cfg(target_arch = "x86_64")]
     let avx2 = rank_avx2_available();
-    for (axis, keys) in all_keys.iter().enumerate() {
+    for (axis, (keys, order)) in all_keys.iter().zip(orders.iter_mut()).enumerate() {
+        if sorted_axis == Some(axis) {
+            for (i, o) in order.iter_mut().enumerate() {
+                *o = i as u8;
+            }
+            continue;
+        }
         #[cfg(target_arch = "x86_64")]
         if avx2 {
             // SAFETY: the CPU has AVX2 and POPCNT (checked at run time).
-            unsafe { rank_avx2(keys, n, &mut order) };
+            unsafe { rank_avx2(keys, n, order) };
         } else {
-            rank_scalar(keys, n, &mut order);
+            rank_scalar(keys, n, order);
         }
         #[cfg(not(target_arch = "x86_64"))]
-        rank_scalar(keys, n, &mut order);
-        let ord = &order[..n];
-        let item = |i: usize| (refs[ord[i] as usize], 1);
-        sweep(
-            n,
-            item,
-            &mut Unit(&mut right_area, n),
-            |i, lbox, lc, ra, rc| {
-                let cost = sah(p, base, lbox.half_area(), lc, ra, rc);
-                if offer_boundary(&mut best, cost, axis, i, true, lbox) {
-                    best_order[..n].copy_from_slice(ord);
-                }
-            },
-        );
+        rank_scalar(keys, n, order);
     }
-    let mut s = best?;
-    // Apply the permutation in place, cycle by cycle: position j receives the element at
-    // position best_order[j]; `done` has one bit per position (n <= 64).
-    let mut done = 0u64;
-    for start in 0..n {
-        if done & (1 << start) != 0 {
-            continue;
-        }
-        let first = t.refs[start];
-        let mut j = start;
-        loop {
-            done |= 1 << j;
-            let src = best_order[j] as usize;
-            if src == start {
-                t.refs[j] = first;
-                break;
-            }
-            t.refs[j] = t.refs[src];
-            j = src;
+    // The sweep of each axis in centroid order ([`sweep`]'s two passes), the three axes
+    // interleaved in one loop (three independent chains of box unions), each keeping its
+    // first cheapest boundary; the winner is the first axis with the lowest cost, which is
+    // the boundary that offering the axes' boundaries one after the other keeps. (Issue
+    // 34: one axis after the other, every improvement also stored a whole split.)
+    let item = |a: usize, i: usize| refs[orders[a][i] as usize];
+    let mut right_area = [[0f32; N]; 3];
+    let mut acc = [Box4::EMPTY; 3];
+    for i in (1..n).rev() {
+        for a in 0..3 {
+            acc[a] = acc[a].union(item(a, i));
+            right_area[a][i] = acc[a].half_area();
         }
     }
-    s.right = t.refs[s.bin..]
-        .iter()
-        .fold(Box4::EMPTY, |b, r| b.union(*r))
-        .aabb();
+    let mut left = [Box4::EMPTY; 3];
+    let (mut cost, mut at) = ([f32::INFINITY; 3], [0usize; 3]);
+    // `i` is the boundary: it indexes items, right sides and counts alike.
+    #[allow(clippy::needless_range_loop)]
+    for i in 1..n {
+        for a in 0..3 {
+            left[a] = left[a].union(item(a, i - 1));
+            let c = sah(
+                p,
+                base,
+                left[a].half_area(),
+                i as u32,
+                right_area[a][i],
+                (n - i) as u32,
+            );
+            let better = c.is_finite() & (c < cost[a]);
+            cost[a] = if better { c } else { cost[a] };
+            at[a] = if better { i } else { at[a] };
+        }
+    }
+    let mut axis = None;
+    for a in 0..3 {
+        if at[a] > 0 && axis.is_none_or(|b: usize| cost[a] < cost[b]) {
+            axis = Some(a);
+        }
+    }
+    let axis = axis?;
+    let mut s = Split {
+        cost: cost[axis],
+        axis,
+        bin: at[axis],
+        sorted: true,
+        plane: None,
+        left: Aabb::EMPTY,
+        right: Aabb::EMPTY,
+    };
+    // Apply the permutation: position j receives the element at position order[j]
+    // (gathered into scratch, then copied back: no branch per cycle of the permutation).
+    // Nothing moves when the winner is the axis already in order.
+    if sorted_axis != Some(s.axis) {
+        let mut moved = [Box4::EMPTY; N];
+        for (m, &j) in moved.iter_mut().zip(&orders[s.axis][..n]) {
+            *m = t.refs[j as usize];
+        }
+        t.refs.copy_from_slice(&moved[..n]);
+    }
+    // The sides' boxes, unions in the order of the sweep's left pass and of the right
+    // side's fold (bit for bit the same boxes: `min` and `max` pick between equal zeros of
+    // opposite signs by operand order).
+    let fold = |x: &[PrimRef]| x.iter().fold(Box4::EMPTY, |b, r| b.union(*r)).aabb();
+    s.left = fold(&t.refs[..s.bin]);
+    s.right = fold(&t.refs[s.bin..]);
     Some(s)
 }
 
@@ -754,12 +898,27 @@ fn partition<'a>(ctx: &Ctx, t: Task<'a>, s: &Split) -> (Task<'a>, Task<'a>) {
         (s.bin, cb(&refs[..s.bin]), cb(&refs[s.bin..]))
     } else if let Some(plane) = s.plane {
         // Bins are monotone in the centroid, so this agrees with the refined sweep's counts.
-        let axis = s.axis;
-        partition_by(refs, |c| c[axis] < plane)
+        // (One copy per axis, so that the lane is picked statically.)
+        match s.axis {
+            0 => partition_by(refs, |c| c.x < plane),
+            1 => partition_by(refs, |c| c.y < plane),
+            _ => partition_by(refs, |c| c.z < plane),
+        }
     } else {
         let binner = Binner::new(&t.cbounds, ctx.cfg.bins);
-        let (axis, bin) = (s.axis, s.bin);
-        partition_by(refs, |c| binner.bin(c, axis) < bin)
+        // The bin is the integer part of the binner's coordinate, which is clamped to
+        // [0, last]: it is below `bin` exactly when the coordinate is (no conversion).
+        let bin = s.bin as f32;
+        let below = |c: Vec4, axis: usize| {
+            let left = binner.coord(c, axis) < bin;
+            debug_assert_eq!(left, binner.bin(c, axis) < s.bin);
+            left
+        };
+        match s.axis {
+            0 => partition_by(refs, |c| below(c, 0)),
+            1 => partition_by(refs, |c| below(c, 1)),
+            _ => partition_by(refs, |c| below(c, 2)),
+        }
     };
     let (l, r) = refs.split_at_mut(mid);
     (
@@ -999,7 +1158,10 @@ impl SortedSplitBench {
     /// reorders them) and returns the sum of the best costs.
     pub fn run(&mut self) -> f64 {
         self.refs.copy_from_slice(&self.pristine);
-        let ctx = Ctx { cfg: &self.cfg };
+        let ctx = Ctx {
+            cfg: &self.cfg,
+            reuse_order: true,
+        };
         let mut sum = 0.0;
         let size = self.cfg.bins;
         for (k, (chunk, &(bounds, cbounds))) in
@@ -1057,6 +1219,218 @@ mod tests {
             check::<64>(4);
         } else {
             eprintln!("no AVX2 on this CPU: the AVX2 ranking is not tested here");
+        }
+    }
+
+    /// The exact small-node split as it was before issue 34's rework (one axis after the
+    /// other through [`sweep`], every improvement stored, the permutation applied cycle by
+    /// cycle, every axis ranked): the reference for [`sorted_split_n`].
+    fn sorted_split_reference<const N: usize>(ctx: &Ctx, t: &mut Task) -> Option<Split> {
+        use crate::split::Unit;
+        let n = t.refs.len();
+        let p = &ctx.cfg.sah;
+        let base = p.c_inner * t.bounds.half_area();
+        if n == 2 {
+            return sorted_split_n::<N>(ctx, t, None);
+        }
+        let mut best: Option<Split> = None;
+        let (mut best_order, mut order) = ([0u8; N], [0u8; N]);
+        let mut all_keys = [[u32::MAX; N]; 3];
+        let mut right_area = [0f32; N];
+        let refs = &*t.refs;
+        for (i, r) in refs.iter().enumerate() {
+            let c = r.centroid4();
+            for (a, k) in all_keys.iter_mut().enumerate() {
+                k[i] = ordered_bits(c[a]);
+            }
+        }
+        for (axis, keys) in all_keys.iter().enumerate() {
+            rank_scalar(keys, n, &mut order);
+            let ord = &order[..n];
+            let item = |i: usize| (refs[ord[i] as usize], 1);
+            sweep(
+                n,
+                item,
+                &mut Unit(&mut right_area, n),
+                |i, lbox, lc, ra, rc| {
+                    let cost = sah(p, base, lbox.half_area(), lc, ra, rc);
+                    if offer_boundary(&mut best, cost, axis, i, true, lbox) {
+                        best_order[..n].copy_from_slice(ord);
+                    }
+                },
+            );
+        }
+        let mut s = best?;
+        let mut done = 0u64;
+        for start in 0..n {
+            if done & (1 << start) != 0 {
+                continue;
+            }
+            let first = t.refs[start];
+            let mut j = start;
+            loop {
+                done |= 1 << j;
+                let src = best_order[j] as usize;
+                if src == start {
+                    t.refs[j] = first;
+                    break;
+                }
+                t.refs[j] = t.refs[src];
+                j = src;
+            }
+        }
+        s.right = t.refs[s.bin..]
+            .iter()
+            .fold(Box4::EMPTY, |b, r| b.union(*r))
+            .aabb();
+        Some(s)
+    }
+
+    /// Boxes whose centroids take few distinct values per axis (many ties), with zeros of
+    /// both signs, and sizes that differ.
+    fn tied_boxes(n: usize, levels: u32, r: &mut crate::testutil::Rng) -> Vec<Aabb> {
+        (0..n)
+            .map(|_| {
+                let mut c = Vec3::ZERO;
+                for a in 0..3 {
+                    let v = (r.f32() * levels as f32) as u32;
+                    c[a] = match v {
+                        0 => -0.0,
+                        1 => 0.0,
+                        v => v as f32 - 1.5,
+                    };
+                }
+                let h = Vec3::splat((r.f32() * 4.0).floor() * 0.25);
+                Aabb::new(c - h, c + h)
+            })
+            .collect()
+    }
+
+    /// Issue 34: the reworked exact split (three axes swept together, the permutation
+    /// gathered, the ranking of an axis already in order skipped) gives the same split,
+    /// bit for bit, and the same order of the references as the reference, for every node
+    /// size of every scratch size, with many tied centroids, with and without an axis
+    /// already in order.
+    #[test]
+    fn sorted_split_equals_the_reference() {
+        fn check<const N: usize>(seed: u64) {
+            let cfg = builder(N, 8, 1);
+            let ctx = Ctx {
+                cfg: &cfg,
+                reuse_order: true,
+            };
+            let mut r = crate::testutil::Rng::new(seed);
+            for n in 2..=N {
+                for levels in [2u32, 3, 5, 1000] {
+                    let boxes = tied_boxes(n, levels, &mut r);
+                    let refs0: Vec<PrimRef> = (boxes.iter().enumerate())
+                        .map(|(i, b)| PrimRef::new(b, i as u32))
+                        .collect();
+                    for sorted_axis in [None, Some(0), Some(1), Some(2)] {
+                        let mut refs = refs0.clone();
+                        if let Some(a) = sorted_axis {
+                            // Stable: ties keep their positions, as a sorted split leaves them.
+                            refs.sort_by_key(|x| ordered_bits(x.centroid4()[a]));
+                        }
+                        let bounds = refs.iter().fold(Aabb::EMPTY, |b, x| b.union(x.aabb()));
+                        let cbounds = refs.iter().fold(Aabb::EMPTY, |c, x| c.grow(x.centroid()));
+                        let mut want_refs = refs.clone();
+                        let task = |refs| Task {
+                            refs,
+                            first: 0,
+                            bounds,
+                            cbounds,
+                        };
+                        let want = sorted_split_reference::<N>(&ctx, &mut task(&mut want_refs[..]));
+                        let got = sorted_split_n::<N>(&ctx, &mut task(&mut refs[..]), sorted_axis);
+                        let bits = |s: &Option<Split>| {
+                            s.as_ref().map(|s| {
+                                let b = |x: &Aabb| {
+                                    format!(
+                                        "{:?}",
+                                        [x.min, x.max].map(|v| v.to_array().map(f32::to_bits))
+                                    )
+                                };
+                                (
+                                    s.cost.to_bits(),
+                                    s.axis,
+                                    s.bin,
+                                    s.sorted,
+                                    b(&s.left),
+                                    b(&s.right),
+                                )
+                            })
+                        };
+                        let what = format!("N {N} n {n} levels {levels} sorted {sorted_axis:?}");
+                        assert_eq!(bits(&want), bits(&got), "{what}");
+                        let idx = |v: &[PrimRef]| v.iter().map(|x| x.index()).collect::<Vec<_>>();
+                        assert_eq!(idx(&want_refs), idx(&refs), "{what}");
+                    }
+                }
+            }
+        }
+        check::<8>(1);
+        check::<16>(2);
+        check::<32>(3);
+        check::<64>(4);
+    }
+
+    /// Issue 34: children of sorted splits that skip ranking the split axis build the same
+    /// trees as ranking every axis of every node, on boxes with many tied centroids, for
+    /// every bin count and several leaf sizes.
+    #[test]
+    fn reusing_the_split_order_builds_the_same_tree() {
+        let mut r = crate::testutil::Rng::new(34);
+        for bins in [8, 16, 32, 64] {
+            for (max_leaf, min_leaf) in [(1, 1), (4, 1), (8, 1), (8, 3)] {
+                for levels in [3u32, 6, 40] {
+                    let prims = tied_boxes(3000, levels, &mut r);
+                    let b = BinnedSahBuilder {
+                        min_leaf_size: min_leaf,
+                        ..builder(bins, max_leaf, 1)
+                    };
+                    let got = b.build_with(&prims, true);
+                    assert_valid("tied", &got, &prims, max_leaf);
+                    assert_eq!(
+                        got,
+                        b.build_with(&prims, false),
+                        "bins {bins} leaf {max_leaf}"
+                    );
+                }
+            }
+        }
+    }
+
+    /// Issue 34: the float tests of `refine` and the binned partition agree with the
+    /// integer bins: the coordinate is below `k` exactly when the bin is, and lies in
+    /// [k - 1, k + 1) exactly when the bin is k - 1 or k, including centroids on the bounds,
+    /// on bin boundaries and outside.
+    #[test]
+    fn float_bin_tests_equal_integer_bins() {
+        let mut r = crate::testutil::Rng::new(9);
+        for bins in [2usize, 8, 16, 32, 64] {
+            let cb = Aabb::new(Vec3::new(-1.0, 0.0, 3.0), Vec3::new(2.0, 1e-30, 9.0));
+            let b = Binner::new(&cb, bins);
+            let mut points: Vec<Vec3> = (0..3000)
+                .map(|_| r.point(12.0) - Vec3::splat(2.0))
+                .collect();
+            for j in 0..=bins {
+                // On (and around) every bin boundary.
+                let t = j as f32 / bins as f32;
+                let on = cb.min + (cb.max - cb.min) * t;
+                points.extend([on, on - Vec3::splat(1e-6), on + Vec3::splat(1e-6)]);
+            }
+            for c in points {
+                let c4 = c.extend(0.0);
+                for axis in 0..3 {
+                    let (bin, f) = (b.bin(c4, axis), b.coord(c4, axis));
+                    for k in 1..bins {
+                        assert_eq!(f < k as f32, bin < k, "bins {bins} c {c} axis {axis} k {k}");
+                        let near = (k - 1) as f32 <= f && f < (k + 1) as f32;
+                        assert_eq!(near, bin + 1 == k || bin == k, "bins {bins} c {c} k {k}");
+                    }
+                }
+            }
         }
     }
 
