@@ -62,7 +62,7 @@ impl Default for BinnedSahBuilder {
 struct Ctx<'a> {
     cfg: &'a BinnedSahBuilder,
     /// Whether the children of a sorted split skip ranking their centroids on its axis
-    /// ([`build_small`]; false only in tests, as the reference).
+    /// ([`build_rec`]; false only in tests, as the reference).
     reuse_order: bool,
 }
 
@@ -129,7 +129,7 @@ impl BinnedSahBuilder {
             cbounds,
         };
         let mut frag = Frag::default();
-        let root = build_rec(&ctx, task, 0, &mut frag);
+        let root = build_rec(&ctx, task, 0, &mut frag, None);
         let prim_indices = refs.par_iter().map(|r| r.index()).collect();
         // The references (32 bytes a primitive) are freed before the fragments of a parallel
         // build are flattened into the final node array, so they never meet its two copies
@@ -171,7 +171,7 @@ pub(crate) fn object_split_of(
         cbounds,
     };
     let s = if t.refs.len() <= cfg.bins {
-        sorted_split(&ctx, &mut t)
+        sorted_split(&ctx, &mut t, None)
     } else {
         find_split(&ctx, &t)
     }?;
@@ -187,7 +187,17 @@ pub(crate) fn object_split_of(
 }
 
 /// Builds the subtree of `t`; returns its child reference (local to `frag`).
-fn build_rec(ctx: &Ctx, t: Task, depth: u32, frag: &mut Frag) -> ChildRef {
+/// `sorted_axis`: an axis on which the node's references are already in centroid order
+/// (ties by position), which [`sorted_split`] then need not rank. A child of a sorted split
+/// is a run of its parent's references in the parent's order on the split axis, which
+/// orders by (centroid, position), so its order on that axis is the identity (issue 34).
+fn build_rec(
+    ctx: &Ctx,
+    mut t: Task,
+    depth: u32,
+    frag: &mut Frag,
+    sorted_axis: Option<usize>,
+) -> ChildRef {
     let n = t.refs.len();
     let cfg = ctx.cfg;
     let leaf = ChildRef::leaf(t.first as u32, n as u32);
@@ -202,10 +212,12 @@ fn build_rec(ctx: &Ctx, t: Task, depth: u32, frag: &mut Frag) -> ChildRef {
         None
     } else if depth >= MAX_SAH_DEPTH {
         None
-    } else if n <= cfg.bins {
-        return build_small_entry(ctx, t, depth, frag);
     } else {
-        let best = find_split(ctx, &t);
+        let best = if n <= cfg.bins {
+            sorted_split(ctx, &mut t, sorted_axis)
+        } else {
+            find_split(ctx, &t)
+        };
         let p = &cfg.sah;
         let leaf_cost = t.bounds.half_area() * (p.c_leaf + p.c_tri * n as f32);
         match best {
@@ -213,6 +225,11 @@ fn build_rec(ctx: &Ctx, t: Task, depth: u32, frag: &mut Frag) -> ChildRef {
             None if n <= cfg.max_leaf_size as usize => return leaf,
             s => s,
         }
+    };
+    // The children of a sorted split keep its order on its axis.
+    let child_axis = match &split {
+        Some(s) if s.sorted && ctx.reuse_order => Some(s.axis),
+        _ => None,
     };
     let (l, r) = match split {
         Some(s) => partition(ctx, t, &s),
@@ -225,17 +242,17 @@ fn build_rec(ctx: &Ctx, t: Task, depth: u32, frag: &mut Frag) -> ChildRef {
         let ((lc, lf), (rc, rf)) = rayon::join(
             || {
                 let mut f = Frag::default();
-                (build_rec(ctx, l, depth + 1, &mut f), f)
+                (build_rec(ctx, l, depth + 1, &mut f, child_axis), f)
             },
             || {
                 let mut f = Frag::default();
-                (build_rec(ctx, r, depth + 1, &mut f), f)
+                (build_rec(ctx, r, depth + 1, &mut f, child_axis), f)
             },
         );
         (frag.adopt(lc, lf), frag.adopt(rc, rf))
     } else {
-        let lc = build_rec(ctx, l, depth + 1, frag);
-        let rc = build_rec(ctx, r, depth + 1, frag);
+        let lc = build_rec(ctx, l, depth + 1, frag, child_axis);
+        let rc = build_rec(ctx, r, depth + 1, frag, child_axis);
         (lc, rc)
     };
     frag.nodes[at] = Node::new(&lb, lc, &rb, rc);
@@ -614,87 +631,13 @@ fn zoom(
 /// centroid order), so it is never worse, and it costs O(n log n) with n <= bins instead of
 /// clearing and sweeping 3 x `bins` bins, which dominated small nodes. On return the
 /// indices are in the winning axis's centroid order, so the split is positional.
-fn sorted_split(ctx: &Ctx, t: &mut Task) -> Option<Split> {
+fn sorted_split(ctx: &Ctx, t: &mut Task, sorted_axis: Option<usize>) -> Option<Split> {
     // Scratch arrays sized to the bin count (n <= bins), so small nodes clear little.
     match ctx.cfg.bins {
-        0..=8 => sorted_split_n::<8>(ctx, t, None),
-        9..=16 => sorted_split_n::<16>(ctx, t, None),
-        17..=32 => sorted_split_n::<32>(ctx, t, None),
-        _ => sorted_split_n::<MAX_BINS>(ctx, t, None),
-    }
-}
-
-/// Builds the subtree of a node of at most `cfg.bins` primitives that [`build_rec`] splits
-/// by [`sorted_split`] (more than `min_leaf_size` primitives, centroids not all equal,
-/// depth below [`MAX_SAH_DEPTH`]), with scratch arrays sized to the bin count.
-fn build_small_entry(ctx: &Ctx, t: Task, depth: u32, frag: &mut Frag) -> ChildRef {
-    match ctx.cfg.bins {
-        0..=8 => build_small::<8>(ctx, t, depth, frag, None),
-        9..=16 => build_small::<16>(ctx, t, depth, frag, None),
-        17..=32 => build_small::<32>(ctx, t, depth, frag, None),
-        _ => build_small::<MAX_BINS>(ctx, t, depth, frag, None),
-    }
-}
-
-/// [`build_rec`] for a node of at most `N` primitives that it would split by
-/// [`sorted_split`]: the same decisions, nodes in the same order. `sorted_axis`: an axis on
-/// which the node's references are already in centroid order (ties by position).
-///
-/// Why (issue 34): a child of a sorted split is a run of its parent's references in the
-/// parent's order on the split axis, which orders by (centroid, position); the child's
-/// order on that axis is then the identity, and its ranking is skipped.
-fn build_small<const N: usize>(
-    ctx: &Ctx,
-    mut t: Task,
-    depth: u32,
-    frag: &mut Frag,
-    sorted_axis: Option<usize>,
-) -> ChildRef {
-    let n = t.refs.len();
-    let cfg = ctx.cfg;
-    let leaf = ChildRef::leaf(t.first as u32, n as u32);
-    let best = sorted_split_n::<N>(ctx, &mut t, sorted_axis);
-    let p = &cfg.sah;
-    let leaf_cost = t.bounds.half_area() * (p.c_leaf + p.c_tri * n as f32);
-    let fits = n <= cfg.max_leaf_size as usize;
-    let (l, r, axis) = match best {
-        Some(s) if fits && leaf_cost <= s.cost => return leaf,
-        None if fits => return leaf,
-        Some(s) => {
-            let (l, r) = partition(ctx, t, &s);
-            (l, r, ctx.reuse_order.then_some(s.axis))
-        }
-        None => {
-            let (l, r) = median_split(t, false);
-            (l, r, None)
-        }
-    };
-    let at = frag.nodes.len();
-    frag.nodes.push(Node::EMPTY);
-    let (lb, rb) = (l.bounds, r.bounds);
-    let lc = build_small_child::<N>(ctx, l, depth + 1, frag, axis);
-    let rc = build_small_child::<N>(ctx, r, depth + 1, frag, axis);
-    frag.nodes[at] = Node::new(&lb, lc, &rb, rc);
-    ChildRef::inner(at as u32)
-}
-
-/// A child of [`build_small`]: built by it if [`build_rec`] would split it by
-/// [`sorted_split`], else by [`build_rec`].
-fn build_small_child<const N: usize>(
-    ctx: &Ctx,
-    t: Task,
-    depth: u32,
-    frag: &mut Frag,
-    sorted_axis: Option<usize>,
-) -> ChildRef {
-    let n = t.refs.len();
-    if n > ctx.cfg.min_leaf_size.max(1) as usize
-        && t.cbounds.min != t.cbounds.max
-        && depth < MAX_SAH_DEPTH
-    {
-        build_small::<N>(ctx, t, depth, frag, sorted_axis)
-    } else {
-        build_rec(ctx, t, depth, frag)
+        0..=8 => sorted_split_n::<8>(ctx, t, sorted_axis),
+        9..=16 => sorted_split_n::<16>(ctx, t, sorted_axis),
+        17..=32 => sorted_split_n::<32>(ctx, t, sorted_axis),
+        _ => sorted_split_n::<MAX_BINS>(ctx, t, sorted_axis),
     }
 }
 
@@ -1173,7 +1116,7 @@ impl SortedSplitBench {
                 bounds,
                 cbounds,
             };
-            sum += sorted_split(&ctx, &mut t).map_or(0.0, |s| s.cost as f64);
+            sum += sorted_split(&ctx, &mut t, None).map_or(0.0, |s| s.cost as f64);
         }
         sum
     }
