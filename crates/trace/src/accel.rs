@@ -1007,6 +1007,79 @@ macro_rules! each_ray {
 }
 pub(crate) use each_ray;
 
+/// The entry points of a kernel whose one-ray traversal is its own
+/// `traverse_ray::<DIST, EACH, O>` (`Bvh2`, `Mbvh4`), written once for them as code, not
+/// as a shared closure (which left the traversal out of line). `one_ray_kernel!(inherent)`
+/// in the kernel's `impl` gives `run`, one ray, kept out of line (inlined into its callers
+/// it slowed `Mbvh4`'s one-ray path), and `each`, a batch traced one ray after the other
+/// with the traversal inlined in the loop ([`each_ray`]; `EACH` makes that instantiation
+/// its own). `one_ray_kernel!(traverse)` in its `Traverse` impl gives `trace_observed` and
+/// `trace_batch`, choosing `DIST` from `self.options.distance_stack`.
+macro_rules! one_ray_kernel {
+    (inherent) => {
+        #[inline(never)]
+        fn run<const DIST: bool, O: Observer>(
+            &self,
+            ray: &Ray,
+            query: Query,
+            stack: &mut TraversalStack,
+            total: &mut RayStats,
+            obs: &mut O,
+        ) -> Option<Hit> {
+            self.traverse_ray::<DIST, false, O>(ray, query, stack, total, obs)
+        }
+
+        fn each<
+            const DIST: bool,
+            R: RaySource + ?Sized,
+            F: FnMut(usize, Option<Hit>, &RayStats),
+        >(
+            &self,
+            rays: &R,
+            query: Query,
+            stack: &mut TraversalStack,
+            mut done: F,
+        ) {
+            $crate::accel::each_ray!(rays, done, |ray, stats| {
+                self.traverse_ray::<DIST, true, ()>(ray, query, stack, stats, &mut ())
+            });
+        }
+    };
+    (traverse) => {
+        #[inline]
+        fn trace_observed<O: Observer>(
+            &self,
+            ray: &Ray,
+            query: Query,
+            stack: &mut TraversalStack,
+            stats: &mut RayStats,
+            obs: &mut O,
+        ) -> Option<Hit> {
+            if self.options.distance_stack {
+                self.run::<true, O>(ray, query, stack, stats, obs)
+            } else {
+                self.run::<false, O>(ray, query, stack, stats, obs)
+            }
+        }
+
+        #[inline]
+        fn trace_batch<R: RaySource + ?Sized, F: FnMut(usize, Option<Hit>, &RayStats)>(
+            &self,
+            rays: &R,
+            query: Query,
+            stack: &mut TraversalStack,
+            done: F,
+        ) {
+            if self.options.distance_stack {
+                self.each::<true, R, F>(rays, query, stack, done)
+            } else {
+                self.each::<false, R, F>(rays, query, stack, done)
+            }
+        }
+    };
+}
+pub(crate) use one_ray_kernel;
+
 /// [`Traverse::trace_batch`] one ray after the other (each through [`trace_one`]).
 #[inline]
 pub(crate) fn trace_each<T: Traverse + ?Sized, R: RaySource + ?Sized>(

@@ -214,33 +214,7 @@ impl Bvh2Accel {
         Ok(())
     }
 
-    #[inline(never)]
-    fn run<const DIST: bool, O: Observer>(
-        &self,
-        ray: &Ray,
-        query: Query,
-        stack: &mut TraversalStack,
-        total: &mut RayStats,
-        obs: &mut O,
-    ) -> Option<Hit> {
-        self.traverse_ray::<DIST, false, O>(ray, query, stack, total, obs)
-    }
-
-    /// A batch traced one ray after the other with the traversal inlined in the loop
-    /// ([`crate::accel::each_ray`]); `EACH` gives this loop its own instantiation of the
-    /// traversal, so that its closures inline here rather than stay out of line, shared
-    /// with `run`'s.
-    fn each<const DIST: bool, R: RaySource + ?Sized, F: FnMut(usize, Option<Hit>, &RayStats)>(
-        &self,
-        rays: &R,
-        query: Query,
-        stack: &mut TraversalStack,
-        mut done: F,
-    ) {
-        crate::accel::each_ray!(rays, done, |ray, stats| {
-            self.traverse_ray::<DIST, true, ()>(ray, query, stack, stats, &mut ())
-        });
-    }
+    crate::accel::one_ray_kernel!(inherent);
 
     /// The traversal of one ray (`EACH` as in [`Self::each`]; it changes no operation).
     #[inline(always)]
@@ -298,36 +272,7 @@ impl Bvh2Accel {
 }
 
 impl Traverse for Bvh2Accel {
-    #[inline]
-    fn trace_observed<O: Observer>(
-        &self,
-        ray: &Ray,
-        query: Query,
-        stack: &mut TraversalStack,
-        stats: &mut RayStats,
-        obs: &mut O,
-    ) -> Option<Hit> {
-        if self.options.distance_stack {
-            self.run::<true, O>(ray, query, stack, stats, obs)
-        } else {
-            self.run::<false, O>(ray, query, stack, stats, obs)
-        }
-    }
-
-    #[inline]
-    fn trace_batch<R: RaySource + ?Sized, F: FnMut(usize, Option<Hit>, &RayStats)>(
-        &self,
-        rays: &R,
-        query: Query,
-        stack: &mut TraversalStack,
-        done: F,
-    ) {
-        if self.options.distance_stack {
-            self.each::<true, R, F>(rays, query, stack, done)
-        } else {
-            self.each::<false, R, F>(rays, query, stack, done)
-        }
-    }
+    crate::accel::one_ray_kernel!(traverse);
 
     fn node_bytes(&self) -> u32 {
         std::mem::size_of::<bvh::Node>() as u32
