@@ -27,13 +27,12 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     // instead of binned SAH, with its options from `SBVH_GROWTH`, `SBVH_ALPHA`,
     // `SBVH_CINNER`, `SBVH_LEAF` and `SBVH_SBINS` where set.
     let b8 = if std::env::var("KC_TREE").as_deref() == Ok("sbvh") {
-        let env = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<f32>().ok());
         let mut b = bvh::SbvhBuilder::default();
-        b.max_growth = env("SBVH_GROWTH").unwrap_or(b.max_growth);
-        b.alpha = env("SBVH_ALPHA").unwrap_or(b.alpha);
-        b.sah.c_inner = env("SBVH_CINNER").unwrap_or(b.sah.c_inner);
-        b.max_leaf_size = env("SBVH_LEAF").map_or(b.max_leaf_size, |x| x as u32);
-        b.spatial_bins = env("SBVH_SBINS").map_or(b.spatial_bins, |x| x as usize);
+        b.max_growth = env_num("SBVH_GROWTH")?.unwrap_or(b.max_growth);
+        b.alpha = env_num("SBVH_ALPHA")?.unwrap_or(b.alpha);
+        b.sah.c_inner = env_num("SBVH_CINNER")?.unwrap_or(b.sah.c_inner);
+        b.max_leaf_size = env_num("SBVH_LEAF")?.unwrap_or(b.max_leaf_size);
+        b.spatial_bins = env_num("SBVH_SBINS")?.unwrap_or(b.spatial_bins);
         let t = b.build(&tris)?;
         println!(
             "sbvh (max_growth {}, alpha {}, c_inner {}, max_leaf_size {}, spatial_bins {}): {} nodes",
@@ -100,10 +99,10 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
     );
     // `KC_HOT=N`: each ray N times in a row, so that all but its first trace find its
     // nodes and triangles in the L1 cache (the kernel's cost without memory waits).
-    if let Some(h) = std::env::var("KC_HOT")
-        .ok()
-        .and_then(|v| v.parse::<usize>().ok())
-    {
+    if let Some(h) = env_num::<usize>("KC_HOT")? {
+        if h == 0 {
+            return Err("KC_HOT: expected at least 1".into());
+        }
         rays = rays
             .iter()
             .flat_map(|r| std::iter::repeat_n(*r, h))
@@ -157,4 +156,16 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         );
     }
     Ok(())
+}
+
+/// The number in environment variable `name`, if it is set; an error names a value that
+/// does not parse.
+fn env_num<T: std::str::FromStr>(name: &str) -> Result<Option<T>, Box<dyn std::error::Error>> {
+    match std::env::var(name) {
+        Ok(v) => v
+            .parse()
+            .map(Some)
+            .map_err(|_| format!("{name}: expected a number, got {v:?}").into()),
+        Err(_) => Ok(None),
+    }
 }
