@@ -8,8 +8,8 @@
 //! sweep reference and `BVH_RUNS=n` sets the runs per row (default 3; for profiling).
 
 use bvh::{
-    validate, BinnedSahBuilder, BuildError, Bvh2, HlbvhBuilder, HlbvhSahBuilder, LbvhBuilder,
-    MortonBits, SweepSahBuilder,
+    validate, AtrbvhConfig, BinnedSahBuilder, BuildError, Bvh2, HlbvhAtrbvhBuilder, HlbvhBuilder,
+    HlbvhSahBuilder, LbvhBuilder, MortonBits, SweepSahBuilder,
 };
 use geom::Aabb;
 use std::time::Instant;
@@ -139,6 +139,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             8,
             Box::new(|p, t| {
                 HlbvhSahBuilder {
+                    threads: t,
+                    ..Default::default()
+                }
+                .build(p)
+            }),
+        ),
+        (
+            "hlbvh+atrbvh-cells",
+            8,
+            Box::new(|p, t| {
+                HlbvhAtrbvhBuilder {
+                    cells: Some(AtrbvhConfig {
+                        iterations: 1,
+                        ..Default::default()
+                    }),
                     threads: t,
                     ..Default::default()
                 }

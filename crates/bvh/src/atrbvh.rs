@@ -22,15 +22,19 @@
 //! sweep SAH. The leaf table is rewritten in depth-first order, so collapsed subtrees are
 //! contiguous.
 //!
-//! Parallelism and determinism: a restructuring at node `r` only touches nodes of `r`'s
-//! subtree and keeps the set of inner nodes of that subtree. Each pass starts from a
-//! depth-first preorder layout (the validated input for the first pass, a parallel
-//! re-layout before later ones), so each subtree is a contiguous index range; the two
-//! children of a large node are processed in parallel on disjoint slices (`rayon::join`)
-//! before the node itself. Below [`MAX_FORK_DEPTH`] levels, or in small subtrees, the pass is
-//! an iterative post-order walk, so input trees of any depth are safe. The result equals the
-//! sequential post-order pass bit for bit, for any thread count. The final collapse and
-//! `Bvh2` emission is one sequential depth-first walk.
+//! The pass works on the `Bvh2` nodes in place, with a side array of per-node counts (no
+//! working copy of the tree): a node's box is the one in its parent's slot, so a treelet
+//! root is restructured at its parent's visit, where that slot is updated with the rebuilt
+//! root's box. Each pass starts from depth-first preorder (the input tree for the first
+//! pass, a parallel re-layout before later ones), so every subtree is a contiguous index
+//! range, and visits the nodes last index first, which reaches each node after its whole
+//! subtree (a restructuring only permutes the nodes of its own subtree). The two children
+//! of a large node are processed in parallel on their disjoint ranges (`rayon::join`)
+//! before the node itself; below [`MAX_FORK_DEPTH`] levels, or in small subtrees, the
+//! sweep is a plain loop, so input trees of any depth are safe. The last pass also keeps
+//! every subtree's best SAH cost (as a leaf or a node), from which the final depth-first
+//! write-out collapses leaves. The result equals a sequential post-order pass bit for bit,
+//! for any thread count.
 
 use crate::bvh2::Bvh2;
 use crate::error::{check_input, in_pool, BuildError};
@@ -167,33 +171,15 @@ pub fn optimize(
     in_pool(cfg.threads, || optimize_checked(bvh, cfg))
 }
 
-/// Tags a working child reference as a leaf-table entry rather than a node.
-const LEAF_BIT: u32 = 1 << 31;
-
-/// A node of the working tree: children as node indices or `LEAF_BIT | leaf`.
-#[derive(Clone, Copy, Debug)]
-struct WNode {
-    child: [u32; 2],
-    bbox: Aabb,
-    /// Half area of `bbox`, NaN (an overflowing area) mapped to infinity.
-    area: f32,
-    /// Leaves (treelet-atomic `Bvh2` leaves) in the subtree.
+/// Per-node state of a pass, indexed like the nodes (and split with them between threads).
+#[derive(Clone, Copy, Debug, Default)]
+struct Meta {
+    /// Treelet-atomic leaves (`Bvh2` leaves) in the subtree.
     leaves: u32,
-}
-
-/// An atomic leaf of the input tree.
-#[derive(Clone, Copy, Debug)]
-struct WLeaf {
-    first: u32,
-    count: u32,
-    bbox: Aabb,
-    area: f32,
-}
-
-/// The working tree: nodes in depth-first preorder (root 0), leaves in a side table.
-struct Work {
-    nodes: Vec<WNode>,
-    leaves: Vec<WLeaf>,
+    /// Primitives in the subtree (collapse passes only).
+    prims: u32,
+    /// SAH cost of the subtree in its best form, a leaf or a node (collapse passes only).
+    cost: f64,
 }
 
 #[inline]
@@ -211,40 +197,58 @@ pub(crate) fn optimize_checked(bvh: &mut Bvh2, cfg: &AtrbvhConfig) -> AtrbvhWork
         treelets_by_leaves: vec![0; MAX_TREELET_SIZE + 1],
         ..Default::default()
     };
-    let Some(mut w) = Work::from_bvh(bvh) else {
-        return work; // empty or single-leaf tree: nothing to restructure
-    };
-    work.inner_nodes = w.nodes.len() as u64;
+    match bvh.nodes.first() {
+        Some(root) if !root.children.iter().any(ChildRef::is_empty) => {}
+        _ => return work, // empty or single-leaf tree: nothing to restructure
+    }
+    work.inner_nodes = bvh.nodes.len() as u64;
     let counts = Counts::default();
     let mut gamma = if cfg.gamma == 0 {
         cfg.treelet_size
     } else {
         cfg.gamma
     };
+    let mut meta = vec![Meta::default(); bvh.nodes.len()];
+    let collapse = cfg.max_leaf_size > 1;
     for it in 0..cfg.iterations {
         if it > 0 {
-            w.nodes = w.relayout();
+            // Restructured treelets reuse node indices out of order; a pass needs preorder.
+            bvh.nodes = relayout(&bvh.nodes, &meta);
             if cfg.double_gamma {
                 gamma = gamma.saturating_mul(2);
             }
         }
         let ctx = Ctx {
-            leaves: &w.leaves,
             treelet: cfg.treelet_size,
             gamma,
-            c_inner: cfg.sah.c_inner,
+            sah: cfg.sah,
+            max_leaf: cfg.max_leaf_size,
+            costs: collapse && it + 1 == cfg.iterations,
             counts: &counts,
         };
-        pass(&ctx, &mut w.nodes, 0, 0);
+        let n = bvh.nodes.len();
+        pass(&ctx, &mut bvh.nodes, &mut meta, 0, n, 0);
         work.passes += 1;
+    }
+    if cfg.iterations == 0 && collapse {
+        // No pass ran: the collapse still needs every subtree's cost.
+        let ctx = Ctx {
+            treelet: cfg.treelet_size,
+            gamma: usize::MAX,
+            sah: cfg.sah,
+            max_leaf: cfg.max_leaf_size,
+            costs: true,
+            counts: &counts,
+        };
+        let mut scratch = Scratch::new();
+        let n = bvh.nodes.len();
+        sweep(&ctx, &mut bvh.nodes, &mut meta, 0, 0, n, &mut scratch);
     }
     for (k, c) in counts.by_leaves.iter().enumerate() {
         work.treelets_by_leaves[k] = c.load(Ordering::Relaxed);
     }
     work.accepted = counts.accepted.load(Ordering::Relaxed);
-    // Restructured treelets reuse node indices out of order; collapsing needs preorder.
-    w.nodes = w.relayout();
-    *bvh = w.into_bvh(bvh, cfg);
+    *bvh = write_out(bvh, &meta, cfg);
     work
 }
 
@@ -264,292 +268,237 @@ impl Default for Counts {
     }
 }
 
-impl Work {
-    /// Copies `bvh` (validated, so in depth-first preorder with every node reachable) into
-    /// working form with the same node indices. `None` when the root has an empty child
-    /// (empty or one-leaf trees).
-    fn from_bvh(bvh: &Bvh2) -> Option<Work> {
-        let root = bvh.nodes.first()?;
-        if root.children.iter().any(ChildRef::is_empty) {
-            return None;
-        }
-        let mut leaves: Vec<WLeaf> = Vec::with_capacity(bvh.nodes.len() + 1);
-        let mut nodes: Vec<WNode> = bvh
-            .nodes
-            .iter()
-            .map(|n| {
-                let mut child = [0u32; 2];
-                for (s, c) in n.children.iter().enumerate() {
-                    child[s] = if c.is_leaf() {
-                        let b = n.child_aabb(s);
-                        leaves.push(WLeaf {
-                            first: c.index,
-                            count: c.count,
-                            bbox: b,
-                            area: area(&b),
-                        });
-                        LEAF_BIT | (leaves.len() as u32 - 1)
-                    } else {
-                        c.index
-                    };
-                }
-                WNode {
-                    child,
-                    bbox: Aabb::EMPTY,
-                    area: 0.0,
-                    leaves: 0,
-                }
-            })
-            .collect();
-        nodes[0].bbox = bvh.bounds;
-        for n in &bvh.nodes {
-            for s in 0..2 {
-                if n.children[s].is_inner() {
-                    let b = n.child_aabb(s);
-                    let c = &mut nodes[n.children[s].index as usize];
-                    c.bbox = b;
-                }
+/// The tree re-laid out in depth-first preorder (child 0 first), through the shared
+/// [`crate::layout::preorder_sized`]: a subtree of `k` leaves has `k - 1` nodes (`meta`
+/// holds every node's leaf count from the pass), so every subtree's range is known and large
+/// ones are written in parallel. The leaf table is unchanged.
+fn relayout(nodes: &[Node], meta: &[Meta]) -> Vec<Node> {
+    let mut out = crate::node::zeroed_nodes(nodes.len());
+    let visit = |i: u32, kids: &mut Kids<'_, u32, ()>| {
+        let mut m = nodes[i as usize];
+        for c in &mut m.children {
+            if c.is_inner() {
+                *c = ChildRef::inner(kids.inner(c.index, meta[c.index as usize].leaves - 1, 0));
             }
         }
-        // Preorder: children follow their parent, so a reverse sweep sees children first.
-        for i in (0..nodes.len()).rev() {
-            let mut l = 0;
-            for c in nodes[i].child {
-                l += if c & LEAF_BIT != 0 {
-                    1
-                } else {
-                    nodes[c as usize].leaves
-                };
-            }
-            nodes[i].leaves = l;
-            nodes[i].area = area(&nodes[i].bbox);
-        }
-        Some(Work { nodes, leaves })
-    }
+        m
+    };
+    crate::layout::preorder_sized(0u32, &mut out, &mut [], &visit);
+    out
+}
 
-    /// The nodes re-laid out in depth-first preorder (child 0 first), through the shared
-    /// [`crate::layout::preorder_sized`]: a subtree of `k` leaves has `k - 1` nodes, so
-    /// every subtree's range is known and large ones are written in parallel.
-    fn relayout(&self) -> Vec<WNode> {
-        let blank = WNode {
-            child: [0; 2],
-            bbox: Aabb::EMPTY,
-            area: 0.0,
-            leaves: 0,
-        };
-        let mut out = vec![blank; self.nodes.len()];
-        let visit = |i: u32, kids: &mut Kids<'_, u32, ()>| {
-            let mut m = self.nodes[i as usize];
-            for c in &mut m.child {
-                if *c & LEAF_BIT == 0 {
-                    *c = kids.inner(*c, self.nodes[*c as usize].leaves - 1, 0);
-                }
-            }
-            m
-        };
-        crate::layout::preorder_sized(0u32, &mut out, &mut [], &visit);
-        out
-    }
-
-    /// The final `Bvh2`: SAH-driven leaf collapsing, then a depth-first layout of nodes and
-    /// of the leaf table.
-    fn into_bvh(self, old: &Bvh2, cfg: &AtrbvhConfig) -> Bvh2 {
-        let collapse = self.collapse_marks(cfg);
-        let mut nodes: Vec<Node> = Vec::with_capacity(self.nodes.len());
-        let mut prims: Vec<u32> = Vec::with_capacity(old.prim_indices.len());
-        // Appends the primitives under `c` to the leaf table and returns their range.
-        let mut st: Vec<u32> = Vec::new();
-        let mut leaf_range = |c: u32, prims: &mut Vec<u32>| -> ChildRef {
-            let first = prims.len() as u32;
-            st.push(c);
-            while let Some(c) = st.pop() {
-                if c & LEAF_BIT != 0 {
-                    let l = &self.leaves[(c & !LEAF_BIT) as usize];
-                    let r = l.first as usize..(l.first + l.count) as usize;
-                    prims.extend_from_slice(&old.prim_indices[r]);
-                } else {
-                    let n = &self.nodes[c as usize];
-                    st.push(n.child[1]);
-                    st.push(n.child[0]);
-                }
-            }
-            ChildRef::leaf(first, prims.len() as u32 - first)
-        };
-        crate::layout::preorder(0u32, &mut nodes, |i, nodes, kids| {
-            let n = self.nodes[i as usize];
-            let mut refs = [ChildRef::EMPTY; 2];
-            let mut boxes = [Aabb::EMPTY; 2];
-            for s in 0..2 {
-                let c = n.child[s];
-                if c & LEAF_BIT != 0 {
-                    boxes[s] = self.leaves[(c & !LEAF_BIT) as usize].bbox;
-                } else {
-                    boxes[s] = self.nodes[c as usize].bbox;
-                }
-                if c & LEAF_BIT != 0 || collapse[c as usize] {
-                    refs[s] = leaf_range(c, &mut prims);
-                } else {
-                    kids.push((s, c));
-                }
-            }
-            nodes.push(Node::new(&boxes[0], refs[0], &boxes[1], refs[1]));
-        });
-        // Inner children are patched before their subtree is laid out, leaves emitted in
-        // preorder: the leaf table is depth-first.
-        Bvh2 {
-            nodes,
-            prim_indices: prims,
-            bounds: old.bounds,
-        }
-    }
-
-    /// Per node: whether it becomes one leaf. A node collapses when it has at most
-    /// `max_leaf_size` primitives and a leaf is cheaper than its (already optimal) subtree;
-    /// the root never does (a `Bvh2` root is a node).
-    fn collapse_marks(&self, cfg: &AtrbvhConfig) -> Vec<bool> {
-        let mut marks = vec![false; self.nodes.len()];
-        if cfg.max_leaf_size <= 1 {
-            return marks;
-        }
-        let (ci, cl, ct) = (
-            cfg.sah.c_inner as f64,
-            cfg.sah.c_leaf as f64,
-            cfg.sah.c_tri as f64,
-        );
-        // (cost of the best form, primitive count) per node, children first.
-        let mut cost = vec![(0.0f64, 0u64); self.nodes.len()];
-        for i in (0..self.nodes.len()).rev() {
-            let n = &self.nodes[i];
-            let mut sub = ci * n.area as f64;
-            let mut prims = 0u64;
-            for c in n.child {
-                if c & LEAF_BIT != 0 {
-                    let l = &self.leaves[(c & !LEAF_BIT) as usize];
-                    sub += l.area as f64 * (cl + ct * l.count as f64);
-                    prims += l.count as u64;
-                } else {
-                    sub += cost[c as usize].0;
-                    prims += cost[c as usize].1;
-                }
-            }
-            let leaf = n.area as f64 * (cl + ct * prims as f64);
-            if i > 0 && prims <= cfg.max_leaf_size as u64 && leaf < sub {
-                marks[i] = true;
-                cost[i] = (leaf, prims);
+/// The final `Bvh2`: subtrees marked by the SAH collapse ([`best`]) become leaves, and nodes
+/// and the leaf table are written in depth-first order (so collapsed subtrees are
+/// contiguous in the leaf table).
+fn write_out(old: &Bvh2, meta: &[Meta], cfg: &AtrbvhConfig) -> Bvh2 {
+    let collapse = cfg.max_leaf_size > 1;
+    let mut nodes: Vec<Node> = Vec::with_capacity(old.nodes.len());
+    let mut prims: Vec<u32> = Vec::with_capacity(old.prim_indices.len());
+    // Appends the primitives under `c` to the leaf table and returns their range.
+    let mut st: Vec<ChildRef> = Vec::new();
+    let mut leaf_range = |c: ChildRef, prims: &mut Vec<u32>| -> ChildRef {
+        let first = prims.len() as u32;
+        st.push(c);
+        while let Some(c) = st.pop() {
+            if c.is_leaf() {
+                let r = c.index as usize..(c.index + c.count) as usize;
+                prims.extend_from_slice(&old.prim_indices[r]);
             } else {
-                cost[i] = (sub, prims);
+                let n = &old.nodes[c.index as usize];
+                st.push(n.children[1]);
+                st.push(n.children[0]);
             }
         }
-        marks
+        ChildRef::leaf(first, prims.len() as u32 - first)
+    };
+    crate::layout::preorder(0u32, &mut nodes, |i, nodes, kids| {
+        let mut n = old.nodes[i as usize];
+        for s in 0..2 {
+            let c = n.children[s];
+            let leaf = c.is_leaf()
+                || (collapse
+                    && best(
+                        &cfg.sah,
+                        cfg.max_leaf_size,
+                        &old.nodes,
+                        meta,
+                        0,
+                        c.index,
+                        area(&n.child_aabb(s)),
+                    )
+                    .2);
+            if leaf {
+                n.children[s] = leaf_range(c, &mut prims);
+            } else {
+                kids.push((s, c.index));
+            }
+        }
+        nodes.push(n);
+    });
+    Bvh2 {
+        nodes,
+        prim_indices: prims,
+        bounds: old.bounds,
+    }
+}
+
+/// The SAH of inner node `c` (global index; `nodes` and `meta` start at index `base`) whose
+/// box has area `a`, in its best form: `(cost, primitives, whether it becomes a leaf)`. A
+/// node collapses when it has at most `max_leaf` primitives and a leaf
+/// (`A (C_l + N C_t)`) is cheaper than the node over its children's best forms (`C_i A +
+/// children`). Its children's costs must be final.
+#[inline]
+fn best(
+    sah: &SahParams,
+    max_leaf: u32,
+    nodes: &[Node],
+    meta: &[Meta],
+    base: u32,
+    c: u32,
+    a: f32,
+) -> (f64, u32, bool) {
+    let (ci, cl, ct) = (sah.c_inner as f64, sah.c_leaf as f64, sah.c_tri as f64);
+    let n = &nodes[(c - base) as usize];
+    let mut sub = ci * a as f64;
+    let mut prims = 0u32;
+    for s in 0..2 {
+        let k = n.children[s];
+        if k.is_leaf() {
+            sub += area(&n.child_aabb(s)) as f64 * (cl + ct * k.count as f64);
+            prims += k.count;
+        } else {
+            let m = &meta[(k.index - base) as usize];
+            sub += m.cost;
+            prims += m.prims;
+        }
+    }
+    let leaf = a as f64 * (cl + ct * prims as f64);
+    if prims <= max_leaf && leaf < sub {
+        (leaf, prims, true)
+    } else {
+        (sub, prims, false)
     }
 }
 
 /// Read-only state of one pass.
 struct Ctx<'a> {
-    leaves: &'a [WLeaf],
     treelet: usize,
     /// Fewest leaves of a treelet root (the tree's root always is one).
     gamma: usize,
-    c_inner: f32,
+    sah: SahParams,
+    /// Largest collapsed leaf.
+    max_leaf: u32,
+    /// Whether this pass keeps every node's best-form cost ([`best`]) for the collapse.
+    costs: bool,
     counts: &'a Counts,
 }
 
 /// Recursion depth below which large subtrees fork; deeper (or smaller) subtrees are
-/// processed by the iterative [`pass_seq`], so a degenerate input tree of any depth cannot
+/// processed by the iterative [`sweep`], so a degenerate input tree of any depth cannot
 /// overflow the stack.
 const MAX_FORK_DEPTH: u32 = 48;
 
-/// Post-order pass over the subtree whose preorder node range is `nodes` (the global index
-/// of `nodes[0]` is `base`); the two children of a large node run in parallel.
-fn pass(ctx: &Ctx, nodes: &mut [WNode], base: u32, depth: u32) {
-    let root = nodes[0];
-    if depth >= MAX_FORK_DEPTH
-        || (root.leaves as usize) < PARALLEL_MIN_PRIMS
-        || rayon::current_num_threads() <= 1
-    {
-        return pass_seq(ctx, nodes, base);
-    }
-    // Preorder: [root][lower-indexed child's subtree][the other child's subtree].
-    let mut kids: Vec<u32> = root
-        .child
-        .into_iter()
-        .filter(|c| c & LEAF_BIT == 0)
-        .collect();
-    kids.sort_unstable();
-    let rest = &mut nodes[1..];
-    match kids[..] {
-        [a, b] => {
-            let split = nodes_below(rest, base + 1, a);
-            let (ra, rb) = rest.split_at_mut(split);
-            rayon::join(
-                || pass(ctx, ra, a, depth + 1),
-                || pass(ctx, rb, b, depth + 1),
-            );
-        }
-        [a] => pass(ctx, rest, a, depth + 1),
-        _ => {}
-    }
-    if base == 0 || root.leaves as usize >= ctx.gamma {
-        let mut scratch = Scratch::new();
-        restructure(ctx, nodes, base, &mut scratch);
-        scratch.flush(ctx);
-    }
-}
-
-/// Inner node count of the subtree of node `c`, read from the slice starting at `base`.
-#[inline]
-fn nodes_below(nodes: &[WNode], base: u32, c: u32) -> usize {
-    nodes[(c - base) as usize].leaves as usize - 1
-}
-
-/// The same post-order pass, sequential and iterative (explicit stack).
-fn pass_seq(ctx: &Ctx, nodes: &mut [WNode], base: u32) {
-    // Subtrees of fewer than γ leaves root no treelet, except that the tree's root always
-    // roots one, so trees smaller than a treelet are optimized too.
-    let roots = |c: u32, nodes: &[WNode]| {
-        c & LEAF_BIT == 0 && (c == 0 || nodes[(c - base) as usize].leaves as usize >= ctx.gamma)
-    };
-    if !roots(base, nodes) {
-        return;
-    }
+/// Post-order pass over the subtree whose preorder node range is `nodes` (global indices
+/// `base..end`, `nodes[0]` its root); the two children of a large node run in parallel, on
+/// the disjoint ranges of their subtrees. The tree's root (`base == 0`) is a treelet root
+/// too.
+fn pass(ctx: &Ctx, nodes: &mut [Node], meta: &mut [Meta], base: u32, end: usize, depth: u32) {
     let mut scratch = Scratch::new();
-    // (node, children already pushed)
-    let mut stack: Vec<(u32, bool)> = vec![(base, false)];
-    while let Some((i, expanded)) = stack.pop() {
-        if expanded {
-            restructure(ctx, &mut nodes[(i - base) as usize..], i, &mut scratch);
-            continue;
-        }
-        stack.push((i, true));
-        for c in nodes[(i - base) as usize].child {
-            if roots(c, nodes) {
-                stack.push((c, false));
+    let len = end - base as usize;
+    if depth >= MAX_FORK_DEPTH || len < PARALLEL_MIN_PRIMS || rayon::current_num_threads() <= 1 {
+        sweep(ctx, nodes, meta, base, base as usize, end, &mut scratch);
+    } else {
+        // Preorder: [root][lower-indexed child's subtree][the other child's subtree].
+        let mut kids: Vec<u32> = nodes[0]
+            .children
+            .iter()
+            .filter(|c| c.is_inner())
+            .map(|c| c.index)
+            .collect();
+        kids.sort_unstable();
+        let (rest, rest_meta) = (&mut nodes[1..], &mut meta[1..]);
+        match kids[..] {
+            [a, b] => {
+                let split = (b - a) as usize;
+                let (ra, rb) = rest.split_at_mut(split);
+                let (ma, mb) = rest_meta.split_at_mut(split);
+                rayon::join(
+                    || pass(ctx, ra, ma, a, b as usize, depth + 1),
+                    || pass(ctx, rb, mb, b, end, depth + 1),
+                );
             }
+            [a] => pass(ctx, rest, rest_meta, a, end, depth + 1),
+            _ => {}
         }
+        visit(ctx, nodes, meta, base, base, &mut scratch);
+    }
+    if base == 0 {
+        restructure(ctx, nodes, meta, 0, 0, None, &mut scratch);
     }
     scratch.flush(ctx);
 }
 
-/// Box, area and leaf count of a working child reference.
-#[inline]
-fn info(ctx: &Ctx, nodes: &[WNode], base: u32, c: u32) -> (Aabb, f32, u32) {
-    if c & LEAF_BIT != 0 {
-        let l = &ctx.leaves[(c & !LEAF_BIT) as usize];
-        (l.bbox, l.area, 1)
-    } else {
-        let n = &nodes[(c - base) as usize];
-        (n.bbox, n.area, n.leaves)
+/// The post-order visits of the nodes `lo..end` (global indices) of the preorder range
+/// starting at `base`, last index first: in preorder every node's subtree follows it, and a
+/// restructuring only permutes the nodes of its own subtree, so each node is visited after
+/// its whole subtree.
+fn sweep(
+    ctx: &Ctx,
+    nodes: &mut [Node],
+    meta: &mut [Meta],
+    base: u32,
+    lo: usize,
+    end: usize,
+    scratch: &mut Scratch,
+) {
+    for i in (lo..end).rev() {
+        visit(ctx, nodes, meta, base, i as u32, scratch);
     }
 }
 
-/// Forms the treelet rooted at `nodes[0]` and rebuilds it agglomeratively if that lowers
-/// its SAH.
+/// The visit of node `q` (global index; `nodes[0]` is node `base`), whose subtree is done:
+/// each inner child of `γ` leaves or more roots a treelet (it is restructured here, where
+/// its box, in `q`'s slot, can be updated), then the child's best-form cost is final; last
+/// `q`'s leaf count.
+#[inline]
+fn visit(
+    ctx: &Ctx,
+    nodes: &mut [Node],
+    meta: &mut [Meta],
+    base: u32,
+    q: u32,
+    scratch: &mut Scratch,
+) {
+    let qi = (q - base) as usize;
+    let mut leaves = 0;
+    for s in 0..2 {
+        let c = nodes[qi].children[s];
+        if c.is_leaf() {
+            leaves += 1;
+            continue;
+        }
+        let cl = meta[(c.index - base) as usize].leaves;
+        leaves += cl;
+        if cl as usize >= ctx.gamma {
+            restructure(ctx, nodes, meta, base, c.index, Some((q, s)), scratch);
+        }
+        if ctx.costs {
+            let a = area(&nodes[qi].child_aabb(s));
+            let (cost, prims, _) = best(&ctx.sah, ctx.max_leaf, nodes, meta, base, c.index, a);
+            let m = &mut meta[(c.index - base) as usize];
+            m.cost = cost;
+            m.prims = prims;
+        }
+    }
+    meta[qi].leaves = leaves;
+}
+
 /// Per-thread work arrays of [`restructure`], allocated once per subtree pass rather than
 /// initialized for every treelet (the distance matrix alone is 4 KiB).
 struct Scratch {
     boxes: [Aabb; MAX_TREELET_SIZE],
     dist: [[f32; MAX_TREELET_SIZE]; MAX_TREELET_SIZE],
-    /// Merge records: (children, box, area); the last one is the treelet root.
+    /// Merge records: (children as items, box, area); the last one is the treelet root.
     merges: [([u32; 2], Aabb, f32); MAX_TREELET_SIZE],
     /// Treelets rebuilt by this scratch's passes, by leaf count, and how many were kept.
     by_leaves: [u64; MAX_TREELET_SIZE + 1],
@@ -580,7 +529,22 @@ impl Scratch {
     }
 }
 
-fn restructure(ctx: &Ctx, nodes: &mut [WNode], base: u32, scratch: &mut Scratch) {
+/// Forms the treelet rooted at node `r` (global index; `nodes[0]` is node `base`; `slot`
+/// is the parent's reference to `r`, `None` for the tree's root) and rebuilds it
+/// agglomeratively if that lowers its SAH.
+///
+/// The treelet's items are its leaves (`0..nl`, with their references, boxes and areas)
+/// followed by the merges (`nl..`): the agglomeration works on item numbers, and the
+/// rebuilt nodes take the indices of the treelet's old inner nodes, the root last.
+fn restructure(
+    ctx: &Ctx,
+    nodes: &mut [Node],
+    meta: &mut [Meta],
+    base: u32,
+    r: u32,
+    slot: Option<(u32, usize)>,
+    scratch: &mut Scratch,
+) {
     let Scratch {
         boxes,
         dist,
@@ -588,27 +552,37 @@ fn restructure(ctx: &Ctx, nodes: &mut [WNode], base: u32, scratch: &mut Scratch)
         by_leaves,
         accepted,
     } = scratch;
-    let mut tl = [0u32; MAX_TREELET_SIZE];
+    let at = |i: u32| (i - base) as usize;
+    let mut tl = [ChildRef::EMPTY; MAX_TREELET_SIZE];
+    let mut tl_area = [0f32; MAX_TREELET_SIZE];
     let mut internal = [0u32; MAX_TREELET_SIZE];
     let (mut nl, mut ni) = (2usize, 0usize);
-    tl[..2].copy_from_slice(&nodes[0].child);
+    let root = &nodes[at(r)];
+    for s in 0..2 {
+        tl[s] = root.children[s];
+        boxes[s] = root.child_aabb(s);
+        tl_area[s] = area(&boxes[s]);
+    }
     let mut old_sum = 0.0f64;
     while nl < ctx.treelet {
         // The inner treelet leaf of largest area (first on ties).
-        let mut best: Option<(usize, f32)> = None;
-        for (k, &c) in tl[..nl].iter().enumerate() {
-            if c & LEAF_BIT == 0 {
-                let a = nodes[(c - base) as usize].area;
-                if best.is_none_or(|(_, ba)| a > ba) {
-                    best = Some((k, a));
+        let mut pick: Option<(usize, f32)> = None;
+        for k in 0..nl {
+            if tl[k].is_inner() {
+                let a = tl_area[k];
+                if pick.is_none_or(|(_, ba)| a > ba) {
+                    pick = Some((k, a));
                 }
             }
         }
-        let Some((k, a)) = best else { break };
-        let c = tl[k];
-        let ch = nodes[(c - base) as usize].child;
-        tl[k] = ch[0];
-        tl[nl] = ch[1];
+        let Some((k, a)) = pick else { break };
+        let c = tl[k].index;
+        let n = &nodes[at(c)];
+        for (s, to) in [(0, k), (1, nl)] {
+            tl[to] = n.children[s];
+            boxes[to] = n.child_aabb(s);
+            tl_area[to] = area(&boxes[to]);
+        }
         nl += 1;
         internal[ni] = c;
         ni += 1;
@@ -618,11 +592,9 @@ fn restructure(ctx: &Ctx, nodes: &mut [WNode], base: u32, scratch: &mut Scratch)
         return;
     }
     by_leaves[nl] += 1;
-    // Agglomerative rebuild over the active set `ids[..m]`.
-    let mut ids = tl;
-    for k in 0..nl {
-        boxes[k] = info(ctx, nodes, base, tl[k]).0;
-    }
+    let leaf_boxes: [Aabb; MAX_TREELET_SIZE] = *boxes;
+    // Agglomerative rebuild over the active set `ids[..m]` (item numbers).
+    let mut ids: [u32; MAX_TREELET_SIZE] = std::array::from_fn(|k| k as u32);
     for i in 0..nl {
         for j in i + 1..nl {
             let d = area(&boxes[i].union(boxes[j]));
@@ -632,7 +604,7 @@ fn restructure(ctx: &Ctx, nodes: &mut [WNode], base: u32, scratch: &mut Scratch)
     }
     let mut new_sum = 0.0f64;
     let mut m = nl;
-    for step in 0..nl - 1 {
+    for (step, rec) in merges[..nl - 1].iter_mut().enumerate() {
         let (mut bi, mut bj, mut bd) = (0, 1, f32::INFINITY);
         let mut found = false;
         for (i, row) in dist[..m].iter().enumerate() {
@@ -646,13 +618,12 @@ fn restructure(ctx: &Ctx, nodes: &mut [WNode], base: u32, scratch: &mut Scratch)
         let b = boxes[bi].union(boxes[bj]);
         let a = area(&b);
         let is_root = step == nl - 2;
-        let id = if is_root { base } else { internal[step] };
-        merges[step] = ([ids[bi], ids[bj]], b, a);
+        *rec = ([ids[bi], ids[bj]], b, a);
         if !is_root {
             new_sum += a as f64;
         }
         // The merged node takes slot bi; the last active slot moves into bj.
-        ids[bi] = id;
+        ids[bi] = (nl + step) as u32;
         boxes[bi] = b;
         m -= 1;
         if bj != m {
@@ -674,19 +645,42 @@ fn restructure(ctx: &Ctx, nodes: &mut [WNode], base: u32, scratch: &mut Scratch)
     }
     // Only the inner nodes below the root change, so compare their area sums.
     let improved = new_sum < old_sum * (1.0 - MIN_GAIN);
-    if ctx.c_inner <= 0.0 || !improved {
+    if ctx.sah.c_inner <= 0.0 || !improved {
         return;
     }
     *accepted += 1;
-    for (step, &(child, bbox, a)) in merges[..nl - 1].iter().enumerate() {
-        let id = if step == nl - 2 { base } else { internal[step] };
-        let leaves = info(ctx, nodes, base, child[0]).2 + info(ctx, nodes, base, child[1]).2;
-        nodes[(id - base) as usize] = WNode {
-            child,
-            bbox,
-            area: a,
-            leaves,
+    // Item `k`'s node index (merges) or reference (treelet leaves), and its box.
+    let node_of = |step: usize| if step == nl - 2 { r } else { internal[step] };
+    let item = |k: u32| -> (ChildRef, Aabb) {
+        let k = k as usize;
+        if k < nl {
+            (tl[k], leaf_boxes[k])
+        } else {
+            (ChildRef::inner(node_of(k - nl)), merges[k - nl].1)
+        }
+    };
+    for (step, &(child, _, a)) in merges[..nl - 1].iter().enumerate() {
+        let id = node_of(step);
+        let (c0, b0) = item(child[0]);
+        let (c1, b1) = item(child[1]);
+        nodes[at(id)] = Node::new(&b0, c0, &b1, c1);
+        let leaves = |c: ChildRef| {
+            if c.is_leaf() {
+                1
+            } else {
+                meta[at(c.index)].leaves
+            }
         };
+        meta[at(id)].leaves = leaves(c0) + leaves(c1);
+        if ctx.costs && step < nl - 2 {
+            let (cost, prims, _) = best(&ctx.sah, ctx.max_leaf, nodes, meta, base, id, a);
+            let m = &mut meta[at(id)];
+            m.cost = cost;
+            m.prims = prims;
+        }
+    }
+    if let Some((q, s)) = slot {
+        nodes[at(q)].set_child_aabb(s, &merges[nl - 2].1);
     }
 }
 

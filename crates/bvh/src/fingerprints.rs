@@ -114,6 +114,30 @@ fn fingerprints() -> Vec<(String, u64)> {
         .build(&prims)
         .unwrap();
         add2("atrbvh", &t);
+        // Issue 34's whole-tree pass over HLBVH+ATRBVH (one pass, leaves collapsed), and a
+        // multi-pass ATRBVH with γ doubling and a larger treelet (re-layout between passes).
+        let t = HlbvhAtrbvhBuilder {
+            cells: Some(AtrbvhConfig {
+                iterations: 1,
+                ..on_threads!(AtrbvhConfig, th)
+            }),
+            ..on_threads!(HlbvhAtrbvhBuilder, th)
+        }
+        .build(&prims)
+        .unwrap();
+        add2("hlbvh+atrbvh-cells", &t);
+        let t = AtrbvhBuilder {
+            bits: Default::default(),
+            config: AtrbvhConfig {
+                treelet_size: 9,
+                iterations: 3,
+                double_gamma: true,
+                ..on_threads!(AtrbvhConfig, th)
+            },
+        }
+        .build(&prims)
+        .unwrap();
+        add2("atrbvh t9 i3 doubling", &t);
         add2("ploc", &on_threads!(PlocBuilder, th).build(&prims).unwrap());
         let mut t = lbvh.clone();
         reinsert(&mut t, &prims, &on_threads!(ReinsertConfig, th)).unwrap();
@@ -750,4 +774,77 @@ const EXPECTED: &[(&str, u64)] = &[
     ),
     ("huge coordinates / stream collapse", 0x81f30894eeba9502),
     ("bunny / stream collapse", 0xf9e9bed39c2ea95f),
+    // Recorded on 6e61715 (issue 34), before ATRBVH restructured `Bvh2` nodes in place.
+    ("soup 40K / hlbvh+atrbvh-cells", 0x39de5302fb4eb211),
+    ("soup 40K / atrbvh t9 i3 doubling", 0x4eb92947aca00318),
+    ("soup 3K / hlbvh+atrbvh-cells", 0x3526e5a91c5e7526),
+    ("soup 3K / atrbvh t9 i3 doubling", 0xc9dcfe36d57719b8),
+    ("cloth / hlbvh+atrbvh-cells", 0x83faacd6b6478692),
+    ("cloth / atrbvh t9 i3 doubling", 0x83faacd6b6478692),
+    ("one / hlbvh+atrbvh-cells", 0x92d3f3bf05c65eaf),
+    ("one / atrbvh t9 i3 doubling", 0x92d3f3bf05c65eaf),
+    ("two / hlbvh+atrbvh-cells", 0xab8a9db21c3a5660),
+    ("two / atrbvh t9 i3 doubling", 0xab8a9db21c3a5660),
+    ("two identical / hlbvh+atrbvh-cells", 0xd2b5ff860c0d0bef),
+    ("two identical / atrbvh t9 i3 doubling", 0xc8df6ad4e6e20b8f),
+    (
+        "all centroids equal (9) / hlbvh+atrbvh-cells",
+        0x3bee8805afba70c0,
+    ),
+    (
+        "all centroids equal (9) / atrbvh t9 i3 doubling",
+        0x3bee8805afba70c0,
+    ),
+    (
+        "all centroids equal (5000) / hlbvh+atrbvh-cells",
+        0xdcd3bfdda74f6a6c,
+    ),
+    (
+        "all centroids equal (5000) / atrbvh t9 i3 doubling",
+        0xdcd3bfdda74f6a6c,
+    ),
+    (
+        "nested boxes, one centroid / hlbvh+atrbvh-cells",
+        0xa4c79d89059539cf,
+    ),
+    (
+        "nested boxes, one centroid / atrbvh t9 i3 doubling",
+        0x1f7a7aac0672e366,
+    ),
+    (
+        "coplanar axis-aligned (flat z) / hlbvh+atrbvh-cells",
+        0xd94e8c5011271a01,
+    ),
+    (
+        "coplanar axis-aligned (flat z) / atrbvh t9 i3 doubling",
+        0xd2077b066ff80458,
+    ),
+    (
+        "one huge among tiny / hlbvh+atrbvh-cells",
+        0xf61573c91a7e1af2,
+    ),
+    (
+        "one huge among tiny / atrbvh t9 i3 doubling",
+        0xdce0e70dba509187,
+    ),
+    ("points on a line / hlbvh+atrbvh-cells", 0xc0b540d3ac986347),
+    (
+        "points on a line / atrbvh t9 i3 doubling",
+        0xc0b540d3ac986347,
+    ),
+    (
+        "exponentially spaced points / hlbvh+atrbvh-cells",
+        0xe6b0e8813a05324c,
+    ),
+    (
+        "exponentially spaced points / atrbvh t9 i3 doubling",
+        0x18d9fa13083506e9,
+    ),
+    ("huge coordinates / hlbvh+atrbvh-cells", 0x86bf3477c797db6a),
+    (
+        "huge coordinates / atrbvh t9 i3 doubling",
+        0xecd61d2eccb654f5,
+    ),
+    ("bunny / hlbvh+atrbvh-cells", 0xb12089cb8b1f3a91),
+    ("bunny / atrbvh t9 i3 doubling", 0x2e879edb47f8add3),
 ];
