@@ -176,8 +176,11 @@ pub fn optimize(
 struct Meta {
     /// Treelet-atomic leaves (`Bvh2` leaves) in the subtree.
     leaves: u32,
-    /// Primitives in the subtree (collapse passes only).
+    /// Primitives in the subtree.
     prims: u32,
+    /// Nodes of the subtree in the collapsed output, 0 when it becomes one leaf (collapse
+    /// passes only).
+    out: u32,
     /// SAH cost of the subtree in its best form, a leaf or a node (collapse passes only).
     cost: f64,
 }
@@ -230,14 +233,14 @@ pub(crate) fn optimize_checked(bvh: &mut Bvh2, cfg: &AtrbvhConfig) -> AtrbvhWork
         pass(&ctx, &mut bvh.nodes, &mut meta, 0, n, 0);
         work.passes += 1;
     }
-    if cfg.iterations == 0 && collapse {
-        // No pass ran: the collapse still needs every subtree's cost.
+    if cfg.iterations == 0 {
+        // No pass ran: the write-out still needs every subtree's counts (and costs).
         let ctx = Ctx {
             treelet: cfg.treelet_size,
             gamma: usize::MAX,
             sah: cfg.sah,
             max_leaf: cfg.max_leaf_size,
-            costs: true,
+            costs: collapse,
             counts: &counts,
         };
         let mut scratch = Scratch::new();
@@ -248,7 +251,7 @@ pub(crate) fn optimize_checked(bvh: &mut Bvh2, cfg: &AtrbvhConfig) -> AtrbvhWork
         work.treelets_by_leaves[k] = c.load(Ordering::Relaxed);
     }
     work.accepted = counts.accepted.load(Ordering::Relaxed);
-    *bvh = write_out(bvh, &meta, cfg);
+    *bvh = write_out(bvh, &meta, collapse);
     work
 }
 
@@ -287,54 +290,54 @@ fn relayout(nodes: &[Node], meta: &[Meta]) -> Vec<Node> {
     out
 }
 
-/// The final `Bvh2`: subtrees marked by the SAH collapse ([`best`]) become leaves, and nodes
-/// and the leaf table are written in depth-first order (so collapsed subtrees are
-/// contiguous in the leaf table).
-fn write_out(old: &Bvh2, meta: &[Meta], cfg: &AtrbvhConfig) -> Bvh2 {
-    let collapse = cfg.max_leaf_size > 1;
-    let mut nodes: Vec<Node> = Vec::with_capacity(old.nodes.len());
-    let mut prims: Vec<u32> = Vec::with_capacity(old.prim_indices.len());
-    // Appends the primitives under `c` to the leaf table and returns their range.
-    let mut st: Vec<ChildRef> = Vec::new();
-    let mut leaf_range = |c: ChildRef, prims: &mut Vec<u32>| -> ChildRef {
-        let first = prims.len() as u32;
-        st.push(c);
-        while let Some(c) = st.pop() {
-            if c.is_leaf() {
-                let r = c.index as usize..(c.index + c.count) as usize;
-                prims.extend_from_slice(&old.prim_indices[r]);
-            } else {
-                let n = &old.nodes[c.index as usize];
-                st.push(n.children[1]);
-                st.push(n.children[0]);
-            }
+/// The final `Bvh2`: subtrees that the SAH collapse turns into leaves ([`best`]) become
+/// leaves, and nodes and the leaf table are written in depth-first order (so collapsed
+/// subtrees are contiguous in the leaf table), through [`crate::layout::preorder_sized`]
+/// (large subtrees in parallel). A node's leaf children take their entries before its
+/// inner children's subtrees, as a depth-first walk that writes a node's leaves on reaching
+/// it does.
+fn write_out(old: &Bvh2, meta: &[Meta], collapse: bool) -> Bvh2 {
+    // Output nodes of inner node `c`'s subtree (0: it becomes a leaf).
+    let out = |c: u32| {
+        let m = &meta[c as usize];
+        if collapse {
+            m.out
+        } else {
+            m.leaves - 1
         }
-        ChildRef::leaf(first, prims.len() as u32 - first)
     };
-    crate::layout::preorder(0u32, &mut nodes, |i, nodes, kids| {
-        let mut n = old.nodes[i as usize];
-        for s in 0..2 {
-            let c = n.children[s];
-            let leaf = c.is_leaf()
-                || (collapse
-                    && best(
-                        &cfg.sah,
-                        cfg.max_leaf_size,
-                        &old.nodes,
-                        meta,
-                        0,
-                        c.index,
-                        area(&n.child_aabb(s)),
-                    )
-                    .2);
-            if leaf {
-                n.children[s] = leaf_range(c, &mut prims);
-            } else {
-                kids.push((s, c.index));
+    let total = 1 + old.nodes[0]
+        .children
+        .iter()
+        .filter(|c| c.is_inner())
+        .map(|c| out(c.index))
+        .sum::<u32>();
+    let mut nodes = crate::node::zeroed_nodes(total as usize);
+    let mut prims = vec![0u32; old.prim_indices.len()];
+    let visit = |i: u32, kids: &mut Kids<'_, u32, u32>| {
+        let src = &old.nodes[i as usize];
+        let mut n = *src;
+        for (s, &c) in src.children.iter().enumerate() {
+            if c.is_leaf() {
+                let (first, to) = kids.leaf(c.count);
+                to.copy_from_slice(&old.prim_indices[c.index as usize..][..c.count as usize]);
+                n.children[s] = ChildRef::leaf(first, c.count);
+            } else if out(c.index) == 0 {
+                let count = meta[c.index as usize].prims;
+                let (first, to) = kids.leaf(count);
+                gather(old, c.index, to);
+                n.children[s] = ChildRef::leaf(first, count);
             }
         }
-        nodes.push(n);
-    });
+        for (s, &c) in src.children.iter().enumerate() {
+            if c.is_inner() && out(c.index) > 0 {
+                let m = &meta[c.index as usize];
+                n.children[s] = ChildRef::inner(kids.inner(c.index, out(c.index), m.prims));
+            }
+        }
+        n
+    };
+    crate::layout::preorder_sized(0u32, &mut nodes, &mut prims, &visit);
     Bvh2 {
         nodes,
         prim_indices: prims,
@@ -342,11 +345,50 @@ fn write_out(old: &Bvh2, meta: &[Meta], cfg: &AtrbvhConfig) -> Bvh2 {
     }
 }
 
+/// Writes the primitives below inner node `c` of `t` into `to`, depth-first (child 0
+/// first). The walk's stack lives in a fixed array (a collapsed leaf's subtree is small)
+/// and moves to the heap only for a deeper subtree (a large `max_leaf_size`).
+fn gather(t: &Bvh2, c: u32, to: &mut [u32]) {
+    const SHORT: usize = 64;
+    let mut short = [ChildRef::EMPTY; SHORT];
+    let mut long: Vec<ChildRef> = Vec::new();
+    let mut len = 1;
+    short[0] = ChildRef::inner(c);
+    let mut at = 0;
+    while len > 0 {
+        len -= 1;
+        let k = if long.is_empty() {
+            short[len]
+        } else {
+            long.pop().expect("the heap stack holds the entries")
+        };
+        if k.is_leaf() {
+            let n = k.count as usize;
+            to[at..at + n].copy_from_slice(&t.prim_indices[k.index as usize..][..n]);
+            at += n;
+            continue;
+        }
+        let n = &t.nodes[k.index as usize];
+        for v in [n.children[1], n.children[0]] {
+            if len < SHORT && long.is_empty() {
+                short[len] = v;
+            } else {
+                if long.is_empty() {
+                    long.extend_from_slice(&short[..len]);
+                }
+                long.push(v);
+            }
+            len += 1;
+        }
+    }
+    debug_assert_eq!(at, to.len());
+}
+
 /// The SAH of inner node `c` (global index; `nodes` and `meta` start at index `base`) whose
-/// box has area `a`, in its best form: `(cost, primitives, whether it becomes a leaf)`. A
-/// node collapses when it has at most `max_leaf` primitives and a leaf
-/// (`A (C_l + N C_t)`) is cheaper than the node over its children's best forms (`C_i A +
-/// children`). Its children's costs must be final.
+/// box has area `a`, in its best form: `(cost, output nodes)`, 0 nodes when it becomes a
+/// leaf. A node collapses when it has at most `max_leaf` primitives and a leaf (`A (C_l +
+/// N C_t)`) is cheaper than the node over its children's best forms (`C_i A + children`).
+/// Its primitive count and its children's costs must be final.
 #[inline]
 fn best(
     sah: &SahParams,
@@ -356,27 +398,27 @@ fn best(
     base: u32,
     c: u32,
     a: f32,
-) -> (f64, u32, bool) {
+) -> (f64, u32) {
     let (ci, cl, ct) = (sah.c_inner as f64, sah.c_leaf as f64, sah.c_tri as f64);
     let n = &nodes[(c - base) as usize];
+    let prims = meta[(c - base) as usize].prims;
     let mut sub = ci * a as f64;
-    let mut prims = 0u32;
+    let mut out = 1u32;
     for s in 0..2 {
         let k = n.children[s];
         if k.is_leaf() {
             sub += area(&n.child_aabb(s)) as f64 * (cl + ct * k.count as f64);
-            prims += k.count;
         } else {
             let m = &meta[(k.index - base) as usize];
             sub += m.cost;
-            prims += m.prims;
+            out += m.out;
         }
     }
     let leaf = a as f64 * (cl + ct * prims as f64);
     if prims <= max_leaf && leaf < sub {
-        (leaf, prims, true)
+        (leaf, 0)
     } else {
-        (sub, prims, false)
+        (sub, out)
     }
 }
 
@@ -470,33 +512,38 @@ fn visit(
     scratch: &mut Scratch,
 ) {
     let qi = (q - base) as usize;
-    let mut leaves = 0;
+    let (mut leaves, mut prims) = (0, 0);
     for s in 0..2 {
         let c = nodes[qi].children[s];
         if c.is_leaf() {
             leaves += 1;
+            prims += c.count;
             continue;
         }
-        let cl = meta[(c.index - base) as usize].leaves;
-        leaves += cl;
-        if cl as usize >= ctx.gamma {
+        let m = meta[(c.index - base) as usize];
+        leaves += m.leaves;
+        prims += m.prims;
+        if m.leaves as usize >= ctx.gamma {
             restructure(ctx, nodes, meta, base, c.index, Some((q, s)), scratch);
         }
         if ctx.costs {
             let a = area(&nodes[qi].child_aabb(s));
-            let (cost, prims, _) = best(&ctx.sah, ctx.max_leaf, nodes, meta, base, c.index, a);
+            let (cost, out) = best(&ctx.sah, ctx.max_leaf, nodes, meta, base, c.index, a);
             let m = &mut meta[(c.index - base) as usize];
             m.cost = cost;
-            m.prims = prims;
+            m.out = out;
         }
     }
     meta[qi].leaves = leaves;
+    meta[qi].prims = prims;
 }
 
 /// Per-thread work arrays of [`restructure`], allocated once per subtree pass rather than
 /// initialized for every treelet (the distance matrix alone is 4 KiB).
 struct Scratch {
     boxes: [Aabb; MAX_TREELET_SIZE],
+    /// The treelet leaves' boxes (`boxes` holds the agglomeration's current items).
+    leaf_boxes: [Aabb; MAX_TREELET_SIZE],
     dist: [[f32; MAX_TREELET_SIZE]; MAX_TREELET_SIZE],
     /// Merge records: (children as items, box, area); the last one is the treelet root.
     merges: [([u32; 2], Aabb, f32); MAX_TREELET_SIZE],
@@ -509,6 +556,7 @@ impl Scratch {
     fn new() -> Box<Scratch> {
         Box::new(Scratch {
             boxes: [Aabb::EMPTY; MAX_TREELET_SIZE],
+            leaf_boxes: [Aabb::EMPTY; MAX_TREELET_SIZE],
             dist: [[0.0; MAX_TREELET_SIZE]; MAX_TREELET_SIZE],
             merges: [([0; 2], Aabb::EMPTY, 0.0); MAX_TREELET_SIZE],
             by_leaves: [0; MAX_TREELET_SIZE + 1],
@@ -547,6 +595,7 @@ fn restructure(
 ) {
     let Scratch {
         boxes,
+        leaf_boxes,
         dist,
         merges,
         by_leaves,
@@ -558,10 +607,13 @@ fn restructure(
     let mut internal = [0u32; MAX_TREELET_SIZE];
     let (mut nl, mut ni) = (2usize, 0usize);
     let root = &nodes[at(r)];
+    // Areas of the inner treelet leaves only: the candidates for expansion.
     for s in 0..2 {
         tl[s] = root.children[s];
         boxes[s] = root.child_aabb(s);
-        tl_area[s] = area(&boxes[s]);
+        if tl[s].is_inner() {
+            tl_area[s] = area(&boxes[s]);
+        }
     }
     let mut old_sum = 0.0f64;
     while nl < ctx.treelet {
@@ -581,7 +633,9 @@ fn restructure(
         for (s, to) in [(0, k), (1, nl)] {
             tl[to] = n.children[s];
             boxes[to] = n.child_aabb(s);
-            tl_area[to] = area(&boxes[to]);
+            if tl[to].is_inner() {
+                tl_area[to] = area(&boxes[to]);
+            }
         }
         nl += 1;
         internal[ni] = c;
@@ -592,7 +646,7 @@ fn restructure(
         return;
     }
     by_leaves[nl] += 1;
-    let leaf_boxes: [Aabb; MAX_TREELET_SIZE] = *boxes;
+    leaf_boxes[..nl].copy_from_slice(&boxes[..nl]);
     // Agglomerative rebuild over the active set `ids[..m]` (item numbers).
     let mut ids: [u32; MAX_TREELET_SIZE] = std::array::from_fn(|k| k as u32);
     for i in 0..nl {
@@ -664,19 +718,23 @@ fn restructure(
         let (c0, b0) = item(child[0]);
         let (c1, b1) = item(child[1]);
         nodes[at(id)] = Node::new(&b0, c0, &b1, c1);
-        let leaves = |c: ChildRef| {
+        // Leaves and primitives of a child reference.
+        let count = |c: ChildRef| {
             if c.is_leaf() {
-                1
+                (1, c.count)
             } else {
-                meta[at(c.index)].leaves
+                let m = &meta[at(c.index)];
+                (m.leaves, m.prims)
             }
         };
-        meta[at(id)].leaves = leaves(c0) + leaves(c1);
+        let ((l0, p0), (l1, p1)) = (count(c0), count(c1));
+        let m = &mut meta[at(id)];
+        (m.leaves, m.prims) = (l0 + l1, p0 + p1);
         if ctx.costs && step < nl - 2 {
-            let (cost, prims, _) = best(&ctx.sah, ctx.max_leaf, nodes, meta, base, id, a);
+            let (cost, out) = best(&ctx.sah, ctx.max_leaf, nodes, meta, base, id, a);
             let m = &mut meta[at(id)];
             m.cost = cost;
-            m.prims = prims;
+            m.out = out;
         }
     }
     if let Some((q, s)) = slot {
@@ -917,6 +975,48 @@ mod tests {
             let o = optimized("chain", &chain, &prims, &cfg);
             assert!(o.stats().max_depth < n / 4, "{:?}", o.stats());
             assert!(o.sah() < chain.sah() / 2.0);
+        }
+    }
+
+    /// The collapse gathers a deep subtree into one leaf (its walk's stack outgrows the
+    /// fixed array into the heap) in depth-first order: a left-leaning chain of identical
+    /// boxes, where every subtree is cheaper as a leaf.
+    #[test]
+    fn deep_collapsed_subtree_is_gathered_depth_first() {
+        let n = 200usize;
+        let prims = cubes_at(&vec![0.0; n]);
+        let b = prims[0];
+        let nodes: Vec<Node> = (0..n - 1)
+            .map(|k| {
+                let deeper = if k + 2 == n {
+                    ChildRef::leaf(n as u32 - 1, 1)
+                } else {
+                    ChildRef::inner(k as u32 + 1)
+                };
+                Node::new(&b, deeper, &b, ChildRef::leaf(k as u32, 1))
+            })
+            .collect();
+        let chain = Bvh2 {
+            nodes,
+            prim_indices: (0..n as u32).collect(),
+            bounds: b,
+        };
+        assert_valid("left chain", &chain, &prims, 1);
+        for threads in [1, 2] {
+            let cfg = AtrbvhConfig {
+                iterations: 0,
+                max_leaf_size: u32::MAX,
+                threads,
+                ..Default::default()
+            };
+            let o = optimized("left chain", &chain, &prims, &cfg);
+            // The root stays a node over the collapsed chain (n - 1 primitives, gathered
+            // deepest first) and primitive 0; leaves take their entries in slot order.
+            assert_eq!(o.nodes.len(), 1);
+            assert_eq!(o.nodes[0].children[0], ChildRef::leaf(0, n as u32 - 1));
+            assert_eq!(o.nodes[0].children[1], ChildRef::leaf(n as u32 - 1, 1));
+            let expect: Vec<u32> = (0..n as u32).rev().collect();
+            assert_eq!(o.prim_indices, expect);
         }
     }
 
