@@ -607,35 +607,39 @@ fn restructure(
     let mut internal = [0u32; MAX_TREELET_SIZE];
     let (mut nl, mut ni) = (2usize, 0usize);
     let root = &nodes[at(r)];
-    // Areas of the inner treelet leaves only: the candidates for expansion.
+    // Areas of the inner treelet leaves, the candidates for expansion (-1 for a leaf).
     for s in 0..2 {
         tl[s] = root.children[s];
         boxes[s] = root.child_aabb(s);
-        if tl[s].is_inner() {
-            tl_area[s] = area(&boxes[s]);
-        }
+        tl_area[s] = if tl[s].is_inner() {
+            area(&boxes[s])
+        } else {
+            -1.0
+        };
     }
     let mut old_sum = 0.0f64;
     while nl < ctx.treelet {
         // The inner treelet leaf of largest area (first on ties).
-        let mut pick: Option<(usize, f32)> = None;
-        for k in 0..nl {
-            if tl[k].is_inner() {
-                let a = tl_area[k];
-                if pick.is_none_or(|(_, ba)| a > ba) {
-                    pick = Some((k, a));
-                }
-            }
+        // (Areas are never negative; a leaf's -1 is never picked.)
+        let (mut k, mut a) = (usize::MAX, -1.0f32);
+        for (j, &aj) in tl_area[..nl].iter().enumerate() {
+            let more = aj > a;
+            k = if more { j } else { k };
+            a = if more { aj } else { a };
         }
-        let Some((k, a)) = pick else { break };
+        if k == usize::MAX {
+            break;
+        }
         let c = tl[k].index;
         let n = &nodes[at(c)];
         for (s, to) in [(0, k), (1, nl)] {
             tl[to] = n.children[s];
             boxes[to] = n.child_aabb(s);
-            if tl[to].is_inner() {
-                tl_area[to] = area(&boxes[to]);
-            }
+            tl_area[to] = if tl[to].is_inner() {
+                area(&boxes[to])
+            } else {
+                -1.0
+            };
         }
         nl += 1;
         internal[ni] = c;
@@ -659,14 +663,14 @@ fn restructure(
     let mut new_sum = 0.0f64;
     let mut m = nl;
     for (step, rec) in merges[..nl - 1].iter_mut().enumerate() {
-        let (mut bi, mut bj, mut bd) = (0, 1, f32::INFINITY);
-        let mut found = false;
+        // The first pair in row-major order with the smallest distance.
+        let (mut bi, mut bj, mut bd) = (0, 1, dist[0][1]);
         for (i, row) in dist[..m].iter().enumerate() {
-            for (j, &d) in row.iter().enumerate().take(m).skip(i + 1) {
-                if !found || d < bd {
-                    (bi, bj, bd) = (i, j, d);
-                    found = true;
-                }
+            for (j, &d) in row[..m].iter().enumerate().skip(i + 1) {
+                let less = d < bd;
+                bi = if less { i } else { bi };
+                bj = if less { j } else { bj };
+                bd = if less { d } else { bd };
             }
         }
         let b = boxes[bi].union(boxes[bj]);
