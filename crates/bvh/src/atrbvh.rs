@@ -539,12 +539,11 @@ fn visit(
 }
 
 /// Per-thread work arrays of [`restructure`], allocated once per subtree pass rather than
-/// initialized for every treelet (the distance matrix alone is 4 KiB).
+/// initialized for every treelet.
 struct Scratch {
     boxes: [Aabb; MAX_TREELET_SIZE],
     /// The treelet leaves' boxes (`boxes` holds the agglomeration's current items).
     leaf_boxes: [Aabb; MAX_TREELET_SIZE],
-    dist: [[f32; MAX_TREELET_SIZE]; MAX_TREELET_SIZE],
     /// Merge records: (children as items, box, area); the last one is the treelet root.
     merges: [([u32; 2], Aabb, f32); MAX_TREELET_SIZE],
     /// Treelets rebuilt by this scratch's passes, by leaf count, and how many were kept.
@@ -557,7 +556,6 @@ impl Scratch {
         Box::new(Scratch {
             boxes: [Aabb::EMPTY; MAX_TREELET_SIZE],
             leaf_boxes: [Aabb::EMPTY; MAX_TREELET_SIZE],
-            dist: [[0.0; MAX_TREELET_SIZE]; MAX_TREELET_SIZE],
             merges: [([0; 2], Aabb::EMPTY, 0.0); MAX_TREELET_SIZE],
             by_leaves: [0; MAX_TREELET_SIZE + 1],
             accepted: 0,
@@ -596,7 +594,6 @@ fn restructure(
     let Scratch {
         boxes,
         leaf_boxes,
-        dist,
         merges,
         by_leaves,
         accepted,
@@ -651,8 +648,69 @@ fn restructure(
     }
     by_leaves[nl] += 1;
     leaf_boxes[..nl].copy_from_slice(&boxes[..nl]);
+    // The matrix sized for the treelet: a small one is cheaper to move rows in.
+    let new_sum = if nl <= 8 {
+        agglomerate::<8>(&mut boxes[..nl], merges)
+    } else if nl <= 16 {
+        agglomerate::<16>(&mut boxes[..nl], merges)
+    } else {
+        agglomerate::<MAX_TREELET_SIZE>(&mut boxes[..nl], merges)
+    };
+    // Only the inner nodes below the root change, so compare their area sums.
+    let improved = new_sum < old_sum * (1.0 - MIN_GAIN);
+    if ctx.sah.c_inner <= 0.0 || !improved {
+        return;
+    }
+    *accepted += 1;
+    // Item `k`'s node index (merges) or reference (treelet leaves), and its box.
+    let node_of = |step: usize| if step == nl - 2 { r } else { internal[step] };
+    let item = |k: u32| -> (ChildRef, Aabb) {
+        let k = k as usize;
+        if k < nl {
+            (tl[k], leaf_boxes[k])
+        } else {
+            (ChildRef::inner(node_of(k - nl)), merges[k - nl].1)
+        }
+    };
+    for (step, &(child, _, a)) in merges[..nl - 1].iter().enumerate() {
+        let id = node_of(step);
+        let (c0, b0) = item(child[0]);
+        let (c1, b1) = item(child[1]);
+        nodes[at(id)] = Node::new(&b0, c0, &b1, c1);
+        // Leaves and primitives of a child reference.
+        let count = |c: ChildRef| {
+            if c.is_leaf() {
+                (1, c.count)
+            } else {
+                let m = &meta[at(c.index)];
+                (m.leaves, m.prims)
+            }
+        };
+        let ((l0, p0), (l1, p1)) = (count(c0), count(c1));
+        let m = &mut meta[at(id)];
+        (m.leaves, m.prims) = (l0 + l1, p0 + p1);
+        if ctx.costs && step < nl - 2 {
+            let (cost, out) = best(&ctx.sah, ctx.max_leaf, nodes, meta, base, id, a);
+            let m = &mut meta[at(id)];
+            m.cost = cost;
+            m.out = out;
+        }
+    }
+    if let Some((q, s)) = slot {
+        nodes[at(q)].set_child_aabb(s, &merges[nl - 2].1);
+    }
+}
+
+/// Agglomerative rebuild of a treelet over its leaf boxes (items `0..nl`, `nl <= N`; the
+/// slice is the working set and is overwritten), closest pair first (the smallest union
+/// area; the first pair in row-major order on ties), into `merges[..nl - 1]` (children as
+/// item numbers; merge `s` is item `nl + s`, the last one the treelet root). Returns the
+/// area sum of the merges below the root.
+fn agglomerate<const N: usize>(boxes: &mut [Aabb], merges: &mut [([u32; 2], Aabb, f32)]) -> f64 {
     // Agglomerative rebuild over the active set `ids[..m]` (item numbers).
-    let mut ids: [u32; MAX_TREELET_SIZE] = std::array::from_fn(|k| k as u32);
+    let nl = boxes.len();
+    let mut ids: [u32; N] = std::array::from_fn(|k| k as u32);
+    let mut dist = [[0f32; N]; N];
     for i in 0..nl {
         for j in i + 1..nl {
             let d = area(&boxes[i].union(boxes[j]));
@@ -701,49 +759,7 @@ fn restructure(
             }
         }
     }
-    // Only the inner nodes below the root change, so compare their area sums.
-    let improved = new_sum < old_sum * (1.0 - MIN_GAIN);
-    if ctx.sah.c_inner <= 0.0 || !improved {
-        return;
-    }
-    *accepted += 1;
-    // Item `k`'s node index (merges) or reference (treelet leaves), and its box.
-    let node_of = |step: usize| if step == nl - 2 { r } else { internal[step] };
-    let item = |k: u32| -> (ChildRef, Aabb) {
-        let k = k as usize;
-        if k < nl {
-            (tl[k], leaf_boxes[k])
-        } else {
-            (ChildRef::inner(node_of(k - nl)), merges[k - nl].1)
-        }
-    };
-    for (step, &(child, _, a)) in merges[..nl - 1].iter().enumerate() {
-        let id = node_of(step);
-        let (c0, b0) = item(child[0]);
-        let (c1, b1) = item(child[1]);
-        nodes[at(id)] = Node::new(&b0, c0, &b1, c1);
-        // Leaves and primitives of a child reference.
-        let count = |c: ChildRef| {
-            if c.is_leaf() {
-                (1, c.count)
-            } else {
-                let m = &meta[at(c.index)];
-                (m.leaves, m.prims)
-            }
-        };
-        let ((l0, p0), (l1, p1)) = (count(c0), count(c1));
-        let m = &mut meta[at(id)];
-        (m.leaves, m.prims) = (l0 + l1, p0 + p1);
-        if ctx.costs && step < nl - 2 {
-            let (cost, out) = best(&ctx.sah, ctx.max_leaf, nodes, meta, base, id, a);
-            let m = &mut meta[at(id)];
-            m.cost = cost;
-            m.out = out;
-        }
-    }
-    if let Some((q, s)) = slot {
-        nodes[at(q)].set_child_aabb(s, &merges[nl - 2].1);
-    }
+    new_sum
 }
 
 #[cfg(test)]
