@@ -17,6 +17,7 @@ use crate::centroid;
 use crate::lbvh::MortonBits;
 use geom::{Aabb, MortonGrid, MortonQuantizer, Vec3};
 use rayon::prelude::*;
+use std::sync::atomic::{AtomicUsize, Ordering};
 
 /// Keys per chunk below which a pass runs on one chunk (parallel passes pay a
 /// synchronisation and a cache-unfriendly split that small inputs do not repay).
@@ -147,20 +148,52 @@ pub(crate) fn sorted_codes_into(
     codes: &mut Vec<u64>,
     order: &mut Vec<u32>,
 ) -> Aabb {
+    sorted_tagged_codes_into(n, point, |_| |_| false, bits, grid, buffers, codes, order)
+}
+
+/// [`sorted_codes_into`] with a tag bit above the code: `tag(&bounds)` (`bounds` the
+/// points' box) gives the test `t`, point `i` is tagged when `t(i)`, and a tagged point's
+/// code has bit `bits.total_bits()` set, so the order is the total (tag, code, index)
+/// order. The tags cost a test in the coding pass; when any point is tagged, one more
+/// pass over the sorted keys moves the tagged ones, in their order, after the others.
+#[allow(clippy::too_many_arguments)]
+pub(crate) fn sorted_tagged_codes_into<T: Fn(usize) -> bool + Sync>(
+    n: usize,
+    point: impl Fn(usize) -> Vec3 + Sync,
+    tag: impl FnOnce(&Aabb) -> T,
+    bits: MortonBits,
+    grid: MortonGrid,
+    buffers: &mut SortBuffers,
+    codes: &mut Vec<u64>,
+    order: &mut Vec<u32>,
+) -> Aabb {
     let cbounds = (0..n)
         .into_par_iter()
         .fold(|| Aabb::EMPTY, |b, i| b.grow(point(i)))
         .reduce(|| Aabb::EMPTY, Aabb::union);
     let q = MortonQuantizer::with_grid(&cbounds, grid);
+    let tagged = AtomicUsize::new(0);
+    let test = tag(&cbounds);
+    let tag = |i: usize| {
+        let t = test(i);
+        if t {
+            tagged.fetch_add(1, Ordering::Relaxed);
+        }
+        t
+    };
     match bits {
         MortonBits::Bits30 => {
             // Code and index packed in one u64; sorted by the 30 code bits, 10 per pass.
             let [keys, tmp] = &mut buffers.narrow;
             (0..n)
                 .into_par_iter()
-                .map(|i| ((q.code30(point(i)) as u64) << 32) | i as u64)
+                .map(|i| {
+                    let code = q.code30(point(i)) as u64 | (tag(i) as u64) << 30;
+                    (code << 32) | i as u64
+                })
                 .collect_into_vec(keys);
             radix_sort(keys, tmp, 32, 10, 3);
+            tagged_last(keys, tmp, tagged.into_inner(), |k| k >> 62 != 0);
             keys.par_iter()
                 .map(|k| (k >> 32, *k as u32))
                 .unzip_into_vecs(codes, order);
@@ -170,15 +203,47 @@ pub(crate) fn sorted_codes_into(
             let [keys, tmp] = &mut buffers.wide;
             (0..n)
                 .into_par_iter()
-                .map(|i| ((q.code63(point(i)) as u128) << 64) | i as u128)
+                .map(|i| {
+                    let code = q.code63(point(i)) as u128 | (tag(i) as u128) << 63;
+                    (code << 64) | i as u128
+                })
                 .collect_into_vec(keys);
             radix_sort(keys, tmp, 64, 9, 7);
+            tagged_last(keys, tmp, tagged.into_inner(), |k| k >> 127 != 0);
             keys.par_iter()
                 .map(|k| ((k >> 64) as u64, *k as u32))
                 .unzip_into_vecs(codes, order);
         }
     }
     cbounds
+}
+
+/// Moves the `count` keys of `keys` for which `is_tagged` holds after all others, both in
+/// their order (a stable partition through `tmp`, the radix sort's second buffer); nothing
+/// when `count` is 0.
+fn tagged_last<K: Key>(
+    keys: &mut Vec<K>,
+    tmp: &mut Vec<K>,
+    count: usize,
+    is_tagged: impl Fn(K) -> bool,
+) {
+    if count == 0 {
+        return;
+    }
+    let n = keys.len();
+    crate::size_for_overwrite(tmp, n);
+    let (mut small, mut large) = (0, n - count);
+    for &k in keys.iter() {
+        if is_tagged(k) {
+            tmp[large] = k;
+            large += 1;
+        } else {
+            tmp[small] = k;
+            small += 1;
+        }
+    }
+    debug_assert_eq!((small, large), (n - count, n));
+    std::mem::swap(keys, tmp);
 }
 
 #[cfg(test)]
@@ -259,5 +324,43 @@ mod tests {
         let (codes, order) = sorted_codes(&same, MortonBits::Bits30, MortonGrid::Box);
         assert!(codes.iter().all(|&c| c == codes[0]));
         assert!(order.iter().enumerate().all(|(k, &i)| k as u32 == i));
+    }
+
+    #[test]
+    fn tagged_codes_are_the_total_tag_code_index_order() {
+        let prims = soup(100_000, 1.0, 6);
+        for bits in [MortonBits::Bits30, MortonBits::Bits63] {
+            let (codes, order, _) =
+                sorted_codes_of(prims.len(), |i| centroid(&prims[i]), bits, MortonGrid::Box);
+            let tag_bit = 1u64 << bits.total_bits();
+            // None, a few and all points tagged; the tags' bit over the untagged codes.
+            for every in [0usize, 997, 1] {
+                let tag = |i: usize| every != 0 && i.is_multiple_of(every);
+                let (mut tcodes, mut torder) = (Vec::new(), Vec::new());
+                let mut buffers = SortBuffers::default();
+                let b = sorted_tagged_codes_into(
+                    prims.len(),
+                    |i| centroid(&prims[i]),
+                    |_| tag,
+                    bits,
+                    MortonGrid::Box,
+                    &mut buffers,
+                    &mut tcodes,
+                    &mut torder,
+                );
+                assert_eq!(
+                    b,
+                    prims.iter().fold(Aabb::EMPTY, |b, p| b.grow(centroid(p)))
+                );
+                let mut want: Vec<(u64, u32)> = codes
+                    .iter()
+                    .zip(&order)
+                    .map(|(&c, &i)| (c | if tag(i as usize) { tag_bit } else { 0 }, i))
+                    .collect();
+                want.sort_unstable();
+                let got: Vec<(u64, u32)> = tcodes.into_iter().zip(torder).collect();
+                assert_eq!(got, want, "{bits:?} every {every}");
+            }
+        }
     }
 }

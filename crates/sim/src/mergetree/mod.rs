@@ -625,6 +625,8 @@ pub fn software_builder(cfg: &MergeTreeConfig) -> HlbvhBuilder {
         highlevel_threshold: cfg.highlevel_threshold,
         threads: 0,
         grid: cfg.morton_grid,
+        // The unit codes centroids only: no large primitives apart (issue 34's option).
+        large_prims: None,
     }
 }
 
