@@ -164,6 +164,7 @@ class Scene:
 _BuilderName = Literal[
     "lbvh",
     "hlbvh",
+    "hlbvh-large",
     "hlbvh+sah",
     "hlbvh+atrbvh",
     "binned-sah",

@@ -857,10 +857,23 @@ fn goals(rows: &[Row]) -> Vec<Goal> {
             met,
             detail,
         };
-        if let (Some(h), Some(l)) = (find("hlbvh"), find("embree-low")) {
+        // The thesis's HLBVH tree, and HLBVH with its large primitives apart (issue 34).
+        for (id, name) in [
+            (
+                "hlbvh",
+                "hlbvh throughput >= 1.5x Embree LOW, SAH <= Embree LOW's",
+            ),
+            (
+                "hlbvh-large",
+                "hlbvh-large throughput >= 1.5x Embree LOW, SAH <= Embree LOW's",
+            ),
+        ] {
+            let (Some(h), Some(l)) = (find(id), find("embree-low")) else {
+                continue;
+            };
             let speed = l.best_ms / h.best_ms;
             out.push(goal(
-                "hlbvh throughput >= 1.5x Embree LOW, SAH <= Embree LOW's",
+                name,
                 speed,
                 GOAL_HLBVH_VS_LOW,
                 speed >= GOAL_HLBVH_VS_LOW && h.sah <= l.sah,
@@ -1179,6 +1192,15 @@ mod tests {
         // Worse SAH than Embree LOW fails the first goal even when fast.
         rows[0].sah = 101.0;
         assert!(!goals(&rows)[0].met);
+        // HLBVH with its large primitives apart is held to the same goal, after hlbvh:
+        // met at lower SAH and 1.6x, not at 16 / 11 = 1.45x.
+        rows.push(row("hlbvh-large", "arbor", 10.0, 95.0, 1.5));
+        let g = goals(&rows);
+        assert_eq!(g.len(), 5);
+        assert!(!g[0].met && g[1].met && g[1].goal.starts_with("hlbvh-large"));
+        rows[5].best_ms = 11.0;
+        let g = goals(&rows);
+        assert!(!g[1].met && (g[1].value - 16.0 / 11.0).abs() < 1e-12);
     }
 
     #[test]

@@ -98,6 +98,8 @@ fn binary(t: Result<bvh::Bvh2, bvh::BuildError>) -> anyhow::Result<Tree> {
 pub static BUILDERS: &[(&str, BuildFn)] = &[
     ("lbvh", |p, _| binary(LbvhBuilder::default().build(p))),
     ("hlbvh", |p, c| binary(hlbvh(c).build(p))),
+    // Issue 34: HLBVH with the large primitives apart (`HlbvhBuilder::large_prims`).
+    ("hlbvh-large", |p, c| binary(hlbvh_large(c).build(p))),
     ("hlbvh+sah", |p, c| {
         binary(
             bvh::HlbvhSahBuilder {
@@ -266,6 +268,18 @@ fn hlbvh(c: &BuildConfig) -> bvh::HlbvhBuilder {
     }
 }
 
+/// Fraction of the centroid box on some axis above which `hlbvh-large` sorts a primitive
+/// apart (`HlbvhBuilder::large_prims`; issue 34 measured 0.25 and 0.5, docs/builders.md).
+pub const HLBVH_LARGE: f32 = 0.5;
+
+/// [`hlbvh`] with the large primitives apart ([`HLBVH_LARGE`]).
+fn hlbvh_large(c: &BuildConfig) -> bvh::HlbvhBuilder {
+    bvh::HlbvhBuilder {
+        large_prims: Some(HLBVH_LARGE),
+        ..hlbvh(c)
+    }
+}
+
 /// The PLOC builder for a configuration (radius 16, leaves collapsed up to `max_leaf`).
 fn ploc(c: &BuildConfig) -> bvh::PlocBuilder {
     bvh::PlocBuilder {
@@ -351,11 +365,18 @@ pub type BuildIntoFn = fn(&[Aabb], &BuildConfig, &mut Frame) -> anyhow::Result<T
 
 /// The builders that can build into the buffers of their previous build, with the same
 /// trees as their [`BUILDERS`] entry.
-pub static REUSING: &[(&str, BuildIntoFn)] = &[("hlbvh", |p, c, f| {
-    let mut t = f.tree.take().unwrap_or_else(bvh::Bvh2::empty);
-    hlbvh(c).build_into(p, &mut f.hlbvh, &mut t)?;
-    Ok(Tree::Bvh2(t))
-})];
+pub static REUSING: &[(&str, BuildIntoFn)] = &[
+    ("hlbvh", |p, c, f| {
+        let mut t = f.tree.take().unwrap_or_else(bvh::Bvh2::empty);
+        hlbvh(c).build_into(p, &mut f.hlbvh, &mut t)?;
+        Ok(Tree::Bvh2(t))
+    }),
+    ("hlbvh-large", |p, c, f| {
+        let mut t = f.tree.take().unwrap_or_else(bvh::Bvh2::empty);
+        hlbvh_large(c).build_into(p, &mut f.hlbvh, &mut t)?;
+        Ok(Tree::Bvh2(t))
+    }),
+];
 
 /// The [`REUSING`] entry point of builder `name`, if it has one.
 pub fn reusing_builder(name: &str) -> Option<BuildIntoFn> {
@@ -386,7 +407,8 @@ fn binary_builder_name(name: &str, option: &str) -> anyhow::Result<&'static str>
 pub struct BuildArgs {
     #[command(flatten)]
     scene: SceneArgs,
-    /// Builder: lbvh, hlbvh, hlbvh+sah, hlbvh+atrbvh, hlbvh+atrbvh-cells, binned-sah,
+    /// Builder: lbvh, hlbvh, hlbvh-large (HLBVH with primitives wider than half the
+    /// centroid box sorted apart), hlbvh+sah, hlbvh+atrbvh, hlbvh+atrbvh-cells, binned-sah,
     /// sweep-sah, atrbvh, ploc,
     /// ploc+reinsert, hlbvh+reinsert (binary trees), sbvh (binary, with spatial splits:
     /// leaves name parts of triangles; no --out yet), mbvh4-collapse, mbvh4-stream,
@@ -869,6 +891,7 @@ mod tests {
         for n in [
             "lbvh",
             "hlbvh",
+            "hlbvh-large",
             "hlbvh+sah",
             "hlbvh+atrbvh",
             "hlbvh+atrbvh-cells",

@@ -5,10 +5,11 @@ use crate::common::arbor;
 use serde_json::Value;
 use std::path::Path;
 
-/// Every builder of `arbor build`: eleven binary, then the four 4-wide ones.
-const BUILDERS: [&str; 15] = [
+/// Every builder of `arbor build`: twelve binary, then the four 4-wide ones.
+const BUILDERS: [&str; 16] = [
     "lbvh",
     "hlbvh",
+    "hlbvh-large",
     "hlbvh+sah",
     "hlbvh+atrbvh",
     "hlbvh+atrbvh-cells",
@@ -183,6 +184,13 @@ fn out_file_reads_back_as_the_built_tree() {
             "binned-sah" => binned.into(),
             "atrbvh" => bvh::AtrbvhBuilder::default().build(&aabbs).unwrap().into(),
             "hlbvh" => bvh::HlbvhBuilder::default().build(&aabbs).unwrap().into(),
+            "hlbvh-large" => bvh::HlbvhBuilder {
+                large_prims: Some(0.5),
+                ..Default::default()
+            }
+            .build(&aabbs)
+            .unwrap()
+            .into(),
             "hlbvh+sah" => bvh::HlbvhSahBuilder::default()
                 .build(&aabbs)
                 .unwrap()
