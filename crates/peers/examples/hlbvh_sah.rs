@@ -342,17 +342,21 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             .unwrap()
             .bvh
         };
+        // The emulated HLBVH tree on a grid of 1024 * scale cells per axis.
+        let scaled = |scale: f32| {
+            emulate(
+                &prims,
+                Mapping {
+                    cells: 1024.0 * scale,
+                    ..arbor
+                },
+                Runs::Chunks(8),
+            )
+        };
         if mode == "grid" {
             let mut line = String::new();
             for scale in [0.9, 0.95, 0.97, 0.98, 0.99, 0.995, 0.999, 0.9999, 1.0] {
-                let t = emulate(
-                    &prims,
-                    Mapping {
-                        cells: 1024.0 * scale,
-                        ..arbor
-                    },
-                    Runs::Chunks(8),
-                );
+                let t = scaled(scale);
                 line += &format!(" s{scale}:{:.4}", t.sah_vs(&sweep));
             }
             for (cells, offset) in [
@@ -383,14 +387,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         }
         if mode == "depth" {
             for scale in [1.0, 0.99] {
-                let t = emulate(
-                    &prims,
-                    Mapping {
-                        cells: 1024.0 * scale,
-                        ..arbor
-                    },
-                    Runs::Chunks(8),
-                );
+                let t = scaled(scale);
                 let (inner, leaf) = by_depth(&t);
                 let f = |v: &[f64]| {
                     v.iter()
@@ -409,14 +406,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         if mode == "root" {
             println!("  scene box {:?}", sweep.bounds);
             for scale in [1.0, 0.99] {
-                let t = emulate(
-                    &prims,
-                    Mapping {
-                        cells: 1024.0 * scale,
-                        ..arbor
-                    },
-                    Runs::Chunks(8),
-                );
+                let t = scaled(scale);
                 // The two depth-2 levels: print every node's child boxes down to depth 2.
                 let mut st = vec![(0usize, 0usize, String::from("root"))];
                 while let Some((i, d, path)) = st.pop() {
