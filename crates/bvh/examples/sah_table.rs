@@ -98,6 +98,18 @@ fn builders() -> Vec<(&'static str, Option<usize>, u32, Build)> {
             Box::new(|p| HlbvhBuilder::default().build(p)),
         ),
         (
+            "hlbvh-large",
+            None,
+            hl_leaf,
+            Box::new(|p| {
+                HlbvhBuilder {
+                    large_prims: Some(bvh::LARGE_PRIMS_FRACTION),
+                    ..Default::default()
+                }
+                .build(p)
+            }),
+        ),
+        (
             "hlbvh+sah",
             Some(1),
             hl_leaf,

@@ -95,6 +95,11 @@ impl Default for HlbvhBuilder {
     }
 }
 
+/// The [`HlbvhBuilder::large_prims`] fraction of the `hlbvh-large` builder: the best of the
+/// four issue 34 measured (0.5, 0.25, 0.125, 0.0625; docs/builders.md, "HLBVH's SAH on
+/// Crytek Sponza").
+pub const LARGE_PRIMS_FRACTION: f32 = 0.5;
+
 /// Code bits of the cells that [`HlbvhBuilder::build`] emits in parallel (512 cells).
 pub(crate) const PARALLEL_CELL_BITS: u32 = 9;
 

@@ -65,6 +65,7 @@ pub use error::{BuildError, MAX_PRIMITIVES};
 pub use geom::MortonGrid;
 pub use hlbvh::{
     EmitRef, EmittedNode, Emitter, Highlevel, HighlevelRoot, HlbvhArena, HlbvhBuilder, Prim, Step,
+    LARGE_PRIMS_FRACTION,
 };
 pub use lbvh::{LbvhBuilder, MortonBits};
 pub use mbvh4::{mbvh4_sah_cost_with, validate_mbvh4, Mbvh4, Mbvh4Stats, Node4, MBVH_WIDTH};

@@ -268,14 +268,10 @@ fn hlbvh(c: &BuildConfig) -> bvh::HlbvhBuilder {
     }
 }
 
-/// Fraction of the centroid box on some axis above which `hlbvh-large` sorts a primitive
-/// apart (`HlbvhBuilder::large_prims`; issue 34 measured 0.25 and 0.5, docs/builders.md).
-pub const HLBVH_LARGE: f32 = 0.5;
-
-/// [`hlbvh`] with the large primitives apart ([`HLBVH_LARGE`]).
+/// [`hlbvh`] with the large primitives apart ([`bvh::LARGE_PRIMS_FRACTION`]).
 fn hlbvh_large(c: &BuildConfig) -> bvh::HlbvhBuilder {
     bvh::HlbvhBuilder {
-        large_prims: Some(HLBVH_LARGE),
+        large_prims: Some(bvh::LARGE_PRIMS_FRACTION),
         ..hlbvh(c)
     }
 }
