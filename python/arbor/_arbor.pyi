@@ -167,6 +167,7 @@ _BuilderName = Literal[
     "hlbvh-large",
     "hlbvh+sah",
     "hlbvh+atrbvh",
+    "hlbvh+atrbvh-cells",
     "binned-sah",
     "sweep-sah",
     "atrbvh",

@@ -167,6 +167,15 @@ def test_scene_errors_name_the_problem(scene: core.Scene) -> None:
 # -------------------------------------------------------------------------------- BVHs
 
 
+def test_the_stub_names_every_builder() -> None:
+    # The typed stub's builder names are `builders()`'s (`arbor build`'s, less those that
+    # cut triangles), in its order: a name missing there is a type error for a valid call.
+    stub = (ROOT / "python" / "arbor" / "_arbor.pyi").read_text()
+    body = stub.split("_BuilderName = Literal[", 1)[1].split("]", 1)[0]
+    names = [n.strip().strip('"') for n in body.split(",") if n.strip()]
+    assert names == core.builders()
+
+
 @pytest.mark.parametrize("name", core.builders())
 def test_every_builder_gives_a_valid_tree(mesh: core.Mesh, name: str) -> None:
     bvh = core.build_bvh(mesh, builder=name, max_leaf=4)
