@@ -150,10 +150,7 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             8,
             Box::new(|p, t| {
                 HlbvhAtrbvhBuilder {
-                    cells: Some(AtrbvhConfig {
-                        iterations: 1,
-                        ..Default::default()
-                    }),
+                    cells: Some(AtrbvhConfig::one_pass()),
                     threads: t,
                     ..Default::default()
                 }

@@ -1,5 +1,6 @@
 //! Criterion benches of the main builders against the peers, per mesh: Arbor's LBVH,
-//! HLBVH, binned SAH (16 bins) and 4-wide top-down builder; Embree 3 LOW and MEDIUM
+//! HLBVH (also with large primitives apart, `hlbvh-large`), HLBVH+ATRBVH with the cells
+//! restructured (`hlbvh+atrbvh-cells`), binned SAH (16 bins) and 4-wide top-down builder; Embree 3 LOW and MEDIUM
 //! (feature `embree`), obvhs PLOC (fastest preset) and the bvh crate, each on one thread
 //! (Arbor's builders and obvhs in a 1-thread rayon pool created outside the timing; Embree
 //! on a 1-thread device). Throughput is in primitives.
@@ -68,6 +69,28 @@ fn bench_builders(c: &mut Criterion) {
         });
         arbor("arbor hlbvh", &|| {
             bvh::HlbvhBuilder::default().build(b).unwrap().nodes.len()
+        });
+        arbor("arbor hlbvh-large", &|| {
+            bvh::HlbvhBuilder {
+                large_prims: Some(bvh::LARGE_PRIMS_FRACTION),
+                ..Default::default()
+            }
+            .build(b)
+            .unwrap()
+            .nodes
+            .len()
+        });
+        // Issue 34's goal row: HLBVH+ATRBVH with the cells restructured (one pass), as
+        // `arbor build --builder hlbvh+atrbvh-cells`.
+        arbor("arbor hlbvh+atrbvh-cells", &|| {
+            bvh::HlbvhAtrbvhBuilder {
+                cells: Some(bvh::AtrbvhConfig::one_pass()),
+                ..Default::default()
+            }
+            .build(b)
+            .unwrap()
+            .nodes
+            .len()
         });
         arbor("arbor binned-sah", &|| {
             bvh::BinnedSahBuilder::default()

@@ -82,10 +82,9 @@ pub type BuildFn = fn(&[Aabb], &BuildConfig) -> anyhow::Result<Tree>;
 /// on the shared meshes at about 70% of the second pass's time), leaves up to --max-leaf.
 pub fn atrbvh_cells(c: &BuildConfig) -> bvh::AtrbvhConfig {
     bvh::AtrbvhConfig {
-        iterations: 1,
         max_leaf_size: c.max_leaf,
         threads: 0,
-        ..Default::default()
+        ..bvh::AtrbvhConfig::one_pass()
     }
 }
 
