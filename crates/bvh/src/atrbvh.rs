@@ -223,6 +223,15 @@ pub(crate) fn optimize_checked(bvh: &mut Bvh2, cfg: &AtrbvhConfig) -> AtrbvhWork
     };
     let mut meta = vec![Meta::default(); bvh.nodes.len()];
     let collapse = cfg.max_leaf_size > 1;
+    let ctx = |gamma: usize, costs: bool| Ctx {
+        treelet: cfg.treelet_size,
+        gamma,
+        sah: cfg.sah,
+        max_leaf: cfg.max_leaf_size,
+        costs,
+        counts: &counts,
+    };
+    let n = bvh.nodes.len();
     for it in 0..cfg.iterations {
         if it > 0 {
             // Restructured treelets reuse node indices out of order; a pass needs preorder.
@@ -231,30 +240,15 @@ pub(crate) fn optimize_checked(bvh: &mut Bvh2, cfg: &AtrbvhConfig) -> AtrbvhWork
                 gamma = gamma.saturating_mul(2);
             }
         }
-        let ctx = Ctx {
-            treelet: cfg.treelet_size,
-            gamma,
-            sah: cfg.sah,
-            max_leaf: cfg.max_leaf_size,
-            costs: collapse && it + 1 == cfg.iterations,
-            counts: &counts,
-        };
-        let n = bvh.nodes.len();
-        pass(&ctx, &mut bvh.nodes, &mut meta, 0, n, 0);
+        let costs = collapse && it + 1 == cfg.iterations;
+        pass(&ctx(gamma, costs), &mut bvh.nodes, &mut meta, 0, n, 0);
         work.passes += 1;
     }
     if cfg.iterations == 0 {
-        // No pass ran: the write-out still needs every subtree's counts (and costs).
-        let ctx = Ctx {
-            treelet: cfg.treelet_size,
-            gamma: usize::MAX,
-            sah: cfg.sah,
-            max_leaf: cfg.max_leaf_size,
-            costs: collapse,
-            counts: &counts,
-        };
+        // No pass ran: the write-out still needs every subtree's counts (and costs); a
+        // sweep that roots no treelet gives them.
         let mut scratch = Scratch::new();
-        let n = bvh.nodes.len();
+        let ctx = ctx(usize::MAX, collapse);
         sweep(&ctx, &mut bvh.nodes, &mut meta, 0, 0, n, &mut scratch);
     }
     for (k, c) in counts.by_leaves.iter().enumerate() {
@@ -396,19 +390,12 @@ fn gather(t: &Bvh2, c: u32, to: &mut [u32]) {
 
 /// The SAH of inner node `c` (global index; `nodes` and `meta` start at index `base`) whose
 /// box has area `a`, in its best form: `(cost, output nodes)`, 0 nodes when it becomes a
-/// leaf. A node collapses when it has at most `max_leaf` primitives and a leaf (`A (C_l +
+/// leaf. A node collapses when it has at most `ctx.max_leaf` primitives and a leaf (`A (C_l +
 /// N C_t)`) is cheaper than the node over its children's best forms (`C_i A + children`).
 /// Its primitive count and its children's costs must be final.
 #[inline]
-fn best(
-    sah: &SahParams,
-    max_leaf: u32,
-    nodes: &[Node],
-    meta: &[Meta],
-    base: u32,
-    c: u32,
-    a: f32,
-) -> (f64, u32) {
+fn best(ctx: &Ctx, nodes: &[Node], meta: &[Meta], base: u32, c: u32, a: f32) -> (f64, u32) {
+    let sah = &ctx.sah;
     let (ci, cl, ct) = (sah.c_inner as f64, sah.c_leaf as f64, sah.c_tri as f64);
     let n = &nodes[(c - base) as usize];
     let prims = meta[(c - base) as usize].prims;
@@ -425,7 +412,7 @@ fn best(
         }
     }
     let leaf = a as f64 * (cl + ct * prims as f64);
-    if prims <= max_leaf && leaf < sub {
+    if prims <= ctx.max_leaf && leaf < sub {
         (leaf, 0)
     } else {
         (sub, out)
@@ -538,7 +525,7 @@ fn visit(
         }
         if ctx.costs {
             let a = area(&nodes[qi].child_aabb(s));
-            let (cost, out) = best(&ctx.sah, ctx.max_leaf, nodes, meta, base, c.index, a);
+            let (cost, out) = best(ctx, nodes, meta, base, c.index, a);
             let m = &mut meta[(c.index - base) as usize];
             m.cost = cost;
             m.out = out;
@@ -700,7 +687,7 @@ fn restructure(
         let m = &mut meta[at(id)];
         (m.leaves, m.prims) = (l0 + l1, p0 + p1);
         if ctx.costs && step < nl - 2 {
-            let (cost, out) = best(&ctx.sah, ctx.max_leaf, nodes, meta, base, id, a);
+            let (cost, out) = best(ctx, nodes, meta, base, id, a);
             let m = &mut meta[at(id)];
             m.cost = cost;
             m.out = out;

@@ -118,8 +118,8 @@ fn fingerprints() -> Vec<(String, u64)> {
         // multi-pass ATRBVH with γ doubling and a larger treelet (re-layout between passes).
         let t = HlbvhAtrbvhBuilder {
             cells: Some(AtrbvhConfig {
-                iterations: 1,
-                ..on_threads!(AtrbvhConfig, th)
+                threads: th,
+                ..AtrbvhConfig::one_pass()
             }),
             ..on_threads!(HlbvhAtrbvhBuilder, th)
         }

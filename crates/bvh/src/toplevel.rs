@@ -450,10 +450,7 @@ mod tests {
     /// toplevel-only build, the same for any thread count.
     #[test]
     fn hlbvh_atrbvh_cells_restructures_the_whole_tree() {
-        let cells = AtrbvhConfig {
-            iterations: 1,
-            ..Default::default()
-        };
+        let cells = AtrbvhConfig::one_pass();
         for spec in [
             "proc:forest?n=30000",
             "proc:cloth?n=20000",
