@@ -361,17 +361,16 @@ pub type BuildIntoFn = fn(&[Aabb], &BuildConfig, &mut Frame) -> anyhow::Result<T
 /// The builders that can build into the buffers of their previous build, with the same
 /// trees as their [`BUILDERS`] entry.
 pub static REUSING: &[(&str, BuildIntoFn)] = &[
-    ("hlbvh", |p, c, f| {
-        let mut t = f.tree.take().unwrap_or_else(bvh::Bvh2::empty);
-        hlbvh(c).build_into(p, &mut f.hlbvh, &mut t)?;
-        Ok(Tree::Bvh2(t))
-    }),
-    ("hlbvh-large", |p, c, f| {
-        let mut t = f.tree.take().unwrap_or_else(bvh::Bvh2::empty);
-        hlbvh_large(c).build_into(p, &mut f.hlbvh, &mut t)?;
-        Ok(Tree::Bvh2(t))
-    }),
+    ("hlbvh", |p, c, f| hlbvh_into(hlbvh(c), p, f)),
+    ("hlbvh-large", |p, c, f| hlbvh_into(hlbvh_large(c), p, f)),
 ];
+
+/// An HLBVH build into the frame's previous tree and arena.
+fn hlbvh_into(b: bvh::HlbvhBuilder, p: &[Aabb], f: &mut Frame) -> anyhow::Result<Tree> {
+    let mut t = f.tree.take().unwrap_or_else(bvh::Bvh2::empty);
+    b.build_into(p, &mut f.hlbvh, &mut t)?;
+    Ok(Tree::Bvh2(t))
+}
 
 /// The [`REUSING`] entry point of builder `name`, if it has one.
 pub fn reusing_builder(name: &str) -> Option<BuildIntoFn> {
