@@ -26,7 +26,8 @@ use peers::{EmbreeBuilder, EmbreeDevice};
 /// (inner part, leaf part) of the normalized SAH, and leaf counts by size 1, 2, 3-4, 5-8, 9+.
 fn parts(t: &Bvh2) -> (f64, f64, [usize; 5]) {
     let ra = t.bounds.half_area() as f64;
-    let mut inner = 1.2 * t.bounds.half_area() as f64 / ra;
+    let ci = SahParams::THESIS.c_inner as f64;
+    let mut inner = ci * t.bounds.half_area() as f64 / ra;
     let mut leaf = 0.0;
     let mut hist = [0usize; 5];
     for n in &t.nodes {
@@ -44,7 +45,7 @@ fn parts(t: &Bvh2) -> (f64, f64, [usize; 5]) {
                 };
                 hist[k] += 1;
             } else if c.is_inner() {
-                inner += 1.2 * a;
+                inner += ci * a;
             }
         }
     }
@@ -65,7 +66,8 @@ fn by_depth(t: &Bvh2) -> (Vec<f64>, Vec<f64>) {
     let ra = t.bounds.half_area() as f64;
     let mut inner = vec![0.0; 25];
     let mut leaf = vec![0.0; 25];
-    inner[0] = 1.2;
+    let ci = SahParams::THESIS.c_inner as f64;
+    inner[0] = ci;
     let mut st = vec![(0usize, 0usize)];
     while let Some((i, d)) = st.pop() {
         for s in 0..2 {
@@ -75,7 +77,7 @@ fn by_depth(t: &Bvh2) -> (Vec<f64>, Vec<f64>) {
             if c.is_leaf() {
                 leaf[k] += a * c.count as f64;
             } else if c.is_inner() {
-                inner[k] += 1.2 * a;
+                inner[k] += ci * a;
                 st.push((c.index as usize, d + 1));
             }
         }
@@ -139,15 +141,6 @@ struct Mapping {
     big: f32,
 }
 
-fn spread(mut x: u32) -> u32 {
-    x &= 0x3ff;
-    x = (x | (x << 16)) & 0x0300_00ff;
-    x = (x | (x << 8)) & 0x0300_f00f;
-    x = (x | (x << 4)) & 0x030c_30c3;
-    x = (x | (x << 2)) & 0x0924_9249;
-    x
-}
-
 /// (code, index) of the primitives `ids` over their own centroid bounds.
 fn codes(prims: &[Aabb], ids: &[u32], m: Mapping) -> Vec<(u32, u32)> {
     let c = |i: u32| {
@@ -180,8 +173,7 @@ fn codes(prims: &[Aabb], ids: &[u32], m: Mapping) -> Vec<(u32, u32)> {
                 };
                 q[k] = (r.max(0.0) as u32).min(1023);
             }
-            let mut code =
-                (spread(q[m.order[0]]) << 2) | (spread(q[m.order[1]]) << 1) | spread(q[m.order[2]]);
+            let mut code = geom::morton30([q[m.order[0]], q[m.order[1]], q[m.order[2]]]);
             if m.big > 0.0 {
                 let b = &prims[i as usize];
                 let e = b.max - b.min;
