@@ -1,14 +1,16 @@
 //! Traces a scene's diffuse bounce rays through the MBVH4 and BVH2 kernels many times, for
 //! profiling one kernel in isolation (e.g. under `valgrind --tool=callgrind
 //! --toggle-collect='*Mbvh4Accel*run*'`). `cargo run --release -p trace --example
-//! kernel_cost -- SCENE [REPEATS [EYE TARGET FOV [KERNEL]]]` (EYE and TARGET as `x,y,z`;
-//! KERNEL one of `mbvh4`, `mbvh8`, `bvh2`, or `mbvh8xN` for the 8-wide kernel's batch
-//! path interleaving N rays, to trace only that one; a name with `-batch` appended traces
-//! runs of 1,024 rays through `closest_hits` instead of one `closest_hit` call a ray; the
-//! `mbvh8xN` and `-batch` rows run only when named). A seventh argument `primary` traces
+//! kernel_cost -- SCENE [REPEATS [EYE TARGET FOV [KERNEL]]]` (EYE and TARGET as `x,y,z`,
+//! or `- - -` for the scene's own camera; KERNEL one of `mbvh4`, `mbvh8`, `bvh2`, or
+//! `mbvh8xN` for the 8-wide kernel's batch path interleaving N rays, to trace only that
+//! one; a name with `-batch` appended traces runs of 1,024 rays through `closest_hits`
+//! instead of one `closest_hit` call a ray; the `mbvh8xN` and `-batch` rows run only when
+//! named). A seventh argument `primary` traces
 //! the render's primary rays instead of its diffuse bounce rays. The 8-wide tree is
 //! collapsed from binned SAH, or from spatial splits with `KC_TREE=sbvh` (see below);
-//! `KC_HOT=N` traces each ray N times in a row.
+//! `KC_HOT=N` traces each ray N times in a row; `KC_ROUNDS=N` times the kernel N times
+//! over and prints the fastest round too.
 
 use trace::{RayKind, RenderSettings, Shading, Traverse};
 
@@ -55,8 +57,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             _ => Err(format!("{a}: expected x,y,z").into()),
         }
     };
+    // `-` for EYE keeps the scene's own camera (so that KERNEL can still be named).
     if let [eye, target, fov, ..] = &args[2.min(args.len())..] {
-        (cam.eye, cam.target, cam.vfov_deg) = (v3(eye)?, v3(target)?, fov.parse()?);
+        if eye != "-" {
+            (cam.eye, cam.target, cam.vfov_deg) = (v3(eye)?, v3(target)?, fov.parse()?);
+        }
     }
     let only = args.get(5);
     // The render's primary rays instead of its bounce rays.
@@ -124,28 +129,37 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         if only.is_some_and(|o| o.trim_end_matches("-batch") != name) {
             continue;
         }
-        let mut st = trace::RayStats::default();
-        let start = std::time::Instant::now();
-        let cpu_start = trace::thread_cpu_seconds();
-        let mut hits = 0u64;
-        let mut out = vec![None; 1024];
-        for _ in 0..repeats {
-            if batch || name.starts_with("mbvh8x") {
-                for chunk in rays.chunks(1024) {
-                    let out = &mut out[..chunk.len()];
-                    t.closest_hits(chunk, &mut stack, out, &mut st);
-                    hits += out.iter().filter(|h| h.is_some()).count() as u64;
-                }
-                continue;
-            }
-            for r in &rays {
-                hits += t.closest_hit(r, &mut stack, &mut st).is_some() as u64;
-            }
+        // `KC_ROUNDS=N`: the timed loop N times over (each round's counters alike), each
+        // round printed, then the fastest; on a host whose speed drifts between runs the
+        // fastest of several rounds compares binaries better than one round.
+        let rounds = env_num::<usize>("KC_ROUNDS")?.unwrap_or(1);
+        if rounds == 0 {
+            return Err("KC_ROUNDS: expected at least 1".into());
         }
-        let secs = start.elapsed().as_secs_f64();
-        let cpu = trace::thread_cpu_seconds() - cpu_start;
-        let per_ray = |s: f64| s * 1e9 / (rays.len() * repeats) as f64;
-        println!(
+        let mut fastest = f64::INFINITY;
+        for round in 0..rounds {
+            let mut st = trace::RayStats::default();
+            let start = std::time::Instant::now();
+            let cpu_start = trace::thread_cpu_seconds();
+            let mut hits = 0u64;
+            let mut out = vec![None; 1024];
+            for _ in 0..repeats {
+                if batch || name.starts_with("mbvh8x") {
+                    for chunk in rays.chunks(1024) {
+                        let out = &mut out[..chunk.len()];
+                        t.closest_hits(chunk, &mut stack, out, &mut st);
+                        hits += out.iter().filter(|h| h.is_some()).count() as u64;
+                    }
+                    continue;
+                }
+                for r in &rays {
+                    hits += t.closest_hit(r, &mut stack, &mut st).is_some() as u64;
+                }
+            }
+            let secs = start.elapsed().as_secs_f64();
+            let cpu = trace::thread_cpu_seconds() - cpu_start;
+            let per_ray = |s: f64| s * 1e9 / (rays.len() * repeats) as f64;
+            println!(
             "{name}: {} rays x {repeats}: {:.1} ns/ray (CPU {:.1}), nodes/ray {:.2}, leaves/ray {:.2}, tris/ray {:.2}, hits {hits}",
             rays.len(),
             per_ray(secs),
@@ -154,6 +168,11 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             st.per_ray(st.leaf_visits),
             st.per_ray(st.tri_tests)
         );
+            fastest = fastest.min(per_ray(cpu));
+            if round + 1 == rounds && rounds > 1 {
+                println!("{name}: fastest of {rounds} rounds: CPU {fastest:.1} ns/ray");
+            }
+        }
     }
     Ok(())
 }
