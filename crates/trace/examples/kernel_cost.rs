@@ -6,11 +6,11 @@
 //! `mbvh8xN` for the 8-wide kernel's batch path interleaving N rays, to trace only that
 //! one; a name with `-batch` appended traces runs of 1,024 rays through `closest_hits`
 //! instead of one `closest_hit` call a ray; the `mbvh8xN` and `-batch` rows run only when
-//! named). A seventh argument `primary` traces
-//! the render's primary rays instead of its diffuse bounce rays. The 8-wide tree is
-//! collapsed from binned SAH, or from spatial splits with `KC_TREE=sbvh` (see below);
-//! `KC_HOT=N` traces each ray N times in a row; `KC_ROUNDS=N` times the kernel N times
-//! over and prints the fastest round too.
+//! named). A seventh argument `primary` traces the render's primary rays instead of its
+//! diffuse bounce rays. The 8-wide tree is collapsed from binned SAH, or from spatial
+//! splits with `KC_TREE=sbvh` (see below); `KC_HOT=N` traces each ray N times in a row;
+//! `KC_ROUNDS=N` times each kernel N times over (default 1), and a last line gives the
+//! fastest round's CPU time.
 
 use trace::{RayKind, RenderSettings, Shading, Traverse};
 
@@ -125,24 +125,25 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
         kernels.push((format!("mbvh8x{n}"), trace::Accel::Mbvh8(b)));
     }
     let batch = only.is_some_and(|o| o.ends_with("-batch"));
+    // `KC_ROUNDS=N`: the timed loop N times over (each round's counters alike), each
+    // round printed, then the fastest; on a host whose speed drifts between runs the
+    // fastest of several rounds compares binaries better than one round.
+    let rounds = env_num::<usize>("KC_ROUNDS")?.unwrap_or(1);
+    if rounds == 0 {
+        return Err("KC_ROUNDS: expected at least 1".into());
+    }
+    let per_ray = |s: f64| s * 1e9 / (rays.len() * repeats) as f64;
+    let mut out = vec![None; 1024];
     for (name, t) in &kernels {
         if only.is_some_and(|o| o.trim_end_matches("-batch") != name) {
             continue;
         }
-        // `KC_ROUNDS=N`: the timed loop N times over (each round's counters alike), each
-        // round printed, then the fastest; on a host whose speed drifts between runs the
-        // fastest of several rounds compares binaries better than one round.
-        let rounds = env_num::<usize>("KC_ROUNDS")?.unwrap_or(1);
-        if rounds == 0 {
-            return Err("KC_ROUNDS: expected at least 1".into());
-        }
         let mut fastest = f64::INFINITY;
-        for round in 0..rounds {
+        for _ in 0..rounds {
             let mut st = trace::RayStats::default();
             let start = std::time::Instant::now();
             let cpu_start = trace::thread_cpu_seconds();
             let mut hits = 0u64;
-            let mut out = vec![None; 1024];
             for _ in 0..repeats {
                 if batch || name.starts_with("mbvh8x") {
                     for chunk in rays.chunks(1024) {
@@ -158,21 +159,19 @@ fn main() -> Result<(), Box<dyn std::error::Error>> {
             }
             let secs = start.elapsed().as_secs_f64();
             let cpu = trace::thread_cpu_seconds() - cpu_start;
-            let per_ray = |s: f64| s * 1e9 / (rays.len() * repeats) as f64;
             println!(
-            "{name}: {} rays x {repeats}: {:.1} ns/ray (CPU {:.1}), nodes/ray {:.2}, leaves/ray {:.2}, tris/ray {:.2}, hits {hits}",
-            rays.len(),
-            per_ray(secs),
-            per_ray(cpu),
-            st.per_ray(st.node_visits),
-            st.per_ray(st.leaf_visits),
-            st.per_ray(st.tri_tests)
-        );
+                "{name}: {} rays x {repeats}: {:.1} ns/ray (CPU {:.1}), nodes/ray {:.2}, \
+                 leaves/ray {:.2}, tris/ray {:.2}, hits {hits}",
+                rays.len(),
+                per_ray(secs),
+                per_ray(cpu),
+                st.per_ray(st.node_visits),
+                st.per_ray(st.leaf_visits),
+                st.per_ray(st.tri_tests)
+            );
             fastest = fastest.min(per_ray(cpu));
-            if round + 1 == rounds && rounds > 1 {
-                println!("{name}: fastest of {rounds} rounds: CPU {fastest:.1} ns/ray");
-            }
         }
+        println!("{name}: fastest of {rounds} rounds: CPU {fastest:.1} ns/ray");
     }
     Ok(())
 }
